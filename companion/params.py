@@ -1,0 +1,339 @@
+"""The one parameter registry, and everything derived from it.
+
+Every tunable value of the companion is declared once in :data:`REGISTRY` (name of at most
+16 characters for MAVLink, type, default, range, unit, description). From it come:
+
+* the frozen dataclasses the code reads (:class:`NavConfig`, :class:`CompanionConfig`),
+* ArduPilot-style ``.parm`` files (``NAME VALUE`` per line, ``#`` comments),
+* the MAVLink parameter server (``companion.io.param_server``).
+
+Defaults are the paper's Table 4 where the paper gives a value. Loading rejects unknown
+names and out-of-range values with a :class:`ParamError` that names the parameter, the
+file and line, and the allowed range.
+
+>>> cfg = NavConfig.from_values(default_values())
+>>> cfg.horizon, cfg.speed_mps
+(2, 13.88888888888889)
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Iterable, Mapping
+
+__all__ = [
+    "ParamSpec",
+    "ParamError",
+    "REGISTRY",
+    "SPEC_BY_NAME",
+    "default_values",
+    "validate",
+    "validate_all",
+    "read_parm_file",
+    "write_parm_file",
+    "NavConfig",
+    "CompanionConfig",
+    "Controller",
+]
+
+MAX_NAME_LEN = 16  # MAVLink PARAM_VALUE.param_id is char[16]
+
+
+class ParamError(ValueError):
+    """A parameter name or value that the registry refuses."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Declaration of one parameter: ``value`` must satisfy ``minimum <= value <= maximum``."""
+
+    name: str
+    kind: type  # int or float
+    default: float
+    minimum: float
+    maximum: float
+    unit: str
+    doc: str
+
+    def coerce(self, value: float) -> float | int:
+        """The value as this parameter's type, or ParamError naming the parameter and range."""
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise ParamError(f"{self.name}: {value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise ParamError(f"{self.name}: {value!r} is not finite")
+        if self.kind is int:
+            if number != round(number):
+                raise ParamError(f"{self.name}: {value!r} is not an integer")
+            number = int(round(number))
+        if not self.minimum <= number <= self.maximum:
+            raise ParamError(
+                f"{self.name}: {value!r} is out of range [{self.minimum:g}, {self.maximum:g}] {self.unit}".rstrip()
+            )
+        return number
+
+
+def _p(name: str, kind: type, default: float, minimum: float, maximum: float, unit: str, doc: str) -> ParamSpec:
+    return ParamSpec(name, kind, default, minimum, maximum, unit, doc)
+
+
+REGISTRY: tuple[ParamSpec, ...] = (
+    # --- mission (Table 4, "Mission Settings") ---
+    _p("NAV_START_LAT", float, 33.0, -89.0, 89.0, "deg", "start latitude (lambda_0, phi_0), WGS84"),
+    _p("NAV_START_LON", float, 152.0, -180.0, 180.0, "deg", "start longitude"),
+    _p("NAV_DEST_LAT", float, 28.0, -89.0, 89.0, "deg", "destination latitude (lambda_d, phi_d)"),
+    _p("NAV_DEST_LON", float, 158.0, -180.0, 180.0, "deg", "destination longitude"),
+    _p("NAV_ALT_M", float, 0.0, -500.0, 20000.0, "m", "altitude above the ellipsoid used for the field model"),
+    _p("NAV_YEAR", float, 2024.36, 2020.0, 2029.99, "year", "decimal year for the field model (paper: 2024.36)"),
+    _p("NAV_WMM", int, 0, 0, 2, "", "field model: 0 by date (WMM2020 before 2024.87), 1 WMM2020, 2 WMM2025"),
+    _p("NAV_SPEED_KMH", float, 50.0, 1.0, 300.0, "km/h", "cruise speed v (Table 4)"),
+    _p("NAV_PERIOD_S", float, 360.0, 1.0, 7200.0, "s", "control period T (Table 4 gives 10 without unit; see README)"),
+    _p("NAV_ARRIVE_M", float, 500.0, 10.0, 100000.0, "m", "arrival threshold epsilon on the estimated distance"),
+    _p("NAV_MAX_STEPS", int, 1000, 3, 100000, "", "give up after this many control steps"),
+    _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
+    _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
+    _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
+    _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
+    # --- gradient estimation (eq. 5-12) ---
+    _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
+    _p("GRAD_MIN_MOVE_M", float, 200.0, 1.0, 100000.0, "m", "skip a gradient update when the step moved less than this"),
+    # --- MPC (eq. 13-38) ---
+    _p("MPC_HORIZON", int, 2, 1, 20, "", "prediction horizon N"),
+    _p("MPC_Q_D", float, 1.0, 0.0, 1e9, "", "state weight Q on D (Table 4: Q = I)"),
+    _p("MPC_Q_I", float, 1.0, 0.0, 1e9, "", "state weight Q on I"),
+    _p("MPC_F_D", float, 1.0, 0.0, 1e9, "", "terminal weight F on D (Table 4: F = I)"),
+    _p("MPC_F_I", float, 1.0, 0.0, 1e9, "", "terminal weight F on I"),
+    _p("MPC_R_X", float, 10.0, 1e-9, 1e9, "", "input weight R on v_x (Table 4: R = 10 I)"),
+    _p("MPC_R_Y", float, 10.0, 1e-9, 1e9, "", "input weight R on v_y"),
+    _p("MPC_UNITS", int, 0, 0, 1, "", "units the weights apply to: 0 scaled (arcsec, U/v), 1 paper (deg, km/h)"),
+    _p("MPC_U_BOUNDS", int, 0, 0, 1, "", "0 symmetric |v_x|,|v_y| <= v, 1 paper U in [0, 40]^2 km/h, signs by quadrant"),
+    _p("MPC_U_MAX_KMH", float, 40.0, 1.0, 300.0, "km/h", "per-axis input bound U_max for MPC_U_BOUNDS = 1 (Table 4)"),
+    _p("MPC_S_MIN_D", float, -10.0, -180.0, 180.0, "deg", "state bound S_min on D (Table 4)"),
+    _p("MPC_S_MIN_I", float, 10.0, -90.0, 90.0, "deg", "state bound S_min on I (Table 4)"),
+    _p("MPC_S_MAX_D", float, 100.0, -180.0, 180.0, "deg", "state bound S_max on D (Table 4)"),
+    _p("MPC_S_MAX_I", float, 100.0, -90.0, 100.0, "deg", "state bound S_max on I (Table 4)"),
+    _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
+    # --- fusion (eq. 46-58, Table 3) ---
+    _p("FUS_SIGMA", float, 0.02, 0.0, 10.0, "deg/km", "fuse with the INS when min |G(k)| < sigma (Algorithm 1)"),
+    _p("FUS_QC_KM2", float, 0.05, 0.0, 1e6, "km^2", "process noise Q_c on the position error (Table 3)"),
+    _p("FUS_RC_KM2", float, 2.0, 1e-9, 1e6, "km^2", "measurement noise R_c of INS minus geomagnetic fix (Table 3)"),
+    _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
+    _p("FUS_FEEDBACK", int, 0, 0, 1, "", "0 INS corrected by the estimated error, 1 eq. 58 as printed"),
+    # --- companion process (link, outputs, failsafes) ---
+    _p("COMP_SP_RATE_HZ", float, 5.0, 2.5, 50.0, "Hz", "setpoint stream rate (PX4 offboard needs > 2 Hz)"),
+    _p("COMP_ARM_ENABLE", int, 0, 0, 1, "", "1 lets the companion switch to GUIDED/OFFBOARD and arm"),
+    _p("COMP_POS_PUB", int, 0, 0, 2, "", "publish the fused position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off"),
+    _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
+    _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
+    _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
+    _p("COMP_SPIKE_NT", float, 5000.0, 10.0, 1e6, "nT", "reject a magnetometer sample this far from the running median"),
+    _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart"),
+    _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (ArduPilot COMPASS_OFS_X)"),
+    _p("MAG_OFS_Y", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body y"),
+    _p("MAG_OFS_Z", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body z"),
+    _p("MAG_SCALE_X", float, 1.0, 0.2, 5.0, "", "scale applied after the offset, body x"),
+    _p("MAG_SCALE_Y", float, 1.0, 0.2, 5.0, "", "scale, body y"),
+    _p("MAG_SCALE_Z", float, 1.0, 0.2, 5.0, "", "scale, body z"),
+)
+
+SPEC_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in REGISTRY}
+
+for _spec in REGISTRY:  # a registry error is a programming error: fail at import, loudly
+    if len(_spec.name) > MAX_NAME_LEN or not _spec.minimum <= _spec.default <= _spec.maximum:
+        raise RuntimeError(f"bad registry entry {_spec}")
+
+
+def default_values() -> dict[str, float | int]:
+    """Every parameter at its default."""
+    return {spec.name: spec.kind(spec.default) for spec in REGISTRY}
+
+
+def validate(name: str, value: float) -> float | int:
+    """The value coerced to the parameter's type; ParamError for unknown names or bad values."""
+    spec = SPEC_BY_NAME.get(name.upper())
+    if spec is None:
+        raise ParamError(f"unknown parameter {name!r}")
+    return spec.coerce(value)
+
+
+def validate_all(values: Mapping[str, float]) -> dict[str, float | int]:
+    """Defaults overlaid with validated values."""
+    merged = default_values()
+    for name, value in values.items():
+        merged[name.upper()] = validate(name, value)
+    return merged
+
+
+def read_parm_file(path: str | os.PathLike) -> dict[str, float | int]:
+    """Parameters of an ArduPilot ``.parm`` file (``NAME VALUE`` or ``NAME,VALUE``; ``#`` comments).
+
+    Only the names in the file are returned (overlay them with :func:`validate_all`).
+    Raises ParamError naming the file and line of the first bad entry.
+    """
+    values: dict[str, float | int] = {}
+    text = Path(path).read_text(encoding="utf-8", errors="replace")
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.replace(",", " ").replace("\t", " ").split()
+        if len(parts) != 2:
+            raise ParamError(f"{path}:{number}: expected 'NAME VALUE', got {raw.strip()!r}")
+        try:
+            values[parts[0].upper()] = validate(parts[0], parts[1])
+        except ParamError as err:
+            raise ParamError(f"{path}:{number}: {err}") from None
+    return values
+
+
+def format_value(value: float | int) -> str:
+    """Shortest text that reads back to the same float32-representable value."""
+    return str(value) if isinstance(value, int) else repr(float(value))
+
+
+def write_parm_file(path: str | os.PathLike, values: Mapping[str, float | int], header: str = "") -> None:
+    """Write ``values`` atomically: temporary file in the same folder, fsync, rename.
+
+    A crash at any moment leaves either the old file or the new one, never a half-written one.
+    """
+    target = Path(path)
+    lines = [f"# {line}" for line in header.splitlines()] if header else []
+    lines += [f"{name} {format_value(values[name])}" for name in sorted(values)]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write("\n".join(lines) + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)  # make the rename itself durable
+    finally:
+        os.close(dir_fd)
+
+
+# --- dataclasses derived from the registry -------------------------------------------------
+
+
+class Controller:
+    """Values of NAV_CONTROLLER."""
+
+    LTI = 0
+    LTV = 1
+    FC = 2
+    NAMES = {0: "LTI-MPC", 1: "LTV-MPC", 2: "Fc-MPC"}
+
+
+def _from(name: str, scale: float = 1.0):
+    """A dataclass field defaulting to a registry parameter (times ``scale`` for unit changes)."""
+    spec = SPEC_BY_NAME[name]
+    value = spec.kind(spec.default) if scale == 1.0 else spec.default * scale
+    return field(default=value, metadata={"param": name, "scale": scale})
+
+
+class _FromRegistry:
+    @classmethod
+    def from_values(cls, values: Mapping[str, float]):
+        """Build from parameter values (unknown names ignored here; validate first)."""
+        kwargs = {}
+        for f in fields(cls):  # type: ignore[arg-type]
+            name = f.metadata.get("param")
+            if name is not None and name in values:
+                kwargs[f.name] = values[name] * f.metadata["scale"] if f.metadata["scale"] != 1.0 else values[name]
+        return cls(**kwargs)
+
+
+_KM2_TO_M2 = 1e6
+_KMH_TO_MPS = 1.0 / 3.6
+
+
+@dataclass(frozen=True)
+class NavConfig(_FromRegistry):
+    """What the pure navigation core needs: mission, gradient, MPC and fusion settings (SI)."""
+
+    start_lat_deg: float = _from("NAV_START_LAT")
+    start_lon_deg: float = _from("NAV_START_LON")
+    dest_lat_deg: float = _from("NAV_DEST_LAT")
+    dest_lon_deg: float = _from("NAV_DEST_LON")
+    alt_m: float = _from("NAV_ALT_M")
+    year: float = _from("NAV_YEAR")
+    wmm: int = _from("NAV_WMM")
+    speed_mps: float = _from("NAV_SPEED_KMH", _KMH_TO_MPS)
+    period_s: float = _from("NAV_PERIOD_S")
+    arrive_m: float = _from("NAV_ARRIVE_M")
+    max_steps: int = _from("NAV_MAX_STEPS")
+    probe1_deg: float = _from("NAV_PROBE1_DEG")
+    probe2_deg: float = _from("NAV_PROBE2_DEG")
+    controller: int = _from("NAV_CONTROLLER")
+    speed_mode: int = _from("NAV_SPEED_MODE")
+    grad_update: int = _from("GRAD_UPDATE")
+    grad_min_move_m: float = _from("GRAD_MIN_MOVE_M")
+    horizon: int = _from("MPC_HORIZON")
+    q_d: float = _from("MPC_Q_D")
+    q_i: float = _from("MPC_Q_I")
+    f_d: float = _from("MPC_F_D")
+    f_i: float = _from("MPC_F_I")
+    r_x: float = _from("MPC_R_X")
+    r_y: float = _from("MPC_R_Y")
+    mpc_units: int = _from("MPC_UNITS")
+    u_bounds: int = _from("MPC_U_BOUNDS")
+    u_max_mps: float = _from("MPC_U_MAX_KMH", _KMH_TO_MPS)
+    s_min_d: float = _from("MPC_S_MIN_D")
+    s_min_i: float = _from("MPC_S_MIN_I")
+    s_max_d: float = _from("MPC_S_MAX_D")
+    s_max_i: float = _from("MPC_S_MAX_I")
+    solver: int = _from("MPC_SOLVER")
+    fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
+    fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)
+    fusion_rc_m2: float = _from("FUS_RC_KM2", _KM2_TO_M2)
+    fusion_p0_m2: float = _from("FUS_P0_KM2", _KM2_TO_M2)
+    fusion_feedback: int = _from("FUS_FEEDBACK")
+
+    def replace(self, **changes) -> "NavConfig":
+        """A copy with some fields changed (for scripts and tests)."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class CompanionConfig(_FromRegistry):
+    """What the companion process needs around the core: rates, timeouts, calibration."""
+
+    setpoint_rate_hz: float = _from("COMP_SP_RATE_HZ")
+    arm_enable: int = _from("COMP_ARM_ENABLE")
+    position_publish: int = _from("COMP_POS_PUB")
+    mag_timeout_s: float = _from("COMP_MAG_TMO_S")
+    att_timeout_s: float = _from("COMP_ATT_TMO_S")
+    heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")
+    spike_nt: float = _from("COMP_SPIKE_NT")
+    diverge_m: float = _from("COMP_DIVERGE_KM", 1e3)
+    mag_offset_mgauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, float]) -> "CompanionConfig":
+        base = super().from_values(values)
+        merged = validate_all({k: v for k, v in values.items() if k in SPEC_BY_NAME})
+        from dataclasses import replace
+
+        return replace(
+            base,
+            mag_offset_mgauss=tuple(float(merged[f"MAG_OFS_{a}"]) for a in "XYZ"),
+            mag_scale=tuple(float(merged[f"MAG_SCALE_{a}"]) for a in "XYZ"),
+        )
+
+
+def names_with_prefix(prefixes: Iterable[str]) -> list[str]:
+    """Registry names starting with any of the prefixes, in registry order."""
+    prefixes = tuple(prefixes)
+    return [spec.name for spec in REGISTRY if spec.name.startswith(prefixes)]
