@@ -1,0 +1,192 @@
+"""Scenarios: a mission, a vehicle, its sensors, its INS, an optional storm and faults, from TOML.
+
+One scenario file drives the in-process Monte Carlo and the MAVLink simulator alike
+(``sitl/scenarios/*.toml``; ``--scenario pacific`` names a bundled one, a path names any
+file). Bad files raise :class:`ScenarioError` naming the file and the key.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from sitl.world.ins import InsErrorConfig
+from sitl.world.vehicle import VehicleLimits
+
+__all__ = ["Scenario", "SensorModel", "StormConfig", "Fault", "ScenarioError", "load_scenario", "SCENARIO_DIR"]
+
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heartbeat_off",
+               "link_loss", "link_delay", "link_duplicate", "storm_onset")
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used."""
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Sensor imperfections (per sample unless said otherwise)."""
+
+    mag_rate_hz: float = 10.0
+    mag_noise_nt: float = 150.0          # white noise per axis, AK8963-like
+    mag_bias_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)  # uncalibrated hard iron
+    mag_lsb_nt: float = 100.0            # RAW_IMU carries milligauss integers
+    imu_rate_hz: float = 10.0
+    accel_noise_mps2: float = 0.02
+    gyro_noise_radps: float = 0.0005
+    attitude_noise_deg: float = 0.05     # white error of the autopilot's ATTITUDE estimate
+    gps_noise_m: float = 2.5
+    gps_denied_after_s: float = 0.0      # GPS has no fix from this mission time on
+
+    def averaged_di_noise_deg(self, period_s: float, horizontal_nt: float, total_nt: float) -> tuple[float, float]:
+        """1-sigma (D, I) error in degrees of the field averaged over one control period.
+
+        The Monte Carlo draws its measurement noise from this, so it sees what the companion
+        sees after averaging the simulator's samples: per-sample noise / sqrt(samples), with
+        the attitude noise projected onto the field (it averages too).
+        """
+        samples = max(1.0, self.mag_rate_hz * period_s)
+        att = math.radians(self.attitude_noise_deg)
+        sigma_d = math.hypot(self.mag_noise_nt / horizontal_nt, att * total_nt / horizontal_nt)
+        sigma_i = math.hypot(self.mag_noise_nt / total_nt, att)
+        return math.degrees(sigma_d / math.sqrt(samples)), math.degrees(sigma_i / math.sqrt(samples))
+
+
+@dataclass(frozen=True)
+class StormConfig:
+    """Which storm window drives the disturbance and how its time maps onto mission time."""
+
+    enabled: bool = False
+    window_utc: tuple[str, str] = ("2024-05-10T18:00:00Z", "2024-05-11T00:00:00Z")
+    time_map: str = "compress"           # "compress": window onto expected duration; "utc": real time
+    scale: float = 1.0
+    stations: tuple[str, ...] = ("kak", "gua", "cta", "cnb", "frd")
+
+    @property
+    def window_posix(self) -> tuple[float, float]:
+        return tuple(_parse_utc(text).timestamp() for text in self.window_utc)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A scheduled fault: ``kind`` from ``at_s`` (mission time) for ``duration_s``."""
+
+    kind: str
+    at_s: float
+    duration_s: float = math.inf
+    value: float = 0.0                   # loss fraction, delay seconds, spike nT ...
+
+    def active(self, time_s: float) -> bool:
+        return self.at_s <= time_s < self.at_s + self.duration_s
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything a run needs besides the navigation parameters."""
+
+    name: str
+    description: str
+    start_lat_deg: float
+    start_lon_deg: float
+    dest_lat_deg: float
+    dest_lon_deg: float
+    alt_m: float = 0.0
+    year: float = 2024.36
+    start_utc: str = "2024-05-10T18:00:00Z"
+    vehicle: VehicleLimits = VehicleLimits()
+    sensors: SensorModel = SensorModel()
+    ins: InsErrorConfig = InsErrorConfig()
+    storm: StormConfig = StormConfig()
+    faults: tuple[Fault, ...] = field(default_factory=tuple)
+    source: str = ""
+
+    @property
+    def start_posix(self) -> float:
+        return _parse_utc(self.start_utc).timestamp()
+
+    def nav_overrides(self) -> dict[str, float]:
+        """Registry values this scenario sets (start, destination, altitude, date)."""
+        return {"NAV_START_LAT": self.start_lat_deg, "NAV_START_LON": self.start_lon_deg,
+                "NAV_DEST_LAT": self.dest_lat_deg, "NAV_DEST_LON": self.dest_lon_deg,
+                "NAV_ALT_M": self.alt_m, "NAV_YEAR": self.year}
+
+
+def _parse_utc(text: str) -> datetime:
+    return datetime.fromisoformat(text.replace("Z", "+00:00")).astimezone(timezone.utc)
+
+
+def _section(data: dict, key: str, path: Path) -> dict:
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{path}: [{key}] must be a table")
+    return value
+
+
+def _build(cls, values: dict, path: Path, section: str, convert: dict | None = None):
+    known = set(cls.__dataclass_fields__)
+    unknown = set(values) - known
+    if unknown:
+        raise ScenarioError(f"{path}: unknown key(s) in [{section}]: {', '.join(sorted(unknown))}")
+    converted = {k: (convert or {}).get(k, lambda v: v)(v) for k, v in values.items()}
+    try:
+        return cls(**converted)
+    except (TypeError, ValueError) as err:
+        raise ScenarioError(f"{path}: [{section}]: {err}") from None
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A bundled scenario by name (``pacific``, ``long_storm``, ``short_storm``) or a TOML path."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SCENARIO_DIR / f"{name_or_path}.toml"
+    if not path.is_file():
+        bundled = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+        raise ScenarioError(f"no scenario {name_or_path!r} (bundled: {bundled})")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as err:
+        raise ScenarioError(f"{path}: {err}") from None
+    mission = _section(data, "mission", path)
+    try:
+        start, dest = mission["start"], mission["destination"]
+        lat0, lon0, lat1, lon1 = float(start[0]), float(start[1]), float(dest[0]), float(dest[1])
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise ScenarioError(f"{path}: [mission] needs start = [lat, lon] and destination = [lat, lon]") from None
+    vehicle = dict(_section(data, "vehicle", path))
+    if "max_speed_kmh" in vehicle:
+        vehicle["max_speed_mps"] = float(vehicle.pop("max_speed_kmh")) / 3.6
+    if "turn_rate_dps" in vehicle:
+        vehicle["turn_rate_radps"] = math.radians(float(vehicle.pop("turn_rate_dps")))
+    ins = dict(_section(data, "ins", path))
+    unit = ins.pop("misalign_unit", "arcmin")
+    if unit not in ("arcmin", "arcsec"):
+        raise ScenarioError(f"{path}: [ins] misalign_unit must be 'arcmin' or 'arcsec'")
+    if "misalign" in ins:
+        ins["misalign_arcmin"] = tuple(float(a) / (60.0 if unit == "arcsec" else 1.0) for a in ins.pop("misalign"))
+    faults = []
+    for index, raw in enumerate(data.get("faults", [])):
+        fault = _build(Fault, raw, path, f"faults #{index + 1}")
+        if fault.kind not in FAULT_KINDS:
+            raise ScenarioError(f"{path}: fault #{index + 1}: kind {fault.kind!r} not one of {', '.join(FAULT_KINDS)}")
+        faults.append(fault)
+    storm = _build(StormConfig, _section(data, "storm", path), path, "storm",
+                   {"window_utc": tuple, "stations": tuple})
+    if storm.time_map not in ("compress", "utc"):
+        raise ScenarioError(f"{path}: [storm] time_map must be 'compress' or 'utc'")
+    return Scenario(
+        name=str(data.get("name", path.stem)),
+        description=str(data.get("description", "")),
+        start_lat_deg=lat0, start_lon_deg=lon0, dest_lat_deg=lat1, dest_lon_deg=lon1,
+        alt_m=float(mission.get("alt_m", 0.0)),
+        year=float(mission.get("year", 2024.36)),
+        start_utc=str(mission.get("start_utc", "2024-05-10T18:00:00Z")),
+        vehicle=_build(VehicleLimits, vehicle, path, "vehicle"),
+        sensors=_build(SensorModel, _section(data, "sensors", path), path, "sensors", {"mag_bias_nt": tuple}),
+        ins=_build(InsErrorConfig, ins, path, "ins", {"misalign_arcmin": tuple}),
+        storm=storm,
+        faults=tuple(faults),
+        source=str(path),
+    )
