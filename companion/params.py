@@ -118,7 +118,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MPC_S_MAX_I", float, 100.0, -90.0, 100.0, "deg", "state bound S_max on I (Table 4)"),
     _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
     # --- fusion (eq. 46-58, Table 3) ---
-    _p("FUS_SIGMA", float, 0.02, 0.0, 10.0, "deg/km", "fuse with the INS when min |G(k)| < sigma (Algorithm 1)"),
+    _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the smallest singular value of G < sigma"),
     _p("FUS_QC_KM2", float, 0.05, 0.0, 1e6, "km^2", "process noise Q_c on the position error (Table 3)"),
     _p("FUS_RC_KM2", float, 2.0, 1e-9, 1e6, "km^2", "measurement noise R_c of INS minus geomagnetic fix (Table 3)"),
     _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),

@@ -1,0 +1,103 @@
+"""INS / geomagnetic fusion: the paper's 15-state error Kalman filter (eq. 46-58, Table 3).
+
+State ``dX`` (eq. 47): attitude errors (3), position errors (3: east, north, up), velocity
+errors (3), constant gyro drift (3), random gyro drift (3). We keep the paper's order for the
+position block at indices 3-4 so ``H_B = [0_2x3 I_2 0_2x10]`` (eq. 51) as printed, and hold
+the position error in **metres east/north** rather than the paper's longitude/latitude
+radians, so Table 3's numbers read as km^2 (``NavConfig.fusion_*_m2``).
+
+Measurement (eq. 50): ``dZ = Z_m - Z_c``, INS position minus geomagnetic position, in local
+metres. Prediction with ``F = I_15`` (eq. 52-53), gain and update (eq. 54-56) by filterpy.
+
+Feedback (selectable, ``FUS_FEEDBACK``):
+
+* ``CORRECTED_INS`` (default): the fused position is the INS position minus the estimated INS
+  error, ``Z_m - dX_pos``. This is the standard error-state feedback: the estimate keeps the
+  INS's smoothness and the geomagnetic fix's absolute reference.
+* ``PAPER`` (eq. 58 as printed): ``Z_c(k+1) = Z_c(k) + dX_pos``. Adding the estimated INS
+  error to the geomagnetic fix moves it *towards* the INS solution by the INS's own error;
+  kept for comparison.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+__all__ = ["FusionFeedback", "FusionSettings", "FusionResult", "InsGeomagFusion", "H_B"]
+
+H_B = np.hstack([np.zeros((2, 3)), np.eye(2), np.zeros((2, 10))])  # eq. 51
+
+
+class FusionFeedback:
+    """Values of FUS_FEEDBACK."""
+
+    CORRECTED_INS = 0
+    PAPER = 1
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Table 3 in SI: position-error variances in m^2."""
+
+    qc_m2: float = 0.05e6
+    rc_m2: float = 2.0e6
+    p0_m2: float = 1.0e6
+    feedback: int = FusionFeedback.CORRECTED_INS
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """Fused position offset (east, north metres from the caller's reference) and its 1-sigma."""
+
+    east_m: float
+    north_m: float
+    sigma_m: float
+    innovation_m: tuple[float, float]
+
+
+class InsGeomagFusion:
+    """The error-state filter. Positions are local (east, north) metres in a frame the caller
+    keeps fixed between calls (the mission uses its start point)."""
+
+    def __init__(self, settings: FusionSettings) -> None:
+        self.settings = settings
+        kf = KalmanFilter(dim_x=15, dim_z=2)
+        kf.F = np.eye(15)                                    # Table 3: F = I_15
+        kf.H = H_B.copy()
+        kf.Q = np.diag([0, 0, 0, settings.qc_m2, settings.qc_m2] + [0] * 10).astype(float)
+        kf.R = np.eye(2) * settings.rc_m2
+        kf.P = np.diag([0, 0, 0, settings.p0_m2, settings.p0_m2] + [0] * 10).astype(float)
+        kf.x = np.zeros((15, 1))
+        self.kf = kf
+
+    @property
+    def error_estimate_m(self) -> np.ndarray:
+        """Estimated INS position error (east, north) in metres."""
+        return self.kf.x[3:5, 0].copy()
+
+    @property
+    def sigma_m(self) -> float:
+        """1-sigma horizontal position uncertainty (RMS of the two axes) in metres."""
+        return float(np.sqrt(0.5 * (self.kf.P[3, 3] + self.kf.P[4, 4])))
+
+    def step(self, ins_en_m: np.ndarray, geomag_en_m: np.ndarray) -> FusionResult:
+        """One predict + update with ``dZ = Z_m - Z_c`` (eq. 50, 52-56); returns the fused position."""
+        ins = np.asarray(ins_en_m, dtype=float)
+        fix = np.asarray(geomag_en_m, dtype=float)
+        dz = ins - fix
+        self.kf.predict()
+        self.kf.update(dz.reshape(2, 1))
+        correction = self.error_estimate_m
+        if self.settings.feedback == FusionFeedback.PAPER:
+            fused = fix + correction                         # eq. 58 as printed
+        else:
+            fused = ins - correction
+        return FusionResult(float(fused[0]), float(fused[1]), self.sigma_m, (float(dz[0]), float(dz[1])))
+
+    def predict_only(self, ins_en_m: np.ndarray) -> FusionResult:
+        """No geomagnetic fix this step: propagate, and correct the INS with the last estimate."""
+        self.kf.predict()
+        fused = np.asarray(ins_en_m, dtype=float) - self.error_estimate_m
+        return FusionResult(float(fused[0]), float(fused[1]), self.sigma_m, (0.0, 0.0))

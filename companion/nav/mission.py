@@ -1,0 +1,316 @@
+"""Algorithm 1 as a pure step function: one measurement in, one command out, per period T.
+
+Call :meth:`Mission.step` once per control period with the magnetic state measured at the
+end of the move just flown (D and I averaged over the period) and, when available, the INS
+position. It returns the heading and speed to fly for the next period, until ``done``.
+No sockets, threads, files or clocks: time comes in with the measurement, so the companion,
+the simulator and the Monte Carlo all run this same code at any speed.
+
+Sequence (Algorithm 1): k = 0 and 1 fly the probing headings theta_1, theta_2 (Table 4); at
+k = 2 the gradient G(2) comes from the two probes (eq. 5-9); from then on G is updated
+(eq. 10 or its sound replacement, :mod:`companion.nav.gradient`), the MPC gives u*(k)
+(eq. 36) whose direction is the heading (eq. 3-4), and the mission ends when the estimated
+distance to the destination is below epsilon.
+
+Controllers (``NAV_CONTROLLER``):
+
+* LTI-MPC: B = G(2) T for the whole mission.
+* LTV-MPC: B(k) = G(k) T, updated every step.
+* Fc-MPC: LTV-MPC plus flexible correction (eq. 39-45). The geomagnetic position fix
+  (lambda_c, phi_c) of eq. 49, fused with the INS where the gradient is weak (eq. 46-58),
+  tells where the destination lies; the part of ``S_d - S`` that the linear model cannot
+  explain by that displacement is the interference xi(k), and the uniform compensation
+  ``B U_a = -xi`` (eq. 43) is applied by shifting the MPC's target (same optimum, see
+  :func:`compensation`).
+
+Units of the QP (``MPC_UNITS``), because Table 4's weights come without units:
+
+* 0, scaled (default): S in arc-seconds, U as a fraction of cruise speed. One cruise step
+  changes S by 50-200 arcsec here, so Q = F = I outweighs R = 10 I and u* points along the
+  linearised direction to the target; a reference governor holds the target within one
+  step's reach so the input bounds never bend that direction.
+* 1, paper: S in degrees, U in km/h. R = 10 I then outweighs the state cost by ~10^6 and u*
+  degenerates to the steepest-descent direction G^T Q (S_d - S); only its direction is used.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion import course_from_theta
+from companion.nav.field import PositionFixError, WorldMagneticModel, geomagnetic_fix, model_for_date
+from companion.nav.fusion import FusionSettings, InsGeomagFusion
+from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
+from companion.nav.gradient import GradientEstimator
+from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
+from companion.params import Controller, NavConfig
+
+__all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES"]
+
+ARCSEC_PER_DEG = 3600.0
+KMH = 1.0 / 3.6
+WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
+
+
+class Phase:
+    PROBE_1 = "probe1"
+    PROBE_2 = "probe2"
+    CRUISE = "cruise"
+    HOLD = "hold"            # a bad measurement: stop and wait for the next one
+    ARRIVED = "arrived"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Inputs of one step.
+
+    ``time_s``: message time at the end of the step. ``decl_deg``, ``incl_deg``: D and I averaged
+    over the last ``window_s`` seconds (0: an instantaneous value); the mission refers the value
+    to the centre of that window, half a window back along the move. INS position in degrees,
+    NaN when the source has none.
+    """
+
+    time_s: float
+    decl_deg: float
+    incl_deg: float
+    ins_lat_deg: float = math.nan
+    ins_lon_deg: float = math.nan
+    window_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Command:
+    """Output of one step: fly ``course_rad`` at ``speed_mps`` until the next step."""
+
+    time_s: float
+    step: int
+    phase: str
+    course_rad: float
+    speed_mps: float
+    done: bool
+    est_lat_deg: float
+    est_lon_deg: float
+    est_sigma_m: float
+    remaining_m: float
+    theta_rad: float = math.nan
+    u_first_mps: tuple[float, float] = (math.nan, math.nan)
+    compensation_mps: tuple[float, float] = (0.0, 0.0)
+    fix_lat_deg: float = math.nan
+    fix_lon_deg: float = math.nan
+    fused: bool = False
+    solver_ok: bool = True
+    solver_time_s: float = 0.0
+    reason: str = ""
+
+
+def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Uniform compensation U_a with ``B U_a = -xi`` (eq. 43), so that
+    ``A S + B (U_h + U_a) + xi = A S + B U_h`` (eq. 42 -> eq. 44)."""
+    return np.linalg.solve(np.asarray(b, dtype=float), -np.asarray(xi, dtype=float))
+
+
+@dataclass
+class _Last:
+    time_s: float
+    s: np.ndarray
+    velocity_en: np.ndarray  # commanded (east, north) m/s of the move now being flown
+    theta_rad: float
+    sample_en: np.ndarray    # dead-reckoned local position (m from start) the measurement refers to
+
+
+class Mission:
+    """One mission from start to destination; see the module docstring."""
+
+    def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None) -> None:
+        self.config = config
+        if model is None:
+            model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
+        self.model = model
+        dest = model.elements(config.dest_lat_deg, config.dest_lon_deg, config.alt_m, config.year)
+        self.s_dest = np.array([float(dest.decl_deg), float(dest.incl_deg)])
+        self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
+        self.mpc = MpcController(self._mpc_settings())
+        self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
+                                                     config.fusion_p0_m2, config.fusion_feedback))
+        de, dn = enu_offset(config.start_lat_deg, config.start_lon_deg, config.dest_lat_deg, config.dest_lon_deg)
+        # paper bounds U in [0, U_max]^2: the quadrant towards the destination gives the signs
+        self.quadrant = np.array([1.0 if de >= 0 else -1.0, 1.0 if dn >= 0 else -1.0])
+        self.k = 0
+        self.est = (config.start_lat_deg, config.start_lon_deg)
+        self.dead_reckoned_en = np.zeros(2)
+        self.window_lag_en = np.zeros(2)
+        self.last: _Last | None = None
+        self.finished: Command | None = None
+
+    # --- units of the QP -------------------------------------------------------------------
+    def _units(self) -> tuple[float, float]:
+        """(QP state units per degree, metres per second per QP input unit)."""
+        if self.config.mpc_units == 1:
+            return 1.0, KMH
+        return ARCSEC_PER_DEG, self.config.speed_mps
+
+    def _mpc_settings(self) -> MpcSettings:
+        c = self.config
+        s_unit, u_unit = self._units()
+        if c.u_bounds == 1:
+            u_lower, u_upper = (0.0, 0.0), (c.u_max_mps / u_unit,) * 2
+        else:
+            u_lower, u_upper = (-c.speed_mps / u_unit,) * 2, (c.speed_mps / u_unit,) * 2
+        return MpcSettings(
+            horizon=c.horizon, q=(c.q_d, c.q_i), f=(c.f_d, c.f_i), r=(c.r_x, c.r_y),
+            u_lower=u_lower, u_upper=u_upper,
+            s_lower=(c.s_min_d * s_unit, c.s_min_i * s_unit), s_upper=(c.s_max_d * s_unit, c.s_max_i * s_unit),
+            solver=SOLVERS[c.solver])
+
+    # --- the step ------------------------------------------------------------------------------
+    def step(self, meas: Measurement) -> Command:
+        """Advance one control period. A bad measurement returns a zero-speed command with a
+        reason and changes nothing, so the caller can retry with the next one."""
+        if self.finished is not None:
+            return self.finished
+        s = np.array([meas.decl_deg, meas.incl_deg], dtype=float)
+        if not (math.isfinite(meas.time_s) and np.all(np.isfinite(s))):
+            return self._hold(meas.time_s, "non-finite measurement")
+        if self.last is not None and meas.time_s <= self.last.time_s:
+            return self._hold(meas.time_s, "measurement time did not advance")
+        c = self.config
+        if self.last is None:  # k = 0: at the start, fly theta_1
+            return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
+        dt = meas.time_s - self.last.time_s
+        moved = self.last.velocity_en * dt
+        self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))
+        self.dead_reckoned_en = self.dead_reckoned_en + moved
+        # the averaged measurement describes the centre of its window, half a window back
+        self.window_lag_en = self.last.velocity_en * min(max(meas.window_s, 0.0), dt) / 2.0
+        sample_en = self.dead_reckoned_en - self.window_lag_en
+        g = self.gradient.observe(s - self.last.s, sample_en - self.last.sample_en, self.last.theta_rad,
+                                  *self.last.velocity_en, dt, frozen=c.controller == Controller.LTI)
+        if self.k == 1:
+            return self._probe(meas.time_s, s, math.radians(c.probe2_deg), Phase.PROBE_2)
+        if g is None:
+            return self._finish(meas.time_s, Phase.FAILED, "no gradient: the probing moves were too short")
+        return self._cruise(meas, s, g)
+
+    def _cruise(self, meas: Measurement, s: np.ndarray, g: np.ndarray) -> Command:
+        c = self.config
+        fix, fused, sigma = (math.nan, math.nan), False, math.nan
+        if c.controller == Controller.FC:
+            fix, fused, sigma = self._estimate_position(meas, s, g)
+            remaining, course_to_dest = geodesic_inverse(self.est[0], self.est[1], c.dest_lat_deg, c.dest_lon_deg)
+            to_dest = remaining * np.array([math.sin(course_to_dest), math.cos(course_to_dest)])
+            xi = (self.s_dest - s) - g @ to_dest           # what the linear model cannot explain
+            target = self.s_dest - xi                      # = S + G * to_dest
+        else:
+            try:
+                to_dest = np.linalg.solve(g, self.s_dest - s)
+                remaining = float(np.hypot(*to_dest))
+            except np.linalg.LinAlgError:
+                remaining = math.inf
+            xi = np.zeros(2)
+            target = self.s_dest
+        if remaining < c.arrive_m:
+            return self._finish(meas.time_s, Phase.ARRIVED, "estimated distance below epsilon", remaining, fix, fused, sigma)
+        if self.k >= c.max_steps:
+            return self._finish(meas.time_s, Phase.FAILED, "step limit reached", remaining, fix, fused, sigma)
+
+        s_unit, u_unit = self._units()
+        b = g * c.period_s * u_unit * s_unit                  # B = G T in QP units (eq. 15)
+        if c.u_bounds == 1:
+            b = b * self.quadrant                             # solve in the destination's quadrant
+        target_qp = target * s_unit
+        if c.mpc_units == 0:
+            target_qp = self._governed(s * s_unit, target_qp, b, c.speed_mps / u_unit)
+        solution = self.mpc.solve(b, s * s_unit, target_qp)
+        if not solution.ok:
+            return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
+                                sigma, solver_ok=False)
+        u = solution.u_first * u_unit * (self.quadrant if c.u_bounds == 1 else 1.0)   # m/s, east/north
+        if not np.any(u):
+            u = to_dest  # the QP found nothing to do: head for the estimated destination
+        theta = math.atan2(u[1], u[0])                        # eq. 4, quadrant resolved by atan2
+        speed = c.speed_mps if c.speed_mode == 1 else min(c.speed_mps, remaining / c.period_s)
+        u_a = compensation(b, xi * s_unit) * u_unit if np.any(xi) else np.zeros(2)
+        command = self._command(meas.time_s, Phase.CRUISE, theta, speed, remaining, fix, fused, sigma,
+                                u_first=(float(u[0]), float(u[1])), u_a=(float(u_a[0]), float(u_a[1])),
+                                solver_time_s=solution.solve_time_s)
+        self._advance(meas.time_s, s, theta, speed)
+        return command
+
+    def _governed(self, s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:
+        """Reference governor: pull the target to within ``reach_units`` of input (one step at
+        full speed) along the linearised path, so the optimum stays inside the input bounds."""
+        try:
+            needed = np.linalg.solve(b, target_qp - s_qp)    # input that reaches the target in one step
+        except np.linalg.LinAlgError:
+            return target_qp
+        size = float(np.hypot(*needed))
+        return target_qp if size <= reach_units else s_qp + (target_qp - s_qp) * (reach_units / size)
+
+    def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
+        """Geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
+        gradient is weak (Algorithm 1: min |G| < sigma, taken as the smallest singular value)."""
+        c = self.config
+        lag_e, lag_n = self.window_lag_en
+        prior = offset_position(self.est[0], self.est[1], -lag_e, -lag_n)
+        try:
+            fix_result = geomagnetic_fix(self.model, s[0], s[1], float(prior[0]), float(prior[1]), c.alt_m, c.year)
+            fix = tuple(float(v) for v in offset_position(fix_result.lat_deg, fix_result.lon_deg, lag_e, lag_n))
+        except PositionFixError:
+            fix = None
+        weak = float(np.linalg.svd(g, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
+        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        fused, sigma = False, math.sqrt(c.fusion_rc_m2)
+        if weak and have_ins:
+            ins_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, meas.ins_lat_deg, meas.ins_lon_deg))
+            if fix is not None:
+                fix_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, *fix))
+                result = self.fusion.step(ins_en, fix_en)
+            else:
+                result = self.fusion.predict_only(ins_en)
+            self.est = tuple(float(v) for v in offset_position(c.start_lat_deg, c.start_lon_deg,
+                                                               result.east_m, result.north_m))
+            fused, sigma = True, result.sigma_m
+        elif fix is not None:
+            self.est = fix
+        return (fix if fix is not None else (math.nan, math.nan)), fused, sigma
+
+    # --- bookkeeping -------------------------------------------------------------------------
+    def _probe(self, time_s: float, s: np.ndarray, theta: float, phase: str) -> Command:
+        c = self.config
+        remaining, _ = geodesic_inverse(self.est[0], self.est[1], c.dest_lat_deg, c.dest_lon_deg)
+        command = self._command(time_s, phase, theta, c.speed_mps, remaining, (math.nan, math.nan), False, math.nan)
+        self._advance(time_s, s, theta, c.speed_mps)
+        return command
+
+    def _advance(self, time_s: float, s: np.ndarray, theta: float, speed: float) -> None:
+        self.last = _Last(time_s, s, speed * np.array([math.cos(theta), math.sin(theta)]), theta,
+                          self.dead_reckoned_en - self.window_lag_en)
+        self.k += 1
+
+    def _command(self, time_s, phase, theta, speed, remaining, fix, fused, sigma, **extra) -> Command:
+        return Command(time_s=time_s, step=self.k, phase=phase, course_rad=course_from_theta(theta),
+                       speed_mps=float(speed), done=False, est_lat_deg=self.est[0], est_lon_deg=self.est[1],
+                       est_sigma_m=float(sigma), remaining_m=float(remaining), theta_rad=theta,
+                       fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
+                       u_first_mps=extra.get("u_first", (math.nan, math.nan)),
+                       compensation_mps=extra.get("u_a", (0.0, 0.0)),
+                       solver_time_s=extra.get("solver_time_s", 0.0))
+
+    def _finish(self, time_s, phase, reason, remaining=math.nan, fix=(math.nan, math.nan), fused=False,
+                sigma=math.nan, solver_ok=True) -> Command:
+        course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
+        self.finished = Command(time_s=time_s, step=self.k, phase=phase, course_rad=course, speed_mps=0.0,
+                                done=True, est_lat_deg=self.est[0], est_lon_deg=self.est[1],
+                                est_sigma_m=float(sigma), remaining_m=float(remaining), fix_lat_deg=fix[0],
+                                fix_lon_deg=fix[1], fused=fused, solver_ok=solver_ok, reason=reason)
+        return self.finished
+
+    def _hold(self, time_s: float, reason: str) -> Command:
+        course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
+        return Command(time_s=time_s if math.isfinite(time_s) else math.nan, step=self.k,
+                       phase=Phase.HOLD, course_rad=course, speed_mps=0.0,
+                       done=False, est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
+                       remaining_m=math.nan, solver_ok=True, reason=reason)

@@ -1,0 +1,205 @@
+"""Model predictive control of the magnetic state S = (D, I) (eq. 13-38), solved as a QP.
+
+Model (eq. 13-15): ``S(k+1) = A S(k) + B(k) U(k)`` with ``A = I_2`` and ``B(k) = G(k) T``.
+Over a horizon N (eq. 16-22) the stacked prediction is ``S_bar = M S(k) + C(k) U_bar`` and the
+cost (eq. 23-28) is ``|S_bar - S_bar_d|^2_Qbar + |U_bar|^2_Rbar`` with ``Qbar = diag(Q..Q, F)``.
+As a QP in U_bar (eq. 36-38):
+
+    H = 2 (C^T Qbar C + Rbar),   h = 2 C^T Qbar (M S - S_bar_d)
+
+Eq. 38 as printed drops the factor 2 that eq. 37 keeps; with that pair the optimum input is
+half the true minimiser of eq. 28. We use the consistent pair (the minimiser of eq. 28 is
+what the tests check against a brute-force cost).
+
+Constraints (eq. 29-34): ``U_min <= U <= U_max`` and ``S_min <= M S + C U <= S_max``, written
+for the solver as ``l <= [I; C] U_bar <= u``, which is eq. 33-34's ``W U_bar <= w``.
+
+This module is unit-agnostic: callers pass B, S, bounds and weights in whatever units they
+chose (``companion.nav.mission`` documents its choice). Backends: OSQP (default), set up
+once with a fixed sparsity pattern and updated in place each step with warm start; and
+daqp, an exact dense active-set solver. Both return the same answer to well under 1e-4.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["MpcSettings", "MpcSolution", "prediction_matrices", "qp_cost", "MpcController", "SOLVERS"]
+
+SOLVERS = ("osqp", "daqp")
+
+
+@dataclass(frozen=True)
+class MpcSettings:
+    """Weights, bounds and backend, all in the caller's units.
+
+    ``q``, ``f``, ``r``: diagonals of Q, F, R. Bounds are per step and repeat over the horizon
+    (eq. 31); use +-inf for no bound.
+    """
+
+    horizon: int = 2
+    q: tuple[float, float] = (1.0, 1.0)
+    f: tuple[float, float] = (1.0, 1.0)
+    r: tuple[float, float] = (10.0, 10.0)
+    u_lower: tuple[float, float] = (-1.0, -1.0)
+    u_upper: tuple[float, float] = (1.0, 1.0)
+    s_lower: tuple[float, float] = (-math.inf, -math.inf)
+    s_upper: tuple[float, float] = (math.inf, math.inf)
+    solver: str = "osqp"
+    eps: float = 1e-9
+
+
+@dataclass(frozen=True)
+class MpcSolution:
+    """The optimal input sequence; ``u_first`` is u*(k), the move to apply now."""
+
+    u_first: np.ndarray
+    u_all: np.ndarray
+    ok: bool
+    status: str
+    solve_time_s: float  # as the solver reports it (not our clock)
+    iterations: int
+
+
+def prediction_matrices(b: np.ndarray, horizon: int, a: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """M (2N x 2) and C (2N x 2N) of eq. 20-22 for a constant B over the horizon."""
+    a = np.eye(2) if a is None else np.asarray(a, dtype=float)
+    powers = [np.eye(2)]
+    for _ in range(horizon):
+        powers.append(a @ powers[-1])
+    m = np.vstack(powers[1:])
+    c = np.zeros((2 * horizon, 2 * horizon))
+    for row in range(horizon):
+        for col in range(row + 1):
+            c[2 * row:2 * row + 2, 2 * col:2 * col + 2] = powers[row - col] @ b
+    return m, c
+
+
+def qp_cost(m: np.ndarray, c: np.ndarray, s: np.ndarray, s_ref: np.ndarray,
+            q: np.ndarray, f: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """H and h of eq. 37-38 (consistent factor 2) for stacked reference ``s_ref`` (2N)."""
+    horizon = c.shape[0] // 2
+    q_bar = np.diag(np.concatenate([np.tile(q, horizon - 1), f]))
+    r_bar = np.diag(np.tile(r, horizon))
+    hess = 2.0 * (c.T @ q_bar @ c + r_bar)
+    grad = 2.0 * c.T @ q_bar @ (m @ s - s_ref)
+    return 0.5 * (hess + hess.T), grad
+
+
+class _OsqpBackend:
+    """OSQP with a structural sparsity pattern fixed at set-up; values updated in place.
+
+    Building CSC from a dense matrix drops zeros, so a B with a zero entry would change the
+    pattern between steps; we build the pattern explicitly (dense upper triangle of P;
+    identity plus the block-lower-triangular C in A) and keep explicit zeros.
+    """
+
+    def __init__(self, n: int, eps: float) -> None:
+        import osqp
+
+        self.n = n
+        # P: upper triangle, column-major
+        self.p_rows = np.concatenate([np.arange(j + 1) for j in range(n)])
+        self.p_cols = np.concatenate([np.full(j + 1, j) for j in range(n)])
+        p_ptr = np.concatenate([[0], np.cumsum(np.arange(1, n + 1))])
+        # A = [I_n; C], C block-lower-triangular in 2x2 blocks
+        rows, cols, ptr = [], [], [0]
+        for j in range(n):
+            block = j // 2
+            col_rows = [j] + [n + i for i in range(2 * block, n)]
+            rows += col_rows
+            cols += [j] * len(col_rows)
+            ptr.append(len(rows))
+        self.a_rows, self.a_cols = np.array(rows), np.array(cols)
+        p0 = sp.csc_matrix((np.ones(len(self.p_rows)), self.p_rows, p_ptr), shape=(n, n))
+        a0 = sp.csc_matrix((np.ones(len(self.a_rows)), self.a_rows, np.array(ptr)), shape=(2 * n, n))
+        self.solver = osqp.OSQP()
+        self.solver.setup(p0, np.zeros(n), a0, -np.ones(2 * n), np.ones(2 * n), verbose=False,
+                          warm_starting=True, polishing=False, eps_abs=eps, eps_rel=eps,
+                          max_iter=20000, scaling=10)
+
+    def solve(self, hess, grad, a_full, lower, upper):
+        self.solver.update(Px=hess[self.p_rows, self.p_cols], Ax=a_full[self.a_rows, self.a_cols],
+                           q=grad, l=lower, u=upper)
+        result = self.solver.solve(raise_error=False)
+        status = str(result.info.status)
+        ok = status == "solved"
+        return result.x, ok, status, float(result.info.run_time), int(result.info.iter)
+
+
+class _DaqpBackend:
+    """daqp: exact dense active-set QP; warm-started from the previous active set."""
+
+    def __init__(self, n: int, eps: float) -> None:
+        import daqp
+
+        self.daqp = daqp
+        self.n = n
+        self.sense = np.zeros(2 * n, dtype=np.int32)
+
+    def solve(self, hess, grad, a_full, lower, upper):
+        # the first n rows of a_full are the identity: daqp takes them as simple bounds
+        x, _, exitflag, info = self.daqp.solve(hess, grad, np.ascontiguousarray(a_full[self.n:]),
+                                               upper, lower, self.sense)
+        ok = exitflag == 1
+        return np.asarray(x), ok, f"daqp exitflag {exitflag}", float(info["solve_time"]), int(info["iterations"])
+
+
+class MpcController:
+    """One QP per control step; the problem shape is fixed at construction.
+
+    The decision variables are scaled internally so their magnitude is about one, which keeps
+    the solver's absolute tolerance meaningful whatever units the caller uses.
+    """
+
+    def __init__(self, settings: MpcSettings) -> None:
+        if settings.solver not in SOLVERS:
+            raise ValueError(f"unknown QP solver {settings.solver!r}; choose from {SOLVERS}")
+        if settings.horizon < 1:
+            raise ValueError("horizon must be at least 1")
+        self.settings = settings
+        n = 2 * settings.horizon
+        self.n = n
+        self.q = np.asarray(settings.q, dtype=float)
+        self.f = np.asarray(settings.f, dtype=float)
+        self.r = np.asarray(settings.r, dtype=float)
+        self.u_lower = np.tile(settings.u_lower, settings.horizon).astype(float)
+        self.u_upper = np.tile(settings.u_upper, settings.horizon).astype(float)
+        self.s_lower = np.tile(settings.s_lower, settings.horizon).astype(float)
+        self.s_upper = np.tile(settings.s_upper, settings.horizon).astype(float)
+        self.backend = (_OsqpBackend if settings.solver == "osqp" else _DaqpBackend)(n, settings.eps)
+
+    def solve(self, b: np.ndarray, s: np.ndarray, s_target: np.ndarray) -> MpcSolution:
+        """Optimal inputs for B (2x2), current state S and target S_d (held over the horizon)."""
+        b = np.asarray(b, dtype=float)
+        s = np.asarray(s, dtype=float)
+        if not (np.all(np.isfinite(b)) and np.all(np.isfinite(s)) and np.all(np.isfinite(s_target))):
+            return self._failed("non-finite model or state")
+        horizon = self.settings.horizon
+        m, c = prediction_matrices(b, horizon)
+        s_ref = np.tile(np.asarray(s_target, dtype=float), horizon)
+        hess, grad = qp_cost(m, c, s, s_ref, self.q, self.f, self.r)
+        free_state = m @ s
+        lower = np.concatenate([self.u_lower, self.s_lower - free_state])
+        upper = np.concatenate([self.u_upper, self.s_upper - free_state])
+        # scale: x = d * y with d the size of the input bounds
+        finite_bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
+        finite_bounds = finite_bounds[np.isfinite(finite_bounds)]
+        d = float(finite_bounds.max()) if finite_bounds.size and finite_bounds.max() > 0 else 1.0
+        a_full = np.vstack([np.eye(self.n), c]) * d
+        norm = max(float(np.abs(hess).max()) * d * d, 1e-300)
+        hess_y, grad_y = hess * d * d / norm, grad * d / norm
+        big = 1e20  # OSQP's infinity
+        y, ok, status, solve_time, iterations = self.backend.solve(
+            hess_y, grad_y, a_full, np.clip(lower, -big, big), np.clip(upper, -big, big))
+        if not ok or y is None or not np.all(np.isfinite(y)):
+            return self._failed(status)
+        u = np.asarray(y, dtype=float) * d
+        return MpcSolution(u[:2].copy(), u, True, status, solve_time, iterations)
+
+    def _failed(self, status: str) -> MpcSolution:
+        nan = np.full(self.n, np.nan)
+        return MpcSolution(nan[:2].copy(), nan, False, status, 0.0, 0)
