@@ -1,0 +1,95 @@
+"""Build the true field of a scenario: one function for the Monte Carlo and the MAVLink simulator.
+
+:func:`build_truth_field` turns a :class:`~sitl.scenario.Scenario` into a
+:class:`~sitl.world.magnetic.TruthField`: the World Magnetic Model of the scenario's date
+(:func:`companion.nav.field.model_for_date`) plus, when ``[storm] enabled``, the storm
+disturbance of :mod:`sitl.storms` with the scenario's time rule:
+
+``utc``
+    storm time = scenario ``start_utc`` + mission elapsed seconds (real time).
+``compress``
+    the storm window is spread linearly over ``expected_duration_s`` of mission time (the
+    paper's use). Without an explicit value the expected duration is the geodesic length of
+    the mission divided by the companion's default cruise speed (``NAV_SPEED_KMH``).
+
+Mission elapsed seconds are the simulator's time since boot. Past the end of the storm
+data the disturbance holds its last value (``outside="hold"``), so a mission that runs
+longer than expected keeps a finite field instead of stopping the simulator.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from companion.nav.field import model_for_date
+from companion.nav.geo import geodesic_distance_m
+from companion.params import SPEC_BY_NAME
+from sitl.scenario import Scenario
+from sitl.world.magnetic import TruthField
+
+__all__ = ["StormUnavailableError", "build_truth_field", "default_data_dir", "expected_mission_duration_s"]
+
+
+class StormUnavailableError(RuntimeError):
+    """The scenario asks for a storm but its data or the storm module cannot be loaded."""
+
+
+def default_data_dir() -> Path:
+    """``$FCMPC_DATA_DIR``, else ``<repo>/../shared/data`` (the read-only real data)."""
+    env = os.environ.get("FCMPC_DATA_DIR")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+def expected_mission_duration_s(scenario: Scenario, speed_mps: float | None = None) -> float:
+    """Geodesic start-to-destination length over the cruise speed (default ``NAV_SPEED_KMH``).
+
+    >>> from sitl.scenario import load_scenario
+    >>> round(expected_mission_duration_s(load_scenario("pacific")) / 3600.0, 2)  # 799 km at 50 km/h
+    15.98
+    """
+    if speed_mps is None:
+        speed_mps = float(SPEC_BY_NAME["NAV_SPEED_KMH"].default) / 3.6
+    if not speed_mps > 0.0:
+        raise ValueError(f"cruise speed must be > 0 m/s, got {speed_mps}")
+    distance = geodesic_distance_m(scenario.start_lat_deg, scenario.start_lon_deg,
+                                   scenario.dest_lat_deg, scenario.dest_lon_deg)
+    return distance / speed_mps
+
+
+def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
+                      expected_duration_s: float | None = None, outside: str = "hold") -> TruthField:
+    """The scenario's true field: WMM at ``scenario.year`` plus its storm disturbance, if enabled.
+
+    ``data_dir`` holds ``storms/intermagnet`` (default :func:`default_data_dir`);
+    ``expected_duration_s`` is the mission length the ``compress`` rule spreads the storm
+    window over (default :func:`expected_mission_duration_s`); ``outside`` is the policy of
+    :class:`sitl.storms.StormDisturbance` for storm times past the data (``hold``, ``zero`` or
+    ``raise``). Raises :class:`StormUnavailableError` naming the cause when the storm cannot
+    be built.
+    """
+    model = model_for_date(scenario.year)
+    storm = scenario.storm
+    if not storm.enabled:
+        return TruthField(model=model, year=scenario.year)
+    try:
+        from sitl import storms
+    except ImportError as err:  # pragma: no cover - depends on the checkout
+        raise StormUnavailableError(f"scenario {scenario.name!r} enables a storm but sitl.storms "
+                                    f"cannot be imported: {err}") from err
+    folder = Path(data_dir) if data_dir is not None else default_data_dir()
+    try:
+        disturbance = storms.StormDisturbance.from_data_dir(folder, stations=storm.stations, outside=outside)
+    except (OSError, ValueError) as err:
+        raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load storm data from {folder}: {err} "
+                                    "(set FCMPC_DATA_DIR or --data-dir)") from err
+    if storm.time_map == "utc":
+        time_map = storms.StormTimeMap.utc(scenario.start_posix)
+    else:
+        start_s, end_s = storm.window_posix
+        window = storms.StormWindow(f"{scenario.name} storm", start_s, end_s)
+        duration = expected_duration_s if expected_duration_s is not None else expected_mission_duration_s(scenario)
+        time_map = storms.StormTimeMap.compress(window, duration)
+    return TruthField(model=model, year=scenario.year, disturbance=disturbance,
+                      storm_time_s=time_map.storm_time_s, storm_scale=storm.scale)
