@@ -1,0 +1,92 @@
+"""Plausibility checks that hardware sources apply before handing out a sample.
+
+Both checks look only at consecutive readings of one sensor, so they are cheap and need
+no model: a *stuck* sensor repeats the identical raw reading (real sensors always show a
+few LSB of noise), a *spike* is a jump of the field magnitude that no vehicle rotation
+can produce (rotation changes the components, not the magnitude).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Hashable
+from dataclasses import dataclass
+
+from companion.io.sensors.base import SampleFlag, Vector3
+
+__all__ = ["MagChecks", "MagQualityCheck", "RepeatDetector"]
+
+
+class RepeatDetector:
+    """Flags STUCK once the same raw reading has been seen ``limit`` times in a row.
+
+    >>> d = RepeatDetector(limit=3)
+    >>> [d.check((1, 2, 3)) for _ in range(4)][-1] == SampleFlag.STUCK
+    True
+    """
+
+    def __init__(self, limit: int) -> None:
+        if limit < 2:
+            raise ValueError(f"stuck limit must be >= 2 repeats, got {limit}")
+        self.limit = limit
+        self._last: Hashable | None = None
+        self._repeats = 0
+
+    def check(self, raw: Hashable) -> SampleFlag:
+        if raw == self._last:
+            self._repeats += 1
+        else:
+            self._last = raw
+            self._repeats = 1
+        return SampleFlag.STUCK if self._repeats >= self.limit else SampleFlag.NONE
+
+
+@dataclass(frozen=True)
+class MagChecks:
+    """Thresholds of :class:`MagQualityCheck`.
+
+    ``stuck_count``: identical raw readings in a row that mean a frozen sensor.
+    ``spike_nt``: largest believable change of the field magnitude between consecutive
+    samples (at 100 Hz, motor-current interference stays well below 10 000 nT).
+    ``rebase_count``: consecutive spikes after which the new level is accepted as real
+    (the vehicle moved next to iron) instead of flagging it forever.
+    """
+
+    stuck_count: int = 10
+    spike_nt: float = 15000.0
+    rebase_count: int = 3
+
+    def __post_init__(self) -> None:
+        if self.stuck_count < 2:
+            raise ValueError(f"MagChecks.stuck_count must be >= 2, got {self.stuck_count}")
+        if not self.spike_nt > 0.0:
+            raise ValueError(f"MagChecks.spike_nt must be > 0 nT, got {self.spike_nt}")
+        if self.rebase_count < 1:
+            raise ValueError(f"MagChecks.rebase_count must be >= 1, got {self.rebase_count}")
+
+
+class MagQualityCheck:
+    """Stuck and spike detection for one magnetometer."""
+
+    def __init__(self, checks: MagChecks | None = None) -> None:
+        self.checks = checks or MagChecks()
+        self._repeat = RepeatDetector(self.checks.stuck_count)
+        self._reference_nt: float | None = None
+        self._spikes = 0
+
+    def check(self, raw: Hashable, field_nt: Vector3) -> SampleFlag:
+        """Flags for a reading; ``raw`` is the undecoded value used for the stuck test."""
+        flags = self._repeat.check(raw)
+        magnitude = math.sqrt(sum(c * c for c in field_nt))
+        if self._reference_nt is None:
+            self._reference_nt = magnitude
+        elif abs(magnitude - self._reference_nt) > self.checks.spike_nt:
+            self._spikes += 1
+            if self._spikes >= self.checks.rebase_count:
+                # A level that persists is the field, not a glitch: accept it.
+                self._reference_nt = magnitude
+                self._spikes = 0
+            return flags | SampleFlag.SPIKE
+        else:
+            self._reference_nt = magnitude
+            self._spikes = 0
+        return flags
