@@ -92,6 +92,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_WMM", int, 0, 0, 2, "", "field model: 0 by date (WMM2020 before 2024.87), 1 WMM2020, 2 WMM2025"),
     _p("NAV_SPEED_KMH", float, 50.0, 1.0, 300.0, "km/h", "cruise speed v (Table 4)"),
     _p("NAV_PERIOD_S", float, 360.0, 1.0, 7200.0, "s", "control period T (Table 4 gives 10 without unit; see README)"),
+    _p("NAV_LOOKAHEAD_M", float, 10000.0, 0.0, 1e6, "m", "Fc-MPC aims this far ahead on the start-destination geodesic; 0 aims at the destination"),
     _p("NAV_ARRIVE_M", float, 500.0, 10.0, 100000.0, "m", "arrival threshold epsilon on the estimated distance"),
     _p("NAV_MAX_STEPS", int, 1000, 3, 100000, "", "give up after this many control steps"),
     _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
@@ -118,7 +119,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MPC_S_MAX_I", float, 100.0, -90.0, 100.0, "deg", "state bound S_max on I (Table 4)"),
     _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
     # --- fusion (eq. 46-58, Table 3) ---
-    _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the smallest singular value of G < sigma"),
+    _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the fix is weak: smallest singular value of the model G"),
     _p("FUS_QC_KM2", float, 0.05, 0.0, 1e6, "km^2", "process noise Q_c on the position error (Table 3)"),
     _p("FUS_RC_KM2", float, 2.0, 1e-9, 1e6, "km^2", "measurement noise R_c of INS minus geomagnetic fix (Table 3)"),
     _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
@@ -270,6 +271,7 @@ class NavConfig(_FromRegistry):
     speed_mps: float = _from("NAV_SPEED_KMH", _KMH_TO_MPS)
     period_s: float = _from("NAV_PERIOD_S")
     arrive_m: float = _from("NAV_ARRIVE_M")
+    lookahead_m: float = _from("NAV_LOOKAHEAD_M")
     max_steps: int = _from("NAV_MAX_STEPS")
     probe1_deg: float = _from("NAV_PROBE1_DEG")
     probe2_deg: float = _from("NAV_PROBE2_DEG")

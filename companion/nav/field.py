@@ -474,6 +474,8 @@ class PositionFix:
     ``lat_deg``, ``lon_deg``: WGS84 degrees. ``iterations``: Newton steps taken.
     ``residual_deg``: norm of the (D, I) residual at the fix, degrees. ``condition``: 2-norm
     condition number of G at the fix (large means one direction is poorly observable).
+    ``gradient``: the model's G at the fix, deg/m (rows D, I; columns east, north): a (D, I)
+    error e maps to a position error G^-1 e.
     """
 
     lat_deg: float
@@ -481,6 +483,7 @@ class PositionFix:
     iterations: int
     residual_deg: float
     condition: float
+    gradient: np.ndarray | None = None
 
 
 def _condition_2x2(g: np.ndarray) -> float:
@@ -559,7 +562,7 @@ def geomagnetic_fix(
                 f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) {where}"
             )
         if last_step_m < tol_m:
-            return PositionFix(lat, lon, iteration, residual_deg, condition)
+            return PositionFix(lat, lon, iteration, residual_deg, condition, gradient)
         if iteration == max_iter:
             break
         step = np.linalg.solve(gradient, -residual)

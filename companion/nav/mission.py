@@ -45,6 +45,7 @@ from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
+from companion.nav.reference import ReferencePath
 from companion.params import Controller, NavConfig
 
 __all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES"]
@@ -138,6 +139,8 @@ class Mission:
         de, dn = enu_offset(config.start_lat_deg, config.start_lon_deg, config.dest_lat_deg, config.dest_lon_deg)
         # paper bounds U in [0, U_max]^2: the quadrant towards the destination gives the signs
         self.quadrant = np.array([1.0 if de >= 0 else -1.0, 1.0 if dn >= 0 else -1.0])
+        self.reference = ReferencePath((config.start_lat_deg, config.start_lon_deg),
+                                       (config.dest_lat_deg, config.dest_lon_deg))
         self.k = 0
         self.est = (config.start_lat_deg, config.start_lon_deg)
         self.dead_reckoned_en = np.zeros(2)
@@ -201,8 +204,13 @@ class Mission:
             fix, fused, sigma = self._estimate_position(meas, s, g)
             remaining, course_to_dest = geodesic_inverse(self.est[0], self.est[1], c.dest_lat_deg, c.dest_lon_deg)
             to_dest = remaining * np.array([math.sin(course_to_dest), math.cos(course_to_dest)])
-            xi = (self.s_dest - s) - g @ to_dest           # what the linear model cannot explain
-            target = self.s_dest - xi                      # = S + G * to_dest
+            to_aim = to_dest
+            if c.lookahead_m > 0.0 and remaining > c.lookahead_m:
+                aim = self.reference.aim_point(self.est[0], self.est[1], c.lookahead_m)
+                distance, course_to_aim = geodesic_inverse(self.est[0], self.est[1], *aim)
+                to_aim = distance * np.array([math.sin(course_to_aim), math.cos(course_to_aim)])
+            xi = (self.s_dest - s) - g @ to_aim            # what the linear model cannot explain
+            target = self.s_dest - xi                      # = S + G * to_aim
         else:
             try:
                 to_dest = np.linalg.solve(g, self.s_dest - s)
@@ -251,16 +259,18 @@ class Mission:
 
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
         """Geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
-        gradient is weak (Algorithm 1: min |G| < sigma, taken as the smallest singular value)."""
+        fix is weak (Algorithm 1's min |G| < sigma, read as the smallest singular value of the
+        model's G at the fix: the estimated G is too noisy to judge the fix by) or failed."""
         c = self.config
         lag_e, lag_n = self.window_lag_en
         prior = offset_position(self.est[0], self.est[1], -lag_e, -lag_n)
         try:
             fix_result = geomagnetic_fix(self.model, s[0], s[1], float(prior[0]), float(prior[1]), c.alt_m, c.year)
             fix = tuple(float(v) for v in offset_position(fix_result.lat_deg, fix_result.lon_deg, lag_e, lag_n))
+            # the fix is as good as the field's gradient where it lands (a D/I error e moves it G^-1 e)
+            weak = float(np.linalg.svd(fix_result.gradient, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
         except PositionFixError:
-            fix = None
-        weak = float(np.linalg.svd(g, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
+            fix, weak = None, True
         have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
         fused, sigma = False, math.sqrt(c.fusion_rc_m2)
         if weak and have_ins:

@@ -1,0 +1,42 @@
+"""The reference path: the start-to-destination geodesic, the paper's "shortest trajectory".
+
+Fc-MPC aims at a point a fixed distance ahead on this path (like ArduPilot's L1 guidance)
+instead of at the destination itself, so an estimate error at one step is steered back to
+the path at the next instead of shifting the rest of the track.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from geographiclib.geodesic import Geodesic
+
+from companion.nav.geo import WGS84, metres_per_degree
+
+__all__ = ["ReferencePath"]
+
+
+class ReferencePath:
+    """The geodesic sampled every ``spacing_m`` metres; nearest point and lookahead point."""
+
+    def __init__(self, start: tuple[float, float], dest: tuple[float, float], spacing_m: float = 250.0) -> None:
+        line = WGS84.InverseLine(start[0], start[1], dest[0], dest[1])
+        self.length_m = line.s13
+        count = max(2, int(math.ceil(line.s13 / spacing_m)) + 1)
+        self.along_m = np.linspace(0.0, line.s13, count)
+        points = [line.Position(s, Geodesic.LATITUDE | Geodesic.LONGITUDE) for s in self.along_m]
+        self.lat_deg = np.array([p["lat2"] for p in points])
+        self.lon_deg = np.array([p["lon2"] for p in points])
+
+    def nearest_index(self, lat_deg: float, lon_deg: float) -> int:
+        """Index of the sample nearest to a position (local metric; exact enough at 250 m spacing)."""
+        east_per_deg, north_per_deg = metres_per_degree(lat_deg)
+        d_east = ((self.lon_deg - lon_deg + 180.0) % 360.0 - 180.0) * east_per_deg
+        d_north = (self.lat_deg - lat_deg) * north_per_deg
+        return int(np.argmin(d_east * d_east + d_north * d_north))
+
+    def aim_point(self, lat_deg: float, lon_deg: float, lookahead_m: float) -> tuple[float, float]:
+        """The path point ``lookahead_m`` beyond the one nearest to the position (the end at most)."""
+        along = self.along_m[self.nearest_index(lat_deg, lon_deg)] + lookahead_m
+        index = min(int(np.searchsorted(self.along_m, along)), len(self.along_m) - 1)
+        return float(self.lat_deg[index]), float(self.lon_deg[index])
