@@ -33,7 +33,7 @@ import enum
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import ClassVar, Union
+from typing import ClassVar
 
 __all__ = [
     "AttitudeSample",
@@ -216,7 +216,7 @@ class StreamEnd:
         return bool(self.flags & SampleFlag.TRUNCATED)
 
 
-Sample = Union[MagSample, ImuSample, AttitudeSample, GpsSample, StreamEnd]
+Sample = MagSample | ImuSample | AttitudeSample | GpsSample | StreamEnd
 
 
 class SensorError(Exception):

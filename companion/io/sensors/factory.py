@@ -33,7 +33,7 @@ from companion.io.sensors.combined import CombinedSource
 __all__ = ["SCHEMES", "make_source", "parse_spec"]
 
 SCHEMES = ("i2c", "ubx", "dronecan", "replay")
-_SPLIT = re.compile(r"\+(?=(?:%s):)" % "|".join(SCHEMES))
+_SPLIT = re.compile(r"\+(?=(?:{}):)".format("|".join(SCHEMES)))
 
 
 def _coerce(text: str) -> Any:

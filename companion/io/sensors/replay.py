@@ -327,7 +327,7 @@ class LogReplaySource(SensorSource):
                 continue
             last_time = t
             for sample in _tlog_convert(msg, mtype, t):
-                key = (sample.kind.value, getattr(sample, "instance", 0))
+                key = (sample.kind.value, 0 if isinstance(sample, AttitudeSample) else sample.instance)
                 if owner.setdefault(key, mtype) != mtype:
                     continue
                 if isinstance(sample, AttitudeSample) or self._wanted(sample.instance):
@@ -443,7 +443,7 @@ class _TlogClock:
         return None
 
 
-def _tlog_convert(msg: Any, mtype: str, t: float) -> list[Sample]:
+def _tlog_convert(msg: Any, mtype: str, t: float) -> list[MagSample | ImuSample | AttitudeSample | GpsSample]:
     if mtype == "ATTITUDE":
         return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
     if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
@@ -463,7 +463,7 @@ def _tlog_convert(msg: Any, mtype: str, t: float) -> list[Sample]:
     if mtype == "HIGHRES_IMU":
         instance = int(getattr(msg, "id", 0) or 0)
         updated = msg.fields_updated
-        out: list[Sample] = []
+        out: list[MagSample | ImuSample | AttitudeSample | GpsSample] = []
         if updated & 0x3F:
             out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
                                  msg.temperature, instance))

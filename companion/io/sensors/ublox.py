@@ -134,7 +134,9 @@ class UbxStreamFramer:
 
 
 def _mavlink_fix_type(pvt: Any) -> int:
-    if not getattr(pvt, "gnssFixOk", 0) or getattr(pvt, "invalidLlh", 0):
+    fix_ok = bool(getattr(pvt, "gnssFixOk", 0))
+    invalid_llh = bool(getattr(pvt, "invalidLlh", 0))  # flags3, protocol 27+
+    if not fix_ok or invalid_llh:
         return 1
     fix = pvt.fixType
     if fix in (3, 4):  # 3D, GNSS + dead reckoning
