@@ -277,3 +277,74 @@ def test_speed_is_validated(tmp_path: Path) -> None:
         LogReplaySource(tmp_path / "x.tlog", speed=0.0)
     with pytest.raises(ValueError, match="speed must be a number > 0 or 'fast'"):
         make_source("replay:x.tlog?speed=slow")
+
+
+# -- a DataFlash log in the current ArduPilot format (TimeUS, instance fields, GPA) --------
+
+_DF_STRUCT = {"B": "B", "b": "b", "H": "H", "h": "h", "I": "I", "i": "i", "f": "f", "Q": "Q",
+              "c": "h", "C": "H", "e": "i", "L": "i", "n": "4s", "N": "16s", "Z": "64s"}
+_DF_SCALE = {"c": 100.0, "C": 100.0, "e": 100.0, "L": 1e7}
+_DF_FORMATS = {  # name: (type id, format, columns) as ArduPilot 4.x writes them
+    "MAG": (10, "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
+    "IMU": (11, "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+    "ATT": (12, "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF"),
+    "GPS": (13, "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
+    "GPA": (14, "QBCCCCfBIHfHH", "TimeUS,I,VDop,HAcc,VAcc,SAcc,YAcc,VV,SMS,Delta,Und,RTCMFU,RTCMFD"),
+}
+
+
+def _df_record(type_id: int, fmt: str, values: tuple) -> bytes:
+    packed = []
+    for ch, v in zip(fmt, values):
+        if ch in _DF_SCALE:
+            v = round(v * _DF_SCALE[ch])
+        elif ch in "nNZ":
+            v = v.encode()
+        packed.append(v)
+    return b"\xa3\x95" + bytes([type_id]) + struct.pack("<" + "".join(_DF_STRUCT[c] for c in fmt), *packed)
+
+
+def write_dataflash(path: Path) -> Path:
+    out = bytearray()
+    for name, (tid, fmt, cols) in _DF_FORMATS.items():
+        length = 3 + struct.calcsize("<" + "".join(_DF_STRUCT[c] for c in fmt))
+        out += _df_record(0x80, "BBnNZ", (tid, length, name, fmt, cols))
+    for k in range(20):
+        us = 5_000_000 + 100_000 * k
+        for inst in (0, 1):
+            out += _df_record(10, _DF_FORMATS["MAG"][1], (us, inst, 231 + inst, 51, -531, 10, 20, 30, 0, 0, 0,
+                                                         1 if k != 7 else 0, 0))
+            out += _df_record(11, _DF_FORMATS["IMU"][1], (us, inst, 0.01, 0.02, 0.03, 0.1, 0.2, -9.8,
+                                                         k // 10, 0, 35.5, 1, 1, 400, 400))
+        out += _df_record(12, _DF_FORMATS["ATT"][1], (us, 0.0, 5.0, 0.0, -3.0, 0.0, 271.5, 0.1, 0.1, 3))
+        if k % 2 == 0:  # GPS then its GPA, as AP_GPS::Write_GPS does
+            out += _df_record(13, _DF_FORMATS["GPS"][1], (us, 0, 3, 12345, 2300, 14, 0.7, -35.3622797,
+                                                         149.1659262, 590.14, 2.0, 90.0, -0.5, 0.0, 1))
+            out += _df_record(14, _DF_FORMATS["GPA"][1], (us, 0, 0.9, 1.25, 2.5, 0.3, 0.0, 1, 12345, 200,
+                                                         20.0, 0, 0))
+    path.write_bytes(bytes(out))
+    return path
+
+
+def test_current_dataflash_format_with_instance_fields_and_gpa(tmp_path: Path) -> None:
+    samples = replay_all(LogReplaySource(write_dataflash(tmp_path / "new.bin"), instances=None))
+    mags = [s for s in samples if isinstance(s, MagSample)]
+    imus = [s for s in samples if isinstance(s, ImuSample)]
+    gpss = [s for s in samples if isinstance(s, GpsSample)]
+    atts = [s for s in samples if isinstance(s, AttitudeSample)]
+    assert (len(mags), len(imus), len(gpss), len(atts)) == (40, 40, 10, 20)
+    assert {m.instance for m in mags} == {0, 1}
+    m1 = next(m for m in mags if m.instance == 1)
+    assert m1.time_s == pytest.approx(5.0) and m1.mag_body_nt == (23200.0, 5100.0, -53100.0)
+    assert [m.valid for m in mags if m.instance == 0].count(False) == 1  # Health 0 at k = 7
+    imu = imus[0]
+    assert imu.temperature_c == pytest.approx(35.5) and imu.accel_body_mps2 == pytest.approx((0.1, 0.2, -9.8))
+    assert [i.valid for i in imus if i.instance == 0].count(False) == 1  # EG counter went up once
+    gps = gpss[0]
+    assert (gps.h_acc_m, gps.v_acc_m) == pytest.approx((1.25, 2.5))  # GPA written after GPS
+    assert gps.vel_ned_mps == pytest.approx((0.0, 2.0, -0.5), abs=1e-9)
+    assert (gps.lat_deg, gps.lon_deg, gps.alt_msl_m, gps.num_sv) == pytest.approx(
+        (-35.3622797, 149.1659262, 590.14, 14))
+    assert math.degrees(atts[0].yaw_rad) == pytest.approx(271.5)
+    assert math.degrees(atts[0].roll_rad) == pytest.approx(5.0)
+    assert not samples[-1].truncated

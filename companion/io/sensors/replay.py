@@ -378,7 +378,8 @@ def _imu_flags(msg: Any, instance: int, errors: dict[int, tuple[int, int]]) -> S
     flags = SampleFlag.NONE
     if getattr(msg, "GH", 1) == 0 or getattr(msg, "AH", 1) == 0:
         flags |= SampleFlag.UNHEALTHY
-    err = (getattr(msg, "ErrG", 0) or 0, getattr(msg, "ErrA", 0) or 0)
+    # Cumulative error counters of the sensor driver: ErrG/ErrA (old), EG/EA (ArduPilot 4).
+    err = (int(_first(msg, "ErrG", "EG") or 0), int(_first(msg, "ErrA", "EA") or 0))
     previous = errors.get(instance)
     errors[instance] = err
     if previous is not None and (err[0] > previous[0] or err[1] > previous[1]):
