@@ -95,6 +95,8 @@ class DroneCanMagSource(SensorSource):
         self.ignored = 0  # messages filtered out by sensor or node id
 
     def open(self) -> None:
+        if self._node is not None:
+            return  # already open
         import dronecan
 
         factory = self._node_factory or dronecan.make_node

@@ -154,6 +154,7 @@ class LogReplaySource(SensorSource):
     # -- opening -------------------------------------------------------------------------
 
     def open(self) -> None:
+        self.close()  # opening again restarts the replay from the beginning
         self.format = sniff_log_format(self.path)
         try:
             if self.format == LogFormat.DATAFLASH:
