@@ -171,30 +171,47 @@ class MpcController:
         self.s_lower = np.tile(settings.s_lower, settings.horizon).astype(float)
         self.s_upper = np.tile(settings.s_upper, settings.horizon).astype(float)
         self.backend = (_OsqpBackend if settings.solver == "osqp" else _DaqpBackend)(n, settings.eps)
+        # A = I (eq. 14): M stacks identities and C(k) repeats B(k) in its lower block triangle;
+        # everything but B is fixed, so the arrays are built once and filled in place per step.
+        self._blocks = [(row, col) for row in range(settings.horizon) for col in range(row + 1)]
+        self._c = np.zeros((n, n))
+        self._q_bar = np.concatenate([np.tile(self.q, settings.horizon - 1), self.f])
+        self._r_bar2 = 2.0 * np.tile(self.r, settings.horizon)
+        self._diag = np.diag_indices(n)
+        bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
+        bounds = bounds[np.isfinite(bounds) & (bounds > 0)]
+        self._scale = float(bounds.max()) if bounds.size else 1.0  # x = d * y keeps y of order one
+        self._a_full = np.vstack([np.eye(n) * self._scale, np.zeros((n, n))])
+        big = 1e20  # OSQP's infinity
+        self._lower = np.concatenate([self.u_lower, np.clip(self.s_lower, -big, big)])
+        self._upper = np.concatenate([self.u_upper, np.clip(self.s_upper, -big, big)])
+        self._s_lower = self._lower[n:].copy()
+        self._s_upper = self._upper[n:].copy()
 
     def solve(self, b: np.ndarray, s: np.ndarray, s_target: np.ndarray) -> MpcSolution:
         """Optimal inputs for B (2x2), current state S and target S_d (held over the horizon)."""
         b = np.asarray(b, dtype=float)
         s = np.asarray(s, dtype=float)
-        if not (np.all(np.isfinite(b)) and np.all(np.isfinite(s)) and np.all(np.isfinite(s_target))):
+        s_target = np.asarray(s_target, dtype=float)
+        if not math.isfinite(float(b.sum() + s.sum() + s_target.sum())):
             return self._failed("non-finite model or state")
-        horizon = self.settings.horizon
-        m, c = prediction_matrices(b, horizon)
-        s_ref = np.tile(np.asarray(s_target, dtype=float), horizon)
-        hess, grad = qp_cost(m, c, s, s_ref, self.q, self.f, self.r)
-        free_state = m @ s
-        lower = np.concatenate([self.u_lower, self.s_lower - free_state])
-        upper = np.concatenate([self.u_upper, self.s_upper - free_state])
-        # scale: x = d * y with d the size of the input bounds
-        finite_bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
-        finite_bounds = finite_bounds[np.isfinite(finite_bounds)]
-        d = float(finite_bounds.max()) if finite_bounds.size and finite_bounds.max() > 0 else 1.0
-        a_full = np.vstack([np.eye(self.n), c]) * d
+        n, horizon = self.n, self.settings.horizon
+        c = self._c
+        for row, col in self._blocks:
+            c[2 * row:2 * row + 2, 2 * col:2 * col + 2] = b
+        weighted_c = self._q_bar[:, None] * c
+        hess = 2.0 * (c.T @ weighted_c)                        # eq. 37
+        hess[self._diag] += self._r_bar2
+        free_state = np.tile(s, horizon)                       # M S(k)
+        grad = 2.0 * (weighted_c.T @ (free_state - np.tile(s_target, horizon)))   # eq. 38, factor 2
+        lower, upper = self._lower, self._upper
+        lower[n:] = self._s_lower - free_state
+        upper[n:] = self._s_upper - free_state
+        d = self._scale
+        self._a_full[n:] = c * d
         norm = max(float(np.abs(hess).max()) * d * d, 1e-300)
-        hess_y, grad_y = hess * d * d / norm, grad * d / norm
-        big = 1e20  # OSQP's infinity
         y, ok, status, solve_time, iterations = self.backend.solve(
-            hess_y, grad_y, a_full, np.clip(lower, -big, big), np.clip(upper, -big, big))
+            hess * (d * d / norm), grad * (d / norm), self._a_full, lower, upper)
         if not ok or y is None or not np.all(np.isfinite(y)):
             return self._failed(status)
         u = np.asarray(y, dtype=float) * d
