@@ -1,0 +1,118 @@
+"""Simulated time of the SITL: integer microseconds, paced against wall time, optionally in lockstep.
+
+Two clocks, never mixed (see ``ARCHITECTURE.md``): every message carries *simulated* time;
+wall time only decides how fast simulated time may advance.
+
+:class:`Pacer` (``--speedup N``)
+    simulated time may run at most N times faster than wall time. After a stall (a slow
+    client, a lockstep wait) it does not burst to catch up: when more than
+    ``rebase_after_s`` of wall time behind schedule it re-bases.
+:class:`LockstepGate` (``--lockstep``)
+    at every boundary ``B = k * period`` of simulated time the simulator, having sent every
+    message stamped up to and including ``B`` (the last one a SYSTEM_TIME with
+    ``time_boot_ms = B``), waits until the companion has answered. An answer is
+
+    * a message from a peer whose ``time_boot_ms`` field is at least ``B - period`` (and not
+      later than ``B + period``: a larger stamp is not simulated time and is treated as
+      untimed), or
+    * any message without a usable time stamp (no ``time_boot_ms`` field, or 0), such as
+      HEARTBEAT, COMMAND_LONG or TIMESYNC, read while waiting at ``B``.
+
+    If no answer arrives within ``timeout_s`` of wall time the simulator goes on alone and
+    counts a lockstep timeout: it never deadlocks. Before the first message from any peer it
+    waits up to ``start_timeout_s`` at ``B = 0`` (0 = for ever).
+"""
+from __future__ import annotations
+
+import time
+
+__all__ = ["US_PER_S", "Pacer", "LockstepGate"]
+
+US_PER_S = 1_000_000
+
+
+class Pacer:
+    """Wall-clock deadline of each simulated instant for a speed-up (None or <= 0: no pacing)."""
+
+    def __init__(self, speedup: float | None, rebase_after_s: float = 0.5, clock=time.perf_counter) -> None:
+        self.speedup = speedup if speedup and speedup > 0.0 else None
+        self.rebase_after_s = rebase_after_s
+        self._clock = clock
+        self._wall0 = clock()
+        self._sim0_us = 0
+        self.rebases = 0
+
+    def deadline(self, sim_us: int) -> float | None:
+        """Wall time (``clock`` units) before which ``sim_us`` must not be emitted; None = now."""
+        if self.speedup is None:
+            return None
+        target = self._wall0 + (sim_us - self._sim0_us) / (US_PER_S * self.speedup)
+        now = self._clock()
+        if now - target > self.rebase_after_s:
+            self._wall0, self._sim0_us = now, sim_us
+            self.rebases += 1
+            return None
+        return target
+
+    def restart(self, sim_us: int) -> None:
+        """Take ``sim_us`` as happening now (after a wait that should not be made up)."""
+        self._wall0, self._sim0_us = self._clock(), sim_us
+
+
+class LockstepGate:
+    """Bookkeeping of the lockstep protocol (the waiting itself is the server's)."""
+
+    def __init__(self, period_s: float, timeout_s: float = 2.0, start_timeout_s: float = 60.0,
+                 peer: tuple[int, int] | None = None) -> None:
+        if not period_s > 0.0:
+            raise ValueError(f"lockstep period must be > 0 s, got {period_s}")
+        self.period_us = int(round(period_s * US_PER_S))
+        self.timeout_s = timeout_s
+        self.start_timeout_s = start_timeout_s
+        self.peer = peer
+        self.peer_heard = False
+        self.peer_time_ms = -1
+        self._untimed = False
+        self.boundaries = 0
+        self.timeouts = 0
+        self.consecutive_timeouts = 0
+        self.future_stamps = 0
+        self.wait_wall_s = 0.0
+        self.max_wait_wall_s = 0.0
+
+    def eligible(self, sysid: int, compid: int) -> bool:
+        return self.peer is None or (sysid, compid) == self.peer
+
+    def observe(self, time_boot_ms: int | None, now_us: int) -> None:
+        """A message from an eligible peer was read at simulated time ``now_us``."""
+        self.peer_heard = True
+        if time_boot_ms is None or time_boot_ms <= 0:
+            self._untimed = True
+            return
+        if time_boot_ms * 1000 > now_us + self.period_us:
+            self.future_stamps += 1
+            self._untimed = True
+            return
+        if time_boot_ms > self.peer_time_ms:
+            self.peer_time_ms = time_boot_ms
+
+    def satisfied(self, boundary_us: int) -> bool:
+        return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.period_us
+
+    def finish(self, waited_s: float, timed_out: bool) -> None:
+        """End of the wait at one boundary."""
+        self.boundaries += 1
+        self.wait_wall_s += waited_s
+        self.max_wait_wall_s = max(self.max_wait_wall_s, waited_s)
+        if timed_out:
+            self.timeouts += 1
+            self.consecutive_timeouts += 1
+        else:
+            self.consecutive_timeouts = 0
+        self._untimed = False
+
+    def stats(self) -> dict:
+        return {"lockstep_boundaries": self.boundaries, "lockstep_timeouts": self.timeouts,
+                "lockstep_wait_wall_s": round(self.wait_wall_s, 3),
+                "lockstep_max_wait_wall_s": round(self.max_wait_wall_s, 3),
+                "lockstep_future_stamps": self.future_stamps}

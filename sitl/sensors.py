@@ -1,0 +1,248 @@
+"""What the simulated flight controller measures and estimates (no sockets, no clocks).
+
+The truth (position, course, speed) comes from :mod:`sitl.world.vehicle`; the field from
+:class:`sitl.world.magnetic.TruthField`; the inertial drift from
+:class:`sitl.world.ins.InsErrorModel`. This module adds what sits between the truth and the
+MAVLink messages of :mod:`sitl.server`:
+
+* :class:`WaveMotion`: the true roll and pitch of a boat in a seaway (sinusoids of a few
+  degrees), so a client must tilt-compensate the magnetometer. Yaw = course over ground.
+* :class:`SensorSuite`: magnetometer (field rotated into the body frame by the *true*
+  attitude, plus fixed bias, white noise, quantisation to ``mag_lsb_nt``), accelerometer
+  and gyro (with white noise), and the autopilot's attitude estimate (true attitude plus
+  white noise ``attitude_noise_deg``). Each sensor is sampled at its own rate; messages
+  carry the latest sample.
+* :class:`NavSolution`: the flight controller's position/velocity solution: GPS-aided
+  (truth plus a small white error) while GPS has a fix, the INS error model's indicated
+  position once it has none.
+
+All noise comes from seeded :class:`numpy.random.Generator` objects: one seed, one run.
+
+Frames and units per :mod:`companion`: NED, body x forward / y right / z down, nT, rad.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.nav.geo import radii_of_curvature_m
+from sitl.scenario import SensorModel
+from sitl.world.ins import InsErrorConfig, InsErrorModel
+
+__all__ = ["Normals", "WaveMotion", "Attitude", "SensorSuite", "NavSolution", "body_from_ned", "ned_from_body",
+           "GRAVITY_MPS2"]
+
+GRAVITY_MPS2 = 9.80665
+
+
+class Normals:
+    """Standard normal draws from a seeded generator, drawn in blocks (fast scalar access).
+
+    >>> a = Normals(np.random.default_rng(7)); b = Normals(np.random.default_rng(7))
+    >>> [a() for _ in range(3)] == [b() for _ in range(3)]
+    True
+    """
+
+    def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
+        self._rng = rng
+        self._block = block
+        self._buffer: list[float] = []
+
+    def __call__(self) -> float:
+        if not self._buffer:
+            self._buffer = self._rng.standard_normal(self._block).tolist()
+            self._buffer.reverse()
+        return self._buffer.pop()
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Euler angles (rad; yaw from north clockwise) and body rates (rad/s)."""
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    roll_rate_radps: float = 0.0
+    pitch_rate_radps: float = 0.0
+    yaw_rate_radps: float = 0.0
+
+    def body_rates(self) -> tuple[float, float, float]:
+        """(p, q, r) body angular rates in rad/s from the Euler angle rates."""
+        sr, cr = math.sin(self.roll_rad), math.cos(self.roll_rad)
+        sp, cp = math.sin(self.pitch_rad), math.cos(self.pitch_rad)
+        dr, dp, dy = self.roll_rate_radps, self.pitch_rate_radps, self.yaw_rate_radps
+        return dr - dy * sp, dp * cr + dy * sr * cp, -dp * sr + dy * cr * cp
+
+
+@dataclass(frozen=True)
+class WaveMotion:
+    """Roll and pitch of a boat in a regular seaway: ``amp * sin(2 pi t / period + phase)``."""
+
+    roll_amp_deg: float = 3.0
+    roll_period_s: float = 8.0
+    pitch_amp_deg: float = 2.0
+    pitch_period_s: float = 6.3
+    pitch_phase_rad: float = 1.0
+
+    def attitude(self, time_s: float, yaw_rad: float, yaw_rate_radps: float = 0.0) -> Attitude:
+        """True attitude at ``time_s`` with the given yaw (course over ground for a boat)."""
+        wr = 2.0 * math.pi / self.roll_period_s
+        wp = 2.0 * math.pi / self.pitch_period_s
+        ar, ap = math.radians(self.roll_amp_deg), math.radians(self.pitch_amp_deg)
+        roll = ar * math.sin(wr * time_s)
+        pitch = ap * math.sin(wp * time_s + self.pitch_phase_rad)
+        return Attitude(roll, pitch, yaw_rad, ar * wr * math.cos(wr * time_s),
+                        ap * wp * math.cos(wp * time_s + self.pitch_phase_rad), yaw_rate_radps)
+
+
+def body_from_ned(roll: float, pitch: float, yaw: float, n: float, e: float, d: float) -> tuple[float, float, float]:
+    """A NED vector expressed in the body frame (ZYX Euler angles in rad): ``C_nb^T v``.
+
+    >>> [round(v, 9) for v in body_from_ned(0.0, 0.0, math.pi / 2, 1.0, 0.0, 0.0)]  # facing east
+    [0.0, -1.0, 0.0]
+    """
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    bx = cp * cy * n + cp * sy * e - sp * d
+    by = (sr * sp * cy - cr * sy) * n + (sr * sp * sy + cr * cy) * e + sr * cp * d
+    bz = (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d
+    return bx, by, bz
+
+
+def ned_from_body(roll: float, pitch: float, yaw: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """A body vector expressed in NED: ``C_nb v`` (inverse of :func:`body_from_ned`)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    n = cp * cy * x + (sr * sp * cy - cr * sy) * y + (cr * sp * cy + sr * sy) * z
+    e = cp * sy * x + (sr * sp * sy + cr * cy) * y + (cr * sp * sy - sr * cy) * z
+    d = -sp * x + sr * cp * y + cr * cp * z
+    return n, e, d
+
+
+class SensorSuite:
+    """Magnetometer, accelerometer, gyro and attitude estimate of the simulated autopilot.
+
+    ``sample_mag`` / ``sample_imu`` draw a new sample; the ``mag_nt``, ``accel_mps2``,
+    ``gyro_radps`` and ``attitude_est`` attributes hold the latest one for the messages.
+    """
+
+    def __init__(self, model: SensorModel, rng: np.random.Generator) -> None:
+        self.model = model
+        self._normal = Normals(rng)
+        self.mag_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.accel_mps2: tuple[float, float, float] = (0.0, 0.0, -GRAVITY_MPS2)
+        self.gyro_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.attitude_est = Attitude(0.0, 0.0, 0.0)
+
+    def sample_mag(self, field_ned_nt: tuple[float, float, float], attitude: Attitude,
+                   extra_nt: float = 0.0) -> tuple[float, float, float]:
+        """Body-frame reading in nT: rotate by the true attitude, add bias, noise and ``extra_nt``
+        (a spike, on each axis), quantise to ``mag_lsb_nt``."""
+        m = self.model
+        bx, by, bz = body_from_ned(attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad, *field_ned_nt)
+        sigma, lsb = m.mag_noise_nt, m.mag_lsb_nt
+        bias = m.mag_bias_nt
+        normal = self._normal
+        raw = (bx + bias[0] + sigma * normal() + extra_nt,
+               by + bias[1] + sigma * normal() + extra_nt,
+               bz + bias[2] + sigma * normal() + extra_nt)
+        if lsb > 0.0:
+            raw = (round(raw[0] / lsb) * lsb, round(raw[1] / lsb) * lsb, round(raw[2] / lsb) * lsb)
+        self.mag_nt = raw
+        return raw
+
+    def sample_imu(self, attitude: Attitude, accel_ned_mps2: tuple[float, float, float]) -> None:
+        """Accelerometer (specific force), gyro and the attitude estimate at the true attitude."""
+        m = self.model
+        normal = self._normal
+        an, ae, ad = accel_ned_mps2
+        fx, fy, fz = body_from_ned(attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad,
+                                   an, ae, ad - GRAVITY_MPS2)
+        sa = m.accel_noise_mps2
+        self.accel_mps2 = (fx + sa * normal(), fy + sa * normal(), fz + sa * normal())
+        p, q, r = attitude.body_rates()
+        sg = m.gyro_noise_radps
+        self.gyro_radps = (p + sg * normal(), q + sg * normal(), r + sg * normal())
+        sat = math.radians(m.attitude_noise_deg)
+        self.attitude_est = Attitude(attitude.roll_rad + sat * normal(), attitude.pitch_rad + sat * normal(),
+                                     attitude.yaw_rad + sat * normal(), p, q, r)
+
+
+class NavSolution:
+    """The flight controller's position and velocity solution.
+
+    While GPS has a fix: truth plus white noise (``aided_noise_m`` per axis, velocity
+    ``aided_vel_noise_mps``), like a GPS-aided EKF. Without a fix: the INS error model,
+    started (initial errors of the scenario's ``[ins]`` table) the first time the fix is
+    lost and propagated every ``ins_step_s`` along the true track; between propagations the
+    position error is carried forward with the current velocity error, so the reported
+    position moves smoothly. When the fix returns the solution is GPS-aided again and the
+    next loss starts a fresh INS.
+    """
+
+    def __init__(self, ins_config: InsErrorConfig, rng: np.random.Generator, aided_noise_m: float,
+                 aided_vel_noise_mps: float = 0.05, ins_step_s: float = 5.0) -> None:
+        self.ins_config = ins_config
+        self._rng = rng
+        self._normal = Normals(rng)
+        self.aided_noise_m = aided_noise_m
+        self.aided_vel_noise_mps = aided_vel_noise_mps
+        self.ins_step_s = ins_step_s
+        self.ins: InsErrorModel | None = None
+        self._ins_time_s = 0.0
+        self._radii = (6.4e6, 6.4e6)
+
+    @property
+    def inertial(self) -> bool:
+        """True while the solution is free-inertial (no GPS fix)."""
+        return self.ins is not None
+
+    def update(self, time_s: float, gps_fix: bool, lat_deg: float, vel_east_mps: float, vel_north_mps: float) -> None:
+        """Advance to ``time_s``: start/stop the INS with the fix, propagate it when a step is due."""
+        if gps_fix:
+            self.ins = None
+            return
+        if self.ins is None:
+            self.ins = InsErrorModel(self.ins_config, self._rng, lat_deg)
+            self._ins_time_s = time_s
+            self._radii = tuple(float(r) for r in radii_of_curvature_m(lat_deg))
+            return
+        dt = time_s - self._ins_time_s
+        if dt >= self.ins_step_s:
+            self.ins.propagate(dt, lat_deg, vel_east_mps, vel_north_mps)
+            self._ins_time_s = time_s
+            self._radii = tuple(float(r) for r in radii_of_curvature_m(lat_deg))
+
+    def position(self, time_s: float, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        """Indicated (lat_deg, lon_deg) at ``time_s`` for the true position."""
+        if self.ins is None:
+            east = self.aided_noise_m * self._normal()
+            north = self.aided_noise_m * self._normal()
+            return (lat_deg + math.degrees(north / 6.378e6),
+                    lon_deg + math.degrees(east / (6.378e6 * max(1e-6, math.cos(math.radians(lat_deg))))))
+        state = self.ins.state
+        tau = time_s - self._ins_time_s
+        m, n = self._radii
+        dlat = state[6] + state[4] * tau / m
+        dlon = state[7] + state[3] * tau / (n * math.cos(math.radians(lat_deg)))
+        return lat_deg + math.degrees(dlat), (lon_deg + math.degrees(dlon) + 180.0) % 360.0 - 180.0
+
+    def velocity(self, vel_east_mps: float, vel_north_mps: float) -> tuple[float, float]:
+        """Indicated (east, north) velocity in m/s."""
+        if self.ins is None:
+            s = self.aided_vel_noise_mps
+            return vel_east_mps + s * self._normal(), vel_north_mps + s * self._normal()
+        return self.ins.indicated_velocity(vel_east_mps, vel_north_mps)
+
+    def error_m(self, time_s: float, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        """(east, north) error of the inertial solution in metres; (0, 0) while aided."""
+        if self.ins is None:
+            return 0.0, 0.0
+        lat, lon = self.position(time_s, lat_deg, lon_deg)
+        m, n = self._radii
+        dlon = (lon - lon_deg + 180.0) % 360.0 - 180.0
+        return math.radians(dlon) * n * math.cos(math.radians(lat_deg)), math.radians(lat - lat_deg) * m
