@@ -1,0 +1,172 @@
+"""Fault injection, records and the command line: runs of ``python -m sitl.server`` checked from its tlog and CSV."""
+from __future__ import annotations
+
+import math
+import socket
+
+import numpy as np
+import pytest
+
+from sitl.scenario import load_scenario
+from sitl.server import main
+from sitl.truthlog import TRUTH_COLUMNS, read_truth_csv
+from tests.sitl.conftest import REPO, body_to_ned, read_tlog, run_cli
+
+
+def _closed_udp_port() -> int:
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    return port
+
+
+FAULTS = ["mag_off:10:5", "mag_stuck:20:5", "mag_spike:30:2:5000", "mag_nan:35:3", "heartbeat_off:40:5",
+          "link_loss:50:5:0.5", "link_duplicate:55:3:1", "link_delay:58:2:0.5"]
+
+
+@pytest.fixture(scope="module")
+def fault_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("faults")
+    # one fault from the scenario file ([[faults]]), the others from --fault
+    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text()
+    text += '\n[[faults]]\nkind = "gps_off"\nat_s = 45.0\nduration_s = 5.0\n'
+    scenario = tmp / "pacific_faults.toml"
+    scenario.write_text(text)
+    args = ["--scenario", str(scenario), "--speedup", "0", "--duration", "62", "--init-s", "0.2", "--seed", "3",
+            "--rate", "HIGHRES_IMU:10", "--tlog", "--out", f"udp:127.0.0.1:{_closed_udp_port()}"]
+    for fault in FAULTS:
+        args += ["--fault", fault]
+    summary, log_dir = run_cli(args, tmp)
+    messages = read_tlog(log_dir / "sitl.tlog")
+    start = load_scenario("pacific").start_posix
+    for msg in messages:
+        msg.sim_s = msg._timestamp - start        # when it was sent, in simulated seconds
+    return summary, log_dir, messages
+
+
+def _of(messages, name, t0=-1.0, t1=1e9):
+    return [m for m in messages if m.get_type() == name and t0 <= m.sim_s < t1]
+
+
+def test_fault_schedule_reported(fault_run):
+    summary, log_dir, messages = fault_run
+    texts = [m.text for m in _of(messages, "STATUSTEXT")]
+    for kind in ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "heartbeat_off", "gps_off", "link_loss"):
+        if kind != "link_loss":            # its own announcement may be lost on the lossy link
+            assert any(f"{kind} ON" in t for t in texts), kind
+        assert summary["counters"][f"fault_{kind}"] == 1
+    log = read_truth_csv(log_dir / "truth.csv")
+    faults = dict(zip(log["time_s"], log["faults"]))
+    assert faults[12.0] == "mag_off" and faults[31.0] == "mag_spike=5000" and faults[9.0] == ""
+
+
+def test_mag_off_stuck_nan(fault_run):
+    _, _, messages = fault_run
+    assert all((m.xmag, m.ymag, m.zmag) == (0, 0, 0) for m in _of(messages, "RAW_IMU", 10.0, 15.0))
+    assert all((m.xmag, m.ymag, m.zmag) == (0, 0, 0) for m in _of(messages, "SCALED_IMU", 10.0, 15.0))
+    assert all(m.xmag != 0 or m.zmag != 0 for m in _of(messages, "RAW_IMU", 5.0, 10.0) + _of(messages, "RAW_IMU", 15.0, 20.0))
+    stuck = {(m.xmag, m.ymag, m.zmag) for m in _of(messages, "RAW_IMU", 20.0, 25.0)}
+    before = _of(messages, "RAW_IMU", 19.85, 20.0)[-1]
+    assert stuck == {(before.xmag, before.ymag, before.zmag)}
+    assert len({(m.xmag, m.ymag, m.zmag) for m in _of(messages, "RAW_IMU", 25.0, 30.0)}) > 10
+    assert all(m.xmag == m.ymag == m.zmag == 32767 for m in _of(messages, "RAW_IMU", 35.0, 38.0))
+    highres = _of(messages, "HIGHRES_IMU", 35.0, 38.0)
+    assert highres and all(math.isnan(m.xmag) and m.fields_updated & 0x1C0 for m in highres)
+    off = _of(messages, "HIGHRES_IMU", 10.0, 15.0)
+    assert off and all(m.fields_updated & 0x1C0 == 0 for m in off)
+    status = _of(messages, "SYS_STATUS", 10.5, 15.0)
+    assert status and all(not m.onboard_control_sensors_health & 4 for m in status)
+
+
+def test_mag_spike_adds_value_on_each_axis(fault_run):
+    _, log_dir, messages = fault_run
+    log = read_truth_csv(log_dir / "truth.csv")
+    field = {t: (n, e, d) for t, n, e, d in zip(log["time_s"], log["field_n_nt"], log["field_e_nt"], log["field_d_nt"])}
+    att = {m.time_boot_ms: m for m in _of(messages, "ATTITUDE")}
+
+    def residual_body(t0, t1):
+        out = []
+        for raw in _of(messages, "RAW_IMU", t0, t1):
+            a = att[raw.time_usec // 1000]
+            n, e, d = field[float(math.floor(raw.time_usec / 1e6))]
+            # expected body vector: the true NED field seen through the (estimated) attitude
+            m_ned = body_to_ned(a.roll, a.pitch, a.yaw, raw.xmag * 100.0, raw.ymag * 100.0, raw.zmag * 100.0)
+            out.append(np.subtract(m_ned, (n, e, d)))
+        return np.mean(out, axis=0)
+
+    quiet = residual_body(26.0, 30.0)
+    spike = residual_body(30.0, 32.0)
+    assert np.all(np.abs(quiet) < 60.0)
+    # (5000, 5000, 5000) nT in the body frame, seen in NED through a few degrees of tilt
+    assert np.all(np.abs(spike - 5000.0) < 800.0)
+    assert np.linalg.norm(spike) == pytest.approx(5000.0 * math.sqrt(3.0), rel=0.02)
+
+
+def test_heartbeat_off_and_gps_off(fault_run):
+    _, _, messages = fault_run
+    assert len(_of(messages, "HEARTBEAT", 40.0, 45.0)) == 0
+    assert len(_of(messages, "HEARTBEAT", 35.0, 40.0)) == 5 and len(_of(messages, "HEARTBEAT", 45.0, 50.0)) == 5
+    assert {m.fix_type for m in _of(messages, "GPS_RAW_INT", 45.0, 50.0)} == {0}        # receiver gone
+    assert {m.fix_type for m in _of(messages, "GPS_RAW_INT", 40.0, 45.0)} == {1}        # denied (no fix)
+
+
+def test_link_loss_duplicate_delay(fault_run):
+    summary, _, messages = fault_run
+    lost = len(_of(messages, "RAW_IMU", 50.0, 55.0))
+    assert 12 <= lost <= 38                                   # 50 sent, half dropped (seeded)
+    assert summary["counters"]["tx_dropped_fault"] > 50
+    dup = _of(messages, "RAW_IMU", 55.0, 58.0)
+    assert len(dup) == 60 and all(a.get_seq() == b.get_seq() for a, b in zip(dup[::2], dup[1::2]))
+    delayed = [m for m in _of(messages, "RAW_IMU", 58.0, 61.0) if 58.0 <= m.time_usec / 1e6 < 60.0]
+    assert delayed and all(m.sim_s - m.time_usec / 1e6 == pytest.approx(0.5, abs=1e-3) for m in delayed)
+    # when the delay ends the queue drains in order (a FIFO link): nothing overtakes
+    drained = _of(messages, "RAW_IMU", 60.0, 60.6)
+    assert [m.time_usec for m in drained] == sorted(m.time_usec for m in drained)
+    prompt = _of(messages, "RAW_IMU", 60.6, 62.0)
+    assert prompt and all(abs(m.sim_s - m.time_usec / 1e6) < 1e-3 for m in prompt)
+
+
+def test_runs_are_reproducible_for_a_seed(tmp_path):
+    port = _closed_udp_port()
+    args = ["--speedup", "0", "--duration", "30", "--tlog", "--out", f"udp:127.0.0.1:{port}", "--fault",
+            "link_loss:5:10:0.3"]
+    runs = []
+    for k, seed in enumerate((7, 7, 8)):
+        folder = tmp_path / f"r{k}"
+        folder.mkdir()
+        _, log_dir = run_cli(args + ["--seed", str(seed)], folder)
+        runs.append(((log_dir / "truth.csv").read_bytes(), (log_dir / "sitl.tlog").read_bytes()))
+    assert runs[0] == runs[1]
+    assert runs[0][0] != runs[2][0] and runs[0][1] != runs[2][1]
+
+
+def test_truth_log_columns_and_fc_drift(tmp_path):
+    _, log_dir = run_cli(["--speedup", "0", "--duration", "1800", "--out", f"udp:127.0.0.1:{_closed_udp_port()}"],
+                         tmp_path)
+    log = read_truth_csv(log_dir / "truth.csv")
+    assert tuple(log) == TRUTH_COLUMNS
+    assert len(log["time_s"]) == 1802                          # 0..1800 s at 1 Hz, plus the final row
+    err = np.hypot(log["fc_err_e_m"], log["fc_err_n_m"])
+    assert err[0] > 100.0 and np.all(np.isfinite(err))          # Table 1: km-scale initial INS error
+    assert np.ptp(err) > 1.0                                    # and it drifts
+    assert log["remaining_m"][0] == pytest.approx(799_071.9, abs=1.0)
+    assert set(log["gps_fix"]) == {0.0}                         # pacific denies GPS from t = 0
+
+
+def test_storm_onset_fault(tmp_path, shared_data):
+    _, log_dir = run_cli(["--scenario", "long_storm", "--speedup", "0", "--duration", "40", "--expected-duration",
+                          "60", "--fault", "storm_onset:20", "--data-dir", str(shared_data),
+                          "--out", f"udp:127.0.0.1:{_closed_udp_port()}"], tmp_path)
+    log = read_truth_csv(log_dir / "truth.csv")
+    t = np.array(log["time_s"])
+    dist = np.abs(np.array([log["dist_n_nt"], log["dist_e_nt"], log["dist_d_nt"]])).sum(axis=0)
+    assert np.all(dist[t < 20] == 0.0) and np.all(dist[t >= 20] > 10.0)
+
+
+def test_cli_errors_exit_2(capsys):
+    assert main(["--scenario", "no_such_scenario", "--quiet"]) == 2
+    assert "no scenario" in capsys.readouterr().err
+    assert main(["--fault", "mag_explode:1", "--quiet", "--no-truth-log"]) == 2
+    assert main(["--out", "serial:/dev/null", "--quiet", "--no-truth-log"]) == 2
+    assert main(["--fault", "storm_onset:5", "--quiet", "--no-truth-log"]) == 2   # pacific has no storm
