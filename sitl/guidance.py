@@ -346,6 +346,14 @@ class Guidance:
             self._say(SEVERITY_INFO, f"Mode {mode}")
         return MAV_RESULT_ACCEPTED
 
+    def start_cruise(self, course_rad: float, speed_mps: float) -> None:
+        """Arm, enter the guided mode and hold this course and speed (no timeout): ``--cruise``."""
+        self.armed = True
+        self.mode = self.dialect.guided_mode
+        self._reset_guided()
+        self._course, self._speed = wrap_2pi(course_rad), min(max(speed_mps, 0.0), self.limits.max_speed_mps)
+        self._say(SEVERITY_INFO, f"Cruise {math.degrees(self._course):.0f} deg {self._speed:.1f} m/s in {self.mode}")
+
     def _guided_active(self) -> bool:
         return self.armed and self.behaviour == "guided"
 

@@ -47,7 +47,7 @@ import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from companion import wrap_2pi, wrap_pi  # noqa: E402
-from companion.nav.geo import enu_offset, geodesic_distance_m  # noqa: E402
+from companion.nav.geo import geodesic_distance_m, metres_per_degree  # noqa: E402
 from companion.params import SPEC_BY_NAME  # noqa: E402
 from sitl.clock import US_PER_S, LockstepGate, Pacer  # noqa: E402
 from sitl.guidance import (  # noqa: E402
@@ -164,6 +164,7 @@ class ServerConfig:
     setpoint_timeout_s: float | None = None
     cruise_speed_mps: float | None = None
     init_s: float = 1.0
+    cruise: tuple[float, float] | None = None   # (course_deg, speed_mps): armed in guided from init_s
     log_dir: str | None = None
     truth_log: bool = True
     log_rate_hz: float = 1.0
@@ -261,6 +262,7 @@ class SitlServer:
         self._mag_nan = False
         self._ext_estimate: tuple[float, float] | None = None
         self._last_system_time_us = -1
+        self._last_log_us = -1
         # faults
         self._fault_times = sorted({f.at_s for f in sc.faults} | {f.at_s + f.duration_s for f in sc.faults
                                                                  if math.isfinite(f.duration_s)})
@@ -333,6 +335,7 @@ class SitlServer:
         self.tlog = TlogWriter(tlog_path) if tlog_path is not None else None
         self.wall_start = self.wall_end = 0.0
         self.home = self._fc_position()
+        self._home_scale = tuple(float(v) for v in metres_per_degree(self.home[0]))
         self.guidance.home = self.home
         self.summary: dict = {}
 
@@ -343,7 +346,7 @@ class SitlServer:
         else:
             stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
             path = Path("out") / "sitl" / f"{self.scenario.name}-{stamp}-{os.getpid()}"
-        if self.config.truth_log or self.config.tlog == "" or self.config.summary_json is None:
+        if self.config.truth_log or self.config.tlog == "":
             path.mkdir(parents=True, exist_ok=True)
         return path
 
@@ -637,7 +640,9 @@ class SitlServer:
 
     def _send_local_position_ned(self) -> None:
         lat, lon = self._fc_position()
-        east, north = enu_offset(self.home[0], self.home[1], lat, lon)
+        # enu_offset() of the home tangent plane, with its scale factors computed once
+        east = ((lon - self.home[1] + 180.0) % 360.0 - 180.0) * self._home_scale[0]
+        north = (lat - self.home[0]) * self._home_scale[1]
         ve, vn = self._fc_velocity()
         self._emit(mavlink.MAVLink_local_position_ned_message, self.t_us // 1000, float(north), float(east), 0.0,
                                                               vn, ve, 0.0)
@@ -698,6 +703,7 @@ class SitlServer:
         g = self.guidance
         remaining = geodesic_distance_m(s.lat_deg, s.lon_deg, self.scenario.dest_lat_deg, self.scenario.dest_lon_deg)
         est = self._ext_estimate
+        self._last_log_us = self.t_us
         self.truth_log.write({
             "time_s": self.time_s, "lat_deg": s.lat_deg, "lon_deg": s.lon_deg,
             "course_deg": math.degrees(s.course_rad), "speed_mps": s.speed_mps,
@@ -1072,6 +1078,8 @@ class SitlServer:
         if nxt["init"] <= now:
             nxt["init"] = 1 << 62
             self.guidance.set_ready()
+            if self.config.cruise is not None:
+                self.guidance.start_cruise(math.radians(self.config.cruise[0]), self.config.cruise[1])
             self._drain_guidance_events()
         if nxt["field"] <= now:
             nxt["field"] = now + self._field_interval_us
@@ -1185,11 +1193,11 @@ class SitlServer:
         pace = "unlimited" if self.pacer.speedup is None else f"{self.pacer.speedup:g}x"
         print(f"fcmpc-sitl: scenario {self.scenario.name}, {self.dialect.name} boat sysid {self.sysid}, "
               f"links {links}, speed-up {pace}{', lockstep %gs' % c.lockstep_period_s if c.lockstep else ''}, "
-              f"log {self.log_dir}", file=sys.stderr, flush=True)
+              f"records {self.log_dir if (self.truth_log or self.tlog) else 'off'}", file=sys.stderr, flush=True)
 
     def _finish(self) -> None:
         try:
-            if self.truth_log is not None:
+            if self.truth_log is not None and self._last_log_us != self.t_us:
                 self._write_truth()
         except Exception:  # pragma: no cover - never lose the summary for a log row
             pass
@@ -1282,6 +1290,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cruise-speed", type=float, default=None, help="m/s for RTL and position targets "
                                                                     "(default NAV_SPEED_KMH)")
     p.add_argument("--init-s", type=float, default=1.0, help="simulated seconds in INITIALISING after boot")
+    p.add_argument("--cruise", default=None, metavar="COURSE_DEG:SPEED_MPS",
+                   help="without a companion: arm in GUIDED/OFFBOARD when ready and hold this course and speed")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help=f"add a fault to the scenario's schedule; kinds: {', '.join(FAULT_KINDS)}")
     p.add_argument("--rate", action="append", default=[], metavar="MESSAGE:HZ",
@@ -1307,6 +1317,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
+    cruise = None
+    if args.cruise:
+        course, _, speed = args.cruise.partition(":")
+        cruise = (float(course), float(speed or 0.0))
     peer = None
     if args.lockstep_peer:
         a, _, b = args.lockstep_peer.partition(":")
@@ -1317,6 +1331,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         lockstep_start_timeout_s=args.lockstep_start_timeout, lockstep_peer=peer, duration_s=args.duration,
         max_sim_s=args.max_sim_s, seed=args.seed, autopilot=args.autopilot, sysid=args.sysid,
         setpoint_timeout_s=args.setpoint_timeout, cruise_speed_mps=args.cruise_speed, init_s=args.init_s,
+        cruise=cruise,
         log_dir=args.log_dir, truth_log=not args.no_truth_log, log_rate_hz=args.log_rate, tlog=args.tlog,
         faults=tuple(args.fault), rates=tuple(args.rate), field_step_s=args.field_step, ins_step_s=args.ins_step,
         wave_roll_deg=args.wave_roll, wave_pitch_deg=args.wave_pitch, data_dir=args.data_dir,
@@ -1350,11 +1365,13 @@ def _free_udp_socket() -> socket.socket:
 
 
 def benchmark(duration_sim_s: float = 3600.0, speedup: float | None = None, scenario: str = "pacific",
-              extra_args: tuple[str, ...] = (), parse: bool = True, timeout_s: float = 600.0) -> dict:
+              extra_args: tuple[str, ...] = ("--cruise", "132.3:13.9"), parse: bool = True,
+              timeout_s: float = 600.0) -> dict:
     """Speed of the simulator on a scenario, with a reader draining its UDP output.
 
     The simulator runs as a separate process (``python -m sitl.server``, unlimited speed-up
-    unless ``speedup`` is given, default 10 Hz IMU/magnetometer streams, truth log on); this
+    unless ``speedup`` is given, default 10 Hz IMU/magnetometer streams, truth log on, the boat
+    cruising at 50 km/h towards the destination by ``--cruise``: ``extra_args``); this
     process reads its UDP output and, with ``parse``, decodes every frame with pymavlink
     (CRC checked). Returns ``sim_s``, ``wall_s``, ``speedup`` (simulated over wall time),
     ``tx_messages`` and ``tx_msgs_per_s`` (sent, per wall second), ``rx_messages`` and

@@ -146,7 +146,7 @@ def test_truth_log_columns_and_fc_drift(tmp_path):
                          tmp_path)
     log = read_truth_csv(log_dir / "truth.csv")
     assert tuple(log) == TRUTH_COLUMNS
-    assert len(log["time_s"]) == 1802                          # 0..1800 s at 1 Hz, plus the final row
+    assert len(log["time_s"]) == 1801                          # 0..1800 s at 1 Hz (the final row is t = 1800)
     err = np.hypot(log["fc_err_e_m"], log["fc_err_n_m"])
     assert err[0] > 100.0 and np.all(np.isfinite(err))          # Table 1: km-scale initial INS error
     assert np.ptp(err) > 1.0                                    # and it drifts
