@@ -38,9 +38,9 @@ def test_ins_errors_are_seeded_and_reproducible():
     np.testing.assert_array_equal(a, b)
     assert not np.allclose(a[0], c[0])            # different initial draws
     assert not np.allclose(a[-1], c[-1])
-    # the random drift is re-drawn each step: same start, different seed -> different paths
+    # deterministic mode draws nothing (initial errors as given, no Markov noise): seed-independent
     det = replace(InsErrorConfig(), deterministic=True)
-    assert np.array_equal(_fly_ins(1, det), _fly_ins(2, det))   # deterministic: no randomness at all
+    assert np.array_equal(_fly_ins(1, det), _fly_ins(2, det))
 
 
 def test_deterministic_mode_applies_table_1_initial_errors_exactly():

@@ -1,0 +1,373 @@
+"""Algorithm 1 as a step function (companion.nav.mission), alone and against the simulated world.
+
+Two worlds:
+
+* ``NoiselessWorld`` (here): the WMM read exactly at the true position, which moves along the
+  geodesic of each command (geographiclib Direct, not the mission's own flat-earth dead
+  reckoning). Deterministic and fast: for headings, bad measurements and the sequence.
+* ``sitl.inprocess.fly_in_process``: the Pacific scenario's vehicle limits, INS errors and
+  averaged sensor noise, seeded. For arrival accuracy and the paper's variants.
+
+Arrival tolerance, from the noise rather than from a run: at the destination the averaged
+(D, I) noise of the scenario (``SensorModel.averaged_di_noise_deg``) maps into position through
+the field's gradient, ``cov = G^-1 diag(sigma_D^2, sigma_I^2) G^-T``; here ``sigma_fix =
+sqrt(trace cov)`` is about 0.63 km (mostly east-west, where the gradient is weak). The mission
+stops when its *estimated* distance is below epsilon (NAV_ARRIVE_M, 0.5 km), so the true miss
+is about epsilon plus one fix error: we allow ``epsilon + 2 sigma_fix`` (~1.8 km) for Fc-MPC,
+whose estimate is the model-based fix. LTV-MPC has no absolute fix; its distance estimate
+``G_est^-1 (S_d - S)`` carries the same noise through a gradient that is itself estimated from
+noisy 5 km moves (15-35 % error in the weak direction), so we allow ``epsilon + 4 sigma_fix``
+(~3.0 km). Measured over 40 seeds at 70 km: Fc-MPC max 0.77 km, LTV-MPC median 1.1 km,
+95th percentile 2.6 km, max 4.0 km.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from geographiclib.geodesic import Geodesic
+
+from companion.nav.field import decl_incl_gradient, model_for_date
+from companion.nav.mission import Measurement, Mission, Phase, compensation
+from companion.params import Controller, NavConfig, validate_all
+from sitl.inprocess import fly_in_process
+from sitl.scenario import load_scenario
+from sitl.world.build import build_truth_field
+
+WGS84 = Geodesic.WGS84
+LTI, LTV, FC = Controller.LTI, Controller.LTV, Controller.FC
+DAQP_SCALING_BUG = ("BUG: _DaqpBackend passes the input box to daqp as simple bounds on the scaled variable "
+                    "without scaling them; with MPC_U_BOUNDS=1 (box [0, 0.8] in cruise-speed units) daqp "
+                    "enforces [0, 0.64] and the mission flies differently from OSQP")
+
+
+# --- shared fixtures -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def model():
+    return model_for_date(2024.36)
+
+
+@pytest.fixture(scope="module")
+def pacific():
+    return load_scenario("pacific")
+
+
+@pytest.fixture(scope="module")
+def truth(pacific):
+    return build_truth_field(pacific)
+
+
+def along_route(distance_m: float) -> tuple[float, float]:
+    """A destination distance_m from the Pacific start, on the geodesic to the paper's destination."""
+    line = WGS84.Inverse(33.0, 152.0, 28.0, 158.0)
+    point = WGS84.Direct(33.0, 152.0, line["azi1"], distance_m)
+    return point["lat2"], point["lon2"]
+
+
+def nav_config(scenario=None, distance_m: float = 70e3, **values) -> NavConfig:
+    lat, lon = along_route(distance_m)
+    base = scenario.nav_overrides() if scenario is not None else {}
+    return NavConfig.from_values(validate_all({**base, "NAV_DEST_LAT": lat, "NAV_DEST_LON": lon, **values}))
+
+
+def fix_sigma_m(scenario, truth_field, nav: NavConfig) -> float:
+    """sqrt(trace(G^-1 diag(sigma_D^2, sigma_I^2) G^-T)) at the destination, metres."""
+    start = truth_field.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
+    sigma_d, sigma_i = scenario.sensors.averaged_di_noise_deg(nav.period_s, float(start.h_nt), float(start.f_nt))
+    g = decl_incl_gradient(truth_field.model, nav.dest_lat_deg, nav.dest_lon_deg, nav.alt_m, nav.year)
+    g_inv = np.linalg.inv(g)
+    return float(math.sqrt(np.trace(g_inv @ np.diag([sigma_d**2, sigma_i**2]) @ g_inv.T)))
+
+
+def assert_commands_sane(commands, nav: NavConfig) -> None:
+    for c in commands:
+        assert math.isfinite(c.course_rad) and 0.0 <= c.course_rad < 2.0 * math.pi, c
+        assert math.isfinite(c.speed_mps) and 0.0 <= c.speed_mps <= nav.speed_mps + 1e-9, c
+        assert math.isfinite(c.est_lat_deg) and math.isfinite(c.est_lon_deg), c
+
+
+class NoiselessWorld:
+    """WMM at the true position; each command flown exactly for one period along its geodesic."""
+
+    def __init__(self, nav: NavConfig, model) -> None:
+        self.nav, self.model = nav, model
+        self.lat, self.lon, self.time_s = nav.start_lat_deg, nav.start_lon_deg, 0.0
+
+    def measure(self) -> Measurement:
+        e = self.model.elements(self.lat, self.lon, self.nav.alt_m, self.nav.year)
+        return Measurement(self.time_s, float(e.decl_deg), float(e.incl_deg))
+
+    def fly(self, command) -> Measurement:
+        end = WGS84.Direct(self.lat, self.lon, math.degrees(command.course_rad), command.speed_mps * self.nav.period_s)
+        self.lat, self.lon, self.time_s = end["lat2"], end["lon2"], self.time_s + self.nav.period_s
+        return self.measure()
+
+    def miss_m(self) -> float:
+        return WGS84.Inverse(self.lat, self.lon, self.nav.dest_lat_deg, self.nav.dest_lon_deg)["s12"]
+
+
+def fly_noiseless(nav: NavConfig, model, max_commands: int = 300):
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    commands = [mission.step(world.measure())]
+    while not commands[-1].done and len(commands) < max_commands:
+        commands.append(mission.step(world.fly(commands[-1])))
+    return commands, world, mission
+
+
+def comparable(command) -> tuple:
+    """A command without the solver's own timing (the only field that is not deterministic)."""
+    return dataclasses.astuple(dataclasses.replace(command, solver_time_s=0.0))
+
+
+# --- eq. 43-44 -----------------------------------------------------------------------------------
+def test_compensation_satisfies_eq_43_and_eq_44():
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        b = rng.normal(0.0, 1.0, (2, 2)) * 10.0 ** rng.uniform(-3, 3)
+        if abs(np.linalg.cond(b)) > 1e8:
+            continue
+        xi, s, u_h = rng.normal(0.0, 1.0, 2), rng.normal(0.0, 50.0, 2), rng.normal(0.0, 1.0, 2)
+        u_a = compensation(b, xi)
+        np.testing.assert_allclose(b @ u_a, -xi, rtol=1e-9, atol=1e-12)                        # eq. 43
+        a = np.eye(2)
+        np.testing.assert_allclose(a @ s + b @ (u_h + u_a) + xi, a @ s + b @ u_h, rtol=1e-9, atol=1e-9)  # eq. 44
+
+
+# --- Algorithm 1's sequence (noiseless world) --------------------------------------------------------
+@pytest.mark.parametrize("probes", [(0.0, 270.0), (45.0, 135.0), (180.0, 90.0)])
+def test_probing_headings_come_first(model, probes):
+    nav = nav_config(NAV_PROBE1_DEG=probes[0], NAV_PROBE2_DEG=probes[1])
+    commands, _, _ = fly_noiseless(nav, model, max_commands=3)
+    expected_courses = [(90.0 - theta) % 360.0 for theta in probes]   # theta from east CCW -> course
+    assert [c.phase for c in commands] == [Phase.PROBE_1, Phase.PROBE_2, Phase.CRUISE]
+    for command, course in zip(commands[:2], expected_courses):
+        assert (math.degrees(command.course_rad) - course + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-9)
+        assert command.speed_mps == pytest.approx(nav.speed_mps)
+        assert command.step in (0, 1) and not command.done
+    # Table 4's (0, 270): east, then south
+    if probes == (0.0, 270.0):
+        assert [round(math.degrees(c.course_rad), 9) for c in commands[:2]] == [90.0, 180.0]
+
+
+@pytest.mark.parametrize("controller", [LTI, LTV, FC])
+def test_noiseless_mission_lands_on_the_destination(model, controller):
+    """Exact measurements: every controller reaches the destination, stopping inside epsilon."""
+    nav = nav_config(NAV_CONTROLLER=controller)
+    commands, world, mission = fly_noiseless(nav, model)
+    final = commands[-1]
+    assert final.phase == Phase.ARRIVED and final.done and final.speed_mps == 0.0
+    assert final.remaining_m < nav.arrive_m
+    assert world.miss_m() < nav.arrive_m
+    assert abs(world.miss_m() - final.remaining_m) < 50.0   # the estimate is the truth, up to linearisation
+    assert_commands_sane(commands, nav)
+    # cruise courses point at the destination (straight line, no noise): within a few degrees
+    for c in commands[2:-1]:
+        to_dest = WGS84.Inverse(c.est_lat_deg, c.est_lon_deg, nav.dest_lat_deg, nav.dest_lon_deg)["azi1"]
+        assert (math.degrees(c.course_rad) - to_dest + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=5.0)
+
+
+def test_lti_freezes_the_probe_gradient_and_ltv_updates_it(model):
+    g_after_probes = {}
+    for controller in (LTI, LTV):
+        nav = nav_config(NAV_CONTROLLER=controller)
+        world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+        command = mission.step(world.measure())
+        for _ in range(2):
+            command = mission.step(world.fly(command))
+        g_after_probes[controller] = mission.gradient.g.copy()
+        for _ in range(5):
+            command = mission.step(world.fly(command))
+        if controller == LTI:
+            np.testing.assert_array_equal(mission.gradient.g, g_after_probes[LTI])
+        else:
+            assert not np.array_equal(mission.gradient.g, g_after_probes[LTV])
+    np.testing.assert_allclose(g_after_probes[LTI], g_after_probes[LTV], rtol=1e-12)
+
+
+def test_probes_too_short_for_a_gradient_fail_the_mission(model):
+    nav = nav_config(NAV_CONTROLLER=LTV, NAV_SPEED_KMH=1.0, NAV_PERIOD_S=10.0)  # 2.8 m per probe < 200 m
+    commands, _, _ = fly_noiseless(nav, model, max_commands=5)
+    assert commands[-1].phase == Phase.FAILED and commands[-1].done
+    assert "gradient" in commands[-1].reason
+    assert commands[-1].speed_mps == 0.0
+
+
+def test_a_finished_mission_keeps_returning_its_final_command(model):
+    nav = nav_config(NAV_CONTROLLER=LTV)
+    commands, world, mission = fly_noiseless(nav, model)
+    final = commands[-1]
+    assert final.done
+    again = mission.step(world.fly(final))
+    assert again is final
+
+
+# --- bad measurements --------------------------------------------------------------------------------
+BAD = {
+    "nan_decl": lambda m, last_t: dataclasses.replace(m, decl_deg=math.nan),
+    "nan_incl": lambda m, last_t: dataclasses.replace(m, incl_deg=math.nan),
+    "inf_decl": lambda m, last_t: dataclasses.replace(m, decl_deg=math.inf),
+    "nan_time": lambda m, last_t: dataclasses.replace(m, time_s=math.nan),
+    "same_time": lambda m, last_t: dataclasses.replace(m, time_s=last_t),
+    "earlier_time": lambda m, last_t: dataclasses.replace(m, time_s=last_t - 1.0),
+}
+
+
+@pytest.mark.parametrize("controller", [LTV, FC])
+@pytest.mark.parametrize("kind", sorted(BAD))
+@pytest.mark.parametrize("at_step", [1, 2, 5])
+def test_bad_measurement_holds_and_changes_nothing(model, controller, kind, at_step):
+    """Mission B receives a bad measurement before good measurement k; mission A never does.
+    B answers HOLD at zero speed and then continues exactly like A."""
+    nav = nav_config(NAV_CONTROLLER=controller)
+    world, a, b = NoiselessWorld(nav, model), Mission(nav, model), Mission(nav, model)
+    meas = world.measure()
+    cmd_a, cmd_b = a.step(meas), b.step(meas)
+    for k in range(1, 10):
+        meas = world.fly(cmd_a)
+        if k == at_step:
+            held = b.step(BAD[kind](meas, meas.time_s - nav.period_s))
+            assert held.phase == Phase.HOLD and held.speed_mps == 0.0 and not held.done
+            assert math.isfinite(held.course_rad) and held.reason
+            assert held.step == k  # the step counter did not move
+        cmd_a, cmd_b = a.step(meas), b.step(meas)
+        np.testing.assert_equal(comparable(cmd_b), comparable(cmd_a))  # NaN fields compare equal
+
+
+@pytest.mark.parametrize("kind", ["nan_decl", "nan_time"])
+def test_bad_first_measurement_holds_before_the_mission_starts(model, kind):
+    nav = nav_config(NAV_CONTROLLER=FC)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    held = mission.step(BAD[kind](world.measure(), 0.0))
+    assert held.phase == Phase.HOLD and held.speed_mps == 0.0 and held.step == 0
+    assert held.course_rad == 0.0
+    first = mission.step(world.measure())
+    assert first.phase == Phase.PROBE_1
+
+
+@pytest.mark.xfail(strict=True, reason="BUG: Mission.step checks time, D and I for finiteness but not "
+                   "window_s; a NaN window is accepted as a normal step, the window lag becomes NaN, the "
+                   "geomagnetic fix of that step is lost (prior NaN) and the gradient updates of that step "
+                   "and the next are silently skipped (NaN displacement)")
+def test_nan_averaging_window_is_a_bad_measurement(model):
+    nav = nav_config(NAV_CONTROLLER=FC)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    command = mission.step(world.measure())
+    for _ in range(3):
+        command = mission.step(world.fly(command))
+    held = mission.step(dataclasses.replace(world.fly(command), window_s=math.nan))
+    assert held.phase == Phase.HOLD and held.speed_mps == 0.0
+
+
+# --- seeded missions in the simulated world ---------------------------------------------------------
+@pytest.mark.parametrize("controller,sigmas", [(FC, 2.0), (LTV, 4.0)])
+def test_short_seeded_mission_arrives_within_the_noise_tolerance(pacific, truth, controller, sigmas):
+    nav = nav_config(pacific, NAV_CONTROLLER=controller)
+    tolerance = nav.arrive_m + sigmas * fix_sigma_m(pacific, truth, nav)
+    assert 1000.0 < tolerance < 3500.0   # sanity of the derivation (~1.8 km Fc, ~3.0 km LTV)
+    for seed in range(4):
+        result = fly_in_process(nav, pacific, seed, truth, keep_commands=True)
+        assert result.phase == Phase.ARRIVED, (seed, result.reason)
+        assert result.remaining_m < tolerance, (seed, result.remaining_m, tolerance)
+        assert_commands_sane(result.commands, nav)
+        assert result.commands[0].phase == Phase.PROBE_1 and result.commands[1].phase == Phase.PROBE_2
+
+
+def test_lti_mission_outcome_is_arrival_or_the_step_limit(pacific, truth):
+    """LTI-MPC keeps G(2) from two noisy probes for the whole mission. When the probes happen to
+    misjudge the weak (east-west) gradient, it never notices: seed 1 here flies off until the
+    step limit (the paper's LTI CEP is 35 km). Whatever happens, it ends in one of the two
+    documented ways with sane commands, and it does arrive for most seeds."""
+    nav = nav_config(pacific, NAV_CONTROLLER=LTI, NAV_MAX_STEPS=50)
+    tolerance = nav.arrive_m + 4.0 * fix_sigma_m(pacific, truth, nav)
+    arrived = 0
+    for seed in range(4):
+        result = fly_in_process(nav, pacific, seed, truth, keep_commands=True)
+        assert_commands_sane(result.commands, nav)
+        if result.phase == Phase.ARRIVED:
+            arrived += 1
+            assert result.remaining_m < tolerance, (seed, result.remaining_m)
+        else:
+            assert (result.phase, result.reason) == (Phase.FAILED, "step limit reached"), seed
+            assert result.iterations == nav.max_steps
+    assert arrived >= 2
+
+
+VARIANTS = {
+    "paper units, constant speed": dict(MPC_UNITS=1, NAV_SPEED_MODE=1),
+    "paper input bounds": dict(MPC_U_BOUNDS=1),
+    "eq. 10 as printed": dict(GRAD_UPDATE=1),
+    "two-move gradient": dict(GRAD_UPDATE=2),
+    "eq. 58 feedback, fusion on": dict(FUS_FEEDBACK=1, FUS_SIGMA=0.02),
+}
+
+
+def check_variant(scenario, truth_field, variant: str, controller: int, seeds) -> None:
+    nav = nav_config(scenario, NAV_CONTROLLER=controller, NAV_MAX_STEPS=45, **VARIANTS[variant])
+    for seed in seeds:
+        result = fly_in_process(nav, scenario, seed, truth_field, keep_commands=True)
+        assert_commands_sane(result.commands, nav)
+        assert result.phase in (Phase.ARRIVED, Phase.FAILED)
+        if result.phase == Phase.FAILED:   # a clean stop: zero speed, a reason (see the QP test below)
+            assert result.reason and result.commands[-1].speed_mps == 0.0
+        cruise = [c for c in result.commands if c.phase == Phase.CRUISE]
+        assert cruise
+        if nav.speed_mode == 1:
+            assert all(c.speed_mps == pytest.approx(nav.speed_mps) for c in cruise)
+        if nav.u_bounds == 1:   # U in [0, U_max]^2 signed towards the destination (south-east)
+            for c in cruise:
+                assert c.u_first_mps[0] >= -1e-6 and c.u_first_mps[1] <= 1e-6, c.u_first_mps
+        if controller == FC and nav.fusion_sigma_deg_per_m > 1e-5:
+            assert all(c.fused for c in cruise)   # fusion forced on: the eq. 58 path is exercised
+        if controller == FC and variant in RELIABLE_FC:
+            assert result.phase == Phase.ARRIVED, (seed, result.reason)
+
+
+RELIABLE_FC = ("eq. 10 as printed", "two-move gradient", "eq. 58 feedback, fusion on")
+
+
+@pytest.mark.parametrize("controller", [LTV, FC])
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_paper_variants_run_with_sane_commands(pacific, truth, variant, controller):
+    """Arrival is asserted only where it is reliable (20/20 seeds measured at 70 km): Fc-MPC with
+    either alternative gradient update or with eq. 58 feedback. Measured otherwise (20 seeds,
+    60 steps): paper units + constant speed never arrive (5 km steps cannot land within 0.5 km);
+    paper bounds: Fc 16/20, LTV 9/20; eq. 10: LTV 4/20 (and see the QP test below); eq. 58: Fc
+    arrives 20/20 but up to 19 km off, its estimate being pulled towards the INS."""
+    check_variant(pacific, truth, variant, controller, seeds=(0,))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("controller", [LTV, FC])
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_paper_variants_over_more_seeds(pacific, truth, variant, controller):
+    check_variant(pacific, truth, variant, controller, seeds=range(1, 6))
+
+
+@pytest.mark.parametrize("values", [
+    {},
+    pytest.param({"MPC_U_BOUNDS": 1}, marks=pytest.mark.xfail(strict=True, reason=DAQP_SCALING_BUG)),
+])
+def test_mission_flies_the_same_with_either_qp_backend(pacific, truth, values):
+    for controller in (LTV, FC):
+        runs = []
+        for solver in (0, 1):
+            nav = nav_config(pacific, NAV_CONTROLLER=controller, NAV_MAX_STEPS=30, MPC_SOLVER=solver, **values)
+            runs.append(fly_in_process(nav, pacific, 0, truth, keep_commands=True))
+        osqp_run, daqp_run = runs
+        for a, b in zip(osqp_run.commands, daqp_run.commands):
+            assert math.remainder(a.course_rad - b.course_rad, 2.0 * math.pi) == pytest.approx(0.0, abs=1e-3), a.step
+        assert (osqp_run.phase, len(osqp_run.commands)) == (daqp_run.phase, len(daqp_run.commands))
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "BUG (solver robustness): OSQP, warm-started through the mission's sequence of QPs, reports "
+    "'solved inaccurate' (after 0 iterations) on the 36th QP of LTV-MPC + GRAD_UPDATE=1, seed 1, 70 km "
+    "(cond(B) ~ 3.6e3, after 16900 iterations on the previous QP); the QP is strictly convex and feasible "
+    "(a cold OSQP solves it in 7400 iterations, daqp in 1), but Mission treats any non-'solved' status as "
+    "fatal and ends the mission FAILED"))
+def test_mission_does_not_fail_on_a_solvable_qp(pacific, truth):
+    nav = nav_config(pacific, NAV_CONTROLLER=LTV, NAV_MAX_STEPS=60, GRAD_UPDATE=1)
+    result = fly_in_process(nav, pacific, 1, truth)
+    assert not result.reason.startswith("QP failed"), result.reason
