@@ -12,15 +12,28 @@ wall time only decides how fast simulated time may advance.
     message stamped up to and including ``B`` (the last one a SYSTEM_TIME with
     ``time_boot_ms = B``), waits until the companion has answered. An answer is
 
-    * a message from a peer whose ``time_boot_ms`` field is at least ``B - period`` (and not
-      later than ``B + period``: a larger stamp is not simulated time and is treated as
-      untimed), or
+    * a message from a peer whose ``time_boot_ms`` field is at least ``B - slack * period``
+      (``slack`` = 1 by default: the companion may be one period behind, so both run in
+      parallel; 0 = strict) and not later than ``B + period`` (a larger stamp is not
+      simulated time and is treated as untimed), or
     * any message without a usable time stamp (no ``time_boot_ms`` field, or 0), such as
       HEARTBEAT, COMMAND_LONG or TIMESYNC, read while waiting at ``B``.
 
     If no answer arrives within ``timeout_s`` of wall time the simulator goes on alone and
     counts a lockstep timeout: it never deadlocks. Before the first message from any peer it
     waits up to ``start_timeout_s`` at ``B = 0`` (0 = for ever).
+
+    The server applies a setpoint stamped ``s`` at the first boundary ``>= s + slack * period``
+    (:meth:`LockstepGate.apply_at_us`), a boundary by which the rule above guarantees it has
+    arrived, so setpoint timing does not depend on wall-clock races. Untimed messages take
+    effect at the boundary where they are read.
+
+    Strict mode (``slack = 0``) makes whole closed-loop runs bit-reproducible: once a peer
+    has sent one stamped message, only stamped messages answer (an untimed COMMAND_LONG sent
+    before the stamped answer would otherwise end the wait early), so everything the
+    companion sends before its answer to ``B`` is read and applied at ``B``. A companion in
+    strict mode must therefore answer *every* boundary with a stamped message, also when it
+    has nothing to command (e.g. echo SYSTEM_TIME with ``time_boot_ms = B``).
 """
 from __future__ import annotations
 
@@ -63,10 +76,13 @@ class LockstepGate:
     """Bookkeeping of the lockstep protocol (the waiting itself is the server's)."""
 
     def __init__(self, period_s: float, timeout_s: float = 2.0, start_timeout_s: float = 60.0,
-                 peer: tuple[int, int] | None = None) -> None:
+                 peer: tuple[int, int] | None = None, slack_periods: int = 1) -> None:
         if not period_s > 0.0:
             raise ValueError(f"lockstep period must be > 0 s, got {period_s}")
+        if slack_periods not in (0, 1):
+            raise ValueError(f"lockstep slack must be 0 or 1 period, got {slack_periods}")
         self.period_us = int(round(period_s * US_PER_S))
+        self.slack_us = slack_periods * self.period_us
         self.timeout_s = timeout_s
         self.start_timeout_s = start_timeout_s
         self.peer = peer
@@ -86,18 +102,24 @@ class LockstepGate:
     def observe(self, time_boot_ms: int | None, now_us: int) -> None:
         """A message from an eligible peer was read at simulated time ``now_us``."""
         self.peer_heard = True
+        timed_only = self.slack_us == 0 and self.peer_time_ms > 0
         if time_boot_ms is None or time_boot_ms <= 0:
-            self._untimed = True
+            self._untimed = self._untimed or not timed_only
             return
         if time_boot_ms * 1000 > now_us + self.period_us:
             self.future_stamps += 1
-            self._untimed = True
+            self._untimed = self._untimed or not timed_only
             return
         if time_boot_ms > self.peer_time_ms:
             self.peer_time_ms = time_boot_ms
 
     def satisfied(self, boundary_us: int) -> bool:
-        return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.period_us
+        return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.slack_us
+
+    def apply_at_us(self, stamp_ms: int) -> int:
+        """Boundary at which a setpoint stamped ``stamp_ms`` takes effect: the first ``>= stamp + slack``."""
+        due = stamp_ms * 1000 + self.slack_us
+        return -(-due // self.period_us) * self.period_us
 
     def finish(self, waited_s: float, timed_out: bool) -> None:
         """End of the wait at one boundary."""

@@ -156,6 +156,7 @@ class ServerConfig:
     lockstep_timeout_s: float = 2.0
     lockstep_start_timeout_s: float = 60.0
     lockstep_peer: tuple[int, int] | None = None
+    lockstep_slack: int = 1              # periods the companion may lag (0 = strict, bit-reproducible)
     duration_s: float | None = None     # stop after this much simulated time
     max_sim_s: float = 30 * 3600.0
     seed: int = 0
@@ -303,7 +304,9 @@ class SitlServer:
             speedup = 0.0 if config.lockstep else DEFAULT_SPEEDUP
         self.pacer = Pacer(speedup)
         self.gate = LockstepGate(config.lockstep_period_s, config.lockstep_timeout_s,
-                                 config.lockstep_start_timeout_s, config.lockstep_peer) if config.lockstep else None
+                                 config.lockstep_start_timeout_s, config.lockstep_peer,
+                                 config.lockstep_slack) if config.lockstep else None
+        self._deferred: list[tuple[int, object]] = []   # lockstep: (apply at us, setpoint message)
         self._next["lockstep"] = 0 if self.gate else 1 << 62
         # parameters (a tiny read-mostly set, so ground stations finish their parameter download)
         self.params: dict[str, list] = {
@@ -831,11 +834,14 @@ class SitlServer:
         if handler is None:
             self._count("rx_unhandled")
             return
+        self._call(handler, msg)
+
+    def _call(self, handler, msg) -> None:
         try:
             handler(self, msg)
         except Exception as err:  # never let a message kill the simulator
             self._count("rx_handler_errors")
-            self._say("handler_error", SEVERITY_WARNING, f"SITL: {name} failed: {type(err).__name__}")
+            self._say("handler_error", SEVERITY_WARNING, f"SITL: {msg.get_type()} failed: {type(err).__name__}")
             if os.environ.get("FCMPC_SITL_DEBUG"):
                 raise
 
@@ -969,6 +975,24 @@ class SitlServer:
             self.streams[name].set_rate(rate, self.t_us)
 
     def _on_position_target(self, msg) -> None:
+        gate = self.gate
+        if gate is not None:
+            stamp = msg.time_boot_ms
+            if 0 < stamp * 1000 <= self.t_us + gate.period_us:
+                apply_at = gate.apply_at_us(stamp)
+                if apply_at > self.t_us:
+                    self._deferred.append((apply_at, msg))
+                    return
+        self._apply_position_target(msg)
+
+    def _apply_deferred(self) -> None:
+        due = [msg for at, msg in self._deferred if at <= self.t_us]
+        if due:
+            self._deferred = [(at, msg) for at, msg in self._deferred if at > self.t_us]
+            for msg in due:
+                self._call(SitlServer._apply_position_target, msg)
+
+    def _apply_position_target(self, msg) -> None:
         g = self.guidance
         is_global = msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"
         fc_lat, fc_lon = self._fc_position()
@@ -1034,6 +1058,17 @@ class SitlServer:
             self._say(f"param_{name}", SEVERITY_WARNING, f"PARAM_SET {name} refused")
         self._param_value(name, list(self.params).index(name))
 
+    def _on_odometry(self, msg) -> None:
+        """An external estimate in the FC's local NED frame (x north, y east of home) for the truth log."""
+        if msg.frame_id not in (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_FRD) or \
+                not (math.isfinite(msg.x) and math.isfinite(msg.y)):
+            self._count("odometry_ignored")
+            return
+        lat = self.home[0] + msg.x / self._home_scale[1]
+        lon = (self.home[1] + msg.y / self._home_scale[0] + 180.0) % 360.0 - 180.0
+        self._ext_estimate = (lat, lon)
+        self._count("odometry_estimates")
+
     def _on_ping(self, msg) -> None:
         if msg.target_system == 0:   # a request: answer with the same seq and time, addressed to the sender
             self._emit(mavlink.MAVLink_ping_message, msg.time_usec, msg.seq, msg.get_srcSystem(),
@@ -1056,6 +1091,7 @@ class SitlServer:
         "PARAM_SET": _on_param_set,
         "MISSION_REQUEST_LIST": _on_mission_request_list,
         "PING": _on_ping,
+        "ODOMETRY": _on_odometry,
     }
 
     # ------------------------------------------------------------------ the loop
@@ -1134,6 +1170,7 @@ class SitlServer:
             self._poll(min(remaining, 0.1))
             self._flush()
         self._poll(0.0)   # whatever else arrived with the answer is applied at this boundary too
+        self._apply_deferred()
         self._flush()
         waited = time.perf_counter() - start
         gate.finish(waited, timed_out)
@@ -1277,6 +1314,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep-timeout", type=float, default=2.0, help="wall seconds to wait at a boundary")
     p.add_argument("--lockstep-start-timeout", type=float, default=60.0,
                    help="wall seconds to wait for the first peer at t=0 (0 = for ever)")
+    p.add_argument("--lockstep-slack", type=int, choices=(0, 1), default=1,
+                   help="periods the companion may lag behind a boundary (0: strict, bit-reproducible runs)")
     p.add_argument("--lockstep-peer", default=None, metavar="SYS:COMP",
                    help="only this sender answers lockstep (default any sender but the simulator)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
@@ -1328,7 +1367,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     return ServerConfig(
         scenario=args.scenario, outs=tuple(args.out), masters=tuple(args.master), speedup=args.speedup,
         lockstep=args.lockstep, lockstep_period_s=args.lockstep_period, lockstep_timeout_s=args.lockstep_timeout,
-        lockstep_start_timeout_s=args.lockstep_start_timeout, lockstep_peer=peer, duration_s=args.duration,
+        lockstep_start_timeout_s=args.lockstep_start_timeout, lockstep_peer=peer,
+        lockstep_slack=args.lockstep_slack, duration_s=args.duration,
         max_sim_s=args.max_sim_s, seed=args.seed, autopilot=args.autopilot, sysid=args.sysid,
         setpoint_timeout_s=args.setpoint_timeout, cruise_speed_mps=args.cruise_speed, init_s=args.init_s,
         cruise=cruise,

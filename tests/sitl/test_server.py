@@ -391,3 +391,82 @@ def test_lockstep_timed_answers_are_exact(sitl):
     assert server.gate.timeouts == 0
     assert server.gate.peer_time_ms >= 0
     assert server.t_us / 1000 <= server.gate.peer_time_ms + 2 * 200
+
+
+def _scripted_companion(client, boundaries: int) -> None:
+    """A deterministic companion: arm and GUIDED once the vehicle is ready, then at every lockstep
+    boundary a setpoint computed from the latest GLOBAL_POSITION_INT, stamped with the boundary."""
+    latest = None
+    commanded = False
+    answered = 0
+    while answered < boundaries:
+        msg = client.recv(["SYSTEM_TIME", "GLOBAL_POSITION_INT", "HEARTBEAT"], 10.0)
+        name = msg.get_type()
+        if name == "GLOBAL_POSITION_INT":
+            latest = msg
+        elif name == "HEARTBEAT":
+            if msg.get_srcComponent() == 1 and msg.custom_mode == HOLD and not commanded:
+                client.mav.command_long_send(1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0)
+                client.mav.command_long_send(1, 1, DO_SET_MODE, 0, 1, GUIDED, 0, 0, 0, 0, 0)
+                commanded = True
+        else:
+            b = msg.time_boot_ms
+            north = (32.99 - latest.lat / 1e7) if latest else 0.0
+            east = (152.01 - latest.lon / 1e7) if latest else 0.0
+            course = math.atan2(east * math.cos(math.radians(33.0)), north)
+            speed = 6.0 + 2.0 * math.sin(b / 7000.0)
+            send_velocity(client, b, speed * math.cos(course), speed * math.sin(course))
+            answered += 1
+
+
+def test_strict_lockstep_closed_loop_is_bit_reproducible(sitl, tmp_path):
+    logs = []
+    for run in range(2):
+        folder = tmp_path / f"run{run}"
+        server, client = sitl(lockstep=True, lockstep_slack=0, speedup=None, duration_s=60.0, init_s=0.2,
+                              seed=11, log_dir=str(folder), tlog=str(folder / "sitl.tlog"))
+        _scripted_companion(client, boundaries=301)           # 0.0, 0.2, ... 60.0
+        stop_and_wait(server)
+        assert server.gate.timeouts == 0 and server.summary["sim_s"] == pytest.approx(60.0)
+        assert server.state.distance_m > 150.0
+        logs.append((folder / "truth.csv").read_bytes())
+    assert logs[0] == logs[1]
+
+
+def test_external_position_estimate_lands_in_truth_log(sitl, tmp_path):
+    server, client = sitl(speedup=50.0, init_s=0.2, log_dir=str(tmp_path / "est"))
+    client.time_ms()
+    client.mav.command_int_send(1, 1, mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_EXTERNAL_POSITION_ESTIMATE, 0, 0,
+                                0.0, 0.0, 250.0, math.nan, int(33.01 * 1e7), int(152.02 * 1e7), math.nan)
+    ack = client.recv("COMMAND_ACK", 5.0, lambda m: m.command == mavlink.MAV_CMD_EXTERNAL_POSITION_ESTIMATE)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED
+    client.collect("SYSTEM_TIME", client.time_ms() + 2000)
+    stop_and_wait(server)
+    log = read_truth_csv(tmp_path / "est" / "truth.csv")
+    assert log["est_lat_deg"][-1] == pytest.approx(33.01) and log["est_lon_deg"][-1] == pytest.approx(152.02)
+    assert math.isnan(log["est_lat_deg"][0])
+
+
+def test_routing_between_links(sitl):
+    from pymavlink import mavutil
+
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    server, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
+    client.time_ms()
+    gcs = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190)
+    try:
+        assert gcs.wait_heartbeat(timeout=5) is not None
+        # a ground station on TCP asks the companion (1/191, on UDP) for its parameters through the vehicle
+        gcs.mav.param_request_list_send(1, 191)
+        msg = client.recv("PARAM_REQUEST_LIST", 5.0)
+        assert (msg.get_srcSystem(), msg.target_component) == (255, 191)
+        # and the companion's answer goes back to the ground station
+        client.mav.named_value_float_send(1234, b"FCMPC_D", -3.9)
+        got = gcs.recv_match(type="NAMED_VALUE_FLOAT", blocking=True, timeout=5)
+        assert got is not None and got.name == "FCMPC_D"
+    finally:
+        gcs.close()
+    assert server.counters.get("rx_routed", 0) >= 2

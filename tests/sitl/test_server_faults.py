@@ -170,3 +170,36 @@ def test_cli_errors_exit_2(capsys):
     assert main(["--fault", "mag_explode:1", "--quiet", "--no-truth-log"]) == 2
     assert main(["--out", "serial:/dev/null", "--quiet", "--no-truth-log"]) == 2
     assert main(["--fault", "storm_onset:5", "--quiet", "--no-truth-log"]) == 2   # pacific has no storm
+
+
+def test_sigterm_stops_cleanly_and_flushes_records(tmp_path):
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    log_dir = tmp_path / "sig"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    proc = subprocess.Popen([sys.executable, "-m", "sitl.server", "--speedup", "50", "--tlog", "--log-dir",
+                             str(log_dir), "--out", f"udp:127.0.0.1:{_closed_udp_port()}"],
+                            env=env, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 20
+        while not (log_dir / "truth.csv").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    summary = json.loads((log_dir / "summary.json").read_text())
+    assert 10.0 < summary["sim_s"] < 500.0
+    log = read_truth_csv(log_dir / "truth.csv")
+    assert log["time_s"][-1] == pytest.approx(summary["sim_s"])
+    assert len(read_tlog(log_dir / "sitl.tlog")) == summary["tx_messages"]
+    assert b"simulated in" in err

@@ -208,3 +208,20 @@ def test_build_truth_field_quiet_is_wmm_and_storm_errors_are_clear(tmp_path):
     assert np.allclose(truth.field_ned_nt(33.0, 152.0, 0.0, 123.0), (wmm.x_nt, wmm.y_nt, wmm.z_nt))
     with pytest.raises(StormUnavailableError, match="storm data"):
         build_truth_field(load_scenario("long_storm"), data_dir=tmp_path)
+
+
+def test_lockstep_apply_time_and_strict_mode():
+    gate = LockstepGate(0.2)                       # slack one period: applied one period after the stamp
+    assert gate.apply_at_us(1000) == 1_200_000 and gate.apply_at_us(1050) == 1_400_000
+    strict = LockstepGate(0.2, slack_periods=0)
+    assert strict.apply_at_us(1000) == 1_000_000
+    strict.observe(None, now_us=0)                 # before any stamp: an untimed message answers
+    assert strict.satisfied(0)
+    strict.finish(0.0, False)
+    strict.observe(200, now_us=200_000)
+    assert strict.satisfied(200_000) and not strict.satisfied(400_000)
+    strict.finish(0.0, False)
+    strict.observe(None, now_us=400_000)           # once stamps were seen only stamps answer
+    assert not strict.satisfied(400_000)
+    with pytest.raises(ValueError):
+        LockstepGate(0.2, slack_periods=2)

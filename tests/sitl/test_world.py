@@ -209,19 +209,12 @@ def test_unknown_scenario_name_lists_the_bundled_ones():
         load_scenario("atlantis")
 
 
-UNCHECKED = ("BUG: load_scenario only checks keys inside [vehicle], [sensors], [ins], [storm] and [[faults]]; "
-             "an unknown key in [mission] (a typo such as 'yaer') or an unknown top-level table "
-             "(e.g. '[vehical]') is silently ignored and the default is used")
-
-
-@pytest.mark.xfail(strict=True, reason=UNCHECKED)
 def test_unknown_mission_key_is_refused(tmp_path):
     path = write(tmp_path, GOOD.replace("destination = [28.0, 158.0]", "destination = [28.0, 158.0]\nyaer = 2020.5"))
     with pytest.raises(ScenarioError, match="yaer"):
         load_scenario(path)
 
 
-@pytest.mark.xfail(strict=True, reason=UNCHECKED)
 def test_unknown_top_level_table_is_refused(tmp_path):
     path = write(tmp_path, GOOD + "[vehical]\nmax_speed_kmh = 10.0\n")
     with pytest.raises(ScenarioError, match="vehical"):
