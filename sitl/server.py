@@ -39,7 +39,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
-from dataclasses import dataclass, field, replace  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
 from datetime import datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -51,7 +51,7 @@ from companion.nav.geo import geodesic_distance_m, metres_per_degree  # noqa: E4
 from companion.params import SPEC_BY_NAME  # noqa: E402
 from sitl.clock import US_PER_S, LockstepGate, Pacer  # noqa: E402
 from sitl.guidance import (  # noqa: E402
-    DIALECTS, MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, MAV_RESULT_FAILED, MAV_RESULT_UNSUPPORTED,
+    DIALECTS, MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, MAV_RESULT_UNSUPPORTED,
     SEVERITY_INFO, SEVERITY_NOTICE, SEVERITY_WARNING, Guidance, SetpointError, interpret_position_target,
 )
 from sitl.mavframe import FrameEncoder  # noqa: E402
@@ -131,7 +131,8 @@ def parse_fault(text: str) -> Fault:
     """
     parts = text.split(":")
     if not 2 <= len(parts) <= 4 or parts[0] not in FAULT_KINDS:
-        raise ValueError(f"fault {text!r}: expected kind:at_s[:duration_s[:value]] with kind in {', '.join(FAULT_KINDS)}")
+        raise ValueError(f"fault {text!r}: expected kind:at_s[:duration_s[:value]], "
+                         f"kind one of {', '.join(FAULT_KINDS)}")
     try:
         at = float(parts[1])
         duration = float(parts[2]) if len(parts) > 2 and parts[2] else math.inf
@@ -182,7 +183,27 @@ class ServerConfig:
     batch: bool = True
     summary_json: str | None = None
     quiet: bool = False
-    extra: dict = field(default_factory=dict)
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first setting out of range."""
+        checks = [
+            ("speedup", self.speedup is None or self.speedup >= 0.0, ">= 0 (0 = unlimited)"),
+            ("duration_s", self.duration_s is None or self.duration_s > 0.0, "> 0"),
+            ("max_sim_s", self.max_sim_s > 0.0, "> 0"),
+            ("lockstep_period_s", self.lockstep_period_s > 0.0, "> 0"),
+            ("lockstep_timeout_s", self.lockstep_timeout_s > 0.0, "> 0"),
+            ("lockstep_start_timeout_s", self.lockstep_start_timeout_s >= 0.0, ">= 0"),
+            ("init_s", self.init_s >= 0.0, ">= 0"),
+            ("log_rate_hz", self.log_rate_hz >= 0.0, ">= 0"),
+            ("field_step_s", self.field_step_s > 0.0, "> 0"),
+            ("ins_step_s", self.ins_step_s > 0.0, "> 0"),
+            ("setpoint_timeout_s", self.setpoint_timeout_s is None or self.setpoint_timeout_s > 0.0, "> 0"),
+            ("sysid", 1 <= self.sysid <= 255, "in 1..255"),
+            ("autopilot", self.autopilot in DIALECTS, f"one of {', '.join(DIALECTS)}"),
+        ]
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f"{name} = {getattr(self, name)!r} must be {rule}")
 
 
 class _Stream:
@@ -208,6 +229,7 @@ class SitlServer:
     """The simulator: ``run()`` until the duration ends or ``request_stop()``; returns the summary."""
 
     def __init__(self, config: ServerConfig, scenario: Scenario | None = None, truth: TruthField | None = None) -> None:
+        config.validate()
         self.config = config
         self.dialect = DIALECTS[config.autopilot]
         base = scenario if scenario is not None else load_scenario(config.scenario)
@@ -259,7 +281,6 @@ class SitlServer:
         self._field = (0.0, 0.0, 0.0)
         self._dist = (0.0, 0.0, 0.0)
         self._field_us = -1
-        self._mag_ok = True
         self._mag_nan = False
         self._ext_estimate: tuple[float, float] | None = None
         self._last_system_time_us = -1
@@ -393,8 +414,6 @@ class SitlServer:
             for f in self._active_faults:
                 if (f.kind, f.at_s) not in new:
                     self._say(None, SEVERITY_NOTICE, f"SITL fault {f.kind} OFF")
-            if any(f.kind == "mag_stuck" for f in active) and not self._mag_stuck:
-                pass  # the last sample stays in self.sensors.mag_nt
             self._active_faults = active
             kinds = [f.kind for f in active]
             self._mag_off = "mag_off" in kinds
@@ -439,11 +458,9 @@ class SitlServer:
         t = self.time_s
         ned = truth.field_ned_nt(s.lat_deg, s.lon_deg, self.scenario.alt_m, t)
         self._field = (float(ned[0]), float(ned[1]), float(ned[2]))
-        if truth.disturbance is not None and truth.storm_scale != 0.0:
-            when = truth.storm_time_s(t) if truth.storm_time_s is not None else t
-            dn, de, dd = truth.disturbance.disturbance_ned_nt(s.lat_deg, s.lon_deg, when)
-            k = truth.storm_scale
-            self._dist = (k * float(dn), k * float(de), k * float(dd))
+        if truth.disturbance is not None and truth.storm_scale != 0.0:   # the storm's part, for the truth log
+            wmm = truth.model.elements(s.lat_deg, s.lon_deg, self.scenario.alt_m, truth.year)
+            self._dist = (self._field[0] - wmm.x_nt, self._field[1] - wmm.y_nt, self._field[2] - wmm.z_nt)
         else:
             self._dist = (0.0, 0.0, 0.0)
         self._field_us = self.t_us
@@ -578,7 +595,7 @@ class SitlServer:
         g = self.guidance
         status = MAV_STATE_BOOT if not g.ready else (MAV_STATE_ACTIVE if g.armed else MAV_STATE_STANDBY)
         self._emit(mavlink.MAVLink_heartbeat_message, MAV_TYPE_SURFACE_BOAT, self.dialect.autopilot, g.base_mode,
-                                                     g.custom_mode, status, 3)
+                   g.custom_mode, status, 3)
 
     def _send_system_time(self) -> None:
         self._last_system_time_us = self.t_us
@@ -593,7 +610,7 @@ class SitlServer:
             health &= ~SENSOR_GPS
         errors = self.counters.get("rx_bad_frames", 0)
         self._emit(mavlink.MAVLink_sys_status_message, present, present, health, 100, 12600, -1, -1,
-                                                      int(self._loss * 10000), min(errors, 65535), 0, 0, 0, 0)
+                   int(self._loss * 10000), min(errors, 65535), 0, 0, 0, 0)
 
     def _mag_mgauss(self) -> tuple[int, int, int]:
         if self._mag_off:
@@ -621,12 +638,12 @@ class SitlServer:
             mx, my, mz = (v * 1e-5 for v in self.sensors.mag_nt)   # nT -> gauss
             updated |= 0b111000000
         self._emit(mavlink.MAVLink_highres_imu_message, self.t_us, ax, ay, az, gx, gy, gz, mx, my, mz,
-                                                       1013.25, 0.0, self.scenario.alt_m, 25.0, updated, 0)
+                   1013.25, 0.0, self.scenario.alt_m, 25.0, updated, 0)
 
     def _send_attitude(self) -> None:
         a = self.sensors.attitude_est
         self._emit(mavlink.MAVLink_attitude_message, self.t_us // 1000, a.roll_rad, a.pitch_rad, wrap_pi(a.yaw_rad),
-                                                    a.roll_rate_radps, a.pitch_rate_radps, a.yaw_rate_radps)
+                   a.roll_rate_radps, a.pitch_rate_radps, a.yaw_rate_radps)
 
     def _fc_velocity(self) -> tuple[float, float]:
         s = self.state
@@ -638,8 +655,8 @@ class SitlServer:
         hdg = int(round(math.degrees(wrap_2pi(self.sensors.attitude_est.yaw_rad)) * 100.0)) % 36000
         alt_mm = int(round(self.scenario.alt_m * 1000.0))
         self._emit(mavlink.MAVLink_global_position_int_message,
-            self.t_us // 1000, int(round(lat * 1e7)), int(round(lon * 1e7)), alt_mm, 0,
-            _int16(vn * 100.0), _int16(ve * 100.0), 0, hdg)
+                   self.t_us // 1000, int(round(lat * 1e7)), int(round(lon * 1e7)), alt_mm, 0,
+                   _int16(vn * 100.0), _int16(ve * 100.0), 0, hdg)
 
     def _send_local_position_ned(self) -> None:
         lat, lon = self._fc_position()
@@ -648,7 +665,7 @@ class SitlServer:
         north = (lat - self.home[0]) * self._home_scale[1]
         ve, vn = self._fc_velocity()
         self._emit(mavlink.MAVLink_local_position_ned_message, self.t_us // 1000, float(north), float(east), 0.0,
-                                                              vn, ve, 0.0)
+                   vn, ve, 0.0)
 
     def _send_gps_raw_int(self) -> None:
         s = self.state
@@ -656,7 +673,7 @@ class SitlServer:
         if not self.gps_fix:
             fix = 0 if self._gps_off else 1
             self._emit(mavlink.MAVLink_gps_raw_int_message, stamp, fix, 0, 0, 0, 65535, 65535, 65535, 65535, 0,
-                                                           0, 0, 0, 0, 0, 0)
+                       0, 0, 0, 0, 0, 0)
             return
         sigma = self.scenario.sensors.gps_noise_m
         dn, de = self._gps_rng.normal(0.0, sigma, 2) if sigma > 0 else (0.0, 0.0)
@@ -664,22 +681,23 @@ class SitlServer:
         lon = s.lon_deg + math.degrees(de / (6.3781e6 * math.cos(math.radians(s.lat_deg))))
         cog = int(round(math.degrees(s.course_rad) * 100.0)) % 36000
         h_acc = int(sigma * 1000.0)
+        alt_mm = int(self.scenario.alt_m * 1000)
         self._emit(mavlink.MAVLink_gps_raw_int_message,
-            stamp, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), int(self.scenario.alt_m * 1000), 90, 150,
-            int(round(s.speed_mps * 100.0)), cog, 14, int(self.scenario.alt_m * 1000), h_acc, 2 * h_acc, 100, 0, 0)
+                   stamp, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), alt_mm, 90, 150,
+                   int(round(s.speed_mps * 100.0)), cog, 14, alt_mm, h_acc, 2 * h_acc, 100, 0, 0)
 
     def _send_vfr_hud(self) -> None:
         s = self.state
         throttle = int(100 * s.speed_mps / self.scenario.vehicle.max_speed_mps)
         self._emit(mavlink.MAVLink_vfr_hud_message, s.speed_mps, s.speed_mps,
-                                                   int(math.degrees(wrap_2pi(self.sensors.attitude_est.yaw_rad))) % 360,
-                                                   throttle, self.scenario.alt_m, 0.0)
+                   int(math.degrees(wrap_2pi(self.sensors.attitude_est.yaw_rad))) % 360,
+                   throttle, self.scenario.alt_m, 0.0)
 
     def _send_home_position(self) -> None:
         lat, lon = self.home
         self._emit(mavlink.MAVLink_home_position_message, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                                                         int(self.scenario.alt_m * 1000), 0.0, 0.0, 0.0,
-                                                         [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.t_us)
+                   int(self.scenario.alt_m * 1000), 0.0, 0.0, 0.0,
+                   [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.t_us)
 
     def _send_extended_sys_state(self) -> None:
         self._emit(mavlink.MAVLink_extended_sys_state_message, 0, 1)  # landed state ON_GROUND (on the water)
@@ -687,12 +705,12 @@ class SitlServer:
     def _send_gps_global_origin(self) -> None:
         lat, lon = self.home
         self._emit(mavlink.MAVLink_gps_global_origin_message, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                                                             int(self.scenario.alt_m * 1000), self.t_us)
+                   int(self.scenario.alt_m * 1000), self.t_us)
 
     def _send_autopilot_version(self) -> None:
         self._emit(mavlink.MAVLink_autopilot_version_message,
-            CAPABILITIES, self.dialect.version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5157_0000 + self.sysid,
-            [0] * 18)
+                   CAPABILITIES, self.dialect.version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
+                   0x5157_0000 + self.sysid, [0] * 18)
 
     # ------------------------------------------------------------------ truth log
     def _write_truth(self) -> None:
@@ -850,7 +868,7 @@ class SitlServer:
         self._count(f"ack_{mavlink.enums['MAV_RESULT'][result].name[11:].lower()}" if result in
                     mavlink.enums["MAV_RESULT"] else "ack_other")
         self._emit(mavlink.MAVLink_command_ack_message, command, result, 0, 0, msg.get_srcSystem(),
-                                                       msg.get_srcComponent())
+                   msg.get_srcComponent())
 
     def _on_command(self, msg) -> None:
         is_int = msg.get_type() == "COMMAND_INT"
@@ -1076,7 +1094,7 @@ class SitlServer:
 
     def _on_mission_request_list(self, msg) -> None:
         self._emit(mavlink.MAVLink_mission_count_message, msg.get_srcSystem(), msg.get_srcComponent(), 0,
-                                                         getattr(msg, "mission_type", 0))
+                   getattr(msg, "mission_type", 0))
 
     _handlers = {
         "COMMAND_LONG": _on_command,
@@ -1285,7 +1303,8 @@ def format_summary(summary: dict) -> str:
     if counters:
         lines.append("  counters: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
     if "lockstep_boundaries" in summary:
-        lines.append(f"  lockstep: {summary['lockstep_boundaries']} boundaries, {summary['lockstep_timeouts']} timeouts,"
+        lines.append(f"  lockstep: {summary['lockstep_boundaries']} boundaries, "
+                     f"{summary['lockstep_timeouts']} timeouts,"
                      f" waited {summary['lockstep_wait_wall_s']} s")
     if summary.get("log_dir"):
         lines.append(f"  records in {summary['log_dir']}")

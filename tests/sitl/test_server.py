@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import math
 import socket
-import struct
 import time
 
 import numpy as np

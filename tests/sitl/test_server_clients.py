@@ -18,7 +18,8 @@ PX4_OFFBOARD, PX4_LOITER = 6 << 16, (4 << 16) | (3 << 24)
 
 def test_px4_offboard_requires_streaming_and_falls_back_to_hold(sitl):
     server, client = sitl(autopilot="px4", speedup=20.0, init_s=0.2)
-    client.recv("HEARTBEAT", 5.0, lambda m: m.custom_mode == PX4_LOITER and m.system_status == mavlink.MAV_STATE_STANDBY)
+    client.recv("HEARTBEAT", 5.0,
+                lambda m: m.custom_mode == PX4_LOITER and m.system_status == mavlink.MAV_STATE_STANDBY)
     set_mode = mavlink.MAV_CMD_DO_SET_MODE
     assert client.command(set_mode, 1, 6, 0).result == mavlink.MAV_RESULT_DENIED          # no setpoints yet
     assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
