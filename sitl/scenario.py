@@ -149,7 +149,13 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{path}: {err}") from None
+    unknown = set(data) - {"name", "description", "mission", "vehicle", "sensors", "ins", "storm", "faults"}
+    if unknown:
+        raise ScenarioError(f"{path}: unknown key(s) or table(s): {', '.join(sorted(unknown))}")
     mission = _section(data, "mission", path)
+    unknown = set(mission) - {"start", "destination", "alt_m", "year", "start_utc"}
+    if unknown:
+        raise ScenarioError(f"{path}: unknown key(s) in [mission]: {', '.join(sorted(unknown))}")
     try:
         start, dest = mission["start"], mission["destination"]
         lat0, lon0, lat1, lon1 = float(start[0]), float(start[1]), float(dest[0]), float(dest[1])

@@ -109,8 +109,14 @@ class Command:
 
 def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """Uniform compensation U_a with ``B U_a = -xi`` (eq. 43), so that
-    ``A S + B (U_h + U_a) + xi = A S + B U_h`` (eq. 42 -> eq. 44)."""
-    return np.linalg.solve(np.asarray(b, dtype=float), -np.asarray(xi, dtype=float))
+    ``A S + B (U_h + U_a) + xi = A S + B U_h`` (eq. 42 -> eq. 44). For a singular B the
+    least-squares U_a (the compensation B can deliver)."""
+    b = np.asarray(b, dtype=float)
+    xi = np.asarray(xi, dtype=float)
+    try:
+        return np.linalg.solve(b, -xi)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(b, -xi, rcond=None)[0]
 
 
 @dataclass
@@ -175,7 +181,7 @@ class Mission:
         if self.finished is not None:
             return self.finished
         s = np.array([meas.decl_deg, meas.incl_deg], dtype=float)
-        if not (math.isfinite(meas.time_s) and np.all(np.isfinite(s))):
+        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.all(np.isfinite(s))):
             return self._hold(meas.time_s, "non-finite measurement")
         if self.last is not None and meas.time_s <= self.last.time_s:
             return self._hold(meas.time_s, "measurement time did not advance")
@@ -236,9 +242,10 @@ class Mission:
             return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
                                 sigma, solver_ok=False)
         u = solution.u_first * u_unit * (self.quadrant if c.u_bounds == 1 else 1.0)   # m/s, east/north
-        if not np.any(u):
-            u = to_dest  # the QP found nothing to do: head for the estimated destination
-        theta = math.atan2(u[1], u[0])                        # eq. 4, quadrant resolved by atan2
+        # the optimum can be (numerically) no move, e.g. the corner of the paper's one-quadrant
+        # box: eq. 4 then gives no heading, so head for the estimated destination
+        direction = u if float(np.hypot(*u)) >= 1e-6 * c.speed_mps else to_dest
+        theta = math.atan2(direction[1], direction[0])        # eq. 4, quadrant resolved by atan2
         speed = c.speed_mps if c.speed_mode == 1 else min(c.speed_mps, remaining / c.period_s)
         u_a = compensation(b, xi * s_unit) * u_unit if np.any(xi) else np.zeros(2)
         command = self._command(meas.time_s, Phase.CRUISE, theta, speed, remaining, fix, fused, sigma,

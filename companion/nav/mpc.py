@@ -126,8 +126,15 @@ class _OsqpBackend:
                            q=grad, l=lower, u=upper)
         result = self.solver.solve(raise_error=False)
         status = str(result.info.status)
-        ok = status == "solved"
-        return result.x, ok, status, float(result.info.run_time), int(result.info.iter)
+        run_time, iterations = float(result.info.run_time), int(result.info.iter)
+        if status != "solved":
+            # a warm start from a very different previous problem can stall ("solved inaccurate"
+            # after 0 iterations): retry once from zero before calling it a failure
+            self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(2 * self.n))
+            result = self.solver.solve(raise_error=False)
+            status = str(result.info.status)
+            run_time, iterations = run_time + float(result.info.run_time), iterations + int(result.info.iter)
+        return result.x, status == "solved", status, run_time, iterations
 
 
 class _DaqpBackend:
@@ -171,6 +178,9 @@ class MpcController:
         self.s_lower = np.tile(settings.s_lower, settings.horizon).astype(float)
         self.s_upper = np.tile(settings.s_upper, settings.horizon).astype(float)
         self.backend = (_OsqpBackend if settings.solver == "osqp" else _DaqpBackend)(n, settings.eps)
+        # OSQP is first-order: on a badly conditioned B it can stop at "solved inaccurate";
+        # the exact active-set solver then answers instead of failing the step
+        self._fallback = _DaqpBackend(n, settings.eps) if settings.solver == "osqp" else None
         # A = I (eq. 14): M stacks identities and C(k) repeats B(k) in its lower block triangle;
         # everything but B is fixed, so the arrays are built once and filled in place per step.
         self._blocks = [(row, col) for row in range(settings.horizon) for col in range(row + 1)]
@@ -181,10 +191,11 @@ class MpcController:
         bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
         bounds = bounds[np.isfinite(bounds) & (bounds > 0)]
         self._scale = float(bounds.max()) if bounds.size else 1.0  # x = d * y keeps y of order one
-        self._a_full = np.vstack([np.eye(n) * self._scale, np.zeros((n, n))])
+        # rows: y (the scaled input, so its box is U's box over d) and C d y (the predicted states)
+        self._a_full = np.vstack([np.eye(n), np.zeros((n, n))])
         big = 1e20  # OSQP's infinity
-        self._lower = np.concatenate([self.u_lower, np.clip(self.s_lower, -big, big)])
-        self._upper = np.concatenate([self.u_upper, np.clip(self.s_upper, -big, big)])
+        self._lower = np.concatenate([self.u_lower / self._scale, np.clip(self.s_lower, -big, big)])
+        self._upper = np.concatenate([self.u_upper / self._scale, np.clip(self.s_upper, -big, big)])
         self._s_lower = self._lower[n:].copy()
         self._s_upper = self._upper[n:].copy()
 
@@ -210,8 +221,13 @@ class MpcController:
         d = self._scale
         self._a_full[n:] = c * d
         norm = max(float(np.abs(hess).max()) * d * d, 1e-300)
-        y, ok, status, solve_time, iterations = self.backend.solve(
-            hess * (d * d / norm), grad * (d / norm), self._a_full, lower, upper)
+        hess_y, grad_y = hess * (d * d / norm), grad * (d / norm)
+        y, ok, status, solve_time, iterations = self.backend.solve(hess_y, grad_y, self._a_full, lower, upper)
+        if not ok and self._fallback is not None:
+            y, ok, fallback_status, more_time, more_iterations = self._fallback.solve(
+                hess_y, grad_y, self._a_full, lower, upper)
+            status = f"osqp {status}; daqp fallback: {fallback_status}"
+            solve_time, iterations = solve_time + more_time, iterations + more_iterations
         if not ok or y is None or not np.all(np.isfinite(y)):
             return self._failed(status)
         u = np.asarray(y, dtype=float) * d

@@ -38,11 +38,6 @@ from sitl.world.build import build_truth_field
 
 WGS84 = Geodesic.WGS84
 LTI, LTV, FC = Controller.LTI, Controller.LTV, Controller.FC
-DAQP_SCALING_BUG = ("BUG: _DaqpBackend passes the input box to daqp as simple bounds on the scaled variable "
-                    "without scaling them; with MPC_U_BOUNDS=1 (box [0, 0.8] in cruise-speed units) daqp "
-                    "enforces [0, 0.64] and the mission flies differently from OSQP")
-
-
 # --- shared fixtures -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def model():
@@ -246,10 +241,6 @@ def test_bad_first_measurement_holds_before_the_mission_starts(model, kind):
     assert first.phase == Phase.PROBE_1
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: Mission.step checks time, D and I for finiteness but not "
-                   "window_s; a NaN window is accepted as a normal step, the window lag becomes NaN, the "
-                   "geomagnetic fix of that step is lost (prior NaN) and the gradient updates of that step "
-                   "and the next are silently skipped (NaN displacement)")
 def test_nan_averaging_window_is_a_bad_measurement(model):
     nav = nav_config(NAV_CONTROLLER=FC)
     world, mission = NoiselessWorld(nav, model), Mission(nav, model)
@@ -347,7 +338,7 @@ def test_paper_variants_over_more_seeds(pacific, truth, variant, controller):
 
 @pytest.mark.parametrize("values", [
     {},
-    pytest.param({"MPC_U_BOUNDS": 1}, marks=pytest.mark.xfail(strict=True, reason=DAQP_SCALING_BUG)),
+    {"MPC_U_BOUNDS": 1},
 ])
 def test_mission_flies_the_same_with_either_qp_backend(pacific, truth, values):
     for controller in (LTV, FC):
@@ -361,12 +352,6 @@ def test_mission_flies_the_same_with_either_qp_backend(pacific, truth, values):
         assert (osqp_run.phase, len(osqp_run.commands)) == (daqp_run.phase, len(daqp_run.commands))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (solver robustness): OSQP, warm-started through the mission's sequence of QPs, reports "
-    "'solved inaccurate' (after 0 iterations) on the 36th QP of LTV-MPC + GRAD_UPDATE=1, seed 1, 70 km "
-    "(cond(B) ~ 3.6e3, after 16900 iterations on the previous QP); the QP is strictly convex and feasible "
-    "(a cold OSQP solves it in 7400 iterations, daqp in 1), but Mission treats any non-'solved' status as "
-    "fatal and ends the mission FAILED"))
 def test_mission_does_not_fail_on_a_solvable_qp(pacific, truth):
     nav = nav_config(pacific, NAV_CONTROLLER=LTV, NAV_MAX_STEPS=60, GRAD_UPDATE=1)
     result = fly_in_process(nav, pacific, 1, truth)

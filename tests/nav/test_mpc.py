@@ -220,13 +220,7 @@ def test_active_state_constraint_is_respected(solver):
     np.testing.assert_allclose(sol.u_all, brute.x, atol=1e-4)
 
 
-DAQP_SCALING_BUG = ("BUG: _DaqpBackend passes the input box to daqp as simple bounds on the *scaled* "
-                    "variable y = U/d unscaled, so with input bounds of size d != 1 daqp enforces "
-                    "|U| <= d * bound instead of |U| <= bound (d = 2.5 lets U reach 6.25)")
-
-
-@pytest.mark.parametrize("bound", [1.0, pytest.param(2.5, marks=pytest.mark.xfail(strict=True, reason=DAQP_SCALING_BUG)),
-                                   pytest.param(40.0, marks=pytest.mark.xfail(strict=True, reason=DAQP_SCALING_BUG))])
+@pytest.mark.parametrize("bound", [1.0, 2.5, 40.0])
 @pytest.mark.parametrize("horizon", [1, 2, 3])
 def test_osqp_and_daqp_agree_on_hundreds_of_random_problems(horizon, bound):
     """150 random problems per case, each with a box-only and a box+state-constrained
@@ -255,7 +249,6 @@ def test_osqp_and_daqp_agree_on_hundreds_of_random_problems(horizon, bound):
     assert worst < 1e-4
 
 
-@pytest.mark.xfail(strict=True, reason=DAQP_SCALING_BUG)
 def test_daqp_keeps_the_input_inside_a_box_that_is_not_unit_size():
     """Paper bounds U in [0, 40] km/h (MPC_UNITS=1 / MPC_U_BOUNDS=1 with MPC_SOLVER=1) are such a box."""
     ctrl = MpcController(MpcSettings(horizon=1, q=(1.0, 1.0), f=(1.0, 1.0), r=(1e-6, 1e-6),
