@@ -138,6 +138,12 @@ class Mission:
         self.model = model
         dest = model.elements(config.dest_lat_deg, config.dest_lon_deg, config.alt_m, config.year)
         self.s_dest = np.array([float(dest.decl_deg), float(dest.incl_deg)])
+        for value, low, high, names in ((self.s_dest[0], config.s_min_d, config.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
+                                        (self.s_dest[1], config.s_min_i, config.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I")):
+            if not low <= value <= high:
+                # Table 4's bounds suit the paper's northern mid-latitude mission only
+                raise ValueError(f"the destination's field ({value:.2f} deg) lies outside the state bounds "
+                                 f"[{low:g}, {high:g}] deg of {names}: widen them for this mission")
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(self._mpc_settings())
         self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,

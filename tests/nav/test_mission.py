@@ -356,3 +356,14 @@ def test_mission_does_not_fail_on_a_solvable_qp(pacific, truth):
     nav = nav_config(pacific, NAV_CONTROLLER=LTV, NAV_MAX_STEPS=60, GRAD_UPDATE=1)
     result = fly_in_process(nav, pacific, 1, truth)
     assert not result.reason.startswith("QP failed"), result.reason
+
+
+def test_destination_outside_the_state_bounds_is_refused_at_start():
+    """Table 4's S_min = [-10, 10] excludes the southern hemisphere (I < 0): a clear error
+    naming the parameters instead of an infeasible QP in flight."""
+    nav = NavConfig.from_values(validate_all({"NAV_START_LAT": -35.0, "NAV_START_LON": 149.0,
+                                              "NAV_DEST_LAT": -36.0, "NAV_DEST_LON": 150.0}))
+    with pytest.raises(ValueError, match="MPC_S_MIN_I"):
+        Mission(nav)
+    wide = nav.replace(s_min_i=-90.0, s_min_d=-180.0, s_max_d=180.0)
+    assert Mission(wide).s_dest[1] < 0.0
