@@ -1,0 +1,377 @@
+"""From body-frame magnetometer samples to the averaged (D, I) of one control period (eq. 2).
+
+Pure: samples in (message time, SI units), results out; no sockets, clocks or files.
+
+Per sample:
+
+1. **Calibration**: ``m_cal = (m_raw - offset) * scale`` per body axis (hard iron, then scale;
+   ``MAG_OFS_*`` in milligauss are subtracted, ``MAG_SCALE_*`` multiply). Note that ArduPilot's
+   ``COMPASS_OFS_*`` are *added* to the raw field: copy them here with the opposite sign.
+2. **Tilt compensation**: the body vector is rotated into NED with the attitude (roll, pitch,
+   yaw; ZYX Euler, yaw from true north clockwise) *at the sample's time*, the attitude being
+   propagated from the latest ATTITUDE message with its body rates (a boat turning at 6 deg/s
+   would otherwise smear D by the message spacing times the rate).
+3. **D and I** per :mod:`companion`: ``D = atan2(E, N)``, ``I = atan2(Dn, hypot(N, E))``.
+4. **Spike rejection**: a sample whose NED components differ from the running median of the
+   last ``window`` samples by more than ``spike_nt`` (``COMP_SPIKE_NT``) is rejected and
+   counted. Rejected samples still enter the median window, so a real, lasting change of the
+   field (a level step, not a spike) is accepted after half a window.
+5. **Averaging**: D (unwrapped around the first sample) and I are averaged over the accepted
+   samples of the period, which is what the in-process Monte Carlo means by "D and I averaged
+   along the period's path" (:mod:`sitl.inprocess`). The result also carries the mean sample
+   time, so the caller can tell the core how far back the average refers
+   (``window_s = 2 * (t_end - mean_time)``).
+
+>>> d, i = decl_incl_deg(20000.0, 5000.0, 40000.0)
+>>> round(d, 4), round(i, 4)
+(14.0362, 62.734)
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+__all__ = [
+    "MILLIGAUSS_TO_NT",
+    "GAUSS_TO_NT",
+    "MagCalibration",
+    "AttitudeState",
+    "ned_from_body",
+    "decl_incl_deg",
+    "tilt_compensated_di",
+    "SpikeFilter",
+    "AveragedDI",
+    "PeriodAverager",
+    "MagProcessor",
+    "MagStats",
+]
+
+MILLIGAUSS_TO_NT = 100.0   # 1 mG = 1e-7 T = 100 nT
+GAUSS_TO_NT = 1e5
+
+Vector3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    """Hard-iron offset (nT, subtracted) and scale (multiplied), per body axis."""
+
+    offset_nt: Vector3 = (0.0, 0.0, 0.0)
+    scale: Vector3 = (1.0, 1.0, 1.0)
+
+    @classmethod
+    def from_mgauss(cls, offset_mgauss: Vector3, scale: Vector3) -> MagCalibration:
+        """From the registry's ``MAG_OFS_*`` (mG) and ``MAG_SCALE_*``."""
+        return cls(tuple(float(o) * MILLIGAUSS_TO_NT for o in offset_mgauss), tuple(float(s) for s in scale))
+
+    def apply(self, mag_body_nt: Vector3) -> Vector3:
+        """``(m - offset) * scale``.
+
+        >>> MagCalibration((100.0, 0.0, 0.0), (2.0, 1.0, 1.0)).apply((300.0, 1.0, 2.0))
+        (400.0, 1.0, 2.0)
+        """
+        o, s = self.offset_nt, self.scale
+        return ((mag_body_nt[0] - o[0]) * s[0], (mag_body_nt[1] - o[1]) * s[1], (mag_body_nt[2] - o[2]) * s[2])
+
+
+def ned_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float, vec_b: Vector3) -> Vector3:
+    """A body vector (x forward, y right, z down) in NED: ``C_nb(roll, pitch, yaw) vec_b``.
+
+    >>> [round(c, 9) for c in ned_from_body(0.0, 0.0, math.pi / 2, (1.0, 0.0, 0.0))]  # nose east
+    [0.0, 1.0, 0.0]
+    """
+    sr, cr = math.sin(roll_rad), math.cos(roll_rad)
+    sp, cp = math.sin(pitch_rad), math.cos(pitch_rad)
+    sy, cy = math.sin(yaw_rad), math.cos(yaw_rad)
+    x, y, z = vec_b
+    n = cp * cy * x + (sr * sp * cy - cr * sy) * y + (cr * sp * cy + sr * sy) * z
+    e = cp * sy * x + (sr * sp * sy + cr * cy) * y + (cr * sp * sy - sr * cy) * z
+    d = -sp * x + sr * cp * y + cr * cp * z
+    return n, e, d
+
+
+def decl_incl_deg(north_nt: float, east_nt: float, down_nt: float) -> tuple[float, float]:
+    """Declination (east of true north) and inclination (below horizontal), degrees (eq. 2)."""
+    return (math.degrees(math.atan2(east_nt, north_nt)),
+            math.degrees(math.atan2(down_nt, math.hypot(north_nt, east_nt))))
+
+
+def tilt_compensated_di(mag_body_nt: Vector3, roll_rad: float, pitch_rad: float,
+                        yaw_rad: float) -> tuple[float, float, Vector3]:
+    """(D deg, I deg, field NED nT) of a calibrated body-frame field at the given attitude."""
+    ned = ned_from_body(roll_rad, pitch_rad, yaw_rad, mag_body_nt)
+    d, i = decl_incl_deg(*ned)
+    return d, i, ned
+
+
+@dataclass(frozen=True)
+class AttitudeState:
+    """An attitude estimate at ``time_s`` with Euler-angle rates (rad/s) to propagate it."""
+
+    time_s: float
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    roll_rate_radps: float = 0.0
+    pitch_rate_radps: float = 0.0
+    yaw_rate_radps: float = 0.0
+
+    @classmethod
+    def from_body_rates(cls, time_s: float, roll: float, pitch: float, yaw: float,
+                        p: float, q: float, r: float) -> AttitudeState:
+        """From MAVLink ATTITUDE (body rates p, q, r) -> Euler rates (ZYX kinematics)."""
+        sr, cr = math.sin(roll), math.cos(roll)
+        cp = math.cos(pitch)
+        tp = math.tan(pitch)
+        if abs(cp) < 1e-6:  # gimbal lock: do not propagate
+            return cls(time_s, roll, pitch, yaw)
+        return cls(time_s, roll, pitch, yaw,
+                   p + (q * sr + r * cr) * tp,
+                   q * cr - r * sr,
+                   (q * sr + r * cr) / cp)
+
+    @property
+    def finite(self) -> bool:
+        f = math.isfinite
+        return (f(self.time_s) and f(self.roll_rad) and f(self.pitch_rad) and f(self.yaw_rad)
+                and f(self.roll_rate_radps) and f(self.pitch_rate_radps) and f(self.yaw_rate_radps))
+
+    def at(self, time_s: float, max_dt_s: float = 0.5) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) propagated to ``time_s`` (at most ``max_dt_s`` either way)."""
+        dt = min(max(time_s - self.time_s, -max_dt_s), max_dt_s)
+        return (self.roll_rad + self.roll_rate_radps * dt, self.pitch_rad + self.pitch_rate_radps * dt,
+                self.yaw_rad + self.yaw_rate_radps * dt)
+
+
+class SpikeFilter:
+    """Rejects a NED sample further than ``threshold_nt`` (any component) from the running median.
+
+    Judges only once ``min_samples`` are in the window; every finite sample, accepted or not,
+    enters the window. The medians are recomputed every ``refresh`` samples (a median a few
+    samples old is as good a reference and costs a quarter).
+
+    >>> f = SpikeFilter(1000.0, window=5, min_samples=3, refresh=1)
+    >>> [f.accept((20000.0 + k, 0.0, 40000.0)) for k in range(4)] + [f.accept((30000.0, 0.0, 40000.0))]
+    [True, True, True, True, False]
+    """
+
+    def __init__(self, threshold_nt: float, window: int = 15, min_samples: int = 5, refresh: int = 4) -> None:
+        if window < 3 or min_samples < 1 or refresh < 1:
+            raise ValueError("spike filter needs window >= 3, min_samples >= 1, refresh >= 1")
+        self.threshold_nt = float(threshold_nt)
+        self.min_samples = min_samples
+        self.refresh = refresh
+        self._hist = (deque(maxlen=window), deque(maxlen=window), deque(maxlen=window))
+        self._median: tuple[float, float, float] | None = None
+        self._age = 0
+
+    @staticmethod
+    def _median_of(values) -> float:
+        ordered = sorted(values)
+        mid = len(ordered) // 2
+        return ordered[mid] if len(ordered) % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
+
+    def accept(self, ned_nt: Vector3) -> bool:
+        hist = self._hist
+        ok = True
+        if len(hist[0]) >= self.min_samples:
+            if self._median is None or self._age >= self.refresh:
+                self._median = (self._median_of(hist[0]), self._median_of(hist[1]), self._median_of(hist[2]))
+                self._age = 0
+            m, limit = self._median, self.threshold_nt
+            ok = abs(ned_nt[0] - m[0]) <= limit and abs(ned_nt[1] - m[1]) <= limit and abs(ned_nt[2] - m[2]) <= limit
+        self._age += 1
+        hist[0].append(ned_nt[0])
+        hist[1].append(ned_nt[1])
+        hist[2].append(ned_nt[2])
+        return ok
+
+    def reset(self) -> None:
+        for hist in self._hist:
+            hist.clear()
+        self._median = None
+
+
+@dataclass(frozen=True)
+class AveragedDI:
+    """D and I averaged over ``count`` samples; NaN when there were none."""
+
+    decl_deg: float
+    incl_deg: float
+    count: int
+    mean_time_s: float
+    first_time_s: float
+    last_time_s: float
+    field_ned_nt: Vector3 = (math.nan, math.nan, math.nan)
+
+    @property
+    def valid(self) -> bool:
+        return self.count > 0 and math.isfinite(self.decl_deg) and math.isfinite(self.incl_deg)
+
+    def window_s(self, end_time_s: float, max_s: float) -> float:
+        """Span that puts the average's reference time (``end - window/2``) at the mean sample time."""
+        if not self.count:
+            return 0.0
+        return min(max(2.0 * (end_time_s - self.mean_time_s), 0.0), max_s)
+
+
+class PeriodAverager:
+    """Accumulates per-sample (time, D, I); :meth:`take` averages those up to a time.
+
+    D is unwrapped around the first sample of the period, so an average across +-180 deg is
+    right; the result is wrapped back into (-180, 180].
+    """
+
+    def __init__(self) -> None:
+        self._samples: list[tuple[float, float, float, float, float, float]] = []
+        self._ref_d: float | None = None
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0)) -> None:
+        if self._ref_d is None:
+            self._ref_d = decl_deg
+        d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
+        self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2]))
+
+    def take(self, end_time_s: float) -> AveragedDI:
+        """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
+        used = [s for s in self._samples if s[0] <= end_time_s]
+        self._samples = [s for s in self._samples if s[0] > end_time_s]
+        self._ref_d = self._samples[0][1] if self._samples else None
+        if not used:
+            return AveragedDI(math.nan, math.nan, 0, math.nan, math.nan, math.nan)
+        n = len(used)
+        sums = [math.fsum(s[k] for s in used) for k in range(6)]
+        d = (sums[1] / n + 180.0) % 360.0 - 180.0
+        return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
+                          (sums[3] / n, sums[4] / n, sums[5] / n))
+
+    def drop_before(self, time_s: float) -> None:
+        self._samples = [s for s in self._samples if s[0] >= time_s]
+        self._ref_d = self._samples[0][1] if self._samples else None
+
+    def clear(self) -> None:
+        self._samples.clear()
+        self._ref_d = None
+
+
+@dataclass
+class MagStats:
+    """Counters of the magnetometer path (all since start)."""
+
+    samples: int = 0
+    accepted: int = 0
+    spikes: int = 0
+    non_finite: int = 0
+    no_attitude: int = 0
+    paused: int = 0
+    last_reject: str = ""
+
+    def as_dict(self) -> dict[str, int]:
+        return {k: v for k, v in self.__dict__.items() if k != "last_reject"}
+
+
+@dataclass
+class MagProcessor:
+    """Calibration, tilt compensation, spike rejection and averaging of one magnetometer.
+
+    Feed ATTITUDE with :meth:`add_attitude` and field samples with :meth:`add_mag` in message
+    order (message time); :meth:`take` closes a period, in mission time (message time minus
+    ``mission_offset_s``). ``paused`` samples (failsafe) are counted, not used.
+    """
+
+    calibration: MagCalibration = field(default_factory=MagCalibration)
+    spike_nt: float = 5000.0
+    max_attitude_age_s: float = 0.5
+    stats: MagStats = field(default_factory=MagStats)
+    paused: bool = False
+    mission_offset_s: float = 0.0
+    """Subtracted from message time for the averager (time spent paused: mission time)."""
+
+    def __post_init__(self) -> None:
+        self.spikes = SpikeFilter(self.spike_nt)
+        self.averager = PeriodAverager()
+        self.attitude: AttitudeState | None = None
+        self.last_di: tuple[float, float] = (math.nan, math.nan)
+        self._pending: tuple[float, Vector3] | None = None
+
+    def configure(self, calibration: MagCalibration, spike_nt: float) -> None:
+        """New calibration / spike threshold (parameters changed); keeps the period's samples."""
+        self.calibration = calibration
+        if spike_nt != self.spike_nt:
+            self.spike_nt = spike_nt
+            self.spikes.threshold_nt = float(spike_nt)
+
+    def add_attitude(self, attitude: AttitudeState) -> bool:
+        """Use this attitude from now on; False (ignored) if not finite.
+
+        A magnetometer sample waiting for the attitude of its own time (flight controllers
+        send the IMU message before ATTITUDE of the same instant) is processed now.
+        """
+        if not attitude.finite:
+            return False
+        self.attitude = attitude
+        pending = self._pending
+        if pending is not None and pending[0] <= attitude.time_s + 1e-6:
+            self._pending = None
+            self._process(*pending)
+        return True
+
+    def add_mag(self, time_s: float, mag_body_nt: Vector3) -> None:
+        """Queue one sample; it is processed with the attitude of its time (see :meth:`add_attitude`)."""
+        att = self.attitude
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self._process(*pending)
+        if (att is None or time_s > att.time_s + 1e-6) and math.isfinite(time_s):
+            self._pending = (time_s, mag_body_nt)
+            return
+        self._process(time_s, mag_body_nt)
+
+    def flush(self) -> None:
+        """Process a waiting sample with the attitude propagated to its time."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self._process(*pending)
+
+    def _process(self, time_s: float, mag_body_nt: Vector3) -> bool:
+        st = self.stats
+        st.samples += 1
+        f = math.isfinite
+        if not (f(time_s) and f(mag_body_nt[0]) and f(mag_body_nt[1]) and f(mag_body_nt[2])):
+            st.non_finite += 1
+            st.last_reject = "non-finite magnetometer sample"
+            return False
+        att = self.attitude
+        if att is None or abs(time_s - att.time_s) > self.max_attitude_age_s:
+            st.no_attitude += 1
+            st.last_reject = "no attitude near the sample time"
+            return False
+        d, i, ned = tilt_compensated_di(self.calibration.apply(mag_body_nt), *att.at(time_s, self.max_attitude_age_s))
+        if not self.spikes.accept(ned):
+            st.spikes += 1
+            st.last_reject = "spike"
+            return False
+        self.last_di = (d, i)
+        if self.paused:
+            st.paused += 1
+            return False
+        self.averager.add(time_s - self.mission_offset_s, d, i, ned)
+        st.accepted += 1
+        return True
+
+    def take(self, end_mission_time_s: float) -> AveragedDI:
+        """Average of the accepted samples up to ``end_mission_time_s`` (mission time)."""
+        self.flush()
+        return self.averager.take(end_mission_time_s)
+
+    def drop_before(self, mission_time_s: float) -> None:
+        """Forget accepted samples older than ``mission_time_s`` (a sliding start-up window)."""
+        self.averager.drop_before(mission_time_s)
+
+    def clear(self) -> None:
+        """Drop the samples of the current period (e.g. after a pause)."""
+        self.averager.clear()

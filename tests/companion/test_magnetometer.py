@@ -1,0 +1,162 @@
+"""Tilt compensation, calibration, spike rejection and averaging, against hand computations."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.nav.magnetometer import (
+    AttitudeState, MagCalibration, MagProcessor, PeriodAverager, SpikeFilter, decl_incl_deg, ned_from_body,
+    tilt_compensated_di,
+)
+
+
+D_TRUE = math.degrees(math.atan2(2000.0, 28000.0))   # 4.0856 deg, of the field used below
+
+
+def _rot_nb(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """C_nb = Rz(yaw) Ry(pitch) Rx(roll), built from elementary rotations (independent of the code)."""
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), \
+        math.sin(yaw)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def test_decl_incl_by_hand():
+    # N 20000, E 20000, D 40000: D = 45 deg; H = 28284.27, I = atan(40000/28284.27) = 54.7356 deg
+    d, i = decl_incl_deg(20000.0, 20000.0, 40000.0)
+    assert d == pytest.approx(45.0, abs=1e-12)
+    assert i == pytest.approx(math.degrees(math.atan(40000.0 / math.sqrt(2 * 20000.0 ** 2))), abs=1e-12)
+    assert i == pytest.approx(54.7356103, abs=1e-6)
+    # west of north and pointing up (southern hemisphere): signs per companion/__init__
+    d, i = decl_incl_deg(30000.0, -3000.0, -20000.0)
+    assert d == pytest.approx(-5.7105931, abs=1e-6) and i < 0.0
+
+
+def test_ned_from_body_elementary_rotations():
+    # nose east (yaw 90): body x is east, body y (right) is south
+    assert ned_from_body(0.0, 0.0, math.pi / 2, (1.0, 0.0, 0.0)) == pytest.approx((0.0, 1.0, 0.0), abs=1e-12)
+    assert ned_from_body(0.0, 0.0, math.pi / 2, (0.0, 1.0, 0.0)) == pytest.approx((-1.0, 0.0, 0.0), abs=1e-12)
+    # right wing down 90 deg (roll +90): body y points down
+    assert ned_from_body(math.pi / 2, 0.0, 0.0, (0.0, 1.0, 0.0)) == pytest.approx((0.0, 0.0, 1.0), abs=1e-12)
+    # nose up 90 deg (pitch +90): body x points up (-down)
+    assert ned_from_body(0.0, math.pi / 2, 0.0, (1.0, 0.0, 0.0)) == pytest.approx((0.0, 0.0, -1.0), abs=1e-12)
+
+
+@pytest.mark.parametrize("roll_deg,pitch_deg,yaw_deg", [(0, 0, 0), (3, -2, 130), (-4.5, 2.5, 271), (10, 15, -45)])
+def test_tilt_compensation_recovers_the_field(roll_deg, pitch_deg, yaw_deg):
+    field_ned = np.array([28000.0, 2000.0, 30000.0])          # D = atan2(2000, 28000) = 4.0856 deg
+    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
+    body = _rot_nb(r, p, y).T @ field_ned                        # what the magnetometer reads
+    d, i, ned = tilt_compensated_di(tuple(body), r, p, y)
+    assert ned == pytest.approx(tuple(field_ned), abs=1e-8)
+    assert d == pytest.approx(D_TRUE, abs=1e-9)
+    assert i == pytest.approx(math.degrees(math.atan2(30000.0, math.hypot(28000.0, 2000.0))), abs=1e-9)
+
+
+def test_ignoring_tilt_would_be_wrong():
+    """The test above can fail: with 5 deg of roll the untilted reading is off by degrees."""
+    field_ned = np.array([28000.0, 2000.0, 30000.0])
+    body = _rot_nb(math.radians(5.0), 0.0, 0.0).T @ field_ned
+    d_wrong, _, _ = tilt_compensated_di(tuple(body), 0.0, 0.0, 0.0)
+    assert abs(d_wrong - D_TRUE) > 1.0
+
+
+def test_calibration_offset_in_milligauss_then_scale():
+    cal = MagCalibration.from_mgauss((10.0, -20.0, 5.0), (1.1, 0.9, 1.0))   # 1 mG = 100 nT
+    assert cal.offset_nt == (1000.0, -2000.0, 500.0)
+    true_body = (20000.0, -3000.0, 41000.0)
+    raw = (true_body[0] / 1.1 + 1000.0, true_body[1] / 0.9 - 2000.0, true_body[2] + 500.0)
+    assert cal.apply(raw) == pytest.approx(true_body, abs=1e-9)
+
+
+def test_spike_filter_rejects_a_spike_and_adopts_a_lasting_step():
+    f = SpikeFilter(5000.0, window=15, min_samples=5, refresh=1)
+    base = (28000.0, 2000.0, 30000.0)
+    assert all(f.accept((base[0] + 50 * (k % 3), base[1], base[2])) for k in range(10))
+    assert not f.accept((base[0] + 8000.0, base[1], base[2]))          # 8000 nT off: a spike
+    assert f.accept((base[0] + 4000.0, base[1], base[2]))              # below the threshold
+    stepped = (base[0], base[1] - 9000.0, base[2])
+    results = [f.accept(stepped) for _ in range(12)]
+    assert not results[0] and results[-1]                                # a step becomes the new level
+    assert results.index(True) <= 8                                      # after about half a window
+
+
+def test_averager_unwraps_declination_across_180():
+    avg = PeriodAverager()
+    for k, d in enumerate((179.0, -179.0, 179.5, -179.5)):
+        avg.add(float(k), d, 10.0)
+    result = avg.take(10.0)
+    assert result.count == 4
+    assert abs(abs(result.decl_deg) - 180.0) < 1e-9                    # not 0
+    assert result.incl_deg == pytest.approx(10.0)
+
+
+def test_averager_splits_by_time_and_reports_the_window():
+    avg = PeriodAverager()
+    for k in range(1, 101):                # samples at 0.1 .. 10.0 s, D = t
+        avg.add(k * 0.1, k * 0.1, 50.0)
+    first = avg.take(5.0)
+    assert first.count == 50 and first.decl_deg == pytest.approx(2.55)
+    assert first.mean_time_s == pytest.approx(2.55)
+    assert first.window_s(5.0, 360.0) == pytest.approx(4.9)           # reference time 2.55 = 5 - 4.9/2
+    second = avg.take(10.0)
+    assert second.count == 50 and second.decl_deg == pytest.approx(7.55)
+    assert not avg.take(20.0).valid
+
+
+def test_attitude_propagation_with_body_rates():
+    att = AttitudeState.from_body_rates(10.0, 0.0, 0.0, math.radians(90.0), 0.0, 0.0, math.radians(6.0))
+    assert att.yaw_rate_radps == pytest.approx(math.radians(6.0))       # level: Euler rate = body rate
+    assert math.degrees(att.at(10.1)[2]) == pytest.approx(90.6)
+    assert math.degrees(att.at(20.0, max_dt_s=0.5)[2]) == pytest.approx(93.0)   # bounded extrapolation
+    assert not AttitudeState(0.0, math.nan, 0.0, 0.0).finite
+
+
+def _body(field_ned, roll, pitch, yaw):
+    return tuple(_rot_nb(roll, pitch, yaw).T @ np.asarray(field_ned))
+
+
+def test_processor_pairs_each_sample_with_the_attitude_of_its_time():
+    """IMU before ATTITUDE at the same instant (as flight controllers send them): exact pairing."""
+    field_ned = (28000.0, 2000.0, 30000.0)
+    proc = MagProcessor(spike_nt=5000.0)
+    for k in range(50):
+        t = 0.1 * k
+        yaw = math.radians(30.0 + 6.0 * t)                             # turning at 6 deg/s
+        proc.add_mag(t, _body(field_ned, 0.0, 0.0, yaw))
+        proc.add_attitude(AttitudeState(t, 0.0, 0.0, yaw))             # no rates: pairing must be exact
+    result = proc.take(10.0)
+    assert result.count == 50
+    assert result.decl_deg == pytest.approx(D_TRUE, abs=1e-9)
+
+
+def test_processor_rejects_spikes_non_finite_and_paused_samples():
+    field_ned = (28000.0, 2000.0, 30000.0)
+    proc = MagProcessor(spike_nt=3000.0)
+    body = _body(field_ned, 0.0, 0.0, 0.0)
+    proc.add_attitude(AttitudeState(0.0, 0.0, 0.0, 0.0))
+    for k in range(10):
+        proc.add_attitude(AttitudeState(0.1 * k, 0.0, 0.0, 0.0))
+        proc.add_mag(0.1 * k, body)
+    proc.add_attitude(AttitudeState(1.0, 0.0, 0.0, 0.0))
+    proc.add_mag(1.0, (body[0] + 20000.0, body[1], body[2]))        # spike
+    proc.add_mag(1.0, (math.nan, body[1], body[2]))                   # NaN
+    proc.paused = True
+    proc.add_mag(1.0, body)
+    proc.flush()
+    assert (proc.stats.spikes, proc.stats.non_finite, proc.stats.paused, proc.stats.accepted) == (1, 1, 1, 10)
+    result = proc.take(5.0)
+    assert result.count == 10 and result.decl_deg == pytest.approx(D_TRUE, abs=1e-9)
+
+
+def test_processor_mission_offset_shifts_sample_times():
+    proc = MagProcessor()
+    proc.add_attitude(AttitudeState(100.0, 0.0, 0.0, 0.0))
+    proc.mission_offset_s = 40.0
+    proc.add_mag(100.0, (28000.0, 0.0, 30000.0))
+    assert proc.take(59.0).count == 0
+    assert proc.take(60.0).count == 1
