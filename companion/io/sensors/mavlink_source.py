@@ -1,0 +1,214 @@
+"""Sensor samples from a flight controller's MAVLink streams.
+
+:class:`MavlinkDecoder` turns one message into :mod:`companion.io.sensors.base` samples
+(the receive hook the companion application calls for every message of the flight
+controller); :class:`MavlinkSource` wraps it with its own connection as a
+:class:`~companion.io.sensors.base.SensorSource` for standalone use and tests.
+
+==================  ======================================================================
+message             samples (units converted to SI / nT)
+==================  ======================================================================
+RAW_IMU             ImuSample (mG, mrad/s as ArduPilot sends them) and MagSample (mG -> nT)
+SCALED_IMU/2/3      the same, instances 0/1/2
+HIGHRES_IMU         ImuSample (SI) and MagSample (gauss -> nT) when its ``fields_updated``
+                    bits say so
+ATTITUDE            AttitudeSample (yaw from true north); body rates kept in :attr:`rates`
+GPS_RAW_INT         GpsSample (fix type, lat/lon degE7, MSL and ellipsoid altitudes)
+GLOBAL_POSITION_INT not a sensor: the flight controller's *inertial solution*, kept as
+                    :attr:`MavlinkDecoder.fc_position` (drifts once GPS is denied)
+==================  ======================================================================
+
+For each magnetometer instance the first message type that carries it provides it (a
+flight controller streaming RAW_IMU and SCALED_IMU for the same sensor gives each sample
+once), unless ``mag_message`` names the one to use. Readings that cannot be a field are
+flagged, not dropped (``valid`` False, so
+:class:`~companion.io.sensors.base.StalenessMonitor` does not count them as fresh):
+non-finite values (READ_ERROR), int16 saturation -32768/32767 mG, which is how a NaN
+reaches the integer messages (OVERFLOW), exactly (0, 0, 0), a dead or absent sensor
+(READ_ERROR), and the identical raw triple ``stuck_count`` times in a row (STUCK).
+:attr:`MavlinkDecoder.last_problem` says which. Times are the flight controller's boot time
+(:class:`companion.io.mavlink_link.MessageClock`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from companion import wrap_2pi
+from companion.io.mavlink_link import MavlinkLink, MessageClock
+from companion.io.sensors.base import AttitudeSample, GpsSample, ImuSample, MagSample, Sample, SampleFlag, \
+    SensorError, SensorSource
+from companion.io.sensors.quality import RepeatDetector
+from companion.nav.magnetometer import GAUSS_TO_NT, MILLIGAUSS_TO_NT
+
+__all__ = ["FcPosition", "MavlinkDecoder", "MavlinkSource"]
+
+_G_PER_MG = 9.80665e-3
+_SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+_INT16_LIMITS = (-32768, 32767)
+MAG_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+
+
+@dataclass(frozen=True)
+class FcPosition:
+    """GLOBAL_POSITION_INT: the flight controller's position solution (degrees, m, m/s)."""
+
+    time_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    vn_mps: float
+    ve_mps: float
+
+
+def _finite(*values: float) -> bool:
+    f = math.isfinite
+    for v in values:
+        if not f(v):
+            return False
+    return True
+
+
+class MavlinkDecoder:
+    """MAVLink message -> samples, on the flight controller's clock."""
+
+    def __init__(self, clock: MessageClock, mag_message: str | None = None, stuck_count: int = 20,
+                 imu: bool = True) -> None:
+        if mag_message is not None and mag_message not in MAG_MESSAGES:
+            raise ValueError(f"magnetometer message {mag_message!r} not one of {', '.join(MAG_MESSAGES)}")
+        self.clock = clock
+        self.imu = imu   # False: skip ImuSample (a user that needs only the magnetometer saves the work)
+        self.mag_message = mag_message
+        self._mag_type: dict[int, str] = {}
+        self._stuck: dict[int, RepeatDetector] = {}
+        self._stuck_count = stuck_count
+        self.rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.fc_position: FcPosition | None = None
+        self.last_problem: dict[str, str] = {}   # "mag"/"attitude" -> why the last sample was invalid
+
+    def _mag_flags(self, instance: int, raw: tuple, saturates: bool) -> SampleFlag:
+        flags = SampleFlag.NONE
+        if not saturates and not _finite(*raw):
+            flags |= SampleFlag.READ_ERROR
+            self.last_problem["mag"] = "non-finite magnetometer values"
+            return flags
+        lo, hi = _INT16_LIMITS
+        if saturates and (raw[0] in (lo, hi) or raw[1] in (lo, hi) or raw[2] in (lo, hi)):
+            flags |= SampleFlag.OVERFLOW
+            self.last_problem["mag"] = "saturated magnetometer (int16 limit: NaN at the source?)"
+        elif raw[0] == 0 and raw[1] == 0 and raw[2] == 0:
+            flags |= SampleFlag.READ_ERROR
+            self.last_problem["mag"] = "magnetometer reads exactly zero (sensor off?)"
+        detector = self._stuck.get(instance)
+        if detector is None:
+            detector = self._stuck[instance] = RepeatDetector(self._stuck_count)
+        if detector.check(raw) is not SampleFlag.NONE:
+            flags |= SampleFlag.STUCK
+            self.last_problem["mag"] = f"magnetometer stuck ({self._stuck_count} identical readings)"
+        return flags
+
+    def _time(self, msg) -> float | None:
+        ms = getattr(msg, "time_boot_ms", None)
+        if ms is not None:
+            return ms * 1e-3
+        return self.clock.stamp_usec(getattr(msg, "time_usec", 0))
+
+    def _owns_mag(self, instance: int, mtype: str) -> bool:
+        if self.mag_message is not None:
+            return mtype == self.mag_message
+        return self._mag_type.setdefault(instance, mtype) == mtype
+
+    def decode(self, msg) -> list[Sample]:
+        mtype = msg.get_type()
+        if mtype == "ATTITUDE":
+            t = msg.time_boot_ms * 1e-3
+            values = (msg.roll, msg.pitch, msg.yaw)
+            self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            if _finite(*values, *self.rates):
+                return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
+            self.last_problem["attitude"] = "non-finite ATTITUDE"
+            return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
+        if mtype == "RAW_IMU" or mtype in _SCALED_INSTANCE:
+            t = self._time(msg)
+            if t is None:
+                return []
+            instance = int(getattr(msg, "id", 0) or 0) if mtype == "RAW_IMU" else _SCALED_INSTANCE[mtype]
+            out: list[Sample] = []
+            if self.imu:
+                out.append(ImuSample(t, (msg.xacc * _G_PER_MG, msg.yacc * _G_PER_MG, msg.zacc * _G_PER_MG),
+                                     (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
+            if self._owns_mag(instance, mtype):
+                raw = (msg.xmag, msg.ymag, msg.zmag)
+                out.append(MagSample(t, (raw[0] * MILLIGAUSS_TO_NT, raw[1] * MILLIGAUSS_TO_NT,
+                                         raw[2] * MILLIGAUSS_TO_NT), instance, self._mag_flags(instance, raw, True)))
+            return out
+        if mtype == "HIGHRES_IMU":
+            t = self._time(msg)
+            if t is None:
+                return []
+            instance = int(getattr(msg, "id", 0) or 0)
+            out = []
+            if self.imu and msg.fields_updated & 0x3F:
+                out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
+                                     msg.temperature, instance))
+            if msg.fields_updated & 0x1C0 and self._owns_mag(instance, mtype):
+                raw = (msg.xmag, msg.ymag, msg.zmag)
+                mag = (raw[0] * GAUSS_TO_NT, raw[1] * GAUSS_TO_NT, raw[2] * GAUSS_TO_NT)
+                out.append(MagSample(t, mag, instance, self._mag_flags(instance, raw, False)))
+            return out
+        if mtype == "GPS_RAW_INT":
+            t = self._time(msg)
+            if t is None:
+                t = self.clock.now_s
+            alt_ell = getattr(msg, "alt_ellipsoid", 0)
+            h_acc = getattr(msg, "h_acc", 0)
+            return [GpsSample(time_s=t, lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7,
+                              alt_m=alt_ell * 1e-3 if alt_ell else math.nan, fix_type=int(msg.fix_type),
+                              h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
+                              num_sv=int(msg.satellites_visible) if msg.satellites_visible != 255 else 0,
+                              alt_msl_m=msg.alt * 1e-3)]
+        if mtype == "GLOBAL_POSITION_INT":
+            if msg.lat == 0 and msg.lon == 0:   # "no position" as ArduPilot and PX4 send it
+                return []
+            self.fc_position = FcPosition(msg.time_boot_ms * 1e-3, msg.lat * 1e-7, msg.lon * 1e-7,
+                                          msg.alt * 1e-3, msg.vx * 0.01, msg.vy * 0.01)
+        return []
+
+
+class MavlinkSource(SensorSource):
+    """A flight controller's sensors over its own MAVLink connection (standalone use, tests).
+
+    ``poll`` reads what arrived, keeps the flight-controller state and clock of the link, and
+    returns the decoded samples. The companion application instead shares one link between
+    this decoder, the parameter server and the outputs.
+    """
+
+    def __init__(self, connect: str, name: str = "mavlink", mag_message: str | None = None) -> None:
+        super().__init__()
+        self.name = name
+        self.link = MavlinkLink(connect)
+        self.decoder = MavlinkDecoder(self.link.clock, mag_message)
+        self._open = False
+
+    def open(self) -> None:
+        try:
+            self.link.open()
+        except OSError as err:
+            raise SensorError(f"{self.name}: cannot open {self.link.connect_text!r}: {err}") from err
+        self._open = True
+
+    def poll(self, timeout_s: float = 0.0) -> list[Sample]:
+        if not self._open:
+            raise SensorError(f"{self.name}: poll() before open()")
+        out: list[Sample] = []
+        if self.link.wait_readable(timeout_s):
+            for msg in self.link.read():
+                if self.link.observe(msg):
+                    out.extend(self.decoder.decode(msg))
+        self.stats.count(out)
+        return out
+
+    def close(self) -> None:
+        if self._open:
+            self.link.close()
+            self._open = False

@@ -1,0 +1,194 @@
+"""The MAVLink edge: the setpoint guard (over a real socket), FC conventions, message clock, decoding."""
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from companion.io.mavlink_link import (  # noqa: E402
+    ARDUPILOT, PX4, VELOCITY_YAW_TYPE_MASK, MavlinkLink, MessageClock, UnsafeSetpoint, guard_setpoint, mavlink,
+    parse_connection,
+)
+from companion.io.sensors.base import SampleFlag, SampleKind  # noqa: E402
+from companion.io.sensors.mavlink_source import MavlinkDecoder  # noqa: E402
+
+NAN, INF = math.nan, math.inf
+
+
+@pytest.mark.parametrize("course,speed,limit", [
+    (NAN, 5.0, 13.9), (0.0, NAN, 13.9), (INF, 5.0, 13.9), (0.0, INF, 13.9), (0.0, -0.1, 13.9),
+    (0.0, 14.0, 13.9), (0.0, 5.0, NAN), (0.0, 5.0, 0.0), (0.0, 5.0, -1.0), (0.0, 1e300, 13.9),
+])
+def test_guard_refuses_nan_infinite_negative_and_over_limit(course, speed, limit):
+    with pytest.raises(UnsafeSetpoint):
+        guard_setpoint(course, speed, limit)
+
+
+def test_guard_velocity_components_and_yaw_wrap():
+    sp = guard_setpoint(math.radians(135.0), 10.0, 13.9)            # south-east
+    assert sp.vn_mps == pytest.approx(-10.0 / math.sqrt(2)) and sp.ve_mps == pytest.approx(10.0 / math.sqrt(2))
+    assert sp.yaw_rad == pytest.approx(math.radians(135.0))
+    assert guard_setpoint(math.radians(270.0), 1.0, 2.0).yaw_rad == pytest.approx(-math.pi / 2)
+    assert guard_setpoint(-math.pi, 1.0, 2.0).yaw_rad == pytest.approx(math.pi)    # (-pi, pi]
+    assert guard_setpoint(0.0, 13.9 * (1 + 1e-12), 13.9).vn_mps == 13.9              # rounding is clipped
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_bad_setpoints_never_reach_the_wire(tmp_path):
+    """Over a real UDP socket: refused setpoints are not sent, a good one is, with the right fields."""
+    port = _free_port()
+    receiver = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    link = MavlinkLink(f"udpout:127.0.0.1:{port}", tlog_path=tmp_path / "c.tlog")
+    link.open()
+    try:
+        link.fc.sysid, link.fc.compid = 1, 1
+        link.clock.observe_boot_ms(123_456)
+        for course, speed in ((NAN, 5.0), (0.0, NAN), (0.0, 20.0), (0.0, -1.0), (INF, 1.0)):
+            assert not link.send_setpoint(course, speed, 13.9)
+        assert link.stats.setpoints_refused == 5 and link.stats.setpoints_sent == 0
+        assert link.send_setpoint(math.radians(90.0), 12.0, 13.9)
+        got = receiver.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT", blocking=True, timeout=3.0)
+        assert got is not None
+        assert got.type_mask == VELOCITY_YAW_TYPE_MASK == 2503
+        assert got.coordinate_frame == mavlink.MAV_FRAME_GLOBAL_INT
+        assert got.vx == pytest.approx(0.0, abs=1e-6) and got.vy == pytest.approx(12.0)
+        assert got.yaw == pytest.approx(math.pi / 2) and got.time_boot_ms == 123_456
+        assert (got.get_srcComponent(), got.target_system, got.target_component) == (191, 1, 1)
+        assert all(math.isfinite(v) for v in (got.vx, got.vy, got.vz, got.yaw))
+        # nothing else arrived: the refused ones were never sent
+        assert receiver.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT", blocking=True, timeout=0.3) is None
+    finally:
+        link.close()
+        receiver.close()
+    assert (tmp_path / "c.tlog").stat().st_size > 0
+
+
+def test_heartbeat_identity_over_udp():
+    port = _free_port()
+    receiver = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}")
+    link = MavlinkLink(f"udpout:127.0.0.1:{port}")
+    link.open()
+    try:
+        link.send_heartbeat()
+        hb = receiver.recv_match(type="HEARTBEAT", blocking=True, timeout=3.0)
+        assert hb is not None
+        assert (hb.type, hb.autopilot, hb.get_srcComponent()) == (
+            mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 191)
+        assert hb.get_msgbuf()[0] == 0xFD                                   # MAVLink 2 framing
+    finally:
+        link.close()
+        receiver.close()
+
+
+def test_fc_conventions():
+    assert ARDUPILOT.custom_mode(15, 0) == 15 and ARDUPILOT.is_guided(15) and ARDUPILOT.is_hold(4)
+    assert not ARDUPILOT.is_guided(4) and ARDUPILOT.mode_name(15) == "GUIDED"
+    offboard, loiter = 6 << 16, (4 << 16) | (3 << 24)
+    assert PX4.custom_mode(6, 0) == offboard and PX4.custom_mode(4, 3) == loiter
+    assert PX4.is_guided(offboard) and PX4.is_hold(loiter) and not PX4.is_hold(4 << 16 | 4 << 24)
+    assert PX4.mode_name(loiter) == "AUTO.LOITER" and PX4.param_bytewise and not ARDUPILOT.param_bytewise
+
+
+def test_message_clock_monotonic_reboot_and_unix_time():
+    clock = MessageClock(reboot_s=10.0)
+    assert not clock.started
+    clock.observe_boot_ms(5000)
+    clock.observe_boot_ms(4900)                          # reordered datagram: ignored
+    assert clock.now_s == 5.0
+    clock.observe_system_time(1_700_000_010_000_000, 10_000)
+    assert clock.stamp_usec(1_700_000_012_000_000) == pytest.approx(12.0)   # UNIX -> boot
+    assert clock.stamp_usec(3_000_000) == pytest.approx(3.0)                 # already boot time
+    clock.observe_boot_ms(30_000)
+    clock.observe_boot_ms(100)                           # 29.9 s back: a reboot
+    assert clock.reboots == 1 and clock.now_s == 0.1
+
+
+def test_parse_connection():
+    assert parse_connection("/dev/ttyACM0,57600") == ("/dev/ttyACM0", 57600)
+    assert parse_connection("/dev/ttyACM0:921600") == ("/dev/ttyACM0", 921600)
+    assert parse_connection("tcp:127.0.0.1:5760") == ("tcp:127.0.0.1:5760", 115200)
+
+
+def _msg(name: str, **fields):
+    cls = getattr(mavlink, f"MAVLink_{name.lower()}_message")
+    msg = cls(**fields)
+    msg.pack(mavlink.MAVLink(None, 1, 1))   # fills the header fields
+    return msg
+
+
+def _raw_imu(t_us: int, mag: tuple[int, int, int]):
+    return _msg("RAW_IMU", time_usec=t_us, xacc=0, yacc=0, zacc=-1000, xgyro=0, ygyro=0, zgyro=0,
+                xmag=mag[0], ymag=mag[1], zmag=mag[2], id=0, temperature=0)
+
+
+def test_decoder_units_and_invalid_readings():
+    dec = MavlinkDecoder(MessageClock(), imu=False)
+    [mag] = dec.decode(_raw_imu(2_500_000, (293, -21, 304)))
+    assert mag.kind is SampleKind.MAG and mag.time_s == 2.5
+    assert mag.mag_body_nt == (29300.0, -2100.0, 30400.0) and not mag.flags          # mG -> nT
+    [sat] = dec.decode(_raw_imu(2_600_000, (32767, 32767, 32767)))                    # how a NaN arrives
+    assert sat.flags & SampleFlag.OVERFLOW and "saturated" in dec.last_problem["mag"]
+    [zero] = dec.decode(_raw_imu(2_700_000, (0, 0, 0)))
+    assert zero.flags & SampleFlag.READ_ERROR and "zero" in dec.last_problem["mag"]
+    highres = _msg("HIGHRES_IMU", time_usec=3_000_000, xacc=0, yacc=0, zacc=-9.8, xgyro=0, ygyro=0, zgyro=0,
+                   xmag=0.293, ymag=-0.021, zmag=0.304, abs_pressure=0, diff_pressure=0, pressure_alt=0,
+                   temperature=0, fields_updated=0x1FF, id=1)
+    [hmag] = dec.decode(highres)
+    assert hmag.mag_body_nt == pytest.approx((29300.0, -2100.0, 30400.0)) and hmag.instance == 1  # gauss -> nT
+    highres.xmag = math.nan
+    assert dec.decode(highres)[0].flags & SampleFlag.READ_ERROR
+    att = _msg("ATTITUDE", time_boot_ms=4000, roll=0.1, pitch=-0.05, yaw=-0.5, rollspeed=0.0, pitchspeed=0.0,
+               yawspeed=0.1)
+    [a] = dec.decode(att)
+    assert a.yaw_rad == pytest.approx(2 * math.pi - 0.5) and dec.rates == (0.0, 0.0, 0.1) and not a.flags
+    att.roll = math.nan
+    assert dec.decode(att)[0].flags & SampleFlag.READ_ERROR
+    gpi = _msg("GLOBAL_POSITION_INT", time_boot_ms=5000, lat=330000000, lon=1520000000, alt=0, relative_alt=0,
+               vx=100, vy=-50, vz=0, hdg=0)
+    assert dec.decode(gpi) == [] and dec.fc_position.lat_deg == 33.0 and dec.fc_position.ve_mps == -0.5
+
+
+def test_decoder_flags_a_stuck_magnetometer():
+    dec = MavlinkDecoder(MessageClock(), stuck_count=5)
+    flags = [dec.decode(_raw_imu((k + 1) * 100_000, (293, -21, 304)))[-1].flags for k in range(6)]
+    assert not flags[0] and flags[4] & SampleFlag.STUCK and flags[5] & SampleFlag.STUCK
+
+
+def test_decoder_uses_one_message_type_per_magnetometer():
+    dec = MavlinkDecoder(MessageClock(), imu=False)
+    scaled = _msg("SCALED_IMU", time_boot_ms=1000, xacc=0, yacc=0, zacc=0, xgyro=0, ygyro=0, zgyro=0,
+                  xmag=293, ymag=-21, zmag=304, temperature=0)
+    assert len(dec.decode(_raw_imu(1_000_000, (293, -21, 304)))) == 1
+    assert dec.decode(scaled) == []                     # same sensor, second message type: not twice
+    only_scaled = MavlinkDecoder(MessageClock(), mag_message="SCALED_IMU", imu=False)
+    assert only_scaled.decode(_raw_imu(1_000_000, (293, -21, 304))) == [] and len(only_scaled.decode(scaled)) == 1
+
+
+def test_link_detects_the_flight_controller_and_adopts_its_system_id():
+    link = MavlinkLink("udpout:127.0.0.1:9")
+    link.open()
+    try:
+        gcs = _msg("HEARTBEAT", type=6, autopilot=mavlink.MAV_AUTOPILOT_INVALID, base_mode=0, custom_mode=0,
+                   system_status=4, mavlink_version=3)
+        assert not link.observe(gcs) and not link.fc.detected
+        hb = _msg("HEARTBEAT", type=11, autopilot=mavlink.MAV_AUTOPILOT_PX4, base_mode=128 | 1,
+                  custom_mode=6 << 16, system_status=4, mavlink_version=3)
+        hb.get_header().srcSystem = 7
+        assert link.observe(hb)
+        assert link.fc.detected and link.fc.sysid == 7 and link.sysid == 7 and link.fc.conventions is PX4
+        assert link.fc.armed and link.fc.guided and link.fc.mode_name == "OFFBOARD"
+        t0 = time.monotonic()
+        assert link.heartbeat_age_s()[1] < time.monotonic() - t0 + 1.0
+    finally:
+        link.close()
