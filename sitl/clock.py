@@ -16,24 +16,25 @@ wall time only decides how fast simulated time may advance.
       (``slack`` = 1 by default: the companion may be one period behind, so both run in
       parallel; 0 = strict) and not later than ``B + period`` (a larger stamp is not
       simulated time and is treated as untimed), or
-    * any message without a usable time stamp (no ``time_boot_ms`` field, or 0), such as
-      HEARTBEAT, COMMAND_LONG or TIMESYNC, read while waiting at ``B``.
+    * as long as the peer has never sent a stamped message: any message without a usable
+      time stamp (no ``time_boot_ms`` field, or 0), such as HEARTBEAT, COMMAND_LONG or
+      TIMESYNC, read while waiting at ``B``.
 
     If no answer arrives within ``timeout_s`` of wall time the simulator goes on alone and
     counts a lockstep timeout: it never deadlocks. Before the first message from any peer it
     waits up to ``start_timeout_s`` at ``B = 0`` (0 = for ever).
 
-    The server applies a setpoint stamped ``s`` at the first boundary ``>= s + slack * period``
-    (:meth:`LockstepGate.apply_at_us`), a boundary by which the rule above guarantees it has
-    arrived, so setpoint timing does not depend on wall-clock races. Untimed messages take
-    effect at the boundary where they are read.
+    Once a peer has sent one stamped message, only stamped messages answer (an untimed
+    COMMAND_LONG or HEARTBEAT then no longer does), so a companion must answer every boundary
+    with a stamped message, also when it has nothing to command (SET_POSITION_TARGET_*,
+    NAMED_VALUE_FLOAT, or an echo of SYSTEM_TIME with ``time_boot_ms`` of the boundary).
 
-    Strict mode (``slack = 0``) makes whole closed-loop runs bit-reproducible: once a peer
-    has sent one stamped message, only stamped messages answer (an untimed COMMAND_LONG sent
-    before the stamped answer would otherwise end the wait early), so everything the
-    companion sends before its answer to ``B`` is read and applied at ``B``. A companion in
-    strict mode must therefore answer *every* boundary with a stamped message, also when it
-    has nothing to command (e.g. echo SYSTEM_TIME with ``time_boot_ms = B``).
+    Determinism: the server reads its links only while waiting at a boundary and handles the
+    messages in arrival order up to and including the answer; what follows waits for the next
+    boundary. Which boundary a message takes effect at is then fixed by the companion's
+    message sequence, not by how fast the two processes run, and a deterministic companion
+    gives a bit-reproducible closed loop (short of a lockstep timeout, which is wall-clock by
+    nature).
 """
 from __future__ import annotations
 
@@ -102,7 +103,7 @@ class LockstepGate:
     def observe(self, time_boot_ms: int | None, now_us: int) -> None:
         """A message from an eligible peer was read at simulated time ``now_us``."""
         self.peer_heard = True
-        timed_only = self.slack_us == 0 and self.peer_time_ms > 0
+        timed_only = self.peer_time_ms > 0
         if time_boot_ms is None or time_boot_ms <= 0:
             self._untimed = self._untimed or not timed_only
             return
@@ -115,11 +116,6 @@ class LockstepGate:
 
     def satisfied(self, boundary_us: int) -> bool:
         return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.slack_us
-
-    def apply_at_us(self, stamp_ms: int) -> int:
-        """Boundary at which a setpoint stamped ``stamp_ms`` takes effect: the first ``>= stamp + slack``."""
-        due = stamp_ms * 1000 + self.slack_us
-        return -(-due // self.period_us) * self.period_us
 
     def finish(self, waited_s: float, timed_out: bool) -> None:
         """End of the wait at one boundary."""

@@ -39,6 +39,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
+from collections import deque  # noqa: E402
 from dataclasses import dataclass, replace  # noqa: E402
 from datetime import datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -327,7 +328,7 @@ class SitlServer:
         self.gate = LockstepGate(config.lockstep_period_s, config.lockstep_timeout_s,
                                  config.lockstep_start_timeout_s, config.lockstep_peer,
                                  config.lockstep_slack) if config.lockstep else None
-        self._deferred: list[tuple[int, object]] = []   # lockstep: (apply at us, setpoint message)
+        self._pending: deque = deque()   # lockstep: (link, peer, message, frame) read but not yet handled
         self._next["lockstep"] = 0 if self.gate else 1 << 62
         # parameters (a tiny read-mostly set, so ground stations finish their parameter download)
         self.params: dict[str, list] = {
@@ -808,7 +809,10 @@ class SitlServer:
                 continue
             i += length
             handled += 1
-            self._handle_frame(link, peer, msg, bytes(frame))
+            if self.gate is None:
+                self._handle_frame(link, peer, msg, bytes(frame))
+            else:   # lockstep: handled in order at the boundaries (see _lockstep_wait)
+                self._pending.append((link, peer, msg, bytes(frame)))
         if is_datagram:
             if i < n:
                 self._count("rx_truncated_bytes", n - i)
@@ -993,24 +997,6 @@ class SitlServer:
             self.streams[name].set_rate(rate, self.t_us)
 
     def _on_position_target(self, msg) -> None:
-        gate = self.gate
-        if gate is not None:
-            stamp = msg.time_boot_ms
-            if 0 < stamp * 1000 <= self.t_us + gate.period_us:
-                apply_at = gate.apply_at_us(stamp)
-                if apply_at > self.t_us:
-                    self._deferred.append((apply_at, msg))
-                    return
-        self._apply_position_target(msg)
-
-    def _apply_deferred(self) -> None:
-        due = [msg for at, msg in self._deferred if at <= self.t_us]
-        if due:
-            self._deferred = [(at, msg) for at, msg in self._deferred if at > self.t_us]
-            for msg in due:
-                self._call(SitlServer._apply_position_target, msg)
-
-    def _apply_position_target(self, msg) -> None:
         g = self.guidance
         is_global = msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"
         fc_lat, fc_lon = self._fc_position()
@@ -1158,6 +1144,13 @@ class SitlServer:
                 self._write_truth()
 
     def _lockstep_wait(self) -> None:
+        """At a boundary: send its marker, then handle queued input in order until the gate opens.
+
+        Messages are handled in arrival order and only up to (and including) the one that
+        answers this boundary; the rest waits for the next boundary. Where the simulation
+        stops reading therefore depends on the companion's message sequence, not on how fast
+        either process runs, and a deterministic companion gives a bit-reproducible run.
+        """
         gate = self.gate
         now_us = self.t_us
         self._next["lockstep"] = now_us + gate.period_us
@@ -1168,7 +1161,7 @@ class SitlServer:
         if not gate.peer_heard:
             limit = gate.start_timeout_s
             beat = start
-            while not gate.peer_heard and not self._stop.is_set():
+            while not gate.peer_heard and not self._pending and not self._stop.is_set():
                 now = time.perf_counter()
                 if limit > 0 and now - start > limit:
                     break
@@ -1177,24 +1170,35 @@ class SitlServer:
                     self._send_heartbeat()
                 self._poll(0.1)
                 self._flush()
+        # a link_delay fault holds our frames back: the companion can only have answered older ones
+        threshold = now_us - self._delay_us
         deadline = time.perf_counter() + gate.timeout_s
         timed_out = False
-        # a link_delay fault holds our frames back: the companion can only have answered older ones
-        while not gate.satisfied(now_us - self._delay_us) and not self._stop.is_set():
+        while not self._stop.is_set():
+            answered = self._handle_pending(threshold)
+            self._flush()
+            if answered:
+                break
             remaining = deadline - time.perf_counter()
             if remaining <= 0.0:
                 timed_out = True
                 break
             self._poll(min(remaining, 0.1))
-            self._flush()
-        self._poll(0.0)   # whatever else arrived with the answer is applied at this boundary too
-        self._apply_deferred()
-        self._flush()
         waited = time.perf_counter() - start
         gate.finish(waited, timed_out)
         if timed_out:
             self._say("lockstep_timeout", SEVERITY_WARNING, f"Lockstep: no answer in {gate.timeout_s:g}s, going on")
+            self._flush()
         self.pacer.restart(now_us)
+
+    def _handle_pending(self, threshold_us: int) -> bool:
+        """Handle queued messages in order until the gate is satisfied (True) or none is left (False)."""
+        gate, pending = self.gate, self._pending
+        while not gate.satisfied(threshold_us):
+            if not pending:
+                return False
+            self._handle_frame(*pending.popleft())
+        return True
 
     def _pace(self, t_next_us: int) -> None:
         lockstep = self.gate is not None

@@ -418,11 +418,12 @@ def _scripted_companion(client, boundaries: int) -> None:
             answered += 1
 
 
-def test_strict_lockstep_closed_loop_is_bit_reproducible(sitl, tmp_path):
+@pytest.mark.parametrize("slack", [1, 0])
+def test_lockstep_closed_loop_is_bit_reproducible(sitl, tmp_path, slack):
     logs = []
     for run in range(2):
         folder = tmp_path / f"run{run}"
-        server, client = sitl(lockstep=True, lockstep_slack=0, speedup=None, duration_s=60.0, init_s=0.2,
+        server, client = sitl(lockstep=True, lockstep_slack=slack, speedup=None, duration_s=60.0, init_s=0.2,
                               seed=11, log_dir=str(folder), tlog=str(folder / "sitl.tlog"))
         _scripted_companion(client, boundaries=301)           # 0.0, 0.2, ... 60.0
         stop_and_wait(server)

@@ -140,16 +140,22 @@ def test_rtl_drives_home_and_stops():
 
 def test_lockstep_gate_rules():
     gate = LockstepGate(0.2, timeout_s=1.0)
+    assert gate.satisfied(0) and not gate.satisfied(200_000)     # at t = 0 one period of slack is free
+    gate.observe(None, now_us=200_000)             # before any stamp an untimed message (HEARTBEAT) answers
+    assert gate.satisfied(200_000)
+    gate.finish(0.0, False)
     assert not gate.satisfied(200_000)
     gate.observe(100, now_us=200_000)              # answered up to 0.1 s >= 0.2 - 0.2
     assert gate.satisfied(200_000) and not gate.satisfied(400_000)
     gate.finish(0.0, False)
-    gate.observe(None, now_us=400_000)             # an untimed answer (HEARTBEAT) read while waiting
+    gate.observe(None, now_us=400_000)             # after a stamp, untimed messages no longer answer
+    assert not gate.satisfied(400_000)
+    gate.observe(300, now_us=400_000)
     assert gate.satisfied(400_000)
     gate.finish(0.01, False)
     assert not gate.satisfied(600_000)
     gate.observe(10_000_000, now_us=600_000)       # a stamp from the future is not simulated time
-    assert gate.future_stamps == 1 and gate.peer_time_ms == 100
+    assert gate.future_stamps == 1 and gate.peer_time_ms == 300 and not gate.satisfied(600_000)
     gate.finish(1.0, True)
     assert gate.stats()["lockstep_timeouts"] == 1
     assert LockstepGate(0.2, peer=(1, 191)).eligible(1, 191) and not LockstepGate(0.2, peer=(1, 191)).eligible(255, 0)
@@ -210,11 +216,8 @@ def test_build_truth_field_quiet_is_wmm_and_storm_errors_are_clear(tmp_path):
         build_truth_field(load_scenario("long_storm"), data_dir=tmp_path)
 
 
-def test_lockstep_apply_time_and_strict_mode():
-    gate = LockstepGate(0.2)                       # slack one period: applied one period after the stamp
-    assert gate.apply_at_us(1000) == 1_200_000 and gate.apply_at_us(1050) == 1_400_000
+def test_lockstep_strict_mode_and_stamped_answers():
     strict = LockstepGate(0.2, slack_periods=0)
-    assert strict.apply_at_us(1000) == 1_000_000
     strict.observe(None, now_us=0)                 # before any stamp: an untimed message answers
     assert strict.satisfied(0)
     strict.finish(0.0, False)
