@@ -1,0 +1,828 @@
+"""fcmpc-companion: the process on the companion board that flies the Fc-MPC mission over MAVLink.
+
+::
+
+    fcmpc-companion --connect udp:127.0.0.1:14550                 # listen, like a GCS on 14550
+    fcmpc-companion --connect tcp:127.0.0.1:5760 --params my.parm  # ArduPilot SITL's TCP port
+    fcmpc-companion --connect /dev/ttyAMA0,921600 --log-dir /var/log/fcmpc
+
+It wires the MAVLink link (:mod:`companion.io.mavlink_link`), the parameter server
+(:mod:`companion.io.param_server`), the sensor decoder (:mod:`companion.io.sensors.mavlink_source`),
+the magnetometer pipeline (:mod:`companion.nav.magnetometer`) and the pure navigation core
+(:class:`companion.nav.mission.Mission`), and owns the failsafes (:mod:`companion.failsafe`).
+
+Clocks
+    Everything the navigation sees runs on *message time*: the flight controller's
+    ``time_boot_ms`` (and SYSTEM_TIME), so a simulator running 1000x faster than real time is
+    flown exactly like a vehicle. The setpoint stream (COMP_SP_RATE_HZ), the heartbeat (1 Hz)
+    and the control step (NAV_PERIOD_S) are scheduled in message time. Wall time is used only
+    for socket waits, the heartbeat's wall-time floor (1 Hz) and judging a flight controller that
+    went completely silent (see :mod:`companion.failsafe`).
+
+Sequence
+    ``wait_fc``: no flight-controller HEARTBEAT yet. ``startup``: streams requested; the vehicle is
+    stationary while D and I are averaged over a start-up window (default one control period),
+    which becomes the first measurement. ``ready``: with COMP_ARM_ENABLE = 1 the companion switches
+    to GUIDED (ArduPilot) or, after >= 1 s of zero-velocity setpoints, OFFBOARD (PX4) and arms;
+    with 0 it waits for the operator to do so. ``running``: once the flight controller is armed in
+    GUIDED/OFFBOARD the mission starts (start = GPS fix if the receiver has a 3D fix, else
+    NAV_START_LAT/LON); every NAV_PERIOD_S of *mission time* the averaged (D, I) and the flight
+    controller's INS position (GLOBAL_POSITION_INT; dead reckoning on the commanded velocity when
+    it is missing) go into the core, whose course and speed are streamed as setpoints.
+    ``done``: arrived or failed: setpoints stop, hold mode is commanded.
+
+Mission time and pauses
+    Mission time is message time minus the time spent paused. The mission pauses whenever the
+    vehicle is not following (failsafe, or the flight controller not armed in GUIDED/OFFBOARD):
+    the core's dead reckoning assumes the last command was flown for the whole period, so the
+    clock must not run while the vehicle holds. Samples taken while paused are not averaged.
+
+Failsafes (:mod:`companion.failsafe`)
+    Stale magnetometer or attitude, flight-controller heartbeat lost, broken parameter file:
+    stop streaming velocity, command HOLD (ArduPilot) / AUTO.LOITER (PX4) if the vehicle was
+    under guidance, STATUSTEXT the reason; after all conditions were healthy for 1 s of message
+    time, re-engage (if COMP_ARM_ENABLE) and resume. Navigation failures (QP failure, estimate
+    diverging from the geomagnetic fix by COMP_DIVERGE_KM, a non-finite command) hold the
+    vehicle and restart the mission from the last estimate after a new stationary start-up
+    (at most 3 restarts). No setpoint ever leaves without :func:`~companion.io.mavlink_link.guard_setpoint`.
+
+Records (``--log-dir``, default ``out/companion/<time>-<pid>``): ``companion.tlog`` (both
+directions), ``steps.csv`` (:mod:`companion.io.records`), ``summary.json``.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import signal  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass, fields  # noqa: E402
+from datetime import datetime  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from companion import wrap_2pi  # noqa: E402
+from companion.failsafe import Health, HealthLimits, diverged  # noqa: E402
+from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
+from companion.io.param_server import ENCODINGS, ParamServer  # noqa: E402
+from companion.io.records import StepRecorder, write_summary  # noqa: E402
+from companion.io.sensors.base import SampleKind  # noqa: E402
+from companion.io.sensors.mavlink_source import MAG_MESSAGES, MavlinkDecoder  # noqa: E402
+from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position  # noqa: E402
+from companion.nav.magnetometer import AttitudeState, MagCalibration, MagProcessor  # noqa: E402
+from companion.nav.mission import Command, Measurement, Mission, Phase  # noqa: E402
+from companion.nav.mpc import MpcController  # noqa: E402
+from companion.params import CompanionConfig, NavConfig  # noqa: E402
+
+__all__ = ["AppOptions", "CompanionApp", "State", "build_parser", "main", "LIVE_FROZEN_FIELDS"]
+
+MAX_RESTARTS = 3
+_MAG, _ATT, _GPS = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
+_PARAM_TYPES = frozenset({"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"})
+FC_POSITION_MAX_AGE_S = 5.0       # older GLOBAL_POSITION_INT: dead reckoning instead
+GPS_START_MAX_AGE_S = 5.0
+COMMAND_RETRY_S = 2.0             # message time between retries of mode/arm commands
+HOLD_RETRY_S = 2.0
+STARTUP_GRACE_S = 5.0            # message time for the requested streams to arrive before complaining
+LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
+
+# NavConfig fields that define the mission: a change applies to the next mission only.
+LIVE_FROZEN_FIELDS = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
+                      "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
+                      "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback")
+
+# Streams requested from the flight controller (MAV_CMD_SET_MESSAGE_INTERVAL), Hz.
+STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "SYSTEM_TIME": 1.0}
+MAG_STREAM_HZ = 10.0
+
+
+class State:
+    WAIT_FC = "wait_fc"
+    STARTUP = "startup"
+    READY = "ready"
+    RUNNING = "running"
+    DONE = "done"
+
+
+@dataclass
+class AppOptions:
+    connect: str = "udp:127.0.0.1:14550"
+    params: str | None = None
+    log_dir: str | None = None
+    sysid: int | None = None
+    lockstep: bool = False
+    exit_when_done: bool = False
+    param_encoding: str = "auto"
+    mag_message: str | None = None
+    startup_s: float | None = None
+    tlog: bool = True
+    request_streams: bool = True
+    max_wall_s: float | None = None
+    quiet: bool = False
+
+
+def _percentile(values: list[float], q: float) -> float:
+    if not values:
+        return math.nan
+    ordered = sorted(values)
+    k = min(len(ordered) - 1, max(0, int(math.ceil(q * len(ordered))) - 1))
+    return ordered[k]
+
+
+class CompanionApp:
+    """The companion process; :meth:`run` until done (``--exit-when-done``), a signal or ``max_wall_s``."""
+
+    def __init__(self, options: AppOptions) -> None:
+        self.opts = options
+        if options.log_dir:
+            self.log_dir = Path(options.log_dir)
+        else:
+            self.log_dir = Path("out") / "companion" / f"{datetime.now():%Y%m%d-%H%M%S}-{os.getpid()}"
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        params_path = options.params if options.params is not None else str(self.log_dir / "companion.parm")
+        self.link = MavlinkLink(options.connect, options.sysid,
+                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None)
+        self.params = ParamServer(self.link, params_path, on_change=self._param_changed,
+                                  encoding=options.param_encoding)
+        self.params.load()
+        self.nav_cfg = NavConfig.from_values(self.params.values)
+        self.comp_cfg = CompanionConfig.from_values(self.params.values)
+        self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=False)
+        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+                                self.comp_cfg.spike_nt)
+        self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
+        self.health = Health(self._limits())
+        if self.params.load_error:
+            self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
+                                        f"{self.params.load_error}")
+        self.recorder: StepRecorder | None = None
+        # state
+        self.state = State.WAIT_FC
+        self.mission: Mission | None = None
+        self.mission_no = 0
+        self.restarts = 0
+        self.restart_from: tuple[float, float] | None = None
+        self.command: Command | None = None
+        self.last_phase = ""
+        self.exit_code: int | None = None
+        self.done_wall = math.nan
+        self._stop = False
+        self._params_dirty = False
+        # clocks and timers (message time unless *_wall)
+        self.offset_s = 0.0             # message time - mission time (pauses)
+        self.paused_since = math.nan
+        self.m0 = math.nan              # mission time of the mission start
+        self.next_step_m = math.nan
+        self.startup_begin = math.nan
+        self.fc_detected_at = math.nan
+        self.stream_since = math.nan    # message time since setpoints stream without a gap
+        self.next_tick = -math.inf
+        self.last_hb_sent = -math.inf
+        self.last_hb_sent_wall = -math.inf
+        self.last_mode_cmd = -math.inf
+        self.last_arm_cmd = -math.inf
+        self.last_hold_cmd = -math.inf
+        self.hold_commanded = False
+        self.failsafe_active = False
+        self.last_gps = None
+        self.local_ned: tuple[float, float, float] | None = None   # (time, north, east) of LOCAL_POSITION_NED
+        self.dr: tuple[float, float, float] | None = None          # (time, lat, lon) dead reckoning
+        self.last_tick_time = math.nan
+        # statistics
+        self.step_latency_s: list[float] = []
+        self.core_latency_s: list[float] = []
+        self.events: list[str] = []
+        self.wall_start = time.monotonic()
+        self.messages_from_fc = 0
+        self.invalid_mag = 0
+
+    # ------------------------------------------------------------------ configuration
+    def _limits(self) -> HealthLimits:
+        c = self.comp_cfg
+        return HealthLimits(c.mag_timeout_s, c.att_timeout_s, c.heartbeat_timeout_s)
+
+    def _param_changed(self, name: str, value) -> None:
+        self._params_dirty = True
+        if self.state != State.RUNNING:
+            self._apply_params()
+
+    def _apply_params(self) -> None:
+        """Rebuild the configurations from the parameter values (at a control step when running)."""
+        self._params_dirty = False
+        values = self.params.values
+        self.comp_cfg = CompanionConfig.from_values(values)
+        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+                           self.comp_cfg.spike_nt)
+        self.health.limits = self._limits()
+        new_nav = NavConfig.from_values(values)
+        self.nav_cfg = new_nav
+        if self.mission is not None and self.state == State.RUNNING:
+            deferred = apply_live_config(self.mission, new_nav)
+            for name in deferred:
+                self._say(f"FcMPC: {name} applies to the next mission", mavlink.MAV_SEVERITY_NOTICE)
+
+    # ------------------------------------------------------------------ time
+    @property
+    def now(self) -> float:
+        return self.link.clock.now_s
+
+    def mission_time(self, now: float | None = None) -> float:
+        now = self.now if now is None else now
+        if math.isfinite(self.paused_since):
+            return self.paused_since - self.offset_s
+        return now - self.offset_s
+
+    # ------------------------------------------------------------------ output helpers
+    def _say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
+        self.events.append(f"[{self.now:10.1f}] {text}")
+        if not self.opts.quiet:
+            print(f"fcmpc-companion [{self.now:10.1f}] {text}", file=sys.stderr, flush=True)
+        if self.link.conn is not None:
+            self.link.send_statustext(text, severity)
+
+    def _send_heartbeat(self) -> None:
+        state = mavlink.MAV_STATE_CRITICAL if self.failsafe_active else (
+            mavlink.MAV_STATE_ACTIVE if self.state == State.RUNNING else mavlink.MAV_STATE_STANDBY)
+        self.link.send_heartbeat(state)
+        self.last_hb_sent = self.now if self.link.clock.started else -math.inf
+        self.last_hb_sent_wall = time.monotonic()
+
+    # ------------------------------------------------------------------ main loop
+    def open(self) -> None:
+        self.link.open()
+        self.recorder = StepRecorder(self.log_dir / "steps.csv")
+        self._send_heartbeat()   # a udpout link must speak first
+
+    def close(self) -> None:
+        if self.link.conn is not None and self.link.fc.detected and self.link.fc.guided and self.link.fc.armed \
+                and self.state in (State.RUNNING, State.READY):
+            self.link.send_hold_mode()   # do not leave a vehicle in GUIDED without a companion
+        if self.recorder is not None:
+            self.recorder.close()
+        self._write_summary()
+        self.link.close()
+
+    def request_stop(self) -> None:
+        self._stop = True
+
+    def run(self) -> int:
+        self.open()
+        try:
+            while not self._stop and self.exit_code is None:
+                if self.link.wait_readable(0.02):
+                    for _ in range(256):
+                        msgs = self.link.read()
+                        if not msgs:
+                            break
+                        for msg in msgs:
+                            self.handle(msg)
+                self.idle()
+        finally:
+            self.close()
+        return self.exit_code if self.exit_code is not None else 0
+
+    def handle(self, msg) -> None:
+        """Receive hook: every message read from the link."""
+        link = self.link
+        if link.observe(msg):
+            self.messages_from_fc += 1
+            was_detected = self.state != State.WAIT_FC
+            for sample in self.decoder.decode(msg):
+                kind = sample.kind
+                if kind is _MAG:
+                    if sample.flags:
+                        self.invalid_mag += 1
+                    else:
+                        self.last_valid[_MAG] = sample.time_s
+                        self.mag.add_mag(sample.time_s, sample.mag_body_nt)
+                elif kind is _ATT:
+                    if not sample.flags:
+                        att = AttitudeState.from_body_rates(sample.time_s, sample.roll_rad, sample.pitch_rad,
+                                                            sample.yaw_rad, *self.decoder.rates)
+                        if self.mag.add_attitude(att):
+                            self.last_valid[_ATT] = sample.time_s
+                elif kind is _GPS:
+                    self.last_gps = sample
+            if msg._type == "LOCAL_POSITION_NED":
+                self.local_ned = (msg.time_boot_ms * 1e-3, msg.x, msg.y)
+            if self.link.clock.now_s >= self.next_tick or not was_detected:
+                if self.link.clock.started:
+                    self.tick()
+        elif msg._type in _PARAM_TYPES:
+            self.params.mavlink_packet(msg)
+
+    def age(self, kind: SampleKind) -> float:
+        """Message-time age of the last valid sample of a kind (infinite if none yet)."""
+        last = self.last_valid.get(kind)
+        return math.inf if last is None else self.now - last
+
+    def idle(self) -> None:
+        """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
+        wall = time.monotonic()
+        if wall - self.last_hb_sent_wall >= 1.0:
+            self._send_heartbeat()
+            if self.link.fc.detected and self.link.clock.started:
+                self._evaluate_health()   # a silent FC: message time stands still, wall time does not
+                if self.failsafe_active and self.state == State.RUNNING:
+                    self._failsafe_actions()
+        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S:
+            self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1
+        if self.opts.max_wall_s is not None and wall - self.wall_start > self.opts.max_wall_s:
+            self._say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
+                      mavlink.MAV_SEVERITY_WARNING)
+            self.exit_code = 3
+
+    # ------------------------------------------------------------------ the control tick
+    def tick(self) -> None:
+        """Runs at COMP_SP_RATE_HZ of message time (and when the flight controller appears)."""
+        now = self.now
+        period = 1.0 / self.comp_cfg.setpoint_rate_hz
+        self.next_tick = now + period if now - self.next_tick >= period else self.next_tick + period
+        if now - self.last_hb_sent >= 1.0:
+            self._send_heartbeat()
+        dt = now - self.last_tick_time if math.isfinite(self.last_tick_time) else 0.0
+        self.last_tick_time = now
+        if self.state == State.WAIT_FC:
+            self._on_fc_detected()
+        reasons = self._evaluate_health()
+        sent = False
+        if self.state == State.STARTUP:
+            self._startup(now, reasons)
+        if self.state == State.READY:
+            sent = self._ready(now, reasons)
+        if self.state == State.RUNNING:
+            sent = self._running(now, reasons, dt)
+        if self.state == State.DONE:
+            self._hold_if_guided(now)
+        if not sent:
+            self.stream_since = math.nan
+            if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going
+                self.link.send_named_float("FC_STATE", float(self._state_code()))
+
+    def _state_code(self) -> int:
+        codes = {State.WAIT_FC: 0, State.STARTUP: 1, State.READY: 2, State.RUNNING: 3, State.DONE: 5}
+        return 4 if self.failsafe_active else codes[self.state]
+
+    def _on_fc_detected(self) -> None:
+        fc = self.link.fc
+        self.fc_detected_at = self.now
+        self._say(f"FcMPC: {fc.conventions.name} FC sysid {fc.sysid} detected, mode {fc.mode_name}")
+        if self.opts.request_streams:
+            self._request_streams()
+        self._enter_startup("start-up")
+
+    def _request_streams(self) -> None:
+        link = self.link
+        mag_msg = self.opts.mag_message or ("HIGHRES_IMU" if link.fc.conventions.param_bytewise else "RAW_IMU")
+        link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{mag_msg}"), MAG_STREAM_HZ)
+        for name, hz in STREAMS_HZ.items():
+            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), hz)
+        if self.comp_cfg.position_publish == 1:
+            link.send_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 2.0)
+
+    # ------------------------------------------------------------------ health
+    def _evaluate_health(self) -> list[str]:
+        now = self.now
+        hb_msg, hb_wall = self.link.heartbeat_age_s()
+        problems = self.decoder.last_problem
+        reasons = self.health.evaluate(
+            now, mag_age_s=self.age(_MAG), att_age_s=self.age(_ATT),
+            hb_age_msg_s=hb_msg, hb_age_wall_s=hb_wall, mag_detail=problems.get("mag", ""),
+            att_detail=problems.get("attitude", ""))
+        if self.state in (State.WAIT_FC, State.STARTUP) and not self.link.fc.armed:
+            # before engaging there is nothing to stop: report (after the streams had time to
+            # start), but do not command anything
+            if reasons and not self.failsafe_active and now - self.fc_detected_at > STARTUP_GRACE_S:
+                self._say(f"FcMPC: not ready: {reasons[0]}", mavlink.MAV_SEVERITY_WARNING)
+            if now - self.fc_detected_at > STARTUP_GRACE_S or not reasons:
+                self.failsafe_active = bool(reasons)
+            return reasons
+        if reasons and not self.failsafe_active:
+            self.failsafe_active = True
+            self._say(f"FcMPC FAILSAFE: {'; '.join(reasons)}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
+            self._record_event("failsafe", "; ".join(reasons))
+            self._failsafe_actions()
+        elif not reasons and self.failsafe_active and self.health.resumed(now):
+            self.failsafe_active = False
+            self._say("FcMPC: healthy again, resuming", mavlink.MAV_SEVERITY_NOTICE)
+        return reasons if reasons or not self.failsafe_active else ["recovering"]
+
+    def _failsafe_actions(self) -> None:
+        if self.state == State.RUNNING:
+            self._pause()
+        fc = self.link.fc
+        if fc.armed and fc.guided:
+            self._command_hold(self.now)
+
+    def _command_hold(self, now: float) -> None:
+        if now - self.last_hold_cmd >= HOLD_RETRY_S or not math.isfinite(self.last_hold_cmd):
+            self.link.send_hold_mode()
+            self.last_hold_cmd = now
+            self.hold_commanded = True
+
+    def _hold_if_guided(self, now: float) -> None:
+        fc = self.link.fc
+        if fc.armed and fc.guided:
+            self._command_hold(now)
+
+    # ------------------------------------------------------------------ states
+    def _enter_startup(self, why: str) -> None:
+        self.state = State.STARTUP
+        self.startup_begin = self.now
+        self.mag.paused = False
+        self.mag.mission_offset_s = self.offset_s = 0.0
+        self.paused_since = math.nan
+        self.mag.clear()
+        self._record_event("start" if why == "start-up" else "restart", why)
+
+    def _startup_window(self) -> float:
+        return self.opts.startup_s if self.opts.startup_s is not None else self.nav_cfg.period_s
+
+    def _moving(self) -> bool:
+        """The vehicle may be moving: armed and not in a hold mode (a pilot or a mission drives it).
+
+        The flight controller's velocity is no evidence: without GPS its INS velocity drifts."""
+        fc = self.link.fc
+        return fc.armed and not fc.holding and not (fc.guided and self.comp_cfg.arm_enable)
+
+    def _startup(self, now: float, reasons: list[str]) -> None:
+        if reasons or self._moving():
+            self.startup_begin = now
+            self.mag.clear()
+            return
+        if now - self.startup_begin >= self._startup_window() and len(self.mag.averager):
+            self.state = State.READY
+            self._say(f"FcMPC: ready, start-up average of {len(self.mag.averager)} samples"
+                      + ("" if self.comp_cfg.arm_enable else "; arm in GUIDED/OFFBOARD to start"))
+
+    def _zero_setpoint(self) -> bool:
+        att = self.mag.attitude
+        course = wrap_2pi(att.yaw_rad) if att is not None else 0.0
+        return self._stream(course, 0.0)
+
+    def _stream(self, course_rad: float, speed_mps: float) -> bool:
+        limit = self.mission.config.speed_mps if self.mission is not None else self.nav_cfg.speed_mps
+        ok = self.link.send_setpoint(course_rad, speed_mps, limit)
+        if ok and not math.isfinite(self.stream_since):
+            self.stream_since = self.now
+        return ok
+
+    def _engage(self, now: float) -> None:
+        """GUIDED/OFFBOARD then arm, with retries (only with COMP_ARM_ENABLE = 1)."""
+        fc = self.link.fc
+        if not self.comp_cfg.arm_enable:
+            return
+        conv = fc.conventions
+        streamed = now - self.stream_since if math.isfinite(self.stream_since) else 0.0
+        if not fc.guided:
+            if streamed >= conv.offboard_prestream_s and now - self.last_mode_cmd >= COMMAND_RETRY_S:
+                self.link.send_guided_mode()
+                self.last_mode_cmd = now
+        elif not fc.armed and now - self.last_arm_cmd >= COMMAND_RETRY_S:
+            self.link.send_arm(True)
+            self.last_arm_cmd = now
+
+    def _ready(self, now: float, reasons: list[str]) -> bool:
+        self.mag.drop_before(now - self._startup_window())   # a sliding window while waiting
+        if reasons:
+            return False
+        fc = self.link.fc
+        if fc.armed and fc.guided:
+            self._start_mission(now)
+            return False
+        sent = self._zero_setpoint()
+        self._engage(now)
+        return sent
+
+    def _start_position(self) -> tuple[float, float, str]:
+        gps = self.last_gps
+        if gps is not None and gps.valid and gps.has_3d_fix and self.now - gps.time_s <= GPS_START_MAX_AGE_S:
+            return gps.lat_deg, gps.lon_deg, "GPS"
+        if self.restart_from is not None:
+            return self.restart_from[0], self.restart_from[1], "last estimate"
+        return self.nav_cfg.start_lat_deg, self.nav_cfg.start_lon_deg, "NAV_START"
+
+    def _start_mission(self, now: float) -> None:
+        if self._params_dirty:
+            self._apply_params()
+        lat, lon, source = self._start_position()
+        config = self.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon))
+        self.mission = Mission(config)
+        self.mission_no += 1
+        self.hold_commanded = False
+        self.m0 = self.mission_time(now)
+        self.state = State.RUNNING
+        self.last_phase = ""
+        self._say(f"FcMPC: mission {self.mission_no} start {lat:.4f},{lon:.4f} ({source})")
+        self._step(self.m0, window_limit_s=0.0)
+
+    def _running(self, now: float, reasons: list[str], dt: float) -> bool:
+        fc = self.link.fc
+        following = fc.armed and fc.guided
+        self._advance_dead_reckoning(now, dt, following and not reasons)
+        if reasons or not following:
+            self._pause()
+        else:
+            self._resume()
+        if reasons:
+            return False
+        sent = self._stream(self.command.course_rad, self.command.speed_mps) if self.command is not None else False
+        if not following:
+            if self.hold_commanded or (fc.armed and fc.holding):
+                # we put it in hold, or the FC fell back to its hold mode itself (PX4 on a setpoint gap):
+                # take it back. Any other mode is an operator take-over and is left alone.
+                self._engage(now)
+            return sent
+        if self.mission_time(now) >= self.next_step_m:
+            self._step(self.next_step_m)
+        return sent
+
+    def _pause(self) -> None:
+        if not math.isfinite(self.paused_since):
+            self.paused_since = self.now
+            self.mag.paused = True
+
+    def _resume(self) -> None:
+        if math.isfinite(self.paused_since):
+            self.offset_s += self.now - self.paused_since
+            self.paused_since = math.nan
+            self.mag.mission_offset_s = self.offset_s
+            self.mag.paused = False
+
+    # ------------------------------------------------------------------ INS position
+    def _advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
+        pos = self.decoder.fc_position
+        if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+            self.dr = (now, pos.lat_deg, pos.lon_deg)
+            return
+        if self.dr is None:
+            return
+        if moving and self.command is not None and dt > 0.0:
+            c, v = self.command.course_rad, self.command.speed_mps
+            lat, lon = offset_position(self.dr[1], self.dr[2], v * math.sin(c) * dt, v * math.cos(c) * dt)
+            self.dr = (now, float(lat), float(lon))
+
+    def _ins_position(self, now: float) -> tuple[float, float, str]:
+        pos = self.decoder.fc_position
+        if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+            return pos.lat_deg, pos.lon_deg, "fc"
+        if self.dr is not None:
+            return self.dr[1], self.dr[2], "dead_reckoning"
+        return math.nan, math.nan, "none"
+
+    # ------------------------------------------------------------------ the control step
+    def _step(self, t_k: float, window_limit_s: float | None = None) -> None:
+        wall0 = time.perf_counter()
+        now = self.now
+        if self._params_dirty:
+            self._apply_params()
+        mission = self.mission
+        period = mission.config.period_s
+        avg = self.mag.take(t_k)
+        if not avg.valid:
+            # nothing to measure (should not happen: a silent magnetometer pauses the mission);
+            # keep flying the command and measure again one period later (the core's dead
+            # reckoning uses the actual time between steps)
+            self.next_step_m = t_k + period
+            self._say("FcMPC: no magnetometer samples in the period, step postponed", mavlink.MAV_SEVERITY_WARNING)
+            return
+        window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
+        ins_lat, ins_lon, ins_source = self._ins_position(now)
+        meas = Measurement(t_k - self.m0, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window)
+        core0 = time.perf_counter()
+        cmd = mission.step(meas)
+        core_latency = time.perf_counter() - core0
+        nav_fault = ""
+        if not cmd.done and not (math.isfinite(cmd.course_rad) and math.isfinite(cmd.speed_mps)):
+            nav_fault = "non-finite command from the navigation core"
+        elif not cmd.solver_ok:
+            nav_fault = f"solver failure: {cmd.reason}"
+        else:
+            gap = geodesic_distance_m(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg) \
+                if all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg,
+                                                  cmd.fix_lon_deg)) else math.nan
+            if diverged(gap, self.comp_cfg.diverge_m):
+                nav_fault = f"estimate diverged: {gap / 1000.0:.1f} km from the geomagnetic fix"
+        self._publish(cmd, avg)
+        latency = time.perf_counter() - wall0
+        self.step_latency_s.append(latency)
+        self.core_latency_s.append(core_latency)
+        self._record_step(cmd, meas, avg, ins_source, latency, "step", nav_fault or cmd.reason)
+        if nav_fault:
+            self._nav_failure(nav_fault, cmd)
+            return
+        self.command = cmd
+        if cmd.phase != self.last_phase:
+            self._say(f"FcMPC: step {cmd.step} phase {cmd.phase}"
+                      + (f", {cmd.remaining_m / 1000.0:.1f} km to go" if math.isfinite(cmd.remaining_m) else "")
+                      + (f": {cmd.reason}" if cmd.reason else ""),
+                      mavlink.MAV_SEVERITY_NOTICE if cmd.phase != Phase.FAILED else mavlink.MAV_SEVERITY_ERROR)
+            self.last_phase = cmd.phase
+        if cmd.done:
+            self._finish(cmd)
+            return
+        self.next_step_m = t_k + mission.config.period_s
+
+    def _publish(self, cmd: Command, avg) -> None:
+        link = self.link
+        for name, value in (("FC_D", avg.decl_deg), ("FC_I", avg.incl_deg), ("FC_ERR", cmd.est_sigma_m),
+                            ("FC_REM", cmd.remaining_m), ("FC_SOLV", cmd.solver_time_s), ("FC_STEP", cmd.step)):
+            if math.isfinite(value):
+                link.send_named_float(name, value)
+        if cmd.phase != Phase.CRUISE or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
+            return
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(self.nav_cfg.fusion_rc_m2)
+        mode = self.comp_cfg.position_publish
+        if mode == 0:
+            link.send_external_position(cmd.est_lat_deg, cmd.est_lon_deg, sigma)
+        elif mode == 1:
+            origin = self._local_origin()
+            if origin is not None:
+                east, north = enu_offset(origin[0], origin[1], cmd.est_lat_deg, cmd.est_lon_deg)
+                link.send_odometry(float(north), float(east), sigma)
+
+    def _local_origin(self) -> tuple[float, float] | None:
+        """The flight controller's local NED origin from GLOBAL_POSITION_INT and LOCAL_POSITION_NED."""
+        pos, local = self.decoder.fc_position, self.local_ned
+        if pos is None or local is None or abs(pos.time_s - local[0]) > 1.0:
+            return None
+        lat, lon = offset_position(pos.lat_deg, pos.lon_deg, -local[2], -local[1])
+        return float(lat), float(lon)
+
+    def _nav_failure(self, reason: str, cmd: Command) -> None:
+        self._say(f"FcMPC FAILSAFE: {reason}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
+        self._hold_if_guided(self.now)
+        self.hold_commanded = True
+        self.restarts += 1
+        if self.restarts > MAX_RESTARTS:
+            self.command = cmd
+            self._finish(cmd, failed_reason=f"{reason}; gave up after {MAX_RESTARTS} restarts")
+            return
+        est = (cmd.est_lat_deg, cmd.est_lon_deg)
+        if not all(math.isfinite(v) for v in est) and self.command is not None:
+            est = (self.command.est_lat_deg, self.command.est_lon_deg)
+        self.restart_from = est if all(math.isfinite(v) for v in est) else None
+        self.mission = None
+        self.command = None
+        self._enter_startup(f"restart {self.restarts} after: {reason}")
+
+    def _finish(self, cmd: Command, failed_reason: str = "") -> None:
+        self.state = State.DONE
+        self.done_wall = time.monotonic()
+        self.stream_since = math.nan
+        if failed_reason:
+            self._say(f"FcMPC: mission FAILED: {failed_reason}"[:200], mavlink.MAV_SEVERITY_ERROR)
+        elif cmd.phase == Phase.ARRIVED:
+            self._say(f"FcMPC: arrived after {cmd.step} steps, estimated {cmd.remaining_m:.0f} m to go")
+        else:
+            self._say(f"FcMPC: mission {cmd.phase}: {cmd.reason}", mavlink.MAV_SEVERITY_ERROR)
+        self._record_event("done", failed_reason or cmd.reason or cmd.phase)
+        self._hold_if_guided(self.now)
+
+    # ------------------------------------------------------------------ records
+    def _record_step(self, cmd: Command, meas: Measurement, avg, ins_source: str, latency: float, event: str,
+                     reason: str) -> None:
+        if self.recorder is None:
+            return
+        st = self.mag.stats
+        self.recorder.write({
+            "wall_time_s": time.time(), "msg_time_s": self.now, "mission_time_s": meas.time_s,
+            "mission": self.mission_no, "step": cmd.step, "phase": cmd.phase, "decl_deg": meas.decl_deg,
+            "incl_deg": meas.incl_deg, "samples": avg.count, "window_s": meas.window_s, "spikes": st.spikes,
+            "invalid": st.non_finite + self.invalid_mag, "ins_lat_deg": meas.ins_lat_deg,
+            "ins_lon_deg": meas.ins_lon_deg, "ins_source": ins_source, "est_lat_deg": cmd.est_lat_deg,
+            "est_lon_deg": cmd.est_lon_deg, "est_sigma_m": cmd.est_sigma_m, "fix_lat_deg": cmd.fix_lat_deg,
+            "fix_lon_deg": cmd.fix_lon_deg, "fused": cmd.fused, "remaining_m": cmd.remaining_m,
+            "course_deg": math.degrees(cmd.course_rad), "speed_mps": cmd.speed_mps, "solver_ok": cmd.solver_ok,
+            "solver_time_s": cmd.solver_time_s, "step_latency_s": latency, "event": event, "reason": reason})
+
+    def _record_event(self, event: str, reason: str) -> None:
+        if self.recorder is None:
+            return
+        self.recorder.write({"wall_time_s": time.time(), "msg_time_s": self.now,
+                             "mission_time_s": self.mission_time() - self.m0 if math.isfinite(self.m0) else math.nan,
+                             "mission": self.mission_no, "step": self.mission.k if self.mission else 0,
+                             "phase": self.state, "event": event, "reason": reason})
+
+    def summary(self) -> dict:
+        wall = time.monotonic() - self.wall_start
+        lat = self.step_latency_s
+        return {
+            "state": self.state, "phase": self.command.phase if self.command else "",
+            "arrived": bool(self.command and self.command.phase == Phase.ARRIVED),
+            "missions": self.mission_no, "restarts": self.restarts,
+            "steps": self.command.step if self.command else 0,
+            "est_lat_deg": self.command.est_lat_deg if self.command else math.nan,
+            "est_lon_deg": self.command.est_lon_deg if self.command else math.nan,
+            "est_remaining_m": self.command.remaining_m if self.command else math.nan,
+            "msg_time_s": self.now, "wall_s": round(wall, 3),
+            "messages_in": self.link.stats.messages_in, "messages_from_fc": self.messages_from_fc,
+            "messages_out": self.link.stats.messages_out, "msgs_in_per_wall_s": round(self.link.stats.messages_in / max(wall, 1e-9), 1),
+            "bad_frames": self.link.stats.bad_frames, "setpoints_sent": self.link.stats.setpoints_sent,
+            "setpoints_refused": self.link.stats.setpoints_refused, "failsafes": self.health.entered,
+            "step_latency_median_s": statistics.median(lat) if lat else math.nan,
+            "step_latency_p99_s": _percentile(lat, 0.99),
+            "core_latency_median_s": statistics.median(self.core_latency_s) if self.core_latency_s else math.nan,
+            "mag": {**self.mag.stats.as_dict(), "invalid": self.invalid_mag}, "param_load_error": self.params.load_error,
+            "fc": {"autopilot": self.link.fc.conventions.name, "sysid": self.link.fc.sysid,
+                   "mode": self.link.fc.mode_name, "armed": self.link.fc.armed},
+            "events": self.events[-200:], "log_dir": str(self.log_dir),
+        }
+
+    def _write_summary(self) -> None:
+        try:
+            write_summary(self.log_dir / "summary.json", self.summary())
+        except OSError as err:  # pragma: no cover
+            print(f"fcmpc-companion: cannot write summary: {err}", file=sys.stderr)
+
+
+def apply_live_config(mission: Mission, new: NavConfig) -> list[str]:
+    """Apply a changed NavConfig to a running mission at a control step.
+
+    Weights, horizon, bounds, speed, period, arrival threshold, step limit, speed mode and the
+    QP backend apply at once (the QP is rebuilt); the fields of :data:`LIVE_FROZEN_FIELDS`
+    (start, destination, field model, probing, controller, gradient and fusion settings) are
+    kept for this mission. Returns the registry names of the kept changes.
+    """
+    old = mission.config
+    keep = {name: getattr(old, name) for name in LIVE_FROZEN_FIELDS}
+    deferred = [f.metadata["param"] for f in fields(NavConfig)
+                if f.name in LIVE_FROZEN_FIELDS and getattr(new, f.name) != getattr(old, f.name)]
+    merged = new.replace(**keep)
+    if merged != old:
+        mission.config = merged
+        mission.mpc = MpcController(mission._mpc_settings())
+    return deferred
+
+
+# ---------------------------------------------------------------------- CLI
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fcmpc-companion",
+        description="Fc-MPC geomagnetic navigation companion: flies a GPS-free mission over MAVLink "
+                    "(ArduPilot GUIDED or PX4 OFFBOARD) as component 191.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--connect", "--master", dest="connect", default="udp:127.0.0.1:14550",
+                   help="pymavlink connection: udp:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, "
+                        "tcpin:HOST:PORT, or a serial device DEVICE,BAUD")
+    p.add_argument("--params", default=None,
+                   help=".parm file loaded at start and rewritten atomically on every PARAM_SET "
+                        "(default <log-dir>/companion.parm)")
+    p.add_argument("--log-dir", default=None, help="records folder (default out/companion/<time>-<pid>)")
+    p.add_argument("--sysid", type=int, default=None,
+                   help="only follow the flight controller with this system id (default: the first one heard)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="send a timed message every setpoint period even when not steering "
+                        "(a lockstep simulator waits for it)")
+    p.add_argument("--exit-when-done", action="store_true",
+                   help="exit when the mission ends: 0 arrived, 1 failed")
+    p.add_argument("--param-encoding", choices=ENCODINGS, default="auto",
+                   help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or auto from the FC")
+    p.add_argument("--mag-message", choices=MAG_MESSAGES, default=None,
+                   help="magnetometer message to use (default: the first one the FC sends)")
+    p.add_argument("--startup-s", type=float, default=None,
+                   help="stationary averaging before the first step, s of message time (default NAV_PERIOD_S)")
+    p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
+    p.add_argument("--no-stream-requests", action="store_true",
+                   help="do not send MAV_CMD_SET_MESSAGE_INTERVAL (use the FC's configured rates)")
+    p.add_argument("--max-wall-s", type=float, default=None, help="exit (code 3) after this many wall seconds")
+    p.add_argument("--quiet", action="store_true", help="no status lines on stderr")
+    return p
+
+
+def options_from_args(args: argparse.Namespace) -> AppOptions:
+    return AppOptions(connect=args.connect, params=args.params, log_dir=args.log_dir, sysid=args.sysid,
+                      lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
+                      mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
+                      request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        app = CompanionApp(options_from_args(args))
+    except (OSError, ValueError) as err:
+        print(f"fcmpc-companion: {err}", file=sys.stderr)
+        return 2
+    if app.params.load_error:
+        print(f"fcmpc-companion: parameter file rejected, serving defaults and refusing to steer: "
+              f"{app.params.load_error}", file=sys.stderr)
+
+    def stop(signum, frame):  # noqa: ARG001
+        app.request_stop()
+
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        return app.run()
+    except OSError as err:
+        print(f"fcmpc-companion: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
