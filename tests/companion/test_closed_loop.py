@@ -1,0 +1,134 @@
+"""Closed loop: the simulator and the companion as separate processes on loopback (via scripts.fly).
+
+Tolerance against the in-process Monte Carlo of the same seed: ``remaining <= max(1.5 * MC, 1.5 km)``.
+The closed loop and the in-process run draw different noise: the in-process run draws one
+averaged (D, I) error per step, the simulator draws every 10 Hz magnetometer and attitude
+sample (and its INS is propagated on its own schedule). Both have the same statistics (the
+averaged measurement error of the closed loop matches ``SensorModel.averaged_di_noise_deg``:
+about 7" in D and 4-5" in I per 360 s step), but not the same realisation, and the final miss
+of a single run is dominated by the last geomagnetic fix (1-sigma a few hundred metres) plus
+the 500 m arrival threshold on the *estimated* distance. Over 40 seeds the in-process miss has
+median 0.3 km, 90th percentile 0.65 km and maximum 1.04 km (Pacific, full and 80 km), so 1.5x
+of a single sub-km draw is not a property of the system; the absolute floor of 1.5 km is 1.5x
+the worst of those 40 in-process misses.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from companion.io.records import read_steps_csv  # noqa: E402
+from scripts.fly import FlyOptions, FlyResult, fly  # noqa: E402
+from sitl.scenario import load_scenario  # noqa: E402
+
+FLOOR_M = 1500.0
+
+
+def assert_close_to_monte_carlo(result: FlyResult, floor_m: float = FLOOR_M) -> None:
+    assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
+    assert math.isfinite(result.remaining_m) and math.isfinite(result.mc_remaining_m)
+    limit = max(1.5 * result.mc_remaining_m, floor_m)
+    assert result.remaining_m <= limit, (
+        f"closed loop {result.remaining_m:.0f} m vs in-process {result.mc_remaining_m:.0f} m (limit {limit:.0f} m)")
+    assert abs(result.iterations - result.mc_iterations) <= max(5, 0.15 * result.mc_iterations)
+    assert result.plot_path and Path(result.plot_path).stat().st_size > 10_000
+
+
+def test_short_pacific_mission_closed_loop(tmp_path):
+    result = fly(FlyOptions(short=True, compare=True, out_dir=str(tmp_path / "run"), timeout_s=150.0))
+    assert_close_to_monte_carlo(result)
+    comp = result.companion
+    assert comp["setpoints_refused"] == 0 and comp["setpoints_sent"] > 1000 and comp["bad_frames"] == 0
+    assert comp["fc"]["autopilot"] == "ArduPilot" and comp["restarts"] == 0
+    steps = [r for r in read_steps_csv(tmp_path / "run" / "companion" / "steps.csv") if r["event"] == "step"]
+    assert [r["phase"] for r in steps[:3]] == ["probe1", "probe2", "cruise"] and steps[-1]["phase"] == "arrived"
+    assert all(r["samples"] >= 3500 for r in steps[1:])               # 10 Hz over 360 s
+    assert all(r["ins_source"] == "fc" for r in steps)                 # GLOBAL_POSITION_INT, never GPS
+    sitl = json.loads((tmp_path / "run" / "sitl" / "summary.json").read_text())
+    assert sitl["lockstep_timeouts"] == 0
+    assert sitl["counters"].get("external_position_estimates", 0) >= len(steps) - 3   # one per cruise step
+    assert (tmp_path / "run" / "companion" / "companion.tlog").stat().st_size > 1_000_000
+
+
+def test_short_mission_px4_offboard(tmp_path):
+    result = fly(FlyOptions(short=True, short_km=40.0, autopilot="px4", compare=True,
+                            out_dir=str(tmp_path / "run"), timeout_s=150.0, tlog=False))
+    assert_close_to_monte_carlo(result)
+    assert result.companion["fc"]["autopilot"] == "PX4"
+    # it flew in OFFBOARD: the simulator's truth log says so
+    modes = {line.split(",")[11] for line in (tmp_path / "run" / "sitl" / "truth.csv").read_text().splitlines()[1:]}
+    assert "OFFBOARD" in modes
+
+
+# --- failsafes: one mission, three faults in turn -----------------------------------------------
+FAULTS = {"mag_off": (600.0, 30.0), "heartbeat_off": (1500.0, 20.0), "mag_nan": (2400.0, 20.0)}
+REASON = {"mag_off": ("mag:", "zero"), "heartbeat_off": ("heartbeat:", "message time"),
+          "mag_nan": ("mag:", "saturated")}
+TIMEOUT_S = {"mag_off": 2.0, "heartbeat_off": 3.0, "mag_nan": 2.0}      # COMP_MAG_TMO_S, COMP_HB_TMO_S
+LATENCY_S = 1.0 + 0.4 + 0.1     # one lockstep period (1 s) + one setpoint tick (2.5 Hz) + margin
+
+
+@pytest.fixture(scope="module")
+def faulted_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("failsafe")
+    faults = tuple(f"{kind}:{at:g}:{dur:g}" for kind, (at, dur) in FAULTS.items())
+    result = fly(FlyOptions(short=True, short_km=60.0, faults=faults, out_dir=str(out / "run"), timeout_s=150.0,
+                            tlog=False, sitl_extra=("--tlog",)))
+    start = load_scenario("pacific").start_posix
+    log = mavutil.mavlink_connection(str(out / "run" / "sitl" / "sitl.tlog"))
+    setpoints, modes, texts = [], [], []
+    while True:
+        msg = log.recv_match(type=["SET_POSITION_TARGET_GLOBAL_INT", "HEARTBEAT", "STATUSTEXT"])
+        if msg is None:
+            break
+        t = msg._timestamp - start                              # the simulator stamps simulated time
+        if msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT":
+            setpoints.append(t)
+        elif msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            modes.append((t, msg.custom_mode))
+        elif msg.get_type() == "STATUSTEXT" and msg.get_srcComponent() == 191:
+            texts.append((t, msg.text))
+    events = [r for r in read_steps_csv(out / "run" / "companion" / "steps.csv") if r["event"] == "failsafe"]
+    log.close()
+    return result, setpoints, modes, texts, events
+
+
+@pytest.mark.parametrize("kind", list(FAULTS))
+def test_failsafe_stops_streaming_holds_and_says_why(faulted_run, kind):
+    result, setpoints, modes, texts, events = faulted_run
+    at, duration = FAULTS[kind]
+    timeout = TIMEOUT_S[kind]
+    # the companion noticed within its timeout (message time), with the right reason
+    [event] = [e for e in events if at <= e["msg_time_s"] <= at + duration]
+    assert e_reason_ok(event["reason"], kind), event["reason"]
+    assert event["msg_time_s"] - at <= timeout + 0.5
+    # ... streamed nothing from then until the fault cleared
+    assert not [t for t in setpoints if at + timeout + LATENCY_S <= t < at + duration], "setpoints during the fault"
+    assert [t for t in setpoints if at - 5.0 <= t < at], "it was streaming before"
+    assert [t for t in setpoints if at + duration <= t <= at + duration + 5.0], "it resumed after"
+    # ... said so (STATUSTEXT received by the flight controller)
+    said = "".join(text for t, text in texts if at <= t <= at + timeout + LATENCY_S + 1.0)
+    assert "FAILSAFE" in said and REASON[kind][0] in said
+    # ... and put the vehicle in HOLD (ArduPilot Rover mode 4) while the flight controller still talked
+    if kind != "heartbeat_off":
+        held = [mode for t, mode in modes if at + timeout + 2 * LATENCY_S <= t < at + duration]
+        assert held and all(mode == 4 for mode in held)
+
+
+def e_reason_ok(reason: str, kind: str) -> bool:
+    prefix, detail = REASON[kind]
+    return reason.startswith(prefix) and detail in reason
+
+
+def test_mission_completes_after_the_faults(faulted_run):
+    result = faulted_run[0]
+    assert result.status == "arrived", result.message
+    assert result.remaining_m <= FLOOR_M
+    assert result.companion["failsafes"] >= 3
