@@ -413,6 +413,8 @@ class MavlinkLink:
             clock.observe_system_time(msg.time_unix_usec, msg.time_boot_ms)
         elif boot_ms is not None:
             clock.observe_boot_ms(boot_ms)
+        if fc.heartbeats and not math.isfinite(fc.last_heartbeat_time_s) and clock.started:
+            fc.last_heartbeat_time_s = clock.now_s   # the heartbeat came before the first time stamp
         if mtype == "HEARTBEAT":
             fc.heartbeats += 1
             fc.vehicle_type = msg.type

@@ -103,8 +103,9 @@ class MavlinkDecoder:
         if detector is None:
             detector = self._stuck[instance] = RepeatDetector(self._stuck_count)
         if detector.check(raw) is not SampleFlag.NONE:
+            if not flags:   # a stuck zero or saturated reading keeps its more telling reason
+                self.last_problem["mag"] = f"magnetometer stuck ({self._stuck_count} identical readings)"
             flags |= SampleFlag.STUCK
-            self.last_problem["mag"] = f"magnetometer stuck ({self._stuck_count} identical readings)"
         return flags
 
     def _time(self, msg) -> float | None:
