@@ -158,7 +158,7 @@ class ServerConfig:
     lockstep_timeout_s: float = 2.0
     lockstep_start_timeout_s: float = 60.0
     lockstep_peer: tuple[int, int] | None = None
-    lockstep_slack: int = 1              # periods the companion may lag (0 = strict, bit-reproducible)
+    lockstep_slack: int = 1              # periods the companion may lag (0: the two processes alternate)
     duration_s: float | None = None     # stop after this much simulated time
     max_sim_s: float = 30 * 3600.0
     seed: int = 0
@@ -1321,8 +1321,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fcmpc-sitl",
         description="MAVLink 2 simulator of an ArduPilot Rover (or PX4) boat flying a geomagnetic-navigation "
                     "scenario faster than real time. Every message carries simulated time.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scenario", default="pacific", help="bundled scenario name or TOML path")
+    )
+    p.add_argument("--scenario", default="pacific", help="bundled scenario name or TOML path (default pacific)")
     p.add_argument("--out", action="append", default=[], metavar="udp:HOST:PORT",
                    help=f"send to HOST:PORT (like ArduPilot SITL/MAVProxy --out); default {DEFAULT_OUT} "
                         "when neither --out nor --master is given. Repeatable")
@@ -1333,25 +1333,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated seconds per wall second; 0 = as fast as possible "
                         f"(default {DEFAULT_SPEEDUP:g}, or unlimited with --lockstep)")
     p.add_argument("--lockstep", action="store_true", help="advance time only when the companion answers")
-    p.add_argument("--lockstep-period", type=float, default=0.2, help="simulated seconds between lockstep waits")
-    p.add_argument("--lockstep-timeout", type=float, default=2.0, help="wall seconds to wait at a boundary")
+    p.add_argument("--lockstep-period", type=float, default=0.2, help="simulated seconds between lockstep boundaries (default 0.2)")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0, help="wall seconds to wait for an answer at a boundary (default 2)")
     p.add_argument("--lockstep-start-timeout", type=float, default=60.0,
-                   help="wall seconds to wait for the first peer at t=0 (0 = for ever)")
+                   help="wall seconds to wait for the first peer at t=0, 0 = for ever (default 60)")
     p.add_argument("--lockstep-slack", type=int, choices=(0, 1), default=1,
-                   help="periods the companion may lag behind a boundary (0: strict, bit-reproducible runs)")
+                   help="periods the companion may lag behind a boundary: 1 (default) lets both run in parallel, "
+                        "0 makes them alternate")
     p.add_argument("--lockstep-peer", default=None, metavar="SYS:COMP",
                    help="only this sender answers lockstep (default any sender but the simulator)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
-    p.add_argument("--max-sim-s", type=float, default=30 * 3600.0, help="hard limit of simulated time")
-    p.add_argument("--seed", type=int, default=0, help="seed of every noise and fault draw")
+    p.add_argument("--max-sim-s", type=float, default=30 * 3600.0, help="hard limit of simulated time (default 30 h)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every noise, INS error and fault draw (default 0)")
     p.add_argument("--autopilot", choices=sorted(DIALECTS), default="ardupilot",
-                   help="mode numbering and guided rules: ArduPilot Rover GUIDED or PX4 OFFBOARD")
-    p.add_argument("--sysid", type=int, default=1, help="MAVLink system id")
+                   help="mode numbering and guided rules: ArduPilot Rover GUIDED (default) or PX4 OFFBOARD")
+    p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--setpoint-timeout", type=float, default=None,
                    help="simulated seconds without velocity setpoints before stopping (default 3 ArduPilot, 1 PX4)")
     p.add_argument("--cruise-speed", type=float, default=None, help="m/s for RTL and position targets "
                                                                     "(default NAV_SPEED_KMH)")
-    p.add_argument("--init-s", type=float, default=1.0, help="simulated seconds in INITIALISING after boot")
+    p.add_argument("--init-s", type=float, default=1.0, help="simulated seconds in INITIALISING after boot (default 1)")
     p.add_argument("--cruise", default=None, metavar="COURSE_DEG:SPEED_MPS",
                    help="without a companion: arm in GUIDED/OFFBOARD when ready and hold this course and speed")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
@@ -1360,7 +1361,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="default stream rate, e.g. RAW_IMU:20 or HIGHRES_IMU:10 (0 = off)")
     p.add_argument("--log-dir", default=None, help="records folder (default out/sitl/<scenario>-<time>-<pid>)")
     p.add_argument("--no-truth-log", action="store_true", help="do not write truth.csv")
-    p.add_argument("--log-rate", type=float, default=1.0, help="truth.csv rows per simulated second")
+    p.add_argument("--log-rate", type=float, default=1.0, help="truth.csv rows per simulated second (default 1)")
     p.add_argument("--tlog", nargs="?", const="", default=None, metavar="PATH",
                    help="write a MAVLink .tlog of everything sent and received (default <log-dir>/sitl.tlog)")
     p.add_argument("--summary-json", default=None, help="write the run summary here (default <log-dir>/summary.json)")
@@ -1368,10 +1369,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                      "../shared/data)")
     p.add_argument("--expected-duration", type=float, default=None,
                    help="mission seconds the 'compress' storm rule spreads the window over")
-    p.add_argument("--field-step", type=float, default=1.0, help="simulated seconds between field evaluations")
-    p.add_argument("--ins-step", type=float, default=5.0, help="simulated seconds between INS propagations")
-    p.add_argument("--wave-roll", type=float, default=3.0, help="roll amplitude of the wave motion, deg")
-    p.add_argument("--wave-pitch", type=float, default=2.0, help="pitch amplitude of the wave motion, deg")
+    p.add_argument("--field-step", type=float, default=1.0, help="simulated seconds between field evaluations (default 1)")
+    p.add_argument("--ins-step", type=float, default=5.0, help="simulated seconds between INS propagations (default 5)")
+    p.add_argument("--wave-roll", type=float, default=3.0, help="roll amplitude of the wave motion, deg (default 3)")
+    p.add_argument("--wave-pitch", type=float, default=2.0, help="pitch amplitude of the wave motion, deg (default 2)")
     p.add_argument("--no-routing", action="store_true", help="do not forward messages between links")
     p.add_argument("--no-batch", action="store_true", help="one UDP datagram per message")
     p.add_argument("--quiet", action="store_true", help="no banner or summary on stderr")
