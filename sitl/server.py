@@ -111,7 +111,7 @@ DATA_STREAM_GROUPS[0] = tuple(name for group in DATA_STREAM_GROUPS.values() for 
 MAV_TYPE_SURFACE_BOAT = 11
 MAV_STATE_BOOT, MAV_STATE_STANDBY, MAV_STATE_ACTIVE = 1, 3, 4
 MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
-SENSOR_GYRO, SENSOR_ACCEL, SENSOR_MAG, SENSOR_GPS, SENSOR_AHRS = 1, 2, 4, 32, 0x200000
+SENSOR_GYRO, SENSOR_ACCEL, SENSOR_MAG, SENSOR_GPS, SENSOR_GEOFENCE, SENSOR_AHRS = 1, 2, 4, 32, 0x100000, 0x200000
 CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
@@ -604,7 +604,7 @@ class SitlServer:
 
     def _send_sys_status(self) -> None:
         present = SENSOR_GYRO | SENSOR_ACCEL | SENSOR_MAG | SENSOR_GPS | SENSOR_AHRS
-        health = present
+        health = present | SENSOR_GEOFENCE   # like ArduPilot: the fence bit is healthy while not breached
         if self._mag_off or self._mag_nan or self._mag_stuck:
             health &= ~SENSOR_MAG
         if not self.gps_fix:
