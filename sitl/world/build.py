@@ -25,21 +25,14 @@ from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.params import SPEC_BY_NAME
 from sitl.scenario import Scenario
+from sitl.storms import default_data_dir
 from sitl.world.magnetic import TruthField
 
-__all__ = ["StormUnavailableError", "build_truth_field", "default_data_dir", "expected_mission_duration_s"]
+__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s"]
 
 
 class StormUnavailableError(RuntimeError):
     """The scenario asks for a storm but its data or the storm module cannot be loaded."""
-
-
-def default_data_dir() -> Path:
-    """``$FCMPC_DATA_DIR``, else ``<repo>/../shared/data`` (the read-only real data)."""
-    env = os.environ.get("FCMPC_DATA_DIR")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
 
 def expected_mission_duration_s(scenario: Scenario, speed_mps: float | None = None) -> float:
@@ -73,11 +66,7 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     storm = scenario.storm
     if not storm.enabled:
         return TruthField(model=model, year=scenario.year)
-    try:
-        from sitl import storms
-    except ImportError as err:  # pragma: no cover - depends on the checkout
-        raise StormUnavailableError(f"scenario {scenario.name!r} enables a storm but sitl.storms "
-                                    f"cannot be imported: {err}") from err
+    from sitl import storms
     folder = Path(data_dir) if data_dir is not None else default_data_dir()
     try:
         disturbance = storms.StormDisturbance.from_data_dir(folder, stations=storm.stations, outside=outside)
