@@ -78,7 +78,7 @@ from companion.nav.mission import Command, Measurement, Mission, Phase  # noqa: 
 from companion.nav.mpc import MpcController  # noqa: E402
 from companion.params import CompanionConfig, NavConfig  # noqa: E402
 
-__all__ = ["AppOptions", "CompanionApp", "State", "build_parser", "main", "LIVE_FROZEN_FIELDS"]
+__all__ = ["AppOptions", "CompanionApp", "State", "build_parser", "main", "benchmark", "LIVE_FROZEN_FIELDS"]
 
 MAX_RESTARTS = 3
 _MAG, _ATT, _GPS = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
@@ -757,6 +757,13 @@ def apply_live_config(mission: Mission, new: NavConfig) -> list[str]:
         mission.config = merged
         mission.mpc = MpcController(mission._mpc_settings())
     return deferred
+
+
+def benchmark(**kwargs) -> dict:
+    """Control-step latency and sustained input rate against the simulator (:mod:`companion.benchmark`)."""
+    from companion.benchmark import run
+
+    return run(**kwargs)
 
 
 # ---------------------------------------------------------------------- CLI

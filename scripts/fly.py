@@ -327,8 +327,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="pacific", help="bundled scenario (pacific, long_storm, short_storm) or TOML")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulator's noise and INS errors")
     pace = p.add_mutually_exclusive_group()
-    pace.add_argument("--lockstep", action="store_true", default=True,
-                      help="simulator waits for the companion every 0.4 s of simulated time (default)")
+    pace.add_argument("--lockstep", action="store_true",
+                      help="the default: the simulator waits for the companion every 1 s (ArduPilot) or 0.4 s (PX4) "
+                           "of simulated time")
     pace.add_argument("--speedup", type=float, default=None,
                       help="pace the simulator at this many times real time instead of lockstep")
     p.add_argument("--short", action="store_true", help=f"move the destination to {SHORT_KM:g} km from the start")
