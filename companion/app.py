@@ -199,6 +199,7 @@ class CompanionApp:
         self.wall_start = time.monotonic()
         self.messages_from_fc = 0
         self.invalid_mag = 0
+        self.fc_reboots = 0
 
     # ------------------------------------------------------------------ configuration
     def _limits(self) -> HealthLimits:
@@ -290,6 +291,8 @@ class CompanionApp:
         link = self.link
         if link.observe(msg):
             self.messages_from_fc += 1
+            if link.clock.reboots != self.fc_reboots:
+                self._on_fc_reboot()
             was_detected = self.state != State.WAIT_FC
             for sample in self.decoder.decode(msg):
                 kind = sample.kind
@@ -314,6 +317,25 @@ class CompanionApp:
                     self.tick()
         elif msg._type in _PARAM_TYPES:
             self.params.mavlink_packet(msg)
+
+    def _on_fc_reboot(self) -> None:
+        """The flight controller's clock went back: everything timed is void; start again."""
+        self.fc_reboots = self.link.clock.reboots
+        self.next_tick = -math.inf
+        self.last_hb_sent = -math.inf
+        self.last_valid.clear()
+        self.last_mode_cmd = self.last_arm_cmd = self.last_hold_cmd = -math.inf
+        self.link.fc.last_heartbeat_time_s = self.now
+        self.mag.attitude = None
+        self.decoder.fc_position = None
+        self.dr = None
+        reason = "flight controller rebooted (its clock went back)"
+        if self.state == State.RUNNING and self.command is not None:
+            self._nav_failure(reason, self.command)
+        elif self.state in (State.STARTUP, State.READY, State.RUNNING):
+            self._say(f"FcMPC: {reason}", mavlink.MAV_SEVERITY_WARNING)
+            self.mission = None
+            self._enter_startup(reason)
 
     def age(self, kind: SampleKind) -> float:
         """Message-time age of the last valid sample of a kind (infinite if none yet)."""
@@ -698,7 +720,16 @@ class CompanionApp:
             "est_lon_deg": cmd.est_lon_deg, "est_sigma_m": cmd.est_sigma_m, "fix_lat_deg": cmd.fix_lat_deg,
             "fix_lon_deg": cmd.fix_lon_deg, "fused": cmd.fused, "remaining_m": cmd.remaining_m,
             "course_deg": math.degrees(cmd.course_rad), "speed_mps": cmd.speed_mps, "solver_ok": cmd.solver_ok,
-            "solver_time_s": cmd.solver_time_s, "step_latency_s": latency, "event": event, "reason": reason})
+            "solver_time_s": cmd.solver_time_s, "step_latency_s": latency, "event": event, "reason": reason,
+            **self._gps_record()})
+
+    def _gps_record(self) -> dict:
+        """GPS at the step, for the record only (a reference where the receiver still has a fix)."""
+        gps = self.last_gps
+        if gps is None or self.now - gps.time_s > GPS_START_MAX_AGE_S:
+            return {"gps_fix": 0}
+        return {"gps_fix": gps.fix_type, "gps_lat_deg": gps.lat_deg if gps.fix_type >= 2 else math.nan,
+                "gps_lon_deg": gps.lon_deg if gps.fix_type >= 2 else math.nan}
 
     def _record_event(self, event: str, reason: str) -> None:
         if self.recorder is None:

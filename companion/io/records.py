@@ -22,6 +22,8 @@ solver_ok           0 when the QP failed; solver_time_s the QP time
 step_latency_s      wall time of the whole step (average + core + outputs)
 event               step | start | restart | done | failsafe
 reason              the core's or the failsafe's reason text
+gps_fix             GPS_RAW_INT fix type at the step (0 none/stale); gps_lat/lon_deg the fix
+                    when >= 2D: a reference for evaluation only, never used to steer
 ==================  ===========================================================================
 """
 from __future__ import annotations
@@ -38,7 +40,7 @@ STEP_COLUMNS = (
     "wall_time_s", "msg_time_s", "mission_time_s", "mission", "step", "phase", "decl_deg", "incl_deg", "samples",
     "window_s", "spikes", "invalid", "ins_lat_deg", "ins_lon_deg", "ins_source", "est_lat_deg", "est_lon_deg",
     "est_sigma_m", "fix_lat_deg", "fix_lon_deg", "fused", "remaining_m", "course_deg", "speed_mps", "solver_ok",
-    "solver_time_s", "step_latency_s", "event", "reason",
+    "solver_time_s", "step_latency_s", "event", "reason", "gps_fix", "gps_lat_deg", "gps_lon_deg",
 )
 
 

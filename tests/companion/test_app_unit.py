@@ -163,3 +163,13 @@ def test_real_mission_first_step_probes_east(rig):
     app.mag.averager.add(0.5, -1.5, 48.0)
     app._step(1.0, window_limit_s=0.0)
     assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)
+
+
+def test_flight_controller_reboot_restarts_the_mission(rig):
+    app, fc = rig
+    _run_step(app, GOOD)
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=900_000))
+    assert app.state == State.RUNNING
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # boot time went back
+    assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
+    assert "rebooted" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
