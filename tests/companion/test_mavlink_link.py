@@ -192,3 +192,56 @@ def test_link_detects_the_flight_controller_and_adopts_its_system_id():
         assert link.heartbeat_age_s()[1] < time.monotonic() - t0 + 1.0
     finally:
         link.close()
+
+
+def test_serial_device_with_baud_over_a_pty():
+    """``DEVICE,BAUD``: a pseudo-terminal stands in for the flight controller's UART."""
+    import tty
+
+    fc_side, companion_side = os.openpty()
+    tty.setraw(fc_side)
+    tty.setraw(companion_side)
+    link = MavlinkLink(f"{os.ttyname(companion_side)},921600")
+    link.open()
+    try:
+        fc = mavlink.MAVLink(None, 1, 1)
+        os.write(fc_side, _msg("HEARTBEAT", type=11, autopilot=3, base_mode=1, custom_mode=4, system_status=3,
+                               mavlink_version=3).pack(fc))
+        assert link.wait_readable(2.0)
+        [hb] = link.read()
+        assert link.observe(hb) and link.fc.detected
+        link.send_heartbeat()
+        deadline, got = time.monotonic() + 2.0, []
+        parser = mavlink.MAVLink(None)
+        while not got and time.monotonic() < deadline:
+            got = parser.parse_buffer(os.read(fc_side, 4096)) or []
+        assert got and got[0].get_type() == "HEARTBEAT" and got[0].get_srcComponent() == 191
+    finally:
+        link.close()
+        os.close(fc_side)
+        os.close(companion_side)
+
+
+def test_tcp_client():
+    """``tcp:HOST:PORT`` connects to a flight controller's TCP server (ArduPilot SITL's 5760)."""
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    server.settimeout(5.0)
+    link = MavlinkLink(f"tcp:127.0.0.1:{server.getsockname()[1]}")
+    link.open()
+    try:
+        conn, _ = server.accept()
+        conn.settimeout(5.0)
+        conn.sendall(_msg("HEARTBEAT", type=11, autopilot=12, base_mode=1, custom_mode=4 << 16 | 3 << 24,
+                          system_status=3, mavlink_version=3).pack(mavlink.MAVLink(None, 1, 1)))
+        assert link.wait_readable(2.0)
+        [hb] = link.read()
+        assert link.observe(hb) and link.fc.conventions.name == "PX4" and link.fc.holding
+        link.send_heartbeat()
+        got = mavlink.MAVLink(None).parse_buffer(conn.recv(4096))
+        assert got and got[0].get_srcComponent() == 191
+        conn.close()
+    finally:
+        link.close()
+        server.close()
