@@ -187,6 +187,7 @@ class CompanionApp:
         self.last_arm_cmd = -math.inf
         self.last_hold_cmd = -math.inf
         self.hold_commanded = False
+        self.was_following = False
         self.failsafe_active = False
         self.last_gps = None
         self.local_ned: tuple[float, float, float] | None = None   # (time, north, east) of LOCAL_POSITION_NED
@@ -536,6 +537,7 @@ class CompanionApp:
         self.mission = Mission(config)
         self.mission_no += 1
         self.hold_commanded = False
+        self.was_following = True
         self.m0 = self.mission_time(now)
         self.state = State.RUNNING
         self.last_phase = ""
@@ -545,6 +547,14 @@ class CompanionApp:
     def _running(self, now: float, reasons: list[str], dt: float) -> bool:
         fc = self.link.fc
         following = fc.armed and fc.guided
+        if self.was_following and not following and not self.hold_commanded:
+            # a mode change we did not ask for (pilot, ground station, or the autopilot's own
+            # failsafe): respect it; the mission waits until GUIDED/OFFBOARD is selected again
+            conv = fc.conventions
+            guided = conv.mode_name(conv.custom_mode(conv.guided_main, conv.guided_sub))
+            self._say(f"FcMPC: FC left {guided} (now {fc.mode_name}{'' if fc.armed else ', disarmed'}): "
+                      "mission paused", mavlink.MAV_SEVERITY_WARNING)
+        self.was_following = following
         self._advance_dead_reckoning(now, dt, following and not reasons)
         if reasons or not following:
             self._pause()
@@ -554,10 +564,8 @@ class CompanionApp:
             return False
         sent = self._stream(self.command.course_rad, self.command.speed_mps) if self.command is not None else False
         if not following:
-            if self.hold_commanded or (fc.armed and fc.holding):
-                # we put it in hold, or the FC fell back to its hold mode itself (PX4 on a setpoint gap):
-                # take it back. Any other mode is an operator take-over and is left alone.
-                self._engage(now)
+            if self.hold_commanded:
+                self._engage(now)   # we put it in hold for a failsafe: take it back (COMP_ARM_ENABLE = 1)
             return sent
         if self.mission_time(now) >= self.next_step_m:
             self._step(self.next_step_m)
@@ -569,6 +577,7 @@ class CompanionApp:
             self.mag.paused = True
 
     def _resume(self) -> None:
+        self.hold_commanded = False   # following and healthy: later mode changes are the pilot's
         if math.isfinite(self.paused_since):
             self.offset_s += self.now - self.paused_since
             self.paused_since = math.nan

@@ -173,3 +173,21 @@ def test_flight_controller_reboot_restarts_the_mission(rig):
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # boot time went back
     assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
     assert "rebooted" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+
+
+def test_operator_mode_change_is_respected(rig):
+    """A mode change the companion did not command pauses the mission; it does not fight back."""
+    app, fc = rig
+    app.params.set_value("COMP_ARM_ENABLE", 1)
+    _run_step(app, GOOD)
+    app.next_tick = -math.inf
+    app.tick()
+    _sent(fc)
+    app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "custom_mode": 0}))        # the pilot selects MANUAL
+    app.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+    app.next_tick = -math.inf
+    app.tick()
+    sent = _sent(fc)
+    assert "FC left GUIDED (now MANUAL)" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert not [m for m in sent if m.get_type() == "COMMAND_LONG"]               # no GUIDED, no arm
+    assert math.isfinite(app.paused_since)                                       # mission clock stopped
