@@ -263,7 +263,7 @@ def _evaluate(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[fl
     plot_path = None
     if options.plot and truth.get("time_s"):
         try:
-            plot_path = str(plot_track(out / "track.png", scenario, dest, truth, steps))
+            plot_path = str(plot_track(out / "track.png", scenario, dest, truth, steps, remaining))
         except Exception as err:  # noqa: BLE001 - a plot must not hide the result
             message = (message + "; " if message else "") + f"plot failed: {err}"
     return FlyResult(status=status, exit_code=code, scenario=scenario.name, seed=options.seed, iterations=iterations,
@@ -285,7 +285,8 @@ def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[floa
     result.mc_iterations = run.iterations
 
 
-def plot_track(path: Path, scenario: Scenario, dest: tuple[float, float], truth: dict, steps: list[dict]) -> Path:
+def plot_track(path: Path, scenario: Scenario, dest: tuple[float, float], truth: dict, steps: list[dict],
+               remaining_m: float = math.nan) -> Path:
     """PNG of the flown track (lon/lat): truth, the flight controller's INS, the companion's
     estimates, start, destination and the start-destination geodesic."""
     import matplotlib
@@ -308,8 +309,9 @@ def plot_track(path: Path, scenario: Scenario, dest: tuple[float, float], truth:
         ax.plot([e[0] for e in est], [e[1] for e in est], ".", color="tab:orange", ms=3, label="companion estimate")
     ax.plot(scenario.start_lon_deg, scenario.start_lat_deg, "g^", ms=9, label="start")
     ax.plot(dest[1], dest[0], "r*", ms=12, label="destination")
-    remaining = geodesic_distance_m(truth["lat_deg"][-1], truth["lon_deg"][-1], *dest)
-    ax.set_title(f"{scenario.name}: closed loop, {remaining:.0f} m from the destination at the end")
+    stopped = geodesic_distance_m(truth["lat_deg"][-1], truth["lon_deg"][-1], *dest)
+    at_end = f"{remaining_m:.0f} m from the destination at the last step, " if math.isfinite(remaining_m) else ""
+    ax.set_title(f"{scenario.name}, closed loop: {at_end}stopped at {stopped:.0f} m", fontsize=10)
     ax.set_xlabel("longitude (deg)")
     ax.set_ylabel("latitude (deg)")
     ax.set_aspect(1.0 / math.cos(math.radians(0.5 * (scenario.start_lat_deg + dest[0]))))
