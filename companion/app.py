@@ -41,7 +41,9 @@ Failsafes (:mod:`companion.failsafe`)
     Stale magnetometer or attitude, flight-controller heartbeat lost, broken parameter file:
     stop streaming velocity, command HOLD (ArduPilot) / AUTO.LOITER (PX4) if the vehicle was
     under guidance, STATUSTEXT the reason; after all conditions were healthy for 1 s of message
-    time, re-engage (if COMP_ARM_ENABLE) and resume. Navigation failures (QP failure, estimate
+    time, re-engage (if COMP_ARM_ENABLE) and resume. A mode change the companion did not command
+    (pilot, ground station, the autopilot's own failsafe) is respected: the mission pauses with a
+    STATUSTEXT until GUIDED/OFFBOARD is selected again. Navigation failures (QP failure, estimate
     diverging from the geomagnetic fix by COMP_DIVERGE_KM, a non-finite command) hold the
     vehicle and restart the mission from the last estimate after a new stationary start-up
     (at most 3 restarts). No setpoint ever leaves without :func:`~companion.io.mavlink_link.guard_setpoint`.
