@@ -63,7 +63,7 @@ import signal  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from dataclasses import dataclass, fields  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from datetime import datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -76,8 +76,7 @@ from companion.io.sensors.base import SampleKind  # noqa: E402
 from companion.io.sensors.mavlink_source import MAG_MESSAGES, MavlinkDecoder  # noqa: E402
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position  # noqa: E402
 from companion.nav.magnetometer import AttitudeState, MagCalibration, MagProcessor  # noqa: E402
-from companion.nav.mission import Command, Measurement, Mission, Phase  # noqa: E402
-from companion.nav.mpc import MpcController  # noqa: E402
+from companion.nav.mission import FROZEN_IN_FLIGHT, Command, Measurement, Mission, Phase  # noqa: E402
 from companion.params import CompanionConfig, NavConfig  # noqa: E402
 
 __all__ = ["AppOptions", "CompanionApp", "State", "build_parser", "main", "benchmark", "LIVE_FROZEN_FIELDS"]
@@ -93,9 +92,7 @@ STARTUP_GRACE_S = 5.0            # message time for the requested streams to arr
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
 
 # NavConfig fields that define the mission: a change applies to the next mission only.
-LIVE_FROZEN_FIELDS = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
-                      "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
-                      "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback")
+LIVE_FROZEN_FIELDS = FROZEN_IN_FLIGHT
 
 # Streams requested from the flight controller (MAV_CMD_SET_MESSAGE_INTERVAL), Hz.
 STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "SYSTEM_TIME": 1.0}
@@ -783,22 +780,8 @@ class CompanionApp:
 
 
 def apply_live_config(mission: Mission, new: NavConfig) -> list[str]:
-    """Apply a changed NavConfig to a running mission at a control step.
-
-    Weights, horizon, bounds, speed, period, arrival threshold, step limit, speed mode and the
-    QP backend apply at once (the QP is rebuilt); the fields of :data:`LIVE_FROZEN_FIELDS`
-    (start, destination, field model, probing, controller, gradient and fusion settings) are
-    kept for this mission. Returns the registry names of the kept changes.
-    """
-    old = mission.config
-    keep = {name: getattr(old, name) for name in LIVE_FROZEN_FIELDS}
-    deferred = [f.metadata["param"] for f in fields(NavConfig)
-                if f.name in LIVE_FROZEN_FIELDS and getattr(new, f.name) != getattr(old, f.name)]
-    merged = new.replace(**keep)
-    if merged != old:
-        mission.config = merged
-        mission.mpc = MpcController(mission._mpc_settings())
-    return deferred
+    """Apply a changed NavConfig to a running mission (:meth:`Mission.reconfigure`)."""
+    return mission.reconfigure(new)
 
 
 def benchmark(**kwargs) -> dict:

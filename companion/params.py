@@ -134,7 +134,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
     _p("COMP_SPIKE_NT", float, 5000.0, 10.0, 1e6, "nT", "reject a magnetometer sample this far from the running median"),
     _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart"),
-    _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (ArduPilot COMPASS_OFS_X)"),
+    _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (opposite sign of ArduPilot's COMPASS_OFS_X, which is added)"),
     _p("MAG_OFS_Y", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body y"),
     _p("MAG_OFS_Z", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body z"),
     _p("MAG_SCALE_X", float, 1.0, 0.2, 5.0, "", "scale applied after the offset, body x"),

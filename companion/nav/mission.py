@@ -35,7 +35,7 @@ Units of the QP (``MPC_UNITS``), because Table 4's weights come without units:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,11 +48,18 @@ from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
 from companion.params import Controller, NavConfig
 
-__all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES"]
+__all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES", "FROZEN_IN_FLIGHT"]
 
 ARCSEC_PER_DEG = 3600.0
 KMH = 1.0 / 3.6
 WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
+
+
+# Settings a running mission keeps until it ends: they define where it goes, what it has
+# estimated so far (gradient, filter) or the shape of its QP bounds.
+FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
+                    "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
+                    "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback")
 
 
 class Phase:
@@ -159,6 +166,21 @@ class Mission:
         self.window_lag_en = np.zeros(2)
         self.last: _Last | None = None
         self.finished: Command | None = None
+
+    def reconfigure(self, new: NavConfig) -> list[str]:
+        """Take a changed configuration at the next step; returns the registry names of changes
+        kept for the next mission (the fields of :data:`FROZEN_IN_FLIGHT`). Weights, horizon,
+        bounds, speed, period, thresholds and the QP backend apply at once (the QP is rebuilt)."""
+        from dataclasses import fields as dataclass_fields
+
+        old = self.config
+        deferred = [f.metadata["param"] for f in dataclass_fields(NavConfig)
+                    if f.name in FROZEN_IN_FLIGHT and getattr(new, f.name) != getattr(old, f.name)]
+        merged = new.replace(**{name: getattr(old, name) for name in FROZEN_IN_FLIGHT})
+        if merged != old:
+            self.config = merged
+            self.mpc = MpcController(self._mpc_settings())
+        return deferred
 
     # --- units of the QP -------------------------------------------------------------------
     def _units(self) -> tuple[float, float]:
