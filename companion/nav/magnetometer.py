@@ -53,26 +53,43 @@ GAUSS_TO_NT = 1e5
 Vector3 = tuple[float, float, float]
 
 
+Matrix3 = tuple[Vector3, Vector3, Vector3]
+_IDENTITY3: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
 @dataclass(frozen=True)
 class MagCalibration:
-    """Hard-iron offset (nT, subtracted) and scale (multiplied), per body axis."""
+    """Hard- and soft-iron correction in the body frame: ``soft_iron @ (m - offset_nt)``.
+
+    ``offset_nt`` is the hard-iron bias to *subtract* (ArduPilot's COMPASS_OFS parameters
+    have the opposite sign: they are added). The registry's per-axis ``MAG_SCALE_*`` is the
+    diagonal soft-iron matrix (:meth:`from_mgauss`); a direct sensor may carry a full one.
+
+    >>> MagCalibration.from_mgauss((1.0, 0.0, 0.0), (2.0, 1.0, 1.0)).apply((300.0, 1.0, 2.0))
+    (400.0, 1.0, 2.0)
+    """
 
     offset_nt: Vector3 = (0.0, 0.0, 0.0)
-    scale: Vector3 = (1.0, 1.0, 1.0)
+    soft_iron: Matrix3 = _IDENTITY3
+
+    def __post_init__(self) -> None:
+        if len(self.offset_nt) != 3:
+            raise ValueError(f"MagCalibration.offset_nt must have 3 components, got {self.offset_nt!r}")
+        if len(self.soft_iron) != 3 or any(len(row) != 3 for row in self.soft_iron):
+            raise ValueError(f"MagCalibration.soft_iron must be 3x3, got {self.soft_iron!r}")
 
     @classmethod
     def from_mgauss(cls, offset_mgauss: Vector3, scale: Vector3) -> MagCalibration:
-        """From the registry's ``MAG_OFS_*`` (mG) and ``MAG_SCALE_*``."""
-        return cls(tuple(float(o) * MILLIGAUSS_TO_NT for o in offset_mgauss), tuple(float(s) for s in scale))
+        """From the registry's ``MAG_OFS_*`` (mG) and ``MAG_SCALE_*`` (a diagonal soft iron)."""
+        sx, sy, sz = (float(v) for v in scale)
+        return cls(tuple(float(o) * MILLIGAUSS_TO_NT for o in offset_mgauss),
+                   ((sx, 0.0, 0.0), (0.0, sy, 0.0), (0.0, 0.0, sz)))
 
     def apply(self, mag_body_nt: Vector3) -> Vector3:
-        """``(m - offset) * scale``.
-
-        >>> MagCalibration((100.0, 0.0, 0.0), (2.0, 1.0, 1.0)).apply((300.0, 1.0, 2.0))
-        (400.0, 1.0, 2.0)
-        """
-        o, s = self.offset_nt, self.scale
-        return ((mag_body_nt[0] - o[0]) * s[0], (mag_body_nt[1] - o[1]) * s[1], (mag_body_nt[2] - o[2]) * s[2])
+        """``soft_iron @ (m - offset)`` in nT."""
+        o, m = self.offset_nt, self.soft_iron
+        d = (mag_body_nt[0] - o[0], mag_body_nt[1] - o[1], mag_body_nt[2] - o[2])
+        return tuple(m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2] for i in range(3))  # type: ignore[return-value]
 
 
 def ned_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float, vec_b: Vector3) -> Vector3:

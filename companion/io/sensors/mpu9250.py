@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from companion.io.sensors.attitude import MahonyFilter, MahonyGains, Matrix3
+from companion.nav.magnetometer import MagCalibration
 from companion.io.sensors.base import (
     AttitudeSample,
     ImuSample,
@@ -109,7 +110,6 @@ GYRO_DLPF_HZ = {184: 1, 92: 2, 41: 3, 20: 4, 10: 5, 5: 6}
 ACCEL_DLPF_HZ = {218: 1, 99: 2, 45: 3, 21: 4, 10: 5, 5: 6}
 
 DEFAULT_MOUNTING: Matrix3 = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))
-_IDENTITY: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 class SMBusLike(Protocol):
@@ -147,31 +147,6 @@ def _apply(mat: Matrix3, vec: Vector3) -> Vector3:
         mat[1][0] * vec[0] + mat[1][1] * vec[1] + mat[1][2] * vec[2],
         mat[2][0] * vec[0] + mat[2][1] * vec[1] + mat[2][2] * vec[2],
     )
-
-
-@dataclass(frozen=True)
-class MagCalibration:
-    """Hard- and soft-iron correction in the body frame: ``soft_iron @ (m - offset_nt)``.
-
-    ``offset_nt`` is the hard-iron bias to *subtract* (note: ArduPilot's COMPASS_OFS
-    parameters are the opposite, they are added).
-
-    >>> MagCalibration(offset_nt=(100.0, 0.0, 0.0)).apply((600.0, 0.0, 0.0))
-    (500.0, 0.0, 0.0)
-    """
-
-    offset_nt: Vector3 = (0.0, 0.0, 0.0)
-    soft_iron: Matrix3 = _IDENTITY
-
-    def __post_init__(self) -> None:
-        if len(self.offset_nt) != 3:
-            raise ValueError(f"MagCalibration.offset_nt must have 3 components, got {self.offset_nt!r}")
-        if len(self.soft_iron) != 3 or any(len(r) != 3 for r in self.soft_iron):
-            raise ValueError(f"MagCalibration.soft_iron must be 3x3, got {self.soft_iron!r}")
-
-    def apply(self, mag_nt: Vector3) -> Vector3:
-        o = self.offset_nt
-        return _apply(self.soft_iron, (mag_nt[0] - o[0], mag_nt[1] - o[1], mag_nt[2] - o[2]))
 
 
 @dataclass(frozen=True)
