@@ -36,3 +36,44 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data folder not found at {SHARED_DATA} (set FCMPC_DATA_DIR)")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def log171(shared_data: Path) -> Path:
+    """The real ArduPilot DataFlash log ../shared/data/logs/log171.bin."""
+    path = shared_data / "logs" / "log171.bin"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    return path
+
+
+LOG171_TYPES = ("MAG", "MAG2", "MAG3", "IMU", "IMU2", "IMU3", "ATT", "GPS")
+
+
+@pytest.fixture(scope="session")
+def log171_reference(log171: Path) -> dict:
+    """Counts, first/last times per type, the first MAG and the first 3D GPS fix of log171.bin,
+    read with a plain pymavlink loop: the independent reference the replay code is checked against."""
+    from collections import Counter
+
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(log171))
+    counts: Counter = Counter()
+    first: dict[str, float] = {}
+    last: dict[str, float] = {}
+    mag0 = gps0 = None
+    try:
+        while (msg := conn.recv_match(type=list(LOG171_TYPES))) is not None:
+            mtype = msg.get_type()
+            t = (msg.T if mtype == "GPS" else msg.TimeMS) / 1000.0  # Copter 3.3: GPS TimeMS is GPS time of week
+            counts[mtype] += 1
+            first.setdefault(mtype, t)
+            last[mtype] = t
+            if mtype == "MAG" and mag0 is None:
+                mag0 = (msg.MagX, msg.MagY, msg.MagZ)
+            if mtype == "GPS" and msg.Status >= 3 and gps0 is None:
+                gps0 = (msg.Lat, msg.Lng, msg.Alt)
+    finally:
+        conn.close()
+    return {"counts": counts, "first": first, "last": last, "mag0": mag0, "gps0": gps0}

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from companion.io.sensors import (  # noqa: E402
@@ -34,42 +33,9 @@ def replay_all(src: LogReplaySource) -> list:
     return out
 
 
-def log171(shared_data: Path) -> Path:
-    path = shared_data / "logs" / "log171.bin"
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
-    return path
-
-
 @pytest.fixture(scope="module")
-def log171_reference(shared_data: Path) -> dict:
-    """Counts and time spans of log171.bin measured with a plain pymavlink loop."""
-    path = log171(shared_data)
-    conn = mavutil.mavlink_connection(str(path))
-    counts: Counter = Counter()
-    first: dict = {}
-    last: dict = {}
-    mag0 = gps0 = None
-    while True:
-        msg = conn.recv_match(type=["MAG", "MAG2", "MAG3", "IMU", "IMU2", "IMU3", "ATT", "GPS"])
-        if msg is None:
-            break
-        mtype = msg.get_type()
-        t = (msg.T if mtype == "GPS" else msg.TimeMS) / 1000.0  # Copter 3.3: GPS TimeMS is GPS time
-        counts[mtype] += 1
-        first.setdefault(mtype, t)
-        last[mtype] = t
-        if mtype == "MAG" and mag0 is None:
-            mag0 = (msg.MagX, msg.MagY, msg.MagZ)
-        if mtype == "GPS" and msg.Status >= 3 and gps0 is None:
-            gps0 = (msg.Lat, msg.Lng, msg.Alt)
-    conn.close()
-    return {"counts": counts, "first": first, "last": last, "mag0": mag0, "gps0": gps0}
-
-
-@pytest.fixture(scope="module")
-def log171_samples(shared_data: Path) -> list:
-    return replay_all(LogReplaySource(log171(shared_data), instances=None))
+def log171_samples(log171: Path) -> list:
+    return replay_all(LogReplaySource(log171, instances=None))
 
 
 def test_log171_counts_and_time_span_match_pymavlink(log171_reference: dict, log171_samples: list) -> None:
@@ -122,16 +88,16 @@ def test_log171_units_and_accuracies(log171_reference: dict, log171_samples: lis
     assert all(0.0 <= a.yaw_rad < 2.0 * math.pi for a in att)
 
 
-def test_primary_instances_only_by_default(shared_data: Path, log171_reference: dict) -> None:
-    samples = replay_all(make_source(f"replay:{log171(shared_data)}?speed=fast"))
+def test_primary_instances_only_by_default(log171: Path, log171_reference: dict) -> None:
+    samples = replay_all(make_source(f"replay:{log171}?speed=fast"))
     mags = [s for s in samples if isinstance(s, MagSample)]
     assert {s.instance for s in mags} == {0}
     assert len(mags) == log171_reference["counts"]["MAG"]
 
 
 @pytest.mark.parametrize("cut", [100_003, 1_490_951])
-def test_a_truncated_log_ends_flagged(shared_data: Path, tmp_path: Path, cut: int) -> None:
-    data = log171(shared_data).read_bytes()
+def test_a_truncated_log_ends_flagged(log171: Path, tmp_path: Path, cut: int) -> None:
+    data = log171.read_bytes()
     path = tmp_path / "cut.bin"
     path.write_bytes(data[:cut])
     samples = replay_all(LogReplaySource(path))
@@ -143,9 +109,9 @@ def test_a_truncated_log_ends_flagged(shared_data: Path, tmp_path: Path, cut: in
     assert len(samples) > 10
 
 
-def test_a_dataflash_log_with_another_extension(shared_data: Path, tmp_path: Path) -> None:
+def test_a_dataflash_log_with_another_extension(log171: Path, tmp_path: Path) -> None:
     path = tmp_path / "flight.dat"
-    path.write_bytes(log171(shared_data).read_bytes()[:200_000])
+    path.write_bytes(log171.read_bytes()[:200_000])
     samples = replay_all(LogReplaySource(path))
     assert any(isinstance(s, MagSample) for s in samples)
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -24,42 +23,13 @@ from scripts.replay import evaluate, format_report, main, write_outputs  # noqa:
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "IMU3", "ATT", "GPS"]
 
 
-def log171(shared_data: Path) -> Path:
-    path = shared_data / "logs" / "log171.bin"
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
-    return path
-
-
 @pytest.fixture(scope="module")
-def ev171(shared_data: Path):
-    return evaluate(log171(shared_data))
+def ev171(log171: Path):
+    return evaluate(log171)
 
 
-@pytest.fixture(scope="module")
-def pymavlink_reference(shared_data: Path) -> dict:
-    """Counts and first/last times per message type with a plain pymavlink loop."""
-    conn = mavutil.mavlink_connection(str(log171(shared_data)))
-    counts: Counter = Counter()
-    first: dict[str, float] = {}
-    last: dict[str, float] = {}
-    try:
-        while True:
-            msg = conn.recv_match(type=TYPES)
-            if msg is None:
-                break
-            mtype = msg.get_type()
-            t = (msg.T if mtype == "GPS" else msg.TimeMS) / 1000.0  # Copter 3.3: GPS TimeMS is GPS time of week
-            counts[mtype] += 1
-            first.setdefault(mtype, t)
-            last[mtype] = t
-    finally:
-        conn.close()
-    return {"counts": counts, "first": first, "last": last}
-
-
-def test_message_counts_and_time_span_match_pymavlink(ev171, pymavlink_reference: dict) -> None:
-    ref = pymavlink_reference
+def test_message_counts_and_time_span_match_pymavlink(ev171, log171_reference: dict) -> None:
+    ref = log171_reference
     assert ev171.counts == dict(ref["counts"])
     for key in TYPES:
         assert ev171.first_s[key] == pytest.approx(ref["first"][key])
@@ -135,8 +105,8 @@ def test_ins_drifts_and_fusion_and_mission_run(ev171) -> None:
     assert "consistency check" in report and "| airborne |" in report
 
 
-def test_a_truncated_log_runs_without_crash(shared_data: Path, tmp_path: Path) -> None:
-    data = log171(shared_data).read_bytes()
+def test_a_truncated_log_runs_without_crash(log171: Path, tmp_path: Path) -> None:
+    data = log171.read_bytes()
     path = tmp_path / "cut60.bin"
     path.write_bytes(data[: int(0.6 * len(data))])
     ev = evaluate(path)
@@ -198,9 +168,9 @@ def dataflash_to_tlog(src: Path, dst: Path) -> Path:
     return dst
 
 
-def test_a_tlog_of_the_same_flight_gives_the_same_answer(shared_data: Path, tmp_path: Path, ev171) -> None:
+def test_a_tlog_of_the_same_flight_gives_the_same_answer(log171: Path, tmp_path: Path, ev171) -> None:
     """The .tlog path: date from GPS_RAW_INT's UNIX time, RAW_IMU's milligauss; IMU at the MAG rate."""
-    ev = evaluate(dataflash_to_tlog(log171(shared_data), tmp_path / "log171.tlog"), windows_s=(10.0,))
+    ev = evaluate(dataflash_to_tlog(log171, tmp_path / "log171.tlog"), windows_s=(10.0,))
     assert ev.format == "tlog" and ev.model == "WMM2015" and ev.date == "2015-11-21"
     assert ev.counts["MAG"] == ev.counts["IMU"] == ev.counts["ATT"]
     assert ev.segments.takeoff_s == pytest.approx(ev171.segments.takeoff_s, abs=0.5)
@@ -213,10 +183,10 @@ def test_a_tlog_of_the_same_flight_gives_the_same_answer(shared_data: Path, tmp_
 
 
 @pytest.mark.slow
-def test_command_line_writes_table_and_plots(shared_data: Path, tmp_path: Path,
+def test_command_line_writes_table_and_plots(log171: Path, tmp_path: Path,
                                              capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "log171"
-    assert main([str(log171(shared_data)), "--out", str(out), "--window-s", "10"]) == 0
+    assert main([str(log171), "--out", str(out), "--window-s", "10"]) == 0
     printed = capsys.readouterr().out
     assert printed.startswith("# Replay evaluation of `log171.bin`")
     for name in ("table.md", "summary.json", "windows.csv", "di.png", "errors.png", "heading.png", "track.png"):
