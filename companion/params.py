@@ -185,10 +185,14 @@ def read_parm_file(path: str | os.PathLike) -> dict[str, float | int]:
         parts = line.replace(",", " ").replace("\t", " ").split()
         if len(parts) != 2:
             raise ParamError(f"{path}:{number}: expected 'NAME VALUE', got {raw.strip()!r}")
+        name = parts[0].upper()
         try:
-            values[parts[0].upper()] = validate(parts[0], parts[1])
+            value = validate(parts[0], parts[1])
         except ParamError as err:
             raise ParamError(f"{path}:{number}: {err}") from None
+        if name in values:
+            raise ParamError(f"{path}:{number}: {name} is set twice in this file")
+        values[name] = value
     return values
 
 
@@ -201,13 +205,23 @@ def write_parm_file(path: str | os.PathLike, values: Mapping[str, float | int], 
     """Write ``values`` atomically: temporary file in the same folder, fsync, rename.
 
     A crash at any moment leaves either the old file or the new one, never a half-written one.
+    Values are validated first (ParamError, nothing written), so the file always reads back;
+    a replaced file keeps its permissions (a new one gets the usual 0666 less the umask).
     """
     target = Path(path)
+    checked = {name.upper(): validate(name, value) for name, value in values.items()}
     lines = [f"# {line}" for line in header.splitlines()] if header else []
-    lines += [f"{name} {format_value(values[name])}" for name in sorted(values)]
+    lines += [f"{name} {format_value(checked[name])}" for name in sorted(checked)]
     target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        mode = target.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        os.fchmod(fd, mode)  # mkstemp makes 0600
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write("\n".join(lines) + "\n")
             handle.flush()
