@@ -27,12 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.frames import ned_to_body
 from companion.nav.geo import radii_of_curvature_m
 from sitl.scenario import SensorModel
 from sitl.world.ins import InsErrorConfig, InsErrorModel
 
-__all__ = ["Normals", "WaveMotion", "Attitude", "SensorSuite", "NavSolution", "body_from_ned", "ned_from_body",
-           "GRAVITY_MPS2"]
+__all__ = ["Normals", "WaveMotion", "Attitude", "SensorSuite", "NavSolution", "GRAVITY_MPS2"]
 
 GRAVITY_MPS2 = 9.80665
 
@@ -97,32 +97,6 @@ class WaveMotion:
                         ap * wp * math.cos(wp * time_s + self.pitch_phase_rad), yaw_rate_radps)
 
 
-def body_from_ned(roll: float, pitch: float, yaw: float, n: float, e: float, d: float) -> tuple[float, float, float]:
-    """A NED vector expressed in the body frame (ZYX Euler angles in rad): ``C_nb^T v``.
-
-    >>> [round(v, 9) for v in body_from_ned(0.0, 0.0, math.pi / 2, 1.0, 0.0, 0.0)]  # facing east
-    [0.0, -1.0, 0.0]
-    """
-    sr, cr = math.sin(roll), math.cos(roll)
-    sp, cp = math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    bx = cp * cy * n + cp * sy * e - sp * d
-    by = (sr * sp * cy - cr * sy) * n + (sr * sp * sy + cr * cy) * e + sr * cp * d
-    bz = (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d
-    return bx, by, bz
-
-
-def ned_from_body(roll: float, pitch: float, yaw: float, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """A body vector expressed in NED: ``C_nb v`` (inverse of :func:`body_from_ned`)."""
-    sr, cr = math.sin(roll), math.cos(roll)
-    sp, cp = math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    n = cp * cy * x + (sr * sp * cy - cr * sy) * y + (cr * sp * cy + sr * sy) * z
-    e = cp * sy * x + (sr * sp * sy + cr * cy) * y + (cr * sp * sy - sr * cy) * z
-    d = -sp * x + sr * cp * y + cr * cp * z
-    return n, e, d
-
-
 class SensorSuite:
     """Magnetometer, accelerometer, gyro and attitude estimate of the simulated autopilot.
 
@@ -143,7 +117,7 @@ class SensorSuite:
         """Body-frame reading in nT: rotate by the true attitude, add bias, noise and ``extra_nt``
         (a spike, on each axis), quantise to ``mag_lsb_nt``."""
         m = self.model
-        bx, by, bz = body_from_ned(attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad, *field_ned_nt)
+        bx, by, bz = ned_to_body(field_ned_nt, attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad)
         sigma, lsb = m.mag_noise_nt, m.mag_lsb_nt
         bias = m.mag_bias_nt
         normal = self._normal
@@ -160,8 +134,8 @@ class SensorSuite:
         m = self.model
         normal = self._normal
         an, ae, ad = accel_ned_mps2
-        fx, fy, fz = body_from_ned(attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad,
-                                   an, ae, ad - GRAVITY_MPS2)
+        fx, fy, fz = ned_to_body((an, ae, ad - GRAVITY_MPS2), attitude.roll_rad, attitude.pitch_rad,
+                                 attitude.yaw_rad)
         sa = m.accel_noise_mps2
         self.accel_mps2 = (fx + sa * normal(), fy + sa * normal(), fz + sa * normal())
         p, q, r = attitude.body_rates()

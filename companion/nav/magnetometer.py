@@ -32,12 +32,13 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+from companion.frames import Matrix3, Vector3, body_to_ned
+
 __all__ = [
     "MILLIGAUSS_TO_NT",
     "GAUSS_TO_NT",
     "MagCalibration",
     "AttitudeState",
-    "ned_from_body",
     "decl_incl_deg",
     "tilt_compensated_di",
     "SpikeFilter",
@@ -50,10 +51,8 @@ __all__ = [
 MILLIGAUSS_TO_NT = 100.0   # 1 mG = 1e-7 T = 100 nT
 GAUSS_TO_NT = 1e5
 
-Vector3 = tuple[float, float, float]
 
 
-Matrix3 = tuple[Vector3, Vector3, Vector3]
 _IDENTITY3: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
@@ -92,22 +91,6 @@ class MagCalibration:
         return tuple(m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2] for i in range(3))  # type: ignore[return-value]
 
 
-def ned_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float, vec_b: Vector3) -> Vector3:
-    """A body vector (x forward, y right, z down) in NED: ``C_nb(roll, pitch, yaw) vec_b``.
-
-    >>> [round(c, 9) for c in ned_from_body(0.0, 0.0, math.pi / 2, (1.0, 0.0, 0.0))]  # nose east
-    [0.0, 1.0, 0.0]
-    """
-    sr, cr = math.sin(roll_rad), math.cos(roll_rad)
-    sp, cp = math.sin(pitch_rad), math.cos(pitch_rad)
-    sy, cy = math.sin(yaw_rad), math.cos(yaw_rad)
-    x, y, z = vec_b
-    n = cp * cy * x + (sr * sp * cy - cr * sy) * y + (cr * sp * cy + sr * sy) * z
-    e = cp * sy * x + (sr * sp * sy + cr * cy) * y + (cr * sp * sy - sr * cy) * z
-    d = -sp * x + sr * cp * y + cr * cp * z
-    return n, e, d
-
-
 def decl_incl_deg(north_nt: float, east_nt: float, down_nt: float) -> tuple[float, float]:
     """Declination (east of true north) and inclination (below horizontal), degrees (eq. 2)."""
     return (math.degrees(math.atan2(east_nt, north_nt)),
@@ -117,7 +100,7 @@ def decl_incl_deg(north_nt: float, east_nt: float, down_nt: float) -> tuple[floa
 def tilt_compensated_di(mag_body_nt: Vector3, roll_rad: float, pitch_rad: float,
                         yaw_rad: float) -> tuple[float, float, Vector3]:
     """(D deg, I deg, field NED nT) of a calibrated body-frame field at the given attitude."""
-    ned = ned_from_body(roll_rad, pitch_rad, yaw_rad, mag_body_nt)
+    ned = body_to_ned(mag_body_nt, roll_rad, pitch_rad, yaw_rad)
     d, i = decl_incl_deg(*ned)
     return d, i, ned
 

@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
+from companion.frames import body_to_ned
 from companion.nav.magnetometer import (
-    AttitudeState, MagCalibration, MagProcessor, PeriodAverager, SpikeFilter, decl_incl_deg, ned_from_body,
+    AttitudeState, MagCalibration, MagProcessor, PeriodAverager, SpikeFilter, decl_incl_deg,
     tilt_compensated_di,
 )
 
@@ -36,14 +37,14 @@ def test_decl_incl_by_hand():
     assert d == pytest.approx(-5.7105931, abs=1e-6) and i < 0.0
 
 
-def test_ned_from_body_elementary_rotations():
+def test_body_to_ned_elementary_rotations():
     # nose east (yaw 90): body x is east, body y (right) is south
-    assert ned_from_body(0.0, 0.0, math.pi / 2, (1.0, 0.0, 0.0)) == pytest.approx((0.0, 1.0, 0.0), abs=1e-12)
-    assert ned_from_body(0.0, 0.0, math.pi / 2, (0.0, 1.0, 0.0)) == pytest.approx((-1.0, 0.0, 0.0), abs=1e-12)
+    assert body_to_ned((1.0, 0.0, 0.0), 0.0, 0.0, math.pi / 2) == pytest.approx((0.0, 1.0, 0.0), abs=1e-12)
+    assert body_to_ned((0.0, 1.0, 0.0), 0.0, 0.0, math.pi / 2) == pytest.approx((-1.0, 0.0, 0.0), abs=1e-12)
     # right wing down 90 deg (roll +90): body y points down
-    assert ned_from_body(math.pi / 2, 0.0, 0.0, (0.0, 1.0, 0.0)) == pytest.approx((0.0, 0.0, 1.0), abs=1e-12)
+    assert body_to_ned((0.0, 1.0, 0.0), math.pi / 2, 0.0, 0.0) == pytest.approx((0.0, 0.0, 1.0), abs=1e-12)
     # nose up 90 deg (pitch +90): body x points up (-down)
-    assert ned_from_body(0.0, math.pi / 2, 0.0, (1.0, 0.0, 0.0)) == pytest.approx((0.0, 0.0, -1.0), abs=1e-12)
+    assert body_to_ned((1.0, 0.0, 0.0), 0.0, math.pi / 2, 0.0) == pytest.approx((0.0, 0.0, -1.0), abs=1e-12)
 
 
 @pytest.mark.parametrize("roll_deg,pitch_deg,yaw_deg", [(0, 0, 0), (3, -2, 130), (-4.5, 2.5, 271), (10, 15, -45)])

@@ -13,7 +13,8 @@ from sitl.guidance import (ARDUPILOT, MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, MA
 from sitl.links import EndpointError, parse_endpoint
 from sitl.mavframe import FrameEncoder
 from sitl.scenario import load_scenario
-from sitl.sensors import Attitude, NavSolution, Normals, SensorSuite, body_from_ned, ned_from_body
+from companion.frames import body_to_ned, ned_to_body
+from sitl.sensors import Attitude, NavSolution, Normals, SensorSuite
 from sitl.server import parse_fault
 from sitl.world.build import StormUnavailableError, build_truth_field
 from sitl.world.ins import InsErrorConfig
@@ -176,9 +177,9 @@ def test_rotations_and_noise_reproducible():
     for _ in range(20):
         r, p, y = rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-3, 3)
         v = rng.normal(size=3)
-        assert np.allclose(ned_from_body(r, p, y, *body_from_ned(r, p, y, *v)), v)
+        assert np.allclose(body_to_ned(ned_to_body(v, r, p, y), r, p, y), v)
     # level, facing east: north is on the left (-y), down stays down
-    assert np.allclose(body_from_ned(0.0, 0.0, math.pi / 2, 0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
+    assert np.allclose(ned_to_body((0.0, 1.0, 0.0), 0.0, 0.0, math.pi / 2), (1.0, 0.0, 0.0))
     a, b = Normals(np.random.default_rng(5), block=7), Normals(np.random.default_rng(5), block=7)
     assert [a() for _ in range(30)] == [b() for _ in range(30)]
 

@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass
 
 from companion import wrap_2pi, wrap_pi
-from companion.io.sensors.base import Vector3
+from companion.frames import Matrix3, Vector3, body_to_ned, mat_nb_from_euler, ned_to_body
 
 __all__ = [
     "Matrix3",
@@ -38,23 +38,10 @@ __all__ = [
     "tilt_from_accel",
 ]
 
-Matrix3 = tuple[Vector3, Vector3, Vector3]
 Quaternion = tuple[float, float, float, float]
 
 GRAVITY_MPS2 = 9.80665
 _INTEGRATE_BELOW = 0.05  # rad/s of correction, i.e. about 3 degrees of error at kp = 1
-
-
-def mat_nb_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Matrix3:
-    """Rotation body -> NED of ZYX Euler angles."""
-    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
-    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
-    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    return (
-        (cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy),
-        (cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy),
-        (-sp, sr * cp, cr * cp),
-    )
 
 
 def _mul(mat: Matrix3, vec: Vector3) -> Vector3:
@@ -71,20 +58,6 @@ def _mul_t(mat: Matrix3, vec: Vector3) -> Vector3:
         mat[0][1] * vec[0] + mat[1][1] * vec[1] + mat[2][1] * vec[2],
         mat[0][2] * vec[0] + mat[1][2] * vec[1] + mat[2][2] * vec[2],
     )
-
-
-def body_to_ned(vec_b: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:
-    """A body-frame vector expressed in NED (e.g. the field: then D = atan2(y, x)).
-
-    >>> [round(c, 6) for c in body_to_ned((1.0, 0.0, 0.0), 0.0, 0.0, math.pi / 2)]
-    [0.0, 1.0, 0.0]
-    """
-    return _mul(mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad), vec_b)
-
-
-def ned_to_body(vec_n: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:
-    """A NED vector expressed in the body frame (inverse of :func:`body_to_ned`)."""
-    return _mul_t(mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad), vec_n)
 
 
 def tilt_from_accel(accel_body_mps2: Vector3) -> tuple[float, float]:

@@ -51,7 +51,7 @@ __all__ = [
     "Vector3",
 ]
 
-Vector3 = tuple[float, float, float]
+from companion.frames import Vector3  # noqa: E402  (re-exported: the samples' vector type)
 
 
 class SampleKind(str, enum.Enum):

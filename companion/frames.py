@@ -1,0 +1,53 @@
+"""Rotations between the body frame and NED, written once (frames per :mod:`companion`).
+
+ZYX Euler angles in radians: yaw (from north, clockwise) about down, then pitch about the
+new y, then roll about x. ``mat_nb`` rotates body vectors into NED. The companion's tilt
+compensation, the sensor drivers' attitude filter and the simulator's sensor model all use
+these three functions.
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["Vector3", "Matrix3", "mat_nb_from_euler", "body_to_ned", "ned_to_body"]
+
+Vector3 = tuple[float, float, float]
+Matrix3 = tuple[Vector3, Vector3, Vector3]
+
+
+def mat_nb_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Matrix3:
+    """Rotation matrix body -> NED of ZYX Euler angles."""
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    return (
+        (cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy),
+        (cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy),
+        (-sp, sr * cp, cr * cp),
+    )
+
+
+def body_to_ned(vec_b: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:
+    """A body-frame vector expressed in NED.
+
+    >>> [round(c, 9) for c in body_to_ned((1.0, 0.0, 0.0), 0.0, 0.0, math.pi / 2)]  # nose east
+    [0.0, 1.0, 0.0]
+    """
+    m = mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad)
+    x, y, z = vec_b
+    return (m[0][0] * x + m[0][1] * y + m[0][2] * z,
+            m[1][0] * x + m[1][1] * y + m[1][2] * z,
+            m[2][0] * x + m[2][1] * y + m[2][2] * z)
+
+
+def ned_to_body(vec_n: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:
+    """A NED vector expressed in the body frame (the transpose of :func:`body_to_ned`).
+
+    >>> [round(c, 9) for c in ned_to_body((1.0, 0.0, 0.0), 0.0, 0.0, math.pi / 2)]  # north is to the left
+    [0.0, -1.0, 0.0]
+    """
+    m = mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad)
+    n, e, d = vec_n
+    return (m[0][0] * n + m[1][0] * e + m[2][0] * d,
+            m[0][1] * n + m[1][1] * e + m[2][1] * d,
+            m[0][2] * n + m[1][2] * e + m[2][2] * d)
