@@ -50,6 +50,27 @@ Failsafes (:mod:`companion.failsafe`)
 
 Records (``--log-dir``, default ``out/companion/<time>-<pid>``): ``companion.tlog`` (both
 directions), ``steps.csv`` (:mod:`companion.io.records`), ``summary.json``.
+
+Sensor sources (``--sensors SPEC``, :func:`companion.io.sensors.make_source`)
+    Without it the flight controller's MAVLink streams are the sensors. With it the source
+    (``i2c:/dev/i2c-1``, ``dronecan:can0``, ``replay:log.bin?speed=1``, ``i2c:1+ubx:/dev/ttyS0``,
+    ...) is opened at start (an error: exit code 2) and polled without waiting from the run loop;
+    its samples take the same path as MAVLink's. The kinds it provides replace the flight
+    controller's: its magnetometer makes the companion ignore RAW_IMU/SCALED_IMU/HIGHRES_IMU
+    magnetometers (two magnetometers are never mixed), its attitude replaces ATTITUDE; a kind it
+    lacks (DroneCAN: attitude) still comes from the flight controller, as do heartbeat, mode,
+    arming and the INS position. Its GPS is start-up and record only.
+    Time: a direct source stamps with the host monotonic clock, a replay with log time, the
+    navigation runs on message time. A sample's time is mapped with an offset learned at
+    reception, offset = message time now - source time of the newest sample of the batch, kept
+    while it moves by less than SOURCE_RESYNC_S and learned again when it jumps (an FC reboot, a
+    replay faster than message time). This assumes the transport latency on both paths is
+    negligible against the 0.5 s attitude-matching window; the flight controller's message
+    clock only advances in steps (its message rate), so the mapping jitters by up to one
+    message interval. Before the first flight-controller time stamp samples are dropped
+    (counted in the summary). A source that stops delivering (device gone, replay ended) goes
+    stale like a silent MAVLink stream and triggers the same failsafe; a STATUSTEXT names the
+    source once.
 """
 from __future__ import annotations
 
@@ -63,7 +84,7 @@ import signal  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
 from datetime import datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -72,14 +93,16 @@ from companion.failsafe import Health, HealthLimits, diverged  # noqa: E402
 from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
 from companion.io.param_server import ENCODINGS, ParamServer  # noqa: E402
 from companion.io.records import StepRecorder, write_summary  # noqa: E402
-from companion.io.sensors.base import SampleKind  # noqa: E402
+from companion.io.sensors.base import SampleKind, SensorError, SensorSource, StreamEnd  # noqa: E402
+from companion.io.sensors.factory import make_source  # noqa: E402
 from companion.io.sensors.mavlink_source import MAG_MESSAGES, MavlinkDecoder  # noqa: E402
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position  # noqa: E402
 from companion.nav.magnetometer import AttitudeState, MagCalibration, MagProcessor  # noqa: E402
 from companion.nav.mission import FROZEN_IN_FLIGHT, Command, Measurement, Mission, Phase  # noqa: E402
 from companion.params import CompanionConfig, NavConfig  # noqa: E402
 
-__all__ = ["AppOptions", "CompanionApp", "State", "build_parser", "main", "benchmark", "LIVE_FROZEN_FIELDS"]
+__all__ = ["AppOptions", "CompanionApp", "SourceTimeMap", "State", "build_parser", "main", "benchmark",
+           "LIVE_FROZEN_FIELDS"]
 
 MAX_RESTARTS = 3
 _MAG, _ATT, _GPS = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
@@ -90,6 +113,7 @@ COMMAND_RETRY_S = 2.0             # message time between retries of mode/arm com
 HOLD_RETRY_S = 2.0
 STARTUP_GRACE_S = 5.0            # message time for the requested streams to arrive before complaining
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
+SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-time offset beyond this jump
 
 # NavConfig fields that define the mission: a change applies to the next mission only.
 LIVE_FROZEN_FIELDS = FROZEN_IN_FLIGHT
@@ -122,6 +146,7 @@ class AppOptions:
     request_streams: bool = True
     max_wall_s: float | None = None
     quiet: bool = False
+    sensors: str | None = None
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -130,6 +155,58 @@ def _percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     k = min(len(ordered) - 1, max(0, int(math.ceil(q * len(ordered))) - 1))
     return ordered[k]
+
+
+# What each source class delivers (class name -> kinds); a CombinedSource is the union.
+_SOURCE_KINDS = {
+    "Mpu9250Source": frozenset({_MAG, _ATT}),
+    "DroneCanMagSource": frozenset({_MAG}),
+    "UbloxSource": frozenset({_GPS}),
+    "LogReplaySource": frozenset({_MAG, _ATT, _GPS}),
+}
+
+
+def source_kinds(source: SensorSource) -> frozenset:
+    """The sample kinds (MAG, ATTITUDE, GPS) ``source`` provides, which the FC's then do not."""
+    subs = getattr(source, "sources", None)
+    if subs is not None:
+        return frozenset().union(*(source_kinds(s) for s in subs))
+    kinds = getattr(source, "provides", None)
+    return frozenset(kinds) if kinds is not None else _SOURCE_KINDS.get(type(source).__name__, frozenset({_MAG}))
+
+
+class SourceTimeMap:
+    """Source time -> message time: ``t_msg = t_source + offset``.
+
+    ``offset`` = message time now - source time of the newest sample, learned on the first
+    batch and again whenever that quantity moves by more than ``resync_s`` (a jump of either
+    clock). Assumes negligible transport latency on both paths.
+
+    >>> m = SourceTimeMap()
+    >>> [round(t, 3) for t in m.map(100.0, [5000.0, 5000.1])]   # the newest sample is "now"
+    [99.9, 100.0]
+    >>> [round(t, 3) for t in m.map(100.25, [5000.3])]          # within 1 s: offset kept
+    [100.2]
+    >>> [round(t, 3) for t in m.map(250.0, [5000.4])]           # a jump: learned again
+    [250.0]
+    >>> m.resyncs
+    2
+    """
+
+    def __init__(self, resync_s: float = SOURCE_RESYNC_S) -> None:
+        self.resync_s = resync_s
+        self.offset_s: float | None = None
+        self.resyncs = 0
+
+    def map(self, now_msg_s: float, source_times: list[float]) -> list[float]:
+        finite = [t for t in source_times if math.isfinite(t)]
+        if finite:
+            candidate = now_msg_s - max(finite)
+            if self.offset_s is None or abs(candidate - self.offset_s) > self.resync_s:
+                self.offset_s = candidate
+                self.resyncs += 1
+        off = self.offset_s if self.offset_s is not None else math.nan
+        return [t + off for t in source_times]
 
 
 class CompanionApp:
@@ -151,6 +228,16 @@ class CompanionApp:
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
         self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=False)
+        # --sensors: a sensor source beside the link (built here so a bad spec fails early)
+        self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
+        self.source_kinds = source_kinds(self.sensors) if self.sensors is not None else frozenset()
+        self.source_time = SourceTimeMap()
+        self.source_open = False
+        self.source_dropped_no_clock = 0
+        self.source_last_rx = math.nan      # message time of the newest mapped source sample
+        self.source_silent_said = False
+        self.source_ended = ""
+        self.source_problem: dict[str, str] = {}
         self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
                                 self.comp_cfg.spike_nt)
         self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
@@ -254,7 +341,14 @@ class CompanionApp:
 
     # ------------------------------------------------------------------ main loop
     def open(self) -> None:
-        self.link.open()
+        if self.sensors is not None and not self.source_open:
+            self.sensors.open()          # SensorError: main() exits with 2 before anything else opens
+            self.source_open = True
+        try:
+            self.link.open()
+        except BaseException:
+            self._close_sensors()
+            raise
         self.recorder = StepRecorder(self.log_dir / "steps.csv")
         self._send_heartbeat()   # a udpout link must speak first
 
@@ -266,6 +360,15 @@ class CompanionApp:
             self.recorder.close()
         self._write_summary()
         self.link.close()
+        self._close_sensors()
+
+    def _close_sensors(self) -> None:
+        if self.sensors is not None and self.source_open:
+            self.source_open = False
+            try:
+                self.sensors.close()
+            except (OSError, SensorError) as err:  # pragma: no cover - the device is gone anyway
+                print(f"fcmpc-companion: closing {self.sensors.name}: {err}", file=sys.stderr)
 
     def request_stop(self) -> None:
         self._stop = True
@@ -281,6 +384,8 @@ class CompanionApp:
                             break
                         for msg in msgs:
                             self.handle(msg)
+                if self.sensors is not None:
+                    self.poll_sensors()
                 self.idle()
         finally:
             self.close()
@@ -294,22 +399,10 @@ class CompanionApp:
             if link.clock.reboots != self.fc_reboots:
                 self._on_fc_reboot()
             was_detected = self.state != State.WAIT_FC
+            own = self.source_kinds
             for sample in self.decoder.decode(msg):
-                kind = sample.kind
-                if kind is _MAG:
-                    if sample.flags:
-                        self.invalid_mag += 1
-                    else:
-                        self.last_valid[_MAG] = sample.time_s
-                        self.mag.add_mag(sample.time_s, sample.mag_body_nt)
-                elif kind is _ATT:
-                    if not sample.flags:
-                        att = AttitudeState.from_body_rates(sample.time_s, sample.roll_rad, sample.pitch_rad,
-                                                            sample.yaw_rad, *self.decoder.rates)
-                        if self.mag.add_attitude(att):
-                            self.last_valid[_ATT] = sample.time_s
-                elif kind is _GPS:
-                    self.last_gps = sample
+                if sample.kind not in own:   # a kind --sensors provides: the FC's is ignored
+                    self._use_sample(sample, sample.time_s, self.decoder.rates)
             if msg._type == "LOCAL_POSITION_NED":
                 self.local_ned = (msg.time_boot_ms * 1e-3, msg.x, msg.y)
             if self.link.clock.now_s >= self.next_tick or not was_detected:
@@ -317,6 +410,81 @@ class CompanionApp:
                     self.tick()
         elif msg._type in _PARAM_TYPES:
             self.params.mavlink_packet(msg)
+
+    def _use_sample(self, sample, t: float, rates: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        """One sample (MAVLink or --sensors) at message time ``t`` into the magnetometer pipeline."""
+        kind = sample.kind
+        if kind is _MAG:
+            if sample.flags:
+                self.invalid_mag += 1
+            else:
+                self.last_valid[_MAG] = t
+                self.mag.add_mag(t, sample.mag_body_nt)
+        elif kind is _ATT:
+            if not sample.flags:
+                att = AttitudeState.from_body_rates(t, sample.roll_rad, sample.pitch_rad, sample.yaw_rad, *rates)
+                if self.mag.add_attitude(att):
+                    self.last_valid[_ATT] = t
+        elif kind is _GPS:
+            self.last_gps = sample if t == sample.time_s else replace(sample, time_s=t)
+
+    def poll_sensors(self) -> None:
+        """Periodic hook for ``--sensors``: take what the source has now (never waits)."""
+        source = self.sensors
+        if source is None or not self.source_open:
+            return
+        try:
+            samples = source.poll(0.0)
+        except SensorError as err:   # sources count errors instead of raising; be safe anyway
+            samples = []
+            self.source_problem["mag"] = str(err)
+        if samples:
+            if not self.link.clock.started:   # no message time to put them on yet
+                self.source_dropped_no_clock += len(samples)
+                return
+            times = self.source_time.map(self.now, [s.time_s for s in samples])
+            rates = (0.0, 0.0, 0.0)
+            fresh = False
+            for sample, t in zip(samples, times):
+                if isinstance(sample, StreamEnd):
+                    self.source_ended = sample.detail or "end of stream"
+                    continue
+                if sample.kind is SampleKind.IMU:
+                    rates = sample.gyro_body_radps
+                    continue
+                if sample.kind not in self.source_kinds:
+                    continue
+                if sample.flags and sample.kind is _MAG:
+                    self.source_problem["mag"] = f"{source.name}: flagged {sample.flags!r}"
+                self._use_sample(sample, t, rates)
+                if not sample.flags:
+                    fresh = True
+                    self.source_last_rx = t   # batch order is time order; after an FC reboot, the new base
+            if fresh and self.source_silent_said and not self.source_ended:
+                self.source_silent_said = False
+                self.source_problem.pop("mag", None)
+                self._say(f"FcMPC: sensor source {source.name} delivering again", mavlink.MAV_SEVERITY_NOTICE)
+        self._check_source_silence()
+
+    def _check_source_silence(self) -> None:
+        """Say once that the source stopped (ended, or nothing for longer than the staleness timeout)."""
+        if self.source_silent_said or not self.link.clock.started:
+            return
+        source = self.sensors
+        why = ""
+        if self.source_ended or source.finished:
+            why = f"ended ({self.source_ended or 'finished'})"
+        else:
+            timeout = min(self.comp_cfg.mag_timeout_s, self.comp_cfg.att_timeout_s) \
+                if _ATT in self.source_kinds else self.comp_cfg.mag_timeout_s
+            since = self.source_last_rx if math.isfinite(self.source_last_rx) else self.fc_detected_at
+            if math.isfinite(since) and self.now - since > timeout:
+                err = source.stats.last_error
+                why = f"silent for {self.now - since:.1f} s" + (f" (last error: {err})" if err else "")
+        if why:
+            self.source_silent_said = True
+            self.source_problem["mag"] = f"sensor source {source.name} {why}"
+            self._say(f"FcMPC: sensor source {source.name} {why}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
 
     def _on_fc_reboot(self) -> None:
         """The flight controller's clock went back: everything timed is void; start again."""
@@ -411,6 +579,11 @@ class CompanionApp:
         now = self.now
         hb_msg, hb_wall = self.link.heartbeat_age_s()
         problems = self.decoder.last_problem
+        if self.source_kinds:
+            problems = {k: v for k, v in problems.items()
+                        if not (k == "mag" and _MAG in self.source_kinds)
+                        and not (k == "attitude" and _ATT in self.source_kinds)}
+            problems.update(self.source_problem)
         reasons = self.health.evaluate(
             now, mag_age_s=self.age(_MAG), att_age_s=self.age(_ATT),
             hb_age_msg_s=hb_msg, hb_age_wall_s=hb_wall, mag_detail=problems.get("mag", ""),
@@ -767,6 +940,13 @@ class CompanionApp:
             "step_latency_p99_s": _percentile(lat, 0.99),
             "core_latency_median_s": statistics.median(self.core_latency_s) if self.core_latency_s else math.nan,
             "mag": {**self.mag.stats.as_dict(), "invalid": self.invalid_mag}, "param_load_error": self.params.load_error,
+            "sensors": None if self.sensors is None else {
+                "spec": self.opts.sensors, "name": self.sensors.name,
+                "kinds": sorted(k.value for k in self.source_kinds),
+                "samples": self.sensors.stats.samples, "flagged": self.sensors.stats.flagged,
+                "read_errors": self.sensors.stats.read_errors, "last_error": self.sensors.stats.last_error,
+                "dropped_no_fc_clock": self.source_dropped_no_clock, "time_resyncs": self.source_time.resyncs,
+                "time_offset_s": self.source_time.offset_s, "ended": self.source_ended},
             "fc": {"autopilot": self.link.fc.conventions.name, "sysid": self.link.fc.sysid,
                    "mode": self.link.fc.mode_name, "armed": self.link.fc.armed},
             "events": self.events[-200:], "log_dir": str(self.log_dir),
@@ -816,6 +996,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or auto from the FC")
     p.add_argument("--mag-message", choices=MAG_MESSAGES, default=None,
                    help="magnetometer message to use (default: the first one the FC sends)")
+    p.add_argument("--sensors", default=None, metavar="SPEC",
+                   help="read sensors from this source instead of the FC's streams (kinds it lacks still come "
+                        "from the FC): i2c:/dev/i2c-1, ubx:/dev/ttyACM0:115200, dronecan:can0, "
+                        "dronecan:virtual:vbus0, replay:log.bin?speed=1, or several joined with + "
+                        "(default: MAVLink only)")
     p.add_argument("--startup-s", type=float, default=None,
                    help="stationary averaging before the first step, s of message time (default NAV_PERIOD_S)")
     p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
@@ -830,14 +1015,15 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
     return AppOptions(connect=args.connect, params=args.params, log_dir=args.log_dir, sysid=args.sysid,
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
-                      request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet)
+                      request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
+                      sensors=args.sensors)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         app = CompanionApp(options_from_args(args))
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, SensorError) as err:
         print(f"fcmpc-companion: {err}", file=sys.stderr)
         return 2
     if app.params.load_error:
@@ -851,6 +1037,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, stop)
     try:
         return app.run()
+    except SensorError as err:
+        print(f"fcmpc-companion: sensor source {args.sensors!r} failed: {err}", file=sys.stderr)
+        return 2
     except OSError as err:
         print(f"fcmpc-companion: {err}", file=sys.stderr)
         return 2
