@@ -1107,6 +1107,16 @@ def write_outputs(ev: ReplayEvaluation, out: Path, plots: bool = True) -> list[P
     return written
 
 
+def _save(fig, path: Path) -> Path:
+    """Lay out, write as PNG and close a figure; returns its path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def _shade(ax, ev: ReplayEvaluation) -> None:
     seg = ev.segments
     ax.axvspan(seg.nav_start_s, seg.end_s, color="tab:green", alpha=0.08, lw=0)
@@ -1147,10 +1157,7 @@ def _plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     axes[0].legend(fontsize=7, ncol=3, loc="lower right")
     axes[1].set_xlabel("log time (s)")
     axes[0].set_title(f"{Path(ev.log).name}: D and I measured vs {ev.model} (green: airborne span judged)")
-    fig.tight_layout()
-    fig.savefig(out / "di.png", dpi=120)
-    plt.close(fig)
-    written.append(out / "di.png")
+    written.append(_save(fig, out / "di.png"))
 
     fig, ax = plt.subplots(figsize=(10, 5.5))
     for w in windows:
@@ -1173,10 +1180,7 @@ def _plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Geomagnetic fix, INS-only drift and fused error")
-    fig.tight_layout()
-    fig.savefig(out / "errors.png", dpi=120)
-    plt.close(fig)
-    written.append(out / "errors.png")
+    written.append(_save(fig, out / "errors.png"))
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for w in windows:
@@ -1193,10 +1197,7 @@ def _plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=3)
     ax.set_title("Course commanded by the open-loop Fc-MPC vs course over ground flown")
-    fig.tight_layout()
-    fig.savefig(out / "heading.png", dpi=120)
-    plt.close(fig)
-    written.append(out / "heading.png")
+    written.append(_save(fig, out / "heading.png"))
 
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     ax.plot(s["gps_e"], s["gps_n"], "k-", lw=1.5, label="GPS")
@@ -1210,10 +1211,7 @@ def _plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     ax.set_title("Track: GPS vs INS-only (to the end of the airborne span)")
-    fig.tight_layout()
-    fig.savefig(out / "track.png", dpi=120)
-    plt.close(fig)
-    written.append(out / "track.png")
+    written.append(_save(fig, out / "track.png"))
     return written
 
 
