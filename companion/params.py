@@ -99,6 +99,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
     _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
     _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
+    _p("NAV_ELEMENTS", int, 0, 0, 2, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free"),
+    _p("NAV_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
+    _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -118,6 +121,10 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MPC_S_MIN_I", float, 10.0, -90.0, 90.0, "deg", "state bound S_min on I (Table 4)"),
     _p("MPC_S_MAX_D", float, 100.0, -180.0, 180.0, "deg", "state bound S_max on D (Table 4)"),
     _p("MPC_S_MAX_I", float, 100.0, -90.0, 100.0, "deg", "state bound S_max on I (Table 4)"),
+    _p("MPC_S_MIN_F", float, 20000.0, 0.0, 100000.0, "nT", "state bound S_min on total intensity F (element set (I, F), MPC_S_AUTO = 0)"),
+    _p("MPC_S_MAX_F", float, 70000.0, 0.0, 100000.0, "nT", "state bound S_max on F"),
+    _p("MPC_S_AUTO", int, 1, 0, 1, "", "1 state bounds from the mission's start and destination field +- MPC_S_MARGIN; 0 the MPC_S_MIN_*/MAX_* values (Table 4)"),
+    _p("MPC_S_MARGIN", float, 10.0, 0.1, 90.0, "deg", "margin of the automatic state bounds for D and I (F: 360 nT per degree)"),
     _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
     # --- fusion (eq. 46-58, Table 3) ---
     _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the fix is weak: smallest singular value of the model G"),
@@ -128,7 +135,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     # --- companion process (link, outputs, failsafes) ---
     _p("COMP_SP_RATE_HZ", float, 5.0, 2.5, 50.0, "Hz", "setpoint stream rate (PX4 offboard needs > 2 Hz)"),
     _p("COMP_ARM_ENABLE", int, 0, 0, 1, "", "1 lets the companion switch to GUIDED/OFFBOARD and arm"),
-    _p("COMP_POS_PUB", int, 0, 0, 2, "", "publish the fused position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off"),
+    _p("COMP_POS_PUB", int, 3, 0, 3, "", "give the FC our position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off, 3 GPS_INPUT once the FC has no GPS of its own"),
     _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
     _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
@@ -308,6 +315,12 @@ class NavConfig(_FromRegistry):
     s_min_i: float = _from("MPC_S_MIN_I")
     s_max_d: float = _from("MPC_S_MAX_D")
     s_max_i: float = _from("MPC_S_MAX_I")
+    s_min_f: float = _from("MPC_S_MIN_F")
+    s_max_f: float = _from("MPC_S_MAX_F")
+    s_auto: int = _from("MPC_S_AUTO")
+    s_margin_deg: float = _from("MPC_S_MARGIN")
+    elements: int = _from("NAV_ELEMENTS")
+    calibrate: int = _from("NAV_CALIBRATE")
     solver: int = _from("MPC_SOLVER")
     fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
     fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)
@@ -329,6 +342,7 @@ class CompanionConfig(_FromRegistry):
     setpoint_rate_hz: float = _from("COMP_SP_RATE_HZ")
     arm_enable: int = _from("COMP_ARM_ENABLE")
     position_publish: int = _from("COMP_POS_PUB")
+    heading_source: int = _from("NAV_HEADING_SRC")
     mag_timeout_s: float = _from("COMP_MAG_TMO_S")
     att_timeout_s: float = _from("COMP_ATT_TMO_S")
     heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")

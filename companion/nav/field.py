@@ -31,6 +31,7 @@ from importlib import resources
 import numpy as np
 from numpy.typing import ArrayLike
 
+from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.geo import offset_position
 
 __all__ = [
@@ -41,6 +42,8 @@ __all__ = [
     "load_wmm",
     "model_for_date",
     "decl_incl_gradient",
+    "element_gradient",
+    "element_fix",
     "PositionFix",
     "PositionFixError",
     "geomagnetic_fix",
@@ -415,32 +418,39 @@ def model_for_date(year: float, override: str | None = None) -> WorldMagneticMod
     return model
 
 
-def _wrap_deg(angle_deg: float) -> float:
-    """Angle difference wrapped into [-180, 180) degrees (declination may cross +-180)."""
-    return (angle_deg + 180.0) % 360.0 - 180.0
-
-
 def _elements_and_gradient(
-    model: WorldMagneticModel, lat_deg: float, lon_deg: float, alt_m: float, year: float, step_m: float
-) -> tuple[float, float, np.ndarray]:
-    """(D, I) in degrees at the point and G = d(D, I)/d(east, north) in deg/m, from one model call.
+    model: WorldMagneticModel, lat_deg: float, lon_deg: float, alt_m: float, year: float, step_m: float,
+    elements: ElementSet = ELEMENT_SETS[ElementSet.PAPER],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two elements S at the point and G = dS/d(east, north) per metre, from one model call.
 
     Central differences over +-step_m east and north in the local tangent plane; the error is
     O(step^2) times the third derivative, negligible for the smooth degree-12 field at 500 m.
+    Declination differences are wrapped, so G stays right where D crosses +-180 degrees.
     """
     east = np.array([0.0, step_m, -step_m, 0.0, 0.0])
     north = np.array([0.0, 0.0, 0.0, step_m, -step_m])
     lats, lons = offset_position(lat_deg, lon_deg, east, north)
-    field = model.elements(lats, lons, alt_m, year)
-    decl, incl = field.decl_deg, field.incl_deg
+    values = elements.values(model.elements(lats, lons, alt_m, year))   # (2, 5)
     span = 2.0 * step_m
-    gradient = np.array(
-        [
-            [_wrap_deg(decl[1] - decl[2]) / span, _wrap_deg(decl[3] - decl[4]) / span],
-            [(incl[1] - incl[2]) / span, (incl[3] - incl[4]) / span],
-        ]
-    )
-    return float(decl[0]), float(incl[0]), gradient
+    gradient = np.stack([elements.difference(values[:, 1], values[:, 2]),
+                         elements.difference(values[:, 3], values[:, 4])], axis=1) / span
+    return values[:, 0].copy(), gradient
+
+
+def element_gradient(
+    model: WorldMagneticModel,
+    elements: ElementSet,
+    lat_deg: float,
+    lon_deg: float,
+    alt_m: float,
+    year: float,
+    step_m: float = 500.0,
+) -> np.ndarray:
+    """Jacobian ``G = dS/d(east, north)`` of an element set's S, per metre (rows in the set's order)."""
+    if not (math.isfinite(step_m) and step_m > 0.0):
+        raise ValueError(f"step_m must be a positive number of metres, got {step_m}")
+    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m, elements)[1]
 
 
 def decl_incl_gradient(
@@ -460,7 +470,7 @@ def decl_incl_gradient(
     """
     if not (math.isfinite(step_m) and step_m > 0.0):
         raise ValueError(f"step_m must be a positive number of metres, got {step_m}")
-    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m)[2]
+    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m)[1]
 
 
 class PositionFixError(RuntimeError):
@@ -472,10 +482,11 @@ class PositionFix:
     """A geomagnetic position fix (the paper's (lambda_c, phi_c), eq. 49).
 
     ``lat_deg``, ``lon_deg``: WGS84 degrees. ``iterations``: Newton steps taken.
-    ``residual_deg``: norm of the (D, I) residual at the fix, degrees. ``condition``: 2-norm
+    ``residual_deg``: norm of the element residual at the fix, in the elements' units (degrees
+    for (D, I); mixed degrees and nT for (I, F)). ``condition``: 2-norm
     condition number of G at the fix (large means one direction is poorly observable).
-    ``gradient``: the model's G at the fix, deg/m (rows D, I; columns east, north): a (D, I)
-    error e maps to a position error G^-1 e.
+    ``gradient``: the model's G at the fix, element units per metre (rows in the element set's
+    order; columns east, north): an element error e maps to a position error G^-1 e.
     """
 
     lat_deg: float
@@ -518,22 +529,46 @@ def geomagnetic_fix(
 ) -> PositionFix:
     """The position whose model (D, I) equals the measured (D, I): the paper's eq. 49.
 
-    Newton iteration on the square system ``(D, I)(p) = (decl_deg, incl_deg)`` in the local
-    east/north plane, starting at the prior position: at each iterate p solve ``G dp = -r`` with
-    the residual ``r = (D(p) - decl_deg wrapped, I(p) - incl_deg)`` in degrees and G from
-    :func:`decl_incl_gradient`, shorten dp to at most ``max_step_m`` metres, and move with
-    :func:`companion.nav.geo.offset_position`. It has converged once a step is shorter than
-    ``tol_m`` metres; the fix is the position after that step, with its residual and condition.
+    :func:`element_fix` on the paper's element set; see there.
+    """
+    return element_fix(model, ELEMENT_SETS[ElementSet.PAPER], (decl_deg, incl_deg), prior_lat_deg,
+                       prior_lon_deg, alt_m, year, max_iter=max_iter, tol_m=tol_m, max_step_m=max_step_m,
+                       max_condition=max_condition, step_m=step_m)
 
-    (D, I) contours can cross more than once on the globe; the iteration finds the crossing the
+
+def element_fix(
+    model: WorldMagneticModel,
+    elements: ElementSet,
+    target: ArrayLike,
+    prior_lat_deg: float,
+    prior_lon_deg: float,
+    alt_m: float,
+    year: float,
+    max_iter: int = 20,
+    tol_m: float = 1.0,
+    max_step_m: float = 200e3,
+    max_condition: float = 1e6,
+    step_m: float = 500.0,
+) -> PositionFix:
+    """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
+
+    Newton iteration on the square system ``S(p) = target`` in the local east/north plane,
+    starting at the prior position: at each iterate p solve ``G dp = -r`` with the residual
+    ``r = S(p) - target`` (declination wrapped) and G from :func:`element_gradient`, shorten dp
+    to at most ``max_step_m`` metres, and move with :func:`companion.nav.geo.offset_position`.
+    It has converged once a step is shorter than ``tol_m`` metres; the fix is the position after
+    that step, with its residual and condition.
+
+    Element contours can cross more than once on the globe; the iteration finds the crossing the
     prior leads to, so the prior should be within a few hundred km. Raises PositionFixError for
-    non-finite inputs, when cond(G) exceeds ``max_condition`` (D and I contours nearly parallel:
+    non-finite inputs, when cond(G) exceeds ``max_condition`` (the two contours nearly parallel:
     the fix is unobservable along one direction), when an iterate nears a geographic pole, or
-    when ``max_iter`` steps do not converge (e.g. a (D, I) pair the field never takes nearby).
+    when ``max_iter`` steps do not converge (e.g. a pair the field never takes nearby).
     A year outside the model's span raises the model's ValueError.
     """
+    target = np.asarray(target, dtype=float)
     inputs = {
-        "decl_deg": decl_deg, "incl_deg": incl_deg, "prior_lat_deg": prior_lat_deg,
+        **dict(zip(elements.names, (float(v) for v in target))), "prior_lat_deg": prior_lat_deg,
         "prior_lon_deg": prior_lon_deg, "alt_m": alt_m, "year": year,
     }
     bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
@@ -552,17 +587,17 @@ def geomagnetic_fix(
     lat, lon = float(prior_lat_deg), float(prior_lon_deg)
     last_step_m = math.inf
     for iteration in range(max_iter + 1):
-        decl, incl, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m)
-        residual = np.array([_wrap_deg(decl - decl_deg), incl - incl_deg])
-        residual_deg = math.hypot(*residual)
+        values, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m, elements)
+        residual = elements.difference(values, target)
+        residual_norm = math.hypot(*residual)
         condition = _condition_2x2(gradient)
-        where = f"at ({lat:.6f}, {lon:.6f}) deg after {iteration} iterations, residual {residual_deg:.3g} deg"
+        where = f"at ({lat:.6f}, {lon:.6f}) deg after {iteration} iterations, residual {residual_norm:.3g}"
         if not condition <= max_condition:  # also catches NaN
             raise PositionFixError(
                 f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) {where}"
             )
         if last_step_m < tol_m:
-            return PositionFix(lat, lon, iteration, residual_deg, condition, gradient)
+            return PositionFix(lat, lon, iteration, residual_norm, condition, gradient)
         if iteration == max_iter:
             break
         step = np.linalg.solve(gradient, -residual)
@@ -575,5 +610,5 @@ def geomagnetic_fix(
             raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; {where}")
     raise PositionFixError(
         f"no convergence within {max_iter} iterations: {where}, last Newton step {last_step_m:.3g} m "
-        f"(target D {decl_deg} deg, I {incl_deg} deg)"
+        f"(target {elements.label} = {tuple(float(v) for v in target)})"
     )

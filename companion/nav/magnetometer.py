@@ -195,7 +195,8 @@ class SpikeFilter:
 
 @dataclass(frozen=True)
 class AveragedDI:
-    """D and I averaged over ``count`` samples; NaN when there were none."""
+    """D, I and the total intensity ``f_nt`` (nT) averaged over ``count`` samples; NaN when there
+    were none. F is the mean of the per-sample magnitudes, so it needs no attitude at all."""
 
     decl_deg: float
     incl_deg: float
@@ -204,6 +205,7 @@ class AveragedDI:
     first_time_s: float
     last_time_s: float
     field_ned_nt: Vector3 = (math.nan, math.nan, math.nan)
+    f_nt: float = math.nan
 
     @property
     def valid(self) -> bool:
@@ -224,7 +226,7 @@ class PeriodAverager:
     """
 
     def __init__(self) -> None:
-        self._samples: list[tuple[float, float, float, float, float, float]] = []
+        self._samples: list[tuple[float, float, float, float, float, float, float]] = []
         self._ref_d: float | None = None
 
     def __len__(self) -> int:
@@ -234,7 +236,8 @@ class PeriodAverager:
         if self._ref_d is None:
             self._ref_d = decl_deg
         d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
-        self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2]))
+        self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2], math.sqrt(
+            ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2])))
 
     def take(self, end_time_s: float) -> AveragedDI:
         """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
@@ -244,10 +247,10 @@ class PeriodAverager:
         if not used:
             return AveragedDI(math.nan, math.nan, 0, math.nan, math.nan, math.nan)
         n = len(used)
-        sums = [math.fsum(s[k] for s in used) for k in range(6)]
+        sums = [math.fsum(s[k] for s in used) for k in range(7)]
         d = (sums[1] / n + 180.0) % 360.0 - 180.0
         return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
-                          (sums[3] / n, sums[4] / n, sums[5] / n))
+                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n)
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]

@@ -40,7 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion import course_from_theta
-from companion.nav.field import PositionFixError, WorldMagneticModel, geomagnetic_fix, model_for_date
+from companion.nav.elements import ElementSet, element_set
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, model_for_date
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.gradient import GradientEstimator
@@ -50,14 +51,15 @@ from companion.params import Controller, NavConfig
 
 __all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES", "FROZEN_IN_FLIGHT"]
 
-ARCSEC_PER_DEG = 3600.0
 KMH = 1.0 / 3.6
+F_NT_PER_DEG = 360.0   # automatic bounds and the fusion gate: a degree of D or I counts as 360 nT of F
 WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
 
 
 # Settings a running mission keeps until it ends: they define where it goes, what it has
 # estimated so far (gradient, filter) or the shape of its QP bounds.
 FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
+                    "elements", "calibrate", "s_auto", "s_margin_deg",
                     "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
                     "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback")
 
@@ -75,10 +77,12 @@ class Phase:
 class Measurement:
     """Inputs of one step.
 
-    ``time_s``: message time at the end of the step. ``decl_deg``, ``incl_deg``: D and I averaged
-    over the last ``window_s`` seconds (0: an instantaneous value); the mission refers the value
-    to the centre of that window, half a window back along the move. INS position in degrees,
-    NaN when the source has none.
+    ``time_s``: message time at the end of the step. ``decl_deg``, ``incl_deg``, ``f_nt``: D, I
+    and the total intensity F averaged over the last ``window_s`` seconds (0: an instantaneous
+    value); the mission uses the two of its element set (NAV_ELEMENTS) and refers them to the
+    centre of that window, half a window back along the move. INS position in degrees, NaN when
+    the source has none (or when it is not independent of this navigator: GPS-aided, or our
+    own estimate fed back).
     """
 
     time_s: float
@@ -87,6 +91,7 @@ class Measurement:
     ins_lat_deg: float = math.nan
     ins_lon_deg: float = math.nan
     window_s: float = 0.0
+    f_nt: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -136,21 +141,28 @@ class _Last:
 
 
 class Mission:
-    """One mission from start to destination; see the module docstring."""
+    """One mission from start to destination; see the module docstring.
 
-    def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None) -> None:
+    ``bias``: the start-up calibration of the element set's two elements (measured minus model
+    at a known start, in the elements' units), subtracted from every measurement; None for
+    none. ``config.elements`` 0 (auto) means (D, I) here: the caller resolves auto from the
+    heading source it knows about.
+    """
+
+    def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None,
+                 bias: tuple[float, float] | None = None) -> None:
         self.config = config
         if model is None:
             model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
         self.model = model
-        dest = model.elements(config.dest_lat_deg, config.dest_lon_deg, config.alt_m, config.year)
-        self.s_dest = np.array([float(dest.decl_deg), float(dest.incl_deg)])
-        for value, low, high, names in ((self.s_dest[0], config.s_min_d, config.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
-                                        (self.s_dest[1], config.s_min_i, config.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I")):
-            if not low <= value <= high:
-                # Table 4's bounds suit the paper's northern mid-latitude mission only
-                raise ValueError(f"the destination's field ({value:.2f} deg) lies outside the state bounds "
-                                 f"[{low:g}, {high:g}] deg of {names}: widen them for this mission")
+        self.elements: ElementSet = element_set(config.elements or ElementSet.PAPER)
+        self.bias = np.zeros(2) if bias is None else np.asarray(bias, dtype=float)
+        if self.bias.shape != (2,) or not np.all(np.isfinite(self.bias)):
+            raise ValueError(f"the element bias must be two finite numbers, got {bias!r}")
+        field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
+        self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
+        self.s_lower, self.s_upper = self._state_bounds(field_at(config.start_lat_deg, config.start_lon_deg))
+        self._degree_equivalent = np.array([F_NT_PER_DEG if n == "f_nt" else 1.0 for n in self.elements.names])
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(self._mpc_settings())
         self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
@@ -182,12 +194,32 @@ class Mission:
             self.mpc = MpcController(self._mpc_settings())
         return deferred
 
+    def _state_bounds(self, s_start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """S_min, S_max in element units: from the start and destination field +- MPC_S_MARGIN
+        (MPC_S_AUTO = 1), or the MPC_S_MIN_*/MAX_* values (Table 4), which must hold the
+        destination's field."""
+        c = self.config
+        margins = np.array([c.s_margin_deg * (F_NT_PER_DEG if n == "f_nt" else 1.0) for n in self.elements.names])
+        if c.s_auto == 1:
+            ends = np.stack([s_start, self.s_dest])
+            return ends.min(axis=0) - margins, ends.max(axis=0) + margins
+        table = {"decl_deg": (c.s_min_d, c.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
+                 "incl_deg": (c.s_min_i, c.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I"),
+                 "f_nt": (c.s_min_f, c.s_max_f, "MPC_S_MIN_F/MPC_S_MAX_F")}
+        for value, name in zip(self.s_dest, self.elements.names):
+            low, high, names = table[name]
+            if not low <= value <= high:
+                # Table 4's bounds suit the paper's northern mid-latitude mission only
+                raise ValueError(f"the destination's field ({value:.2f}) lies outside the state bounds "
+                                 f"[{low:g}, {high:g}] of {names}: widen them, or set MPC_S_AUTO 1")
+        return (np.array([table[n][0] for n in self.elements.names]),
+                np.array([table[n][1] for n in self.elements.names]))
+
     # --- units of the QP -------------------------------------------------------------------
-    def _units(self) -> tuple[float, float]:
-        """(QP state units per degree, metres per second per QP input unit)."""
-        if self.config.mpc_units == 1:
-            return 1.0, KMH
-        return ARCSEC_PER_DEG, self.config.speed_mps
+    def _units(self) -> tuple[np.ndarray, float]:
+        """(QP state units per element unit, metres per second per QP input unit)."""
+        scale = self.elements.qp_scale(self.config.mpc_units)
+        return scale, (KMH if self.config.mpc_units == 1 else self.config.speed_mps)
 
     def _mpc_settings(self) -> MpcSettings:
         c = self.config
@@ -199,7 +231,8 @@ class Mission:
         return MpcSettings(
             horizon=c.horizon, q=(c.q_d, c.q_i), f=(c.f_d, c.f_i), r=(c.r_x, c.r_y),
             u_lower=u_lower, u_upper=u_upper,
-            s_lower=(c.s_min_d * s_unit, c.s_min_i * s_unit), s_upper=(c.s_max_d * s_unit, c.s_max_i * s_unit),
+            s_lower=tuple(float(v) for v in self.s_lower * s_unit),
+            s_upper=tuple(float(v) for v in self.s_upper * s_unit),
             solver=SOLVERS[c.solver])
 
     # --- the step ------------------------------------------------------------------------------
@@ -208,7 +241,7 @@ class Mission:
         reason and changes nothing, so the caller can retry with the next one."""
         if self.finished is not None:
             return self.finished
-        s = np.array([meas.decl_deg, meas.incl_deg], dtype=float)
+        s = self.elements.values(meas) - self.bias
         if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.all(np.isfinite(s))):
             return self._hold(meas.time_s, "non-finite measurement")
         if self.last is not None and meas.time_s <= self.last.time_s:
@@ -223,7 +256,7 @@ class Mission:
         # the averaged measurement describes the centre of its window, half a window back
         self.window_lag_en = self.last.velocity_en * min(max(meas.window_s, 0.0), dt) / 2.0
         sample_en = self.dead_reckoned_en - self.window_lag_en
-        g = self.gradient.observe(s - self.last.s, sample_en - self.last.sample_en, self.last.theta_rad,
+        g = self.gradient.observe(self.elements.difference(s, self.last.s), sample_en - self.last.sample_en, self.last.theta_rad,
                                   *self.last.velocity_en, dt, frozen=c.controller == Controller.LTI)
         if self.k == 1:
             return self._probe(meas.time_s, s, math.radians(c.probe2_deg), Phase.PROBE_2)
@@ -243,11 +276,11 @@ class Mission:
                 aim = self.reference.aim_point(self.est[0], self.est[1], c.lookahead_m)
                 distance, course_to_aim = geodesic_inverse(self.est[0], self.est[1], *aim)
                 to_aim = distance * np.array([math.sin(course_to_aim), math.cos(course_to_aim)])
-            xi = (self.s_dest - s) - g @ to_aim            # what the linear model cannot explain
+            xi = self.elements.difference(self.s_dest, s) - g @ to_aim   # what the linear model cannot explain
             target = self.s_dest - xi                      # = S + G * to_aim
         else:
             try:
-                to_dest = np.linalg.solve(g, self.s_dest - s)
+                to_dest = np.linalg.solve(g, self.elements.difference(self.s_dest, s))
                 remaining = float(np.hypot(*to_dest))
             except np.linalg.LinAlgError:
                 remaining = math.inf
@@ -259,7 +292,7 @@ class Mission:
             return self._finish(meas.time_s, Phase.FAILED, "step limit reached", remaining, fix, fused, sigma)
 
         s_unit, u_unit = self._units()
-        b = g * c.period_s * u_unit * s_unit                  # B = G T in QP units (eq. 15)
+        b = s_unit[:, None] * g * c.period_s * u_unit         # B = G T in QP units (eq. 15)
         if c.u_bounds == 1:
             b = b * self.quadrant                             # solve in the destination's quadrant
         target_qp = target * s_unit
@@ -295,15 +328,17 @@ class Mission:
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
         """Geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
         fix is weak (Algorithm 1's min |G| < sigma, read as the smallest singular value of the
-        model's G at the fix: the estimated G is too noisy to judge the fix by) or failed."""
+        model's G at the fix in degrees per metre, F counted at F_NT_PER_DEG: the estimated G is
+        too noisy to judge the fix by) or failed."""
         c = self.config
         lag_e, lag_n = self.window_lag_en
         prior = offset_position(self.est[0], self.est[1], -lag_e, -lag_n)
         try:
-            fix_result = geomagnetic_fix(self.model, s[0], s[1], float(prior[0]), float(prior[1]), c.alt_m, c.year)
+            fix_result = element_fix(self.model, self.elements, s, float(prior[0]), float(prior[1]), c.alt_m, c.year)
             fix = tuple(float(v) for v in offset_position(fix_result.lat_deg, fix_result.lon_deg, lag_e, lag_n))
-            # the fix is as good as the field's gradient where it lands (a D/I error e moves it G^-1 e)
-            weak = float(np.linalg.svd(fix_result.gradient, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
+            # the fix is as good as the field's gradient where it lands (an error e moves it G^-1 e)
+            in_degrees = fix_result.gradient / self._degree_equivalent[:, None]
+            weak = float(np.linalg.svd(in_degrees, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
         except PositionFixError:
             fix, weak = None, True
         have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)

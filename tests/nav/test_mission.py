@@ -92,7 +92,7 @@ class NoiselessWorld:
 
     def measure(self) -> Measurement:
         e = self.model.elements(self.lat, self.lon, self.nav.alt_m, self.nav.year)
-        return Measurement(self.time_s, float(e.decl_deg), float(e.incl_deg))
+        return Measurement(self.time_s, float(e.decl_deg), float(e.incl_deg), f_nt=float(e.f_nt))
 
     def fly(self, command) -> Measurement:
         end = WGS84.Direct(self.lat, self.lon, math.degrees(command.course_rad), command.speed_mps * self.nav.period_s)
@@ -359,11 +359,65 @@ def test_mission_does_not_fail_on_a_solvable_qp(pacific, truth):
 
 
 def test_destination_outside_the_state_bounds_is_refused_at_start():
-    """Table 4's S_min = [-10, 10] excludes the southern hemisphere (I < 0): a clear error
-    naming the parameters instead of an infeasible QP in flight."""
+    """Table 4's S_min = [-10, 10] (MPC_S_AUTO 0) excludes the southern hemisphere (I < 0): a clear
+    error naming the parameters instead of an infeasible QP in flight."""
     nav = NavConfig.from_values(validate_all({"NAV_START_LAT": -35.0, "NAV_START_LON": 149.0,
-                                              "NAV_DEST_LAT": -36.0, "NAV_DEST_LON": 150.0}))
+                                              "NAV_DEST_LAT": -36.0, "NAV_DEST_LON": 150.0, "MPC_S_AUTO": 0}))
     with pytest.raises(ValueError, match="MPC_S_MIN_I"):
         Mission(nav)
     wide = nav.replace(s_min_i=-90.0, s_min_d=-180.0, s_max_d=180.0)
     assert Mission(wide).s_dest[1] < 0.0
+
+
+@pytest.mark.parametrize("start, dest", [((-35.0, 149.0), (-35.5, 150.0)), ((1.0, -30.0), (-0.5, -29.0))])
+def test_any_route_flies_with_the_default_bounds(start, dest):
+    """MPC_S_AUTO 1 (default): bounds from the mission's own field, so southern-hemisphere and
+    equatorial missions fly and arrive (noiseless world) without touching MPC_S_MIN_*/MAX_*."""
+    nav = NavConfig.from_values(validate_all({"NAV_START_LAT": start[0], "NAV_START_LON": start[1],
+                                              "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1]}))
+    model = model_for_date(nav.year)
+    commands, world, mission = fly_noiseless(nav, model)
+    assert commands[-1].phase == Phase.ARRIVED, commands[-1]
+    assert world.miss_m() < 2.0 * nav.arrive_m
+    assert np.all(mission.s_lower <= mission.s_dest) and np.all(mission.s_dest <= mission.s_upper)
+
+
+def test_heading_free_elements_arrive(model):
+    """NAV_ELEMENTS 2 steers on (I, F), which need no heading: the noiseless mission arrives, and a
+    declination that is pure garbage (what a compass-derived yaw gives) does not matter."""
+    nav = nav_config(None, NAV_ELEMENTS=2)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    rng = np.random.default_rng(3)
+    garbage = lambda m: dataclasses.replace(m, decl_deg=float(rng.uniform(-180.0, 180.0)))  # noqa: E731
+    commands = [mission.step(garbage(world.measure()))]
+    while not commands[-1].done and len(commands) < 300:
+        commands.append(mission.step(garbage(world.fly(commands[-1]))))
+    assert mission.elements.names == ("incl_deg", "f_nt")
+    assert commands[-1].phase == Phase.ARRIVED, commands[-1]
+    assert world.miss_m() < 2.0 * nav.arrive_m
+    assert_commands_sane(commands, nav)
+
+
+@pytest.mark.parametrize("elements", [1, 2])
+def test_start_up_bias_is_removed_from_every_measurement(model, elements):
+    """A constant measurement bias (model error, calibration residual) that the caller measured at
+    the start is subtracted: the biased world flown with the bias given ends where the unbiased
+    one does; without it, the mission ends kilometres away."""
+    nav = nav_config(None, NAV_ELEMENTS=elements)
+    bias = (0.05, 0.05) if elements == 1 else (0.05, 40.0)   # deg, deg / deg, nT
+    names = Mission(nav, model).elements.names
+
+    def biased(m: Measurement) -> Measurement:
+        return dataclasses.replace(m, **{n: getattr(m, n) + b for n, b in zip(names, bias)})
+
+    def fly(given):
+        world, mission = NoiselessWorld(nav, model), Mission(nav, model, bias=given)
+        commands = [mission.step(biased(world.measure()))]
+        while not commands[-1].done and len(commands) < 300:
+            commands.append(mission.step(biased(world.fly(commands[-1]))))
+        return commands[-1], world.miss_m()
+
+    (last, miss_calibrated), (_, miss_raw) = fly(bias), fly(None)
+    assert last.phase == Phase.ARRIVED
+    assert miss_calibrated < 2.0 * nav.arrive_m
+    assert miss_raw > 2000.0

@@ -25,7 +25,9 @@ flagged, not dropped (``valid`` False, so
 :class:`~companion.io.sensors.base.StalenessMonitor` does not count them as fresh):
 non-finite values (READ_ERROR), int16 saturation -32768/32767 mG, which is how a NaN
 reaches the integer messages (OVERFLOW), exactly (0, 0, 0), a dead or absent sensor
-(READ_ERROR), and the identical raw triple ``stuck_count`` times in a row (STUCK).
+(READ_ERROR), and the identical raw triple ``stuck_count`` times in a row while the
+ATTITUDE turned by 2 degrees or more (STUCK; a quiet or noise-free magnetometer on a still
+vehicle repeats its reading and is fine, :class:`~companion.io.sensors.quality.FrozenDetector`).
 :attr:`MavlinkDecoder.last_problem` says which. Times are the flight controller's boot time
 (:class:`companion.io.mavlink_link.MessageClock`).
 """
@@ -38,7 +40,7 @@ from companion import wrap_2pi
 from companion.io.mavlink_link import MavlinkLink, MessageClock
 from companion.io.sensors.base import AttitudeSample, GpsSample, ImuSample, MagSample, Sample, SampleFlag, \
     SensorError, SensorSource
-from companion.io.sensors.quality import RepeatDetector
+from companion.io.sensors.quality import FrozenDetector
 from companion.nav.magnetometer import GAUSS_TO_NT, MILLIGAUSS_TO_NT
 
 __all__ = ["FcPosition", "MavlinkDecoder", "MavlinkSource"]
@@ -80,7 +82,8 @@ class MavlinkDecoder:
         self.imu = imu   # False: skip ImuSample (a user that needs only the magnetometer saves the work)
         self.mag_message = mag_message
         self._mag_type: dict[int, str] = {}
-        self._stuck: dict[int, RepeatDetector] = {}
+        self._stuck: dict[int, FrozenDetector] = {}
+        self._attitude: tuple[float, float, float] | None = None
         self._stuck_count = stuck_count
         self.rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.fc_position: FcPosition | None = None
@@ -101,10 +104,11 @@ class MavlinkDecoder:
             self.last_problem["mag"] = "magnetometer reads exactly zero (sensor off?)"
         detector = self._stuck.get(instance)
         if detector is None:
-            detector = self._stuck[instance] = RepeatDetector(self._stuck_count)
-        if detector.check(raw) is not SampleFlag.NONE:
+            detector = self._stuck[instance] = FrozenDetector(self._stuck_count)
+        if detector.check(raw, self._attitude) is not SampleFlag.NONE:
             if not flags:   # a stuck zero or saturated reading keeps its more telling reason
-                self.last_problem["mag"] = f"magnetometer stuck ({self._stuck_count} identical readings)"
+                self.last_problem["mag"] = (f"magnetometer stuck ({self._stuck_count} identical readings "
+                                            "while the vehicle turned)")
             flags |= SampleFlag.STUCK
         return flags
 
@@ -126,6 +130,7 @@ class MavlinkDecoder:
             values = (msg.roll, msg.pitch, msg.yaw)
             self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
             if _finite(*values, *self.rates):
+                self._attitude = values
                 return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
             self.last_problem["attitude"] = "non-finite ATTITUDE"
             return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from companion.io.sensors.base import SampleFlag, Vector3
 
-__all__ = ["MagChecks", "MagQualityCheck", "RepeatDetector"]
+__all__ = ["MagChecks", "MagQualityCheck", "RepeatDetector", "FrozenDetector"]
 
 
 class RepeatDetector:
@@ -38,6 +38,46 @@ class RepeatDetector:
             self._last = raw
             self._repeats = 1
         return SampleFlag.STUCK if self._repeats >= self.limit else SampleFlag.NONE
+
+
+class FrozenDetector:
+    """Flags STUCK when the raw reading stays identical while the vehicle turned.
+
+    A quiet magnetometer (ArduPilot SITL's is noise-free; a real one at 10 Hz with a coarse LSB
+    can repeat its value) may repeat its reading for as long as the vehicle holds its
+    attitude. A *frozen* one repeats it although the body turned: a rotation of ``min_turn_rad``
+    changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT),
+    many LSB. So the judgement needs ``limit`` identical readings in a row *and* an attitude
+    change of at least ``min_turn_rad`` (largest of the roll, pitch and yaw changes) since the
+    repetition began. Without any attitude the repetition alone cannot tell, and nothing is flagged.
+
+    >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
+    >>> [d.check((1, 2, 3), (0.0, 0.0, 0.0)) for _ in range(5)][-1] == SampleFlag.NONE   # still
+    True
+    >>> d.check((1, 2, 3), (0.0, 0.0, 0.1)) == SampleFlag.STUCK                           # turned
+    True
+    """
+
+    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0)) -> None:
+        if limit < 2:
+            raise ValueError(f"stuck limit must be >= 2 repeats, got {limit}")
+        self.limit = limit
+        self.min_turn_rad = min_turn_rad
+        self._last: Hashable | None = None
+        self._repeats = 0
+        self._attitude_then: tuple[float, float, float] | None = None
+
+    def check(self, raw: Hashable, attitude: tuple[float, float, float] | None) -> SampleFlag:
+        if raw != self._last:
+            self._last, self._repeats, self._attitude_then = raw, 1, attitude
+            return SampleFlag.NONE
+        self._repeats += 1
+        if self._attitude_then is None:
+            self._attitude_then = attitude
+        if self._repeats < self.limit or attitude is None or self._attitude_then is None:
+            return SampleFlag.NONE
+        turned = max(abs((a - b + math.pi) % (2.0 * math.pi) - math.pi) for a, b in zip(attitude, self._attitude_then))
+        return SampleFlag.STUCK if turned >= self.min_turn_rad else SampleFlag.NONE
 
 
 @dataclass(frozen=True)

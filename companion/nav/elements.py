@@ -1,0 +1,106 @@
+"""Which magnetic elements the navigator measures and steers on: the navigation state S.
+
+The paper navigates on ``S = (D, I)`` (eq. 1-2). Declination needs a heading reference that is
+independent of the magnetometer: ``D = heading_of_the_field - yaw``. On ArduPilot and PX4 the
+flight controller's yaw comes from this same compass and a declination table evaluated at the
+flight controller's own position, so D measured against it is that table value plus the yaw
+error: no position information at all. The heading-free pair ``(I, F)``, inclination and total
+intensity, needs only the magnetometer (F) and the gravity-referenced tilt (I); it carries the
+same information as ``(H, Z)`` (a change of coordinates), so one heading-free pair suffices.
+
+Each :class:`ElementSet` says which two elements form S, in which unit each enters the state
+(degrees for angles, nanotesla for intensities), how a difference is formed (declination wraps
+at +-180 deg) and how many QP units one element unit is (:meth:`ElementSet.qp_scale`), so that
+the MPC (eq. 13-38) sees both elements on comparable scales.
+
+Conditioning on the paper's Pacific route (WMM2020, 2024.36): grad D points at -42 deg (from
+east, counter-clockwise), grad I at +88..+94 deg, grad F at +114..+117 deg. (D, I) are 130 deg
+apart, well conditioned; (I, F) only 23-27 deg apart, so a fix on (I, F) is about 2.3 times
+less certain across the I/F contours than along them (1 / sin 25 deg): the price of not
+needing a heading.
+
+>>> ELEMENT_SETS[ElementSet.HEADING_FREE].names
+('incl_deg', 'f_nt')
+>>> float(ELEMENT_SETS[ElementSet.PAPER].difference([179.0, 40.0], [-179.0, 39.0])[0])
+-2.0
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ["ElementSet", "ELEMENT_SETS", "element_set", "ELEMENT_NAMES"]
+
+ARCSEC_PER_DEG = 3600.0
+# One QP unit per 0.1 nT: a cruise step (5 km) on the Pacific route changes F by 10-25 nT,
+# i.e. 100-250 units, the same order as I's 50-200 arcsec, so Q = I weighs both alike.
+QP_UNITS_PER_NT = 10.0
+# Paper units (MPC_UNITS = 1) keep degrees for angles; F then enters in hundreds of nT, so a
+# degree of I and 100 nT of F (each about 100 km of travel here) count alike.
+PAPER_UNITS_PER_NT = 0.01
+
+ELEMENT_NAMES = {"decl_deg": "D", "incl_deg": "I", "f_nt": "F"}
+
+
+@dataclass(frozen=True)
+class ElementSet:
+    """Two magnetic elements forming the navigation state S.
+
+    ``names``: attribute names of :class:`companion.nav.field.FieldElements` (and of
+    :class:`companion.nav.mission.Measurement`), in state order. ``code``: the NAV_ELEMENTS value.
+    """
+
+    code: int
+    names: tuple[str, str]
+
+    PAPER = 1          # (D, I): needs an independent heading
+    HEADING_FREE = 2   # (I, F): magnetometer and tilt only
+
+    @property
+    def label(self) -> str:
+        """Short label such as ``"(D, I)"``."""
+        return "(" + ", ".join(ELEMENT_NAMES[n] for n in self.names) + ")"
+
+    @property
+    def uses_declination(self) -> bool:
+        return "decl_deg" in self.names
+
+    def values(self, source) -> np.ndarray:
+        """The two elements of ``source`` (FieldElements, Measurement or any object with the names)."""
+        return np.array([getattr(source, name) for name in self.names], dtype=float)
+
+    def difference(self, a: ArrayLike, b: ArrayLike) -> np.ndarray:
+        """``a - b`` element-wise, declination wrapped into [-180, 180) degrees."""
+        diff = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+        if self.uses_declination:
+            k = self.names.index("decl_deg")
+            diff[..., k] = (diff[..., k] + 180.0) % 360.0 - 180.0
+        return diff
+
+    def qp_scale(self, mpc_units: int) -> np.ndarray:
+        """QP state units per element unit: arc-seconds per degree and 0.1 nT (scaled, default),
+        or degrees and hundreds of nT (MPC_UNITS = 1, the paper's degrees)."""
+        per_deg = 1.0 if mpc_units == 1 else ARCSEC_PER_DEG
+        per_nt = PAPER_UNITS_PER_NT if mpc_units == 1 else QP_UNITS_PER_NT
+        return np.array([per_nt if name == "f_nt" else per_deg for name in self.names])
+
+    def finite(self, source) -> bool:
+        return all(math.isfinite(getattr(source, name)) for name in self.names)
+
+
+ELEMENT_SETS: dict[int, ElementSet] = {
+    ElementSet.PAPER: ElementSet(ElementSet.PAPER, ("decl_deg", "incl_deg")),
+    ElementSet.HEADING_FREE: ElementSet(ElementSet.HEADING_FREE, ("incl_deg", "f_nt")),
+}
+
+
+def element_set(code: int) -> ElementSet:
+    """The element set of a NAV_ELEMENTS value (1 or 2); ValueError otherwise (0, auto, is
+    resolved by the caller, who knows the heading source)."""
+    try:
+        return ELEMENT_SETS[int(code)]
+    except (KeyError, ValueError, TypeError):
+        raise ValueError(f"NAV_ELEMENTS {code!r} is not a concrete element set (1 (D, I), 2 (I, F))") from None
