@@ -90,6 +90,7 @@ from pathlib import Path  # noqa: E402
 
 from companion import wrap_2pi  # noqa: E402
 from companion.failsafe import Health, HealthLimits, diverged  # noqa: E402
+from companion.fc_view import FcView  # noqa: E402
 from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
 from companion.io.param_server import ENCODINGS, ParamServer  # noqa: E402
 from companion.io.records import StepRecorder, write_summary  # noqa: E402
@@ -97,8 +98,10 @@ from companion.io.sensors.base import SampleKind, SensorError, SensorSource, Str
 from companion.io.sensors.factory import make_source  # noqa: E402
 from companion.io.sensors.mavlink_source import MAG_MESSAGES, MavlinkDecoder  # noqa: E402
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position  # noqa: E402
+from companion.nav.elements import ELEMENT_SETS, ElementSet  # noqa: E402
 from companion.nav.magnetometer import AttitudeState, MagCalibration, MagProcessor  # noqa: E402
-from companion.nav.mission import FROZEN_IN_FLIGHT, Command, Measurement, Mission, Phase  # noqa: E402
+from companion.nav.field import model_for_date  # noqa: E402
+from companion.nav.mission import FROZEN_IN_FLIGHT, WMM_NAMES, Command, Measurement, Mission, Phase  # noqa: E402
 from companion.params import CompanionConfig, NavConfig  # noqa: E402
 
 __all__ = ["AppOptions", "CompanionApp", "SourceTimeMap", "State", "build_parser", "main", "benchmark",
@@ -119,7 +122,7 @@ SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-ti
 LIVE_FROZEN_FIELDS = FROZEN_IN_FLIGHT
 
 # Streams requested from the flight controller (MAV_CMD_SET_MESSAGE_INTERVAL), Hz.
-STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "SYSTEM_TIME": 1.0}
+STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "GPS2_RAW": 1.0, "SYSTEM_TIME": 1.0}
 MAG_STREAM_HZ = 10.0
 
 
@@ -242,6 +245,9 @@ class CompanionApp:
                                 self.comp_cfg.spike_nt)
         self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
         self.health = Health(self._limits())
+        self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish)
+        self.elements_code = 0          # the element set of the running mission (resolved NAV_ELEMENTS)
+        self.bias: tuple[float, float] | None = None
         if self.params.load_error:
             self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
                                         f"{self.params.load_error}")
@@ -306,6 +312,7 @@ class CompanionApp:
         self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
                            self.comp_cfg.spike_nt)
         self.health.limits = self._limits()
+        self.fc_view.position_publish = self.comp_cfg.position_publish
         new_nav = NavConfig.from_values(values)
         self.nav_cfg = new_nav
         if self.mission is not None and self.state == State.RUNNING:
@@ -396,6 +403,7 @@ class CompanionApp:
         link = self.link
         if link.observe(msg):
             self.messages_from_fc += 1
+            self.fc_view.packet(msg, link.clock.now_s)
             if link.clock.reboots != self.fc_reboots:
                 self._on_fc_reboot()
             was_detected = self.state != State.WAIT_FC
@@ -497,6 +505,7 @@ class CompanionApp:
         self.mag.attitude = None
         self.decoder.fc_position = None
         self.dr = None
+        self.fc_view.feed.stop()
         reason = "flight controller rebooted (its clock went back)"
         if self.state == State.RUNNING and self.command is not None:
             self._nav_failure(reason, self.command)
@@ -538,6 +547,7 @@ class CompanionApp:
         self.last_tick_time = now
         if self.state == State.WAIT_FC:
             self._on_fc_detected()
+        self.fc_view.poll_requests(self.link, now)
         reasons = self._evaluate_health()
         sent = False
         if self.state == State.STARTUP:
@@ -548,6 +558,7 @@ class CompanionApp:
             sent = self._running(now, reasons, dt)
         if self.state == State.DONE:
             self._hold_if_guided(now)
+        self._feed_position(now)
         if not sent:
             self.stream_since = math.nan
             if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going
@@ -561,6 +572,7 @@ class CompanionApp:
         fc = self.link.fc
         self.fc_detected_at = self.now
         self._say(f"FcMPC: {fc.conventions.name} FC sysid {fc.sysid} detected, mode {fc.mode_name}")
+        self.fc_view.start(fc.conventions.family, fc.conventions.param_bytewise, self.now)
         if self.opts.request_streams:
             self._request_streams()
         self._enter_startup("start-up")
@@ -650,6 +662,8 @@ class CompanionApp:
             self.mag.clear()
             return
         if now - self.startup_begin >= self._startup_window() and len(self.mag.averager):
+            if self.fc_view.heading_verdict(now) is None:
+                return   # still reading the FC's heading parameters: keep averaging
             self.state = State.READY
             self._say(f"FcMPC: ready, start-up average of {len(self.mag.averager)} samples"
                       + ("" if self.comp_cfg.arm_enable else "; arm in GUIDED/OFFBOARD to start"))
@@ -677,9 +691,66 @@ class CompanionApp:
             if streamed >= conv.offboard_prestream_s and now - self.last_mode_cmd >= COMMAND_RETRY_S:
                 self.link.send_guided_mode()
                 self.last_mode_cmd = now
-        elif not fc.armed and now - self.last_arm_cmd >= COMMAND_RETRY_S:
+        elif not fc.armed:
+            self._arm_with_backoff(now)
+
+    def _arm_with_backoff(self, now: float) -> None:
+        """Arm; a refusal (COMMAND_ACK) is said once with the FC's reason, and the retry backs off."""
+        fc, backoff = self.link.fc, self.fc_view.arming
+        arm = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+        result = fc.acks.pop(arm, None)
+        if result is not None and result not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+            wait = backoff.refused(self.fc_view.prearm_text)
+            self._say(f"FcMPC: arming refused by the FC ({backoff.last_reason or f'result {result}'}); "
+                      f"retry in {wait:g} s"[:200], mavlink.MAV_SEVERITY_WARNING)
+        if now - self.last_arm_cmd >= backoff.interval_s:
+            self.fc_view.prearm_text = ""
             self.link.send_arm(True)
             self.last_arm_cmd = now
+
+    def _feed_position(self, now: float) -> None:
+        """GPS_INPUT at the tick rate while the FC has no GPS (COMP_POS_PUB 3), see :mod:`companion.fc_view`."""
+        view, feed = self.fc_view, self.fc_view.feed
+        if not view.feed_due(now) or self.state == State.WAIT_FC:
+            if feed.started:
+                feed.stop()
+                self._say("FcMPC: FC has GPS again: position feed stopped", mavlink.MAV_SEVERITY_NOTICE)
+            return
+        estimate = self._current_estimate()
+        if not feed.started:
+            pos = self.decoder.fc_position
+            if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+                feed.start(now, pos.lat_deg, pos.lon_deg, self._feed_sigma())
+            elif estimate is not None:
+                feed.start(now, estimate[0], estimate[1], self._feed_sigma())
+            else:
+                return
+            if estimate is not None:
+                feed.correct_to(now, estimate[0], estimate[1], self._feed_sigma())
+            self._say("FcMPC: FC has no GPS: feeding our position (GPS_INPUT)", mavlink.MAV_SEVERITY_NOTICE)
+        following = self.state == State.RUNNING and not self.failsafe_active and not math.isfinite(self.paused_since)
+        cmd = self.command if following else None
+        vn, ve = (cmd.speed_mps * math.cos(cmd.course_rad), cmd.speed_mps * math.sin(cmd.course_rad)) \
+            if cmd is not None and not cmd.done else (0.0, 0.0)
+        if (vn, ve) != feed.velocity_ne:
+            feed.set_velocity(now, vn, ve)
+        sample = feed.sample(now)
+        if sample is not None:
+            self.link.send_gps_input(sample.lat_deg, sample.lon_deg, sample.sigma_m)
+
+    def _current_estimate(self) -> tuple[float, float] | None:
+        """The navigator's latest position: the mission's estimate, else the start it would use."""
+        cmd = self.command
+        if cmd is not None and math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
+            return cmd.est_lat_deg, cmd.est_lon_deg
+        lat, lon, _ = self._start_position()
+        return (lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None
+
+    def _feed_sigma(self) -> float:
+        cmd = self.command
+        if cmd is not None and math.isfinite(cmd.est_sigma_m):
+            return cmd.est_sigma_m
+        return math.sqrt(self.nav_cfg.fusion_rc_m2)
 
     def _ready(self, now: float, reasons: list[str]) -> bool:
         self.mag.drop_before(now - self._startup_window())   # a sliding window while waiting
@@ -705,16 +776,49 @@ class CompanionApp:
         if self._params_dirty:
             self._apply_params()
         lat, lon, source = self._start_position()
-        config = self.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon))
-        self.mission = Mission(config)
+        self.elements_code, why = self._resolve_elements(now)
+        config = self.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=self.elements_code)
+        self.m0 = self.mission_time(now)
+        startup = self.mag.take(self.m0)
+        self.bias, calibration = self._calibration(config, startup, source)
+        self.mission = Mission(config, bias=self.bias)
         self.mission_no += 1
         self.hold_commanded = False
         self.was_following = True
-        self.m0 = self.mission_time(now)
         self.state = State.RUNNING
         self.last_phase = ""
         self._say(f"FcMPC: mission {self.mission_no} start {lat:.4f},{lon:.4f} ({source})")
-        self._step(self.m0, window_limit_s=0.0)
+        self._say(f"FcMPC: elements {ELEMENT_SETS[self.elements_code].label}: {why}"[:200])
+        if calibration:
+            self._say(f"FcMPC: {calibration}"[:200])
+        self._step(self.m0, window_limit_s=0.0, avg=startup)
+
+    def _resolve_elements(self, now: float) -> tuple[int, str]:
+        """NAV_ELEMENTS resolved against the heading source: never D with a compass-derived yaw."""
+        verdict = self.fc_view.heading_verdict(now)
+        requested = self.nav_cfg.elements
+        if verdict is None or verdict.compass_derived:
+            reason = verdict.reason if verdict is not None else "heading source unknown"
+            if requested == ElementSet.PAPER:
+                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS 1 asks for D, but the FC yaw is compass-derived "
+                                                 f"({reason}): D is no measurement")
+            return ElementSet.HEADING_FREE, f"FC yaw is compass-derived ({reason})"
+        if requested == 0:
+            return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
+        return requested, f"NAV_ELEMENTS {requested} ({verdict.reason})"
+
+    def _calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, float] | None, str]:
+        """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""
+        if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
+            return None, "" if not config.calibrate else f"not calibrated (start from {source})"
+        elements = ELEMENT_SETS[config.elements]
+        model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
+        expected = elements.values(model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year))
+        bias = elements.difference(elements.values(startup), expected)
+        units = ["nT" if n == "f_nt" else "deg" for n in elements.names]
+        words = ", ".join(f"{n[0].upper()} {b:+.3f} {u}" if u == "deg" else f"F {b:+.0f} {u}"
+                          for n, b, u in zip(elements.names, bias, units))
+        return (float(bias[0]), float(bias[1])), f"calibrated at the GPS start: measured - model = {words}"
 
     def _running(self, now: float, reasons: list[str], dt: float) -> bool:
         fc = self.link.fc
@@ -770,6 +874,9 @@ class CompanionApp:
             self.dr = (now, float(lat), float(lon))
 
     def _ins_position(self, now: float) -> tuple[float, float, str]:
+        independent, why = self.fc_view.position_independent(now)
+        if not independent:   # GPS-aided or our own estimate: never an INS to fuse with
+            return math.nan, math.nan, f"none: FC position {why}"
         pos = self.decoder.fc_position
         if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
             return pos.lat_deg, pos.lon_deg, "fc"
@@ -778,14 +885,15 @@ class CompanionApp:
         return math.nan, math.nan, "none"
 
     # ------------------------------------------------------------------ the control step
-    def _step(self, t_k: float, window_limit_s: float | None = None) -> None:
+    def _step(self, t_k: float, window_limit_s: float | None = None, avg=None) -> None:
         wall0 = time.perf_counter()
         now = self.now
         if self._params_dirty:
             self._apply_params()
         mission = self.mission
         period = mission.config.period_s
-        avg = self.mag.take(t_k)
+        if avg is None:
+            avg = self.mag.take(t_k)
         if not avg.valid:
             # nothing to measure (should not happen: a silent magnetometer pauses the mission);
             # keep flying the command and measure again one period later (the core's dead
@@ -795,7 +903,7 @@ class CompanionApp:
             return
         window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
         ins_lat, ins_lon, ins_source = self._ins_position(now)
-        meas = Measurement(t_k - self.m0, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window)
+        meas = Measurement(t_k - self.m0, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window, avg.f_nt)
         core0 = time.perf_counter()
         cmd = mission.step(meas)
         core_latency = time.perf_counter() - core0
@@ -811,6 +919,8 @@ class CompanionApp:
             if diverged(gap, self.comp_cfg.diverge_m):
                 nav_fault = f"estimate diverged: {gap / 1000.0:.1f} km from the geomagnetic fix"
         self._publish(cmd, avg)
+        if self.fc_view.feed.started and cmd.phase == Phase.CRUISE:
+            self.fc_view.feed.correct_to(now, cmd.est_lat_deg, cmd.est_lon_deg, self._feed_sigma())
         latency = time.perf_counter() - wall0
         self.step_latency_s.append(latency)
         self.core_latency_s.append(core_latency)
@@ -832,7 +942,7 @@ class CompanionApp:
 
     def _publish(self, cmd: Command, avg) -> None:
         link = self.link
-        for name, value in (("FC_D", avg.decl_deg), ("FC_I", avg.incl_deg), ("FC_ERR", cmd.est_sigma_m),
+        for name, value in (("FC_D", avg.decl_deg), ("FC_I", avg.incl_deg), ("FC_F", avg.f_nt), ("FC_ERR", cmd.est_sigma_m),
                             ("FC_REM", cmd.remaining_m), ("FC_SOLV", cmd.solver_time_s), ("FC_STEP", cmd.step)):
             if math.isfinite(value):
                 link.send_named_float(name, value)
@@ -895,7 +1005,7 @@ class CompanionApp:
         self.recorder.write({
             "wall_time_s": time.time(), "msg_time_s": self.now, "mission_time_s": meas.time_s,
             "mission": self.mission_no, "step": cmd.step, "phase": cmd.phase, "decl_deg": meas.decl_deg,
-            "incl_deg": meas.incl_deg, "samples": avg.count, "window_s": meas.window_s, "spikes": st.spikes,
+            "incl_deg": meas.incl_deg, "f_nt": meas.f_nt, "samples": avg.count, "window_s": meas.window_s, "spikes": st.spikes,
             "invalid": st.non_finite + self.invalid_mag, "ins_lat_deg": meas.ins_lat_deg,
             "ins_lon_deg": meas.ins_lon_deg, "ins_source": ins_source, "est_lat_deg": cmd.est_lat_deg,
             "est_lon_deg": cmd.est_lon_deg, "est_sigma_m": cmd.est_sigma_m, "fix_lat_deg": cmd.fix_lat_deg,
@@ -948,9 +1058,19 @@ class CompanionApp:
                 "dropped_no_fc_clock": self.source_dropped_no_clock, "time_resyncs": self.source_time.resyncs,
                 "time_offset_s": self.source_time.offset_s, "ended": self.source_ended},
             "fc": {"autopilot": self.link.fc.conventions.name, "sysid": self.link.fc.sysid,
-                   "mode": self.link.fc.mode_name, "armed": self.link.fc.armed},
+                   "mode": self.link.fc.mode_name, "armed": self.link.fc.armed,
+                   "heading": self._heading_summary(), "positions_fed": self.link.stats.positions_fed,
+                   "arming_refusals": self.fc_view.arming.refusals},
+            "elements": ELEMENT_SETS[self.elements_code].label if self.elements_code else "",
+            "bias": list(self.bias) if self.bias is not None else None,
             "events": self.events[-200:], "log_dir": str(self.log_dir),
         }
+
+    def _heading_summary(self) -> str:
+        verdict = self.fc_view.heading_verdict(self.now) if self.link.fc.detected else None
+        if verdict is None:
+            return "unknown"
+        return ("compass-derived: " if verdict.compass_derived else "independent: ") + verdict.reason
 
     def _write_summary(self) -> None:
         try:

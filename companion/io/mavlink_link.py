@@ -20,10 +20,20 @@ mode change            MAV_CMD_DO_SET_MODE(1, 15)      MAV_CMD_DO_SET_MODE(1, 6,
 parameter INT32 value  C cast (float holds the value)  bytewise (float holds the int's bits)
 =====================  ==============================  ====================================
 
-Setpoints: SET_POSITION_TARGET_GLOBAL_INT in MAV_FRAME_GLOBAL_INT with a velocity + yaw
-``type_mask`` (position, acceleration and yaw rate ignored): ``vx`` north, ``vy`` east, ``vz``
-0, ``yaw`` the course in (-pi, pi]; ``time_boot_ms`` is the latest flight-controller time seen
-(a lockstep simulator paces its clock on it).
+Setpoints: SET_POSITION_TARGET_GLOBAL_INT in MAV_FRAME_GLOBAL_INT, ``vx`` north, ``vy`` east,
+``vz`` 0; ``time_boot_ms`` is the latest flight-controller time seen (a lockstep simulator
+paces its clock on it). The ``type_mask`` follows the autopilot (:attr:`FcConventions.setpoint_mask`):
+
+* ArduPilot Rover and boats: **velocity only** (3527, yaw ignored). With a yaw in the message,
+  Rover's GUIDED takes the sign of the north component as the direction of travel and reverses
+  on every southward course (measured on ArduPilot SITL: 62,973 of 64,413 moving seconds
+  backwards); with velocity alone it steers to the velocity's direction and drives forward
+  (ArduPilot ``Rover/mode_guided.cpp``, ``GCS_MAVLink_Rover.cpp`` handle_set_position_target).
+* PX4: velocity + yaw (2503, ``yaw`` the course in (-pi, pi]): the offboard controllers take
+  the yaw as the heading to hold, and it equals the velocity's direction, so forward on every
+  course (PX4 ``mavlink_receiver.cpp`` handle_message_set_position_target_global_int).
+* ArduPilot Plane does not follow velocity setpoints in GUIDED (it flies to a position or takes
+  MAV_CMD_GUIDED_CHANGE_HEADING); not supported here yet.
 """
 from __future__ import annotations
 
@@ -41,11 +51,13 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink.mavutil is imported:
 from pymavlink import mavutil  # noqa: E402
 
 from companion import wrap_pi  # noqa: E402
+from companion.io.position_feed import gps_week_time  # noqa: E402
 
 __all__ = [
     "mavlink",
     "COMPANION_COMPONENT",
     "VELOCITY_YAW_TYPE_MASK",
+    "VELOCITY_ONLY_TYPE_MASK",
     "UnsafeSetpoint",
     "Setpoint",
     "guard_setpoint",
@@ -66,6 +78,9 @@ VELOCITY_YAW_TYPE_MASK = (
     | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 )  # = 2503: velocity + yaw
+VELOCITY_ONLY_TYPE_MASK = VELOCITY_YAW_TYPE_MASK | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE   # = 3527
+GPS_INPUT_IGNORE = (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ | mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT
+                    | mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
 STATUSTEXT_CHUNK = 50
 EXT_POS_TIME_WRAP_S = 250.0   # MAV_CMD_EXTERNAL_POSITION_ESTIMATE param1: wrap <= 250 s
 
@@ -126,6 +141,8 @@ class FcConventions:
     hold_sub: int
     param_bytewise: bool
     offboard_prestream_s: float   # setpoints to stream before switching to the guided mode
+    setpoint_mask: int            # SET_POSITION_TARGET type_mask this autopilot reads as a course
+    family: str                   # "ardupilot" or "px4": which of its parameters to read
 
     def custom_mode(self, main: int, sub: int) -> int:
         if self.autopilot == mavlink.MAV_AUTOPILOT_PX4:
@@ -159,8 +176,10 @@ class FcConventions:
 
 
 ARDUPILOT = FcConventions("ArduPilot", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 15, 0, 4, 0,
-                          param_bytewise=False, offboard_prestream_s=0.0)
-PX4 = FcConventions("PX4", mavlink.MAV_AUTOPILOT_PX4, 6, 0, 4, 3, param_bytewise=True, offboard_prestream_s=1.0)
+                          param_bytewise=False, offboard_prestream_s=0.0,
+                          setpoint_mask=VELOCITY_ONLY_TYPE_MASK, family="ardupilot")
+PX4 = FcConventions("PX4", mavlink.MAV_AUTOPILOT_PX4, 6, 0, 4, 3, param_bytewise=True, offboard_prestream_s=1.0,
+                    setpoint_mask=VELOCITY_YAW_TYPE_MASK, family="px4")
 
 
 def conventions_for(autopilot: int) -> FcConventions:
@@ -276,6 +295,7 @@ class LinkStats:
     messages_out: int = 0
     setpoints_sent: int = 0
     setpoints_refused: int = 0
+    positions_fed: int = 0
     last_refusal: str = ""
 
 
@@ -438,7 +458,8 @@ class MavlinkLink:
         self.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, state)
 
     def send_setpoint(self, course_rad: float, speed_mps: float, max_speed_mps: float) -> bool:
-        """SET_POSITION_TARGET_GLOBAL_INT (velocity + yaw), or nothing if :func:`guard_setpoint` refuses."""
+        """SET_POSITION_TARGET_GLOBAL_INT (velocity, with the yaw where the autopilot wants it), or
+        nothing if :func:`guard_setpoint` refuses."""
         try:
             sp = guard_setpoint(course_rad, speed_mps, max_speed_mps)
         except UnsafeSetpoint as err:
@@ -447,7 +468,7 @@ class MavlinkLink:
             return False
         self.mav.set_position_target_global_int_send(
             self.time_boot_ms(), self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL_INT,
-            VELOCITY_YAW_TYPE_MASK, 0, 0, 0.0, sp.vn_mps, sp.ve_mps, 0.0, 0.0, 0.0, 0.0, sp.yaw_rad, 0.0)
+            self.fc.conventions.setpoint_mask, 0, 0, 0.0, sp.vn_mps, sp.ve_mps, 0.0, 0.0, 0.0, 0.0, sp.yaw_rad, 0.0)
         self.stats.setpoints_sent += 1
         return True
 
@@ -526,4 +547,26 @@ class MavlinkLink:
                                mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
                                float(north_m), float(east_m), nan, [nan, nan, nan, nan], nan, nan, nan,
                                nan, nan, nan, pose_cov, [nan] * 21, 0, mavlink.MAV_ESTIMATOR_TYPE_NAIVE, 50)
+        return True
+
+    def send_gps_input(self, lat_deg: float, lon_deg: float, sigma_m: float, alt_m: float = 0.0,
+                       satellites: int = 10) -> bool:
+        """GPS_INPUT as a MAVLink GPS (ArduPilot GPSn_TYPE 14, gps_id 1 = the second GPS).
+
+        Position only (velocities flagged ignored: the flight controller derives them from the
+        positions); ``horiz_accuracy`` the honest 1-sigma; GPS week and week-ms from the flight
+        controller's own clock (SYSTEM_TIME), as its GPS checks compare them.
+        """
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
+            return False
+        if self.clock.unix_minus_boot_s is None or not self.clock.started:
+            return False   # no date yet: a GPS without time fails the flight controller's checks
+        unix_s = self.clock.now_s + self.clock.unix_minus_boot_s
+        week, week_ms = gps_week_time(unix_s)
+        accuracy = float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else 100.0
+        lon = ((lon_deg + 180.0) % 360.0) - 180.0
+        self.mav.gps_input_send(int(unix_s * 1e6), 1, GPS_INPUT_IGNORE, week_ms, week, 3,
+                                int(round(lat_deg * 1e7)), int(round(lon * 1e7)), float(alt_m),
+                                1.0, 1.0, 0.0, 0.0, 0.0, 0.0, min(accuracy, 1e6), 5.0, satellites)
+        self.stats.positions_fed += 1
         return True

@@ -3,6 +3,9 @@
 Serves exactly :data:`companion.params.REGISTRY`, in registry order (``param_index``), to
 PARAM_REQUEST_LIST, PARAM_REQUEST_READ (by index or name) and PARAM_SET addressed to this
 system (or system 0) and to component 191 or MAV_COMP_ID_ALL (0); anything else is ignored.
+A name the registry does not know, addressed to all components, belongs to another component
+(the flight controller's CRUISE_SPEED) and is left alone without a word; addressed to 191 it
+is refused with a STATUSTEXT.
 
 Values
     Float parameters go out as MAV_PARAM_TYPE_REAL32, integer ones as MAV_PARAM_TYPE_INT32.
@@ -177,8 +180,9 @@ class ParamServer:
         name = self._clean_id(msg.param_id)
         spec = SPEC_BY_NAME.get(name)
         if spec is None:
-            self.sets_refused += 1
-            self.link.send_statustext(f"FcMPC: no parameter {name[:30]}", mavlink.MAV_SEVERITY_WARNING)
+            if msg.target_component != 0:   # to all components: the flight controller's (CRUISE_SPEED), not ours
+                self.sets_refused += 1
+                self.link.send_statustext(f"FcMPC: no parameter {name[:30]}", mavlink.MAV_SEVERITY_WARNING)
             return
         raw = _snap_to_bounds(spec, decode_value(spec, msg.param_value))
         try:

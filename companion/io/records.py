@@ -9,7 +9,7 @@ msg_time_s          flight-controller boot time of the step (message time)
 mission_time_s      time since the mission started, pauses excluded (what the core sees)
 mission, step       mission number (restarts count up) and the core's step index
 phase               the core's phase after the step (probe1, probe2, cruise, arrived, ...)
-decl_deg, incl_deg  the averaged measurement passed to the core
+decl_deg, incl_deg  the averaged measurement passed to the core (f_nt: total intensity, nT)
 samples, window_s   magnetometer samples in the average and the window passed to the core
 spikes, invalid     cumulative rejected samples (spike filter; invalid/saturated/stuck/NaN)
 ins_lat/lon_deg     INS position passed to the core; ``ins_source`` fc | dead_reckoning | none
@@ -37,7 +37,7 @@ from pathlib import Path
 __all__ = ["STEP_COLUMNS", "StepRecorder", "write_summary", "read_steps_csv"]
 
 STEP_COLUMNS = (
-    "wall_time_s", "msg_time_s", "mission_time_s", "mission", "step", "phase", "decl_deg", "incl_deg", "samples",
+    "wall_time_s", "msg_time_s", "mission_time_s", "mission", "step", "phase", "decl_deg", "incl_deg", "f_nt", "samples",
     "window_s", "spikes", "invalid", "ins_lat_deg", "ins_lon_deg", "ins_source", "est_lat_deg", "est_lon_deg",
     "est_sigma_m", "fix_lat_deg", "fix_lon_deg", "fused", "remaining_m", "course_deg", "speed_mps", "solver_ok",
     "solver_time_s", "step_latency_s", "event", "reason", "gps_fix", "gps_lat_deg", "gps_lon_deg",

@@ -116,6 +116,8 @@ def test_navigation_failure_holds_and_restarts(rig, bad, why):
 
 def test_good_step_streams_and_publishes(rig):
     app, fc = rig
+    app.params.set_value("COMP_POS_PUB", 0)      # EXTERNAL_POSITION_ESTIMATE (the default is GPS_INPUT)
+    app._apply_params()
     _run_step(app, GOOD)
     app.next_tick = -math.inf
     app.tick()

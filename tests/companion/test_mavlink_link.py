@@ -12,7 +12,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from companion.io.mavlink_link import (  # noqa: E402
-    ARDUPILOT, PX4, VELOCITY_YAW_TYPE_MASK, MavlinkLink, MessageClock, UnsafeSetpoint, guard_setpoint, mavlink,
+    ARDUPILOT, PX4, VELOCITY_ONLY_TYPE_MASK, VELOCITY_YAW_TYPE_MASK, MavlinkLink, MessageClock, UnsafeSetpoint, guard_setpoint, mavlink,
     parse_connection,
 )
 from companion.io.sensors.base import SampleFlag, SampleKind  # noqa: E402
@@ -60,7 +60,9 @@ def test_bad_setpoints_never_reach_the_wire(tmp_path):
         assert link.send_setpoint(math.radians(90.0), 12.0, 13.9)
         got = receiver.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT", blocking=True, timeout=3.0)
         assert got is not None
-        assert got.type_mask == VELOCITY_YAW_TYPE_MASK == 2503
+        # ArduPilot (the default conventions): velocity only, or Rover reverses on southward courses
+        assert got.type_mask == VELOCITY_ONLY_TYPE_MASK == 3527
+        assert got.type_mask & mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
         assert got.coordinate_frame == mavlink.MAV_FRAME_GLOBAL_INT
         assert got.vx == pytest.approx(0.0, abs=1e-6) and got.vy == pytest.approx(12.0)
         assert got.yaw == pytest.approx(math.pi / 2) and got.time_boot_ms == 123_456
@@ -68,6 +70,11 @@ def test_bad_setpoints_never_reach_the_wire(tmp_path):
         assert all(math.isfinite(v) for v in (got.vx, got.vy, got.vz, got.yaw))
         # nothing else arrived: the refused ones were never sent
         assert receiver.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT", blocking=True, timeout=0.3) is None
+        link.fc.conventions = PX4   # PX4: velocity + yaw, the yaw along the velocity
+        assert link.send_setpoint(math.radians(200.0), 5.0, 13.9)
+        px4 = receiver.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT", blocking=True, timeout=3.0)
+        assert px4.type_mask == VELOCITY_YAW_TYPE_MASK == 2503
+        assert math.atan2(px4.vy, px4.vx) == pytest.approx(px4.yaw)
     finally:
         link.close()
         receiver.close()
