@@ -4,7 +4,7 @@ Three questions decide how the navigator may use what the flight controller repo
 
 1. **Is its yaw compass-derived?** (:mod:`companion.io.fc_params`) Then declination measured
    against it is not a measurement, and the navigator steers on the heading-free (I, F).
-   ``NAV_HEADING_SRC`` 1/2 declares the answer; 0 reads the flight controller's parameters.
+   ``COMP_HEADING_SRC`` 1/2 declares the answer; 0 reads the flight controller's parameters.
 2. **Is its position independent of this navigator?** GLOBAL_POSITION_INT is GPS-aided while
    the flight controller's own GPS (GPS_RAW_INT, which ArduPilot and PX4 send for their first
    receiver) has a 3D fix, and it is our own estimate fed back while we feed GPS_INPUT and the
@@ -77,9 +77,9 @@ class FcView:
         self.family = family
         self._verdict = None
         if self.heading_source == 1:
-            self._verdict = HeadingVerdict(False, "NAV_HEADING_SRC 1: declared independent of the compass")
+            self._verdict = HeadingVerdict(False, "COMP_HEADING_SRC 1: declared independent of the compass")
         elif self.heading_source == 2:
-            self._verdict = HeadingVerdict(True, "NAV_HEADING_SRC 2: declared compass-derived")
+            self._verdict = HeadingVerdict(True, "COMP_HEADING_SRC 2: declared compass-derived")
         else:
             self.reader = FcParamReader(HEADING_PARAMS[family], bytewise=bytewise)
             self.reader.started_s = now_s

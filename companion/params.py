@@ -100,7 +100,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
     _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
     _p("NAV_ELEMENTS", int, 0, 0, 2, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free"),
-    _p("NAV_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
+    _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
@@ -342,7 +342,7 @@ class CompanionConfig(_FromRegistry):
     setpoint_rate_hz: float = _from("COMP_SP_RATE_HZ")
     arm_enable: int = _from("COMP_ARM_ENABLE")
     position_publish: int = _from("COMP_POS_PUB")
-    heading_source: int = _from("NAV_HEADING_SRC")
+    heading_source: int = _from("COMP_HEADING_SRC")
     mag_timeout_s: float = _from("COMP_MAG_TMO_S")
     att_timeout_s: float = _from("COMP_ATT_TMO_S")
     heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")
