@@ -116,6 +116,10 @@ COMMAND_RETRY_S = 2.0             # message time between retries of mode/arm com
 HOLD_RETRY_S = 2.0
 STARTUP_GRACE_S = 5.0            # message time for the requested streams to arrive before complaining
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
+ECHO_SIGMA_M = 50.0               # what the echo of the FC's own GPS-aided position is worth to the feed
+FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
+ECHO_SATELLITES = 6               # fewer than a real receiver: the FC keeps its own GPS as primary
+FEED_SATELLITES = 10
 SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-time offset beyond this jump
 
 # NavConfig fields that define the mission: a change applies to the next mission only.
@@ -230,7 +234,8 @@ class CompanionApp:
         self.params.load()
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
-        self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=False)
+        model_for_date(self.nav_cfg.year, WMM_NAMES.get(self.nav_cfg.wmm))   # load the coefficients now, not at take-off
+        self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
         self.source_kinds = source_kinds(self.sensors) if self.sensors is not None else frozenset()
@@ -245,7 +250,8 @@ class CompanionApp:
                                 self.comp_cfg.spike_nt)
         self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
         self.health = Health(self._limits())
-        self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish)
+        self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish, self.comp_cfg.feed_blend_mps)
+        self.next_feed_s = -math.inf
         self.elements_code = 0          # the element set of the running mission (resolved NAV_ELEMENTS)
         self.bias: tuple[float, float] | None = None
         if self.params.load_error:
@@ -313,6 +319,7 @@ class CompanionApp:
                            self.comp_cfg.spike_nt)
         self.health.limits = self._limits()
         self.fc_view.position_publish = self.comp_cfg.position_publish
+        self.fc_view.feed.blend_mps = self.comp_cfg.feed_blend_mps
         new_nav = NavConfig.from_values(values)
         self.nav_cfg = new_nav
         if self.mission is not None and self.state == State.RUNNING:
@@ -416,6 +423,10 @@ class CompanionApp:
             if self.link.clock.now_s >= self.next_tick or not was_detected:
                 if self.link.clock.started:
                     self.tick()
+            if self.link.clock.now_s >= self.next_feed_s and self.state != State.WAIT_FC:
+                # 10 Hz: ArduPilot calls a GPS unhealthy when its updates average over 245 ms apart
+                self.next_feed_s = self.link.clock.now_s + FEED_PERIOD_S
+                self._feed_position(self.link.clock.now_s)
         elif msg._type in _PARAM_TYPES:
             self.params.mavlink_packet(msg)
 
@@ -435,6 +446,8 @@ class CompanionApp:
                     self.last_valid[_ATT] = t
         elif kind is _GPS:
             self.last_gps = sample if t == sample.time_s else replace(sample, time_s=t)
+        elif kind is SampleKind.IMU and not sample.flags:
+            self.mag.add_specific_force(t, sample.accel_body_mps2, sample.gyro_body_radps)
 
     def poll_sensors(self) -> None:
         """Periodic hook for ``--sensors``: take what the source has now (never waits)."""
@@ -506,6 +519,7 @@ class CompanionApp:
         self.decoder.fc_position = None
         self.dr = None
         self.fc_view.feed.stop()
+        self.fc_view.feeding_own = False
         reason = "flight controller rebooted (its clock went back)"
         if self.state == State.RUNNING and self.command is not None:
             self._nav_failure(reason, self.command)
@@ -558,7 +572,6 @@ class CompanionApp:
             sent = self._running(now, reasons, dt)
         if self.state == State.DONE:
             self._hold_if_guided(now)
-        self._feed_position(now)
         if not sent:
             self.stream_since = math.nan
             if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going
@@ -709,22 +722,37 @@ class CompanionApp:
             self.last_arm_cmd = now
 
     def _feed_position(self, now: float) -> None:
-        """GPS_INPUT at the tick rate while the FC has no GPS (COMP_POS_PUB 3), see :mod:`companion.fc_view`."""
+        """GPS_INPUT at the tick rate (COMP_POS_PUB 3), see :mod:`companion.fc_view`.
+
+        While the FC's own GPS has a fix, the feed echoes the FC's GPS-aided position, claiming
+        fewer satellites than a real receiver, so the FC keeps its own GPS as primary and its
+        arming checks see a healthy second GPS. Once its GPS is lost, the feed flies on from the
+        last echo with the commanded velocity and blends towards the navigator's estimate.
+        """
         view, feed = self.fc_view, self.fc_view.feed
-        if not view.feed_due(now) or self.state == State.WAIT_FC:
-            if feed.started:
-                feed.stop()
-                self._say("FcMPC: FC has GPS again: position feed stopped", mavlink.MAV_SEVERITY_NOTICE)
+        if not view.feed_wanted() or self.state == State.WAIT_FC:
+            feed.stop()
             return
+        pos = self.decoder.fc_position
+        fresh = pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S
+        if view.gps_has_fix(now):
+            if fresh:
+                feed.start(now, pos.lat_deg, pos.lon_deg, ECHO_SIGMA_M)
+                if view.feeding_own:
+                    self._say("FcMPC: FC has GPS again: position feed echoes it", mavlink.MAV_SEVERITY_NOTICE)
+                view.feeding_own = False
+                self.link.send_gps_input(pos.lat_deg, pos.lon_deg, self.comp_cfg.feed_accuracy_m,
+                                         satellites=ECHO_SATELLITES)
+            return
+        if not view.gps_seen and self.now - self.fc_detected_at < STARTUP_GRACE_S:
+            return   # no GPS_RAW_INT yet: do not take a slow stream for a lost GPS
         estimate = self._current_estimate()
         if not feed.started:
-            pos = self.decoder.fc_position
-            if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
-                feed.start(now, pos.lat_deg, pos.lon_deg, self._feed_sigma())
-            elif estimate is not None:
-                feed.start(now, estimate[0], estimate[1], self._feed_sigma())
-            else:
+            if estimate is None:
                 return
+            feed.start(now, estimate[0], estimate[1], self._feed_sigma())
+        if not view.feeding_own:
+            view.feeding_own = True
             if estimate is not None:
                 feed.correct_to(now, estimate[0], estimate[1], self._feed_sigma())
             self._say("FcMPC: FC has no GPS: feeding our position (GPS_INPUT)", mavlink.MAV_SEVERITY_NOTICE)
@@ -736,13 +764,18 @@ class CompanionApp:
             feed.set_velocity(now, vn, ve)
         sample = feed.sample(now)
         if sample is not None:
-            self.link.send_gps_input(sample.lat_deg, sample.lon_deg, sample.sigma_m)
+            self.link.send_gps_input(sample.lat_deg, sample.lon_deg, self.comp_cfg.feed_accuracy_m,
+                                     satellites=FEED_SATELLITES)
 
     def _current_estimate(self) -> tuple[float, float] | None:
         """The navigator's latest position: the mission's estimate, else the start it would use."""
         cmd = self.command
         if cmd is not None and math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
-            return cmd.est_lat_deg, cmd.est_lon_deg
+            # flown on with the command since its step (mission time stops while paused)
+            dt = max(self.mission_time() - self.m0 - cmd.time_s, 0.0) if not cmd.done else 0.0
+            lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, cmd.speed_mps * math.sin(cmd.course_rad) * dt,
+                                       cmd.speed_mps * math.cos(cmd.course_rad) * dt)
+            return float(lat), float(lon)
         lat, lon, _ = self._start_position()
         return (lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None
 
@@ -758,8 +791,9 @@ class CompanionApp:
             return False
         fc = self.link.fc
         if fc.armed and fc.guided:
+            sent = self._zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
             self._start_mission(now)
-            return False
+            return sent
         sent = self._zero_setpoint()
         self._engage(now)
         return sent
@@ -807,6 +841,13 @@ class CompanionApp:
             return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
         return requested, f"NAV_ELEMENTS {requested} ({verdict.reason})"
 
+    def _inclination(self, avg) -> float:
+        """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
+        elements, so neither a heading nor the FC's attitude estimate enters; else tilt-compensated."""
+        if self.elements_code == ElementSet.HEADING_FREE and math.isfinite(avg.incl_grav_deg):
+            return avg.incl_grav_deg
+        return avg.incl_deg
+
     def _calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, float] | None, str]:
         """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""
         if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
@@ -814,7 +855,8 @@ class CompanionApp:
         elements = ELEMENT_SETS[config.elements]
         model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
         expected = elements.values(model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year))
-        bias = elements.difference(elements.values(startup), expected)
+        measured = elements.values(replace(startup, incl_deg=self._inclination(startup)))
+        bias = elements.difference(measured, expected)
         units = ["nT" if n == "f_nt" else "deg" for n in elements.names]
         words = ", ".join(f"{n[0].upper()} {b:+.3f} {u}" if u == "deg" else f"F {b:+.0f} {u}"
                           for n, b, u in zip(elements.names, bias, units))
@@ -903,7 +945,7 @@ class CompanionApp:
             return
         window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
         ins_lat, ins_lon, ins_source = self._ins_position(now)
-        meas = Measurement(t_k - self.m0, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window, avg.f_nt)
+        meas = Measurement(t_k - self.m0, avg.decl_deg, self._inclination(avg), ins_lat, ins_lon, window, avg.f_nt)
         core0 = time.perf_counter()
         cmd = mission.step(meas)
         core_latency = time.perf_counter() - core0
@@ -919,7 +961,7 @@ class CompanionApp:
             if diverged(gap, self.comp_cfg.diverge_m):
                 nav_fault = f"estimate diverged: {gap / 1000.0:.1f} km from the geomagnetic fix"
         self._publish(cmd, avg)
-        if self.fc_view.feed.started and cmd.phase == Phase.CRUISE:
+        if self.fc_view.feeding_own and cmd.phase == Phase.CRUISE:
             self.fc_view.feed.correct_to(now, cmd.est_lat_deg, cmd.est_lon_deg, self._feed_sigma())
         latency = time.perf_counter() - wall0
         self.step_latency_s.append(latency)

@@ -11,10 +11,12 @@ Three questions decide how the navigator may use what the flight controller repo
    flight controller reports our GPS as its second (GPS2_RAW with a fix). Only otherwise (a
    navigation-grade INS free-running, as the simulator's, which ignores GPS_INPUT) is it an
    independent INS the fusion may use.
-3. **Does it need our position?** With ``COMP_POS_PUB`` 3, once its GPS has no 3D fix, the
-   companion feeds a smooth position (:class:`companion.io.position_feed.PositionFeed`) as
-   GPS_INPUT at the setpoint rate, starting from the flight controller's last GPS-aided
-   position and blending towards the navigator's estimate.
+3. **Does it need our position?** With ``COMP_POS_PUB`` 3 the companion sends GPS_INPUT at the
+   setpoint rate as the flight controller's second GPS: while its own GPS has a 3D fix, an echo
+   of its GPS-aided position claiming fewer satellites (its own GPS stays primary, and its
+   arming checks see a healthy second GPS); once its GPS is lost, a smooth position
+   (:class:`companion.io.position_feed.PositionFeed`) that starts from the last echo, so there
+   is no step at the switch-over, and blends towards the navigator's estimate.
 
 It also tracks arming refusals (COMMAND_ACK of MAV_CMD_COMPONENT_ARM_DISARM and the
 flight controller's "PreArm:"/"Arm:" STATUSTEXT) so the application can say why and back off.
@@ -67,6 +69,7 @@ class FcView:
         self.feed_ack_time_s = -math.inf      # last GPS2_RAW with a fix while we feed: the FC uses our GPS
         self.gps_seen = False
         self.feed = PositionFeed(blend_mps)
+        self.feeding_own = False              # the feed carries our estimate (the FC has no GPS)
         self.arming = ArmingBackoff()
         self.prearm_text = ""
         self._verdict: HeadingVerdict | None = None
@@ -92,7 +95,7 @@ class FcView:
             if msg.fix_type >= 3:
                 self.gps_fix_time_s = now_s
         elif mtype == "GPS2_RAW":
-            if msg.fix_type >= 3 and self.feed.started:
+            if msg.fix_type >= 3 and self.feeding_own:
                 self.feed_ack_time_s = now_s
         elif mtype == "PARAM_VALUE" and self.reader is not None:
             self.reader.packet(msg)
@@ -132,12 +135,13 @@ class FcView:
 
     def position_independent(self, now_s: float) -> tuple[bool, str]:
         """Whether GLOBAL_POSITION_INT may be used as an independent INS, and why (not)."""
-        if self.feed.started and now_s - self.feed_ack_time_s <= GPS_FIX_MAX_AGE_S:
-            return False, "our own estimate fed back (GPS_INPUT, reported as its GPS2)"
         if self.gps_has_fix(now_s):
             return False, "GPS-aided"
+        if self.feeding_own and now_s - self.feed_ack_time_s <= GPS_FIX_MAX_AGE_S:
+            return False, "our own estimate fed back (GPS_INPUT, reported as its GPS2)"
         return True, "free inertial" if self.gps_seen else "no GPS reported"
 
-    def feed_due(self, now_s: float) -> bool:
-        """Whether the position feed should run: publishing GPS_INPUT and the FC has no GPS."""
-        return self.position_publish == PUBLISH_GPS_INPUT and self.gps_seen and not self.gps_has_fix(now_s)
+    def feed_wanted(self) -> bool:
+        """Whether GPS_INPUT goes out at all (COMP_POS_PUB 3): an echo while the FC has GPS,
+        our own position once it has not."""
+        return self.position_publish == PUBLISH_GPS_INPUT

@@ -16,7 +16,14 @@ Per sample:
    last ``window`` samples by more than ``spike_nt`` (``COMP_SPIKE_NT``) is rejected and
    counted. Rejected samples still enter the median window, so a real, lasting change of the
    field (a level step, not a spike) is accepted after half a window.
-5. **Averaging**: D (unwrapped around the first sample) and I are averaged over the accepted
+5. **Gravity-referenced inclination** (for the heading-free element set): with the
+   accelerometer's specific force ``f`` of the same instant, ``I_g = asin(m . d / |m|)`` with
+   ``d = -f/|f|`` the down direction in the body frame: the angle between the field and the
+   horizontal plane, from the two sensors alone, rotation-invariant, so it needs neither the
+   flight controller's attitude estimate nor a heading. On a vehicle holding course and speed
+   the mean specific force is gravity (waves and heave average out); samples while turning
+   (``|gyro z| > max_turn_radps``: centripetal acceleration tilts ``f``) are left out of it.
+6. **Averaging**: D (unwrapped around the first sample) and I are averaged over the accepted
    samples of the period, which is what the in-process Monte Carlo means by "D and I averaged
    along the period's path" (:mod:`sitl.inprocess`). The result also carries the mean sample
    time, so the caller can tell the core how far back the average refers
@@ -40,6 +47,7 @@ __all__ = [
     "MagCalibration",
     "AttitudeState",
     "decl_incl_deg",
+    "gravity_inclination_deg",
     "tilt_compensated_di",
     "SpikeFilter",
     "AveragedDI",
@@ -95,6 +103,24 @@ def decl_incl_deg(north_nt: float, east_nt: float, down_nt: float) -> tuple[floa
     """Declination (east of true north) and inclination (below horizontal), degrees (eq. 2)."""
     return (math.degrees(math.atan2(east_nt, north_nt)),
             math.degrees(math.atan2(down_nt, math.hypot(north_nt, east_nt))))
+
+
+def gravity_inclination_deg(mag_body_nt: Vector3, specific_force_body: Vector3) -> float:
+    """Inclination from the field and the accelerometer alone (NaN if either is zero or not finite).
+
+    >>> round(gravity_inclination_deg((20000.0, 0.0, 20000.0), (0.0, 0.0, -9.81)), 6)   # level
+    45.0
+    >>> round(gravity_inclination_deg((0.0, 0.0, 28284.27), (-6.94, 0.0, -6.94)), 3)    # pitched 45 deg
+    45.0
+    """
+    mx, my, mz = mag_body_nt
+    fx, fy, fz = specific_force_body
+    m = math.sqrt(mx * mx + my * my + mz * mz)
+    f = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not (m > 0.0 and f > 0.0) or not math.isfinite(m * f):
+        return math.nan
+    sine = -(mx * fx + my * fy + mz * fz) / (m * f)
+    return math.degrees(math.asin(max(-1.0, min(1.0, sine))))
 
 
 def tilt_compensated_di(mag_body_nt: Vector3, roll_rad: float, pitch_rad: float,
@@ -206,6 +232,8 @@ class AveragedDI:
     last_time_s: float
     field_ned_nt: Vector3 = (math.nan, math.nan, math.nan)
     f_nt: float = math.nan
+    incl_grav_deg: float = math.nan
+    grav_count: int = 0
 
     @property
     def valid(self) -> bool:
@@ -232,12 +260,13 @@ class PeriodAverager:
     def __len__(self) -> int:
         return len(self._samples)
 
-    def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0)) -> None:
+    def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0),
+            incl_grav_deg: float = math.nan) -> None:
         if self._ref_d is None:
             self._ref_d = decl_deg
         d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
         self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2], math.sqrt(
-            ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2])))
+            ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2]), incl_grav_deg))
 
     def take(self, end_time_s: float) -> AveragedDI:
         """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
@@ -249,8 +278,10 @@ class PeriodAverager:
         n = len(used)
         sums = [math.fsum(s[k] for s in used) for k in range(7)]
         d = (sums[1] / n + 180.0) % 360.0 - 180.0
+        grav = [s[7] for s in used if math.isfinite(s[7])]
         return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
-                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n)
+                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n,
+                          math.fsum(grav) / len(grav) if grav else math.nan, len(grav))
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]
@@ -294,12 +325,24 @@ class MagProcessor:
     mission_offset_s: float = 0.0
     """Subtracted from message time for the averager (time spent paused: mission time)."""
 
+    max_turn_radps: float = math.radians(1.5)
+    """Gravity-referenced I leaves out samples turning faster than this (centripetal acceleration)."""
+
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
         self.averager = PeriodAverager()
         self.attitude: AttitudeState | None = None
         self.last_di: tuple[float, float] = (math.nan, math.nan)
-        self._pending: tuple[float, Vector3] | None = None
+        self._pending: tuple[float, Vector3, tuple | None] | None = None
+        self._imu: tuple[float, Vector3, Vector3] | None = None
+
+    def add_specific_force(self, time_s: float, accel_body_mps2: Vector3, gyro_body_radps: Vector3) -> None:
+        """The accelerometer and gyro of the next magnetometer sample (same message or instant)."""
+        self._imu = (time_s, accel_body_mps2, gyro_body_radps)
+
+    def _imu_for(self, time_s: float) -> tuple | None:
+        imu = self._imu
+        return imu if imu is not None and abs(imu[0] - time_s) <= 0.02 else None
 
     def configure(self, calibration: MagCalibration, spike_nt: float) -> None:
         """New calibration / spike threshold (parameters changed); keeps the period's samples."""
@@ -329,10 +372,11 @@ class MagProcessor:
         if self._pending is not None:
             pending, self._pending = self._pending, None
             self._process(*pending)
+        imu = self._imu_for(time_s)
         if (att is None or time_s > att.time_s + 1e-6) and math.isfinite(time_s):
-            self._pending = (time_s, mag_body_nt)
+            self._pending = (time_s, mag_body_nt, imu)
             return
-        self._process(time_s, mag_body_nt)
+        self._process(time_s, mag_body_nt, imu)
 
     def flush(self) -> None:
         """Process a waiting sample with the attitude propagated to its time."""
@@ -340,7 +384,7 @@ class MagProcessor:
             pending, self._pending = self._pending, None
             self._process(*pending)
 
-    def _process(self, time_s: float, mag_body_nt: Vector3) -> bool:
+    def _process(self, time_s: float, mag_body_nt: Vector3, imu: tuple | None = None) -> bool:
         st = self.stats
         st.samples += 1
         f = math.isfinite
@@ -353,7 +397,8 @@ class MagProcessor:
             st.no_attitude += 1
             st.last_reject = "no attitude near the sample time"
             return False
-        d, i, ned = tilt_compensated_di(self.calibration.apply(mag_body_nt), *att.at(time_s, self.max_attitude_age_s))
+        calibrated = self.calibration.apply(mag_body_nt)
+        d, i, ned = tilt_compensated_di(calibrated, *att.at(time_s, self.max_attitude_age_s))
         if not self.spikes.accept(ned):
             st.spikes += 1
             st.last_reject = "spike"
@@ -362,7 +407,10 @@ class MagProcessor:
         if self.paused:
             st.paused += 1
             return False
-        self.averager.add(time_s - self.mission_offset_s, d, i, ned)
+        incl_grav = math.nan
+        if imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
+            incl_grav = gravity_inclination_deg(calibrated, imu[1])
+        self.averager.add(time_s - self.mission_offset_s, d, i, ned, incl_grav)
         st.accepted += 1
         return True
 

@@ -25,9 +25,10 @@ flagged, not dropped (``valid`` False, so
 :class:`~companion.io.sensors.base.StalenessMonitor` does not count them as fresh):
 non-finite values (READ_ERROR), int16 saturation -32768/32767 mG, which is how a NaN
 reaches the integer messages (OVERFLOW), exactly (0, 0, 0), a dead or absent sensor
-(READ_ERROR), and the identical raw triple ``stuck_count`` times in a row while the
-ATTITUDE turned by 2 degrees or more (STUCK; a quiet or noise-free magnetometer on a still
-vehicle repeats its reading and is fine, :class:`~companion.io.sensors.quality.FrozenDetector`).
+(READ_ERROR), and the identical raw triple ``stuck_count`` times in a row while the gyro
+of the same messages says the body turned by 2 degrees or more (STUCK; a quiet or noise-free
+magnetometer on a still vehicle repeats its reading and is fine,
+:class:`~companion.io.sensors.quality.FrozenDetector`).
 :attr:`MavlinkDecoder.last_problem` says which. Times are the flight controller's boot time
 (:class:`companion.io.mavlink_link.MessageClock`).
 """
@@ -83,13 +84,13 @@ class MavlinkDecoder:
         self.mag_message = mag_message
         self._mag_type: dict[int, str] = {}
         self._stuck: dict[int, FrozenDetector] = {}
-        self._attitude: tuple[float, float, float] | None = None
+        self._gyro: tuple[float, float, float] | None = None
         self._stuck_count = stuck_count
         self.rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.fc_position: FcPosition | None = None
         self.last_problem: dict[str, str] = {}   # "mag"/"attitude" -> why the last sample was invalid
 
-    def _mag_flags(self, instance: int, raw: tuple, saturates: bool) -> SampleFlag:
+    def _mag_flags(self, instance: int, raw: tuple, saturates: bool, time_s: float = math.nan) -> SampleFlag:
         flags = SampleFlag.NONE
         if not saturates and not _finite(*raw):
             flags |= SampleFlag.READ_ERROR
@@ -105,7 +106,7 @@ class MavlinkDecoder:
         detector = self._stuck.get(instance)
         if detector is None:
             detector = self._stuck[instance] = FrozenDetector(self._stuck_count)
-        if detector.check(raw, self._attitude) is not SampleFlag.NONE:
+        if detector.check(raw, time_s, self._gyro) is not SampleFlag.NONE:
             if not flags:   # a stuck zero or saturated reading keeps its more telling reason
                 self.last_problem["mag"] = (f"magnetometer stuck ({self._stuck_count} identical readings "
                                             "while the vehicle turned)")
@@ -130,7 +131,6 @@ class MavlinkDecoder:
             values = (msg.roll, msg.pitch, msg.yaw)
             self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
             if _finite(*values, *self.rates):
-                self._attitude = values
                 return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
             self.last_problem["attitude"] = "non-finite ATTITUDE"
             return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
@@ -145,8 +145,9 @@ class MavlinkDecoder:
                                      (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
             if self._owns_mag(instance, mtype):
                 raw = (msg.xmag, msg.ymag, msg.zmag)
+                self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
                 out.append(MagSample(t, (raw[0] * MILLIGAUSS_TO_NT, raw[1] * MILLIGAUSS_TO_NT,
-                                         raw[2] * MILLIGAUSS_TO_NT), instance, self._mag_flags(instance, raw, True)))
+                                         raw[2] * MILLIGAUSS_TO_NT), instance, self._mag_flags(instance, raw, True, t)))
             return out
         if mtype == "HIGHRES_IMU":
             t = self._time(msg)
@@ -159,8 +160,10 @@ class MavlinkDecoder:
                                      msg.temperature, instance))
             if msg.fields_updated & 0x1C0 and self._owns_mag(instance, mtype):
                 raw = (msg.xmag, msg.ymag, msg.zmag)
+                if msg.fields_updated & 0x38:
+                    self._gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
                 mag = (raw[0] * GAUSS_TO_NT, raw[1] * GAUSS_TO_NT, raw[2] * GAUSS_TO_NT)
-                out.append(MagSample(t, mag, instance, self._mag_flags(instance, raw, False)))
+                out.append(MagSample(t, mag, instance, self._mag_flags(instance, raw, False, t)))
             return out
         if mtype == "GPS_RAW_INT":
             t = self._time(msg)

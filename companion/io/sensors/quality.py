@@ -47,14 +47,16 @@ class FrozenDetector:
     can repeat its value) may repeat its reading for as long as the vehicle holds its
     attitude. A *frozen* one repeats it although the body turned: a rotation of ``min_turn_rad``
     changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT),
-    many LSB. So the judgement needs ``limit`` identical readings in a row *and* an attitude
-    change of at least ``min_turn_rad`` (largest of the roll, pitch and yaw changes) since the
-    repetition began. Without any attitude the repetition alone cannot tell, and nothing is flagged.
+    many LSB. So the judgement needs ``limit`` identical readings in a row *and* a rotation of
+    at least ``min_turn_rad`` since the repetition began, measured by integrating the gyro
+    (``|omega| dt``, the raw rate sensor: an attitude *estimate* can wander while the vehicle is
+    still, e.g. an EKF without GPS, and would flag a good sensor). Without any gyro the
+    repetition alone cannot tell, and nothing is flagged.
 
     >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
-    >>> [d.check((1, 2, 3), (0.0, 0.0, 0.0)) for _ in range(5)][-1] == SampleFlag.NONE   # still
+    >>> [d.check((1, 2, 3), k * 0.1, (0.0, 0.0, 0.0)) for k in range(5)][-1] == SampleFlag.NONE   # still
     True
-    >>> d.check((1, 2, 3), (0.0, 0.0, 0.1)) == SampleFlag.STUCK                           # turned
+    >>> d.check((1, 2, 3), 0.5, (0.0, 0.0, 0.5)) == SampleFlag.STUCK                               # turning
     True
     """
 
@@ -65,19 +67,21 @@ class FrozenDetector:
         self.min_turn_rad = min_turn_rad
         self._last: Hashable | None = None
         self._repeats = 0
-        self._attitude_then: tuple[float, float, float] | None = None
+        self._turned_rad = 0.0
+        self._time_s = math.nan
 
-    def check(self, raw: Hashable, attitude: tuple[float, float, float] | None) -> SampleFlag:
+    def check(self, raw: Hashable, time_s: float, gyro_radps: tuple[float, float, float] | None) -> SampleFlag:
+        dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
+        self._time_s = time_s
         if raw != self._last:
-            self._last, self._repeats, self._attitude_then = raw, 1, attitude
+            self._last, self._repeats, self._turned_rad = raw, 1, 0.0
             return SampleFlag.NONE
         self._repeats += 1
-        if self._attitude_then is None:
-            self._attitude_then = attitude
-        if self._repeats < self.limit or attitude is None or self._attitude_then is None:
-            return SampleFlag.NONE
-        turned = max(abs((a - b + math.pi) % (2.0 * math.pi) - math.pi) for a, b in zip(attitude, self._attitude_then))
-        return SampleFlag.STUCK if turned >= self.min_turn_rad else SampleFlag.NONE
+        if gyro_radps is not None and 0.0 < dt < 1.0:
+            self._turned_rad += math.sqrt(sum(w * w for w in gyro_radps)) * dt
+        if self._repeats >= self.limit and self._turned_rad >= self.min_turn_rad:
+            return SampleFlag.STUCK
+        return SampleFlag.NONE
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,127 @@
+"""A ground-station-side observer of a SITL flight controller: truth, modes, texts.
+
+Connects to a spare port of the firmware (ArduPilot's SERIAL0 or SERIAL1) as a ground station
+(system 255), asks for SIMSTATE (the simulator's true position and attitude), VFR_HUD, ATTITUDE
+and GPS_RAW_INT, and records what the tests and ``fcmpc-fly --fc ardupilot`` judge: the true
+track, the flight mode and arming state, and every STATUSTEXT (the flight controller's and the
+companion's, which ArduPilot routes to all its links). Time is the firmware's boot time.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink import mavutil  # noqa: E402
+
+__all__ = ["TruthSample", "FirmwareMonitor"]
+
+mavlink = mavutil.mavlink
+GCS_SYSID = 255
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """One SIMSTATE with what the flight controller reported at that moment."""
+
+    time_s: float
+    lat_deg: float
+    lon_deg: float
+    yaw_deg: float          # true heading, from north clockwise
+    mode: int
+    armed: bool
+    groundspeed_mps: float  # the FC's estimate (VFR_HUD)
+    gps_fix: int
+
+
+@dataclass
+class FirmwareMonitor:
+    """Reads one firmware port; :meth:`pump` until a condition, never sleeps."""
+
+    connect: str
+    target_system: int = 1
+    rates_hz: dict = field(default_factory=lambda: {"SIMSTATE": 2.0, "VFR_HUD": 2.0, "GPS_RAW_INT": 1.0})
+    time_s: float = math.nan
+    mode: int = -1
+    armed: bool = False
+    texts: list = field(default_factory=list)
+    truth: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.conn = mavutil.mavlink_connection(self.connect, source_system=GCS_SYSID, source_component=190,
+                                               autoreconnect=False)
+        self._gps_fix = 0
+        self._groundspeed = math.nan
+        self._chunks: dict[tuple[int, int], str] = {}
+
+    def _statustext(self, msg) -> None:
+        """One text per STATUSTEXT, or per id across its 50-character chunks (MAVLink 2)."""
+        comp, text = msg.get_srcComponent(), msg.text
+        chunk_id = getattr(msg, "id", 0)
+        if not chunk_id:
+            self.texts.append((self.time_s, comp, text))
+            return
+        key = (comp, chunk_id)
+        self._chunks[key] = self._chunks.get(key, "") + text
+        if len(text.encode()) < 50:   # the last chunk is shorter (an empty one closes a full one)
+            self.texts.append((self.time_s, comp, self._chunks.pop(key)))
+
+    def start(self, timeout_s: float = 60.0) -> None:
+        """Wait for the autopilot's heartbeat, then ask for the streams."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
+            if msg is not None and msg.get_srcComponent() == 1:
+                break
+        else:
+            raise TimeoutError(f"no heartbeat on {self.connect} within {timeout_s:g} s")
+        for name, hz in self.rates_hz.items():
+            self.send_command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"),
+                              1e6 / hz)
+
+    def send_command(self, command: int, *params: float) -> None:
+        p = list(params) + [0.0] * (7 - len(params))
+        self.conn.mav.command_long_send(self.target_system, 1, command, 0, *p[:7])
+
+    def set_param(self, name: str, value: float) -> None:
+        self.conn.mav.param_set_send(self.target_system, 1, name.encode("ascii"), float(value),
+                                     mavlink.MAV_PARAM_TYPE_REAL32)
+
+    def pump(self, until, timeout_wall_s: float, what: str = "condition") -> None:
+        """Read messages until ``until(self)`` is true; TimeoutError after ``timeout_wall_s``."""
+        deadline = time.monotonic() + timeout_wall_s
+        while not until(self):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{what} not reached within {timeout_wall_s:g} s of wall time "
+                                   f"(firmware time {self.time_s:.1f} s, mode {self.mode}, armed {self.armed}); "
+                                   f"last texts: {self.texts[-5:]}")
+            msg = self.conn.recv_match(blocking=True, timeout=0.5)
+            if msg is not None:
+                self.handle(msg)
+
+    def handle(self, msg) -> None:
+        mtype = msg.get_type()
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if boot_ms is not None and msg.get_srcComponent() == 1:
+            self.time_s = boot_ms * 1e-3
+        if mtype == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            self.mode, self.armed = msg.custom_mode, bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        elif mtype == "STATUSTEXT":
+            self._statustext(msg)
+        elif mtype == "GPS_RAW_INT":
+            self._gps_fix = msg.fix_type
+        elif mtype == "VFR_HUD":
+            self._groundspeed = msg.groundspeed
+        elif mtype == "SIMSTATE" and math.isfinite(self.time_s):
+            self.truth.append(TruthSample(self.time_s, msg.lat * 1e-7, msg.lng * 1e-7,
+                                          math.degrees(msg.yaw) % 360.0, self.mode, self.armed,
+                                          self._groundspeed, self._gps_fix))
+
+    def texts_matching(self, needle: str, component: int | None = None) -> list:
+        return [t for t in self.texts if needle in t[2] and (component is None or t[1] == component)]
+
+    def close(self) -> None:
+        self.conn.close()

@@ -1,0 +1,123 @@
+"""The companion against real ArduPilot Rover SITL (motorboat): what the real-firmware issue names.
+
+Every test starts ``ardurover`` in its own folder with its own ``-I`` instance, a monitor on
+SERIAL0 (SIMSTATE is the truth) and the companion on SERIAL1, and waits on events (texts,
+heartbeats, firmware time), never on sleeps.
+"""
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from companion.io.records import read_steps_csv
+from tests.firmware.conftest import angle_diff_deg, bearing_deg
+
+GUIDED, HOLD = 15, 4
+WALL_S = 240.0          # generous: a loaded 2-core machine runs SITL far below its 40x
+
+
+def _moving(truth, t0: float, t1: float, min_speed_mps: float = 3.0):
+    """Pairs of truth samples 10 s apart inside [t0, t1] while the vehicle moves."""
+    samples = [s for s in truth if t0 <= s.time_s <= t1]
+    pairs = []
+    for a in samples:
+        b = next((s for s in samples if s.time_s >= a.time_s + 10.0), None)
+        if b is None:
+            break
+        from companion.nav.geo import geodesic_distance_m
+
+        if geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg) / (b.time_s - a.time_s) >= min_speed_mps:
+            pairs.append((a, b))
+    return pairs
+
+
+def _assert_forward_on(truth, t0: float, t1: float, course_deg: float) -> None:
+    pairs = _moving(truth, t0, t1)
+    assert len(pairs) >= 5, f"vehicle did not move on course {course_deg} between {t0:.0f} and {t1:.0f} s"
+    for a, b in pairs:
+        track = bearing_deg(a, b)
+        assert angle_diff_deg(track, course_deg) < 15.0, f"track {track:.0f} deg, commanded {course_deg:.0f} deg"
+        assert angle_diff_deg(a.yaw_deg, track) < 30.0, f"heading {a.yaw_deg:.0f} deg against track {track:.0f}: reversing"
+
+
+@pytest.mark.parametrize("probes", [(45.0, 315.0), (225.0, 135.0)], ids=["NE-SE", "SW-NW"])
+def test_noise_free_compass_starts_and_every_quadrant_is_driven_forward(rig_factory, probes):
+    """SITL's compass is noise-free (SIM_MAG_RND 0): start-up must end; then the two probing
+    moves (theta 45/315: courses NE, SE; theta 225/135: SW, NW) are driven forward."""
+    rig = rig_factory("quadrants")
+    rig.start_companion(NAV_DEST_LAT=31.0, NAV_DEST_LON=154.0, NAV_PERIOD_S=60.0,
+                        NAV_PROBE1_DEG=probes[0], NAV_PROBE2_DEG=probes[1])
+    mon = rig.monitor
+    mon.pump(rig.said("phase probe2"), WALL_S, "second probing move")
+    t1 = mon.texts_matching("phase probe1", 191)[0][0]
+    t2 = mon.texts_matching("phase probe2", 191)[0][0]
+    mon.pump(lambda m: m.time_s >= t2 + 60.0, WALL_S, "end of the second probe")
+    assert not mon.texts_matching("stuck", 191), "a quiet compass was judged stuck"
+    courses = [(90.0 - p) % 360.0 for p in probes]
+    _assert_forward_on(mon.truth, t1 + 15.0, t2, courses[0])
+    _assert_forward_on(mon.truth, t2 + 15.0, t2 + 58.0, courses[1])
+
+
+def test_companion_sigkill_stops_the_vehicle_within_ardupilots_timeout(rig_factory):
+    rig = rig_factory("sigkill")
+    rig.start_companion(NAV_DEST_LAT=31.0, NAV_DEST_LON=154.0, NAV_PERIOD_S=60.0)
+    mon = rig.monitor
+    mon.pump(rig.said("phase probe1"), WALL_S, "first probing move")
+    t_probe = mon.time_s
+    mon.pump(lambda m: m.time_s >= t_probe + 30.0, WALL_S, "cruising")
+    assert _moving(mon.truth, t_probe + 10.0, mon.time_s), "not moving before the kill"
+    os.kill(rig.companion.pid, signal.SIGKILL)
+    rig.companion.wait(timeout=10)
+    t_kill = mon.time_s
+    mon.pump(lambda m: bool(m.texts_matching("target not received", 1)) or m.time_s > t_kill + 10.0, WALL_S,
+             "ArduPilot's setpoint timeout")
+    [(t_stop, _, _)] = mon.texts_matching("target not received", 1)[-1:] or [(float("inf"), 0, "")]
+    assert t_stop - t_kill <= 3.0 + 0.5, f"stopped {t_stop - t_kill:.1f} s after the kill"
+    mon.pump(lambda m: m.time_s >= t_stop + 30.0, WALL_S, "coasting down")
+    assert not _moving(mon.truth, t_stop + 20.0, t_stop + 30.0, min_speed_mps=1.0), "still moving 20 s after stopping"
+
+
+def test_arming_refusal_reaches_the_operator_with_backoff(rig_factory):
+    """GPS lost before arming: ArduPilot refuses (its GPS check); the operator hears why, from the
+    companion, and the retries back off instead of hammering every 2 s."""
+    rig = rig_factory("arming", params={"SIM_GPS1_ENABLE": 0})
+    rig.start_companion(NAV_DEST_LAT=31.0, NAV_DEST_LON=154.0, NAV_PERIOD_S=30.0)
+    mon = rig.monitor
+    mon.pump(lambda m: len(m.texts_matching("arming refused", 191)) >= 3, WALL_S, "three arming refusals")
+    refusals = mon.texts_matching("arming refused", 191)
+    assert all("(" in text and "retry in" in text for _, _, text in refusals)
+    waits = [float(text.rsplit("retry in", 1)[1].split()[0]) for _, _, text in refusals[:3]]
+    assert waits == sorted(waits) and waits[-1] > waits[0], waits
+    assert not mon.armed
+
+
+@pytest.mark.slow
+def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
+    """GPS lost 30 s after arming: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
+    30 simulated minutes and flies the companion's courses (the truth's track follows them)."""
+    rig = rig_factory("gps_lost")
+    log_dir = rig.start_companion(NAV_DEST_LAT=28.0, NAV_DEST_LON=158.0, NAV_PERIOD_S=120.0)
+    mon = rig.monitor
+    mon.pump(lambda m: m.armed and m.mode == GUIDED, WALL_S, "armed in GUIDED")
+    t_arm = mon.time_s
+    mon.pump(lambda m: m.time_s >= t_arm + 30.0, WALL_S, "30 s after arming")
+    mon.set_param("SIM_GPS1_ENABLE", 0)
+    mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
+    t_lost = mon.time_s
+    mon.pump(lambda m: m.time_s >= t_lost + 1800.0 or m.mode != GUIDED, 4 * WALL_S, "30 minutes without GPS")
+    after = [s for s in mon.truth if s.time_s >= t_lost]
+    assert all(s.mode == GUIDED and s.armed for s in after), \
+        f"left GUIDED at {next(s.time_s for s in after if s.mode != GUIDED or not s.armed) - t_lost:.0f} s"
+    assert after[-1].time_s - t_lost >= 1800.0
+    assert mon.texts_matching("feeding our position", 191)
+    steps = [r for r in read_steps_csv(log_dir / "steps.csv") if r["event"] == "step"]
+    checked = 0
+    for step, following in zip(steps, steps[1:]):
+        start, end = step["msg_time_s"], following["msg_time_s"]
+        if start < t_lost or end - start < 60.0:
+            continue
+        _assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"])
+        checked += 1
+    assert checked >= 10, f"only {checked} steps flown without GPS"
