@@ -83,6 +83,8 @@ class FlyOptions:
     quiet: bool = False
     data_dir: str | None = None
     sitl_extra: tuple[str, ...] = ()     # more simulator arguments, e.g. ("--tlog",)
+    fc: str = "sim"                      # sim (our stand-in) | ardupilot (real ArduPilot Rover SITL)
+    fc_instance: int = 0                 # ArduPilot SITL -I (ports 5760 + 10 i)
 
 
 @dataclass
@@ -155,6 +157,26 @@ def _stop(proc: subprocess.Popen | None, grace_s: float = 10.0) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(timeout=5.0)
+
+
+def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
+    """The mission against real ArduPilot Rover SITL (:mod:`sitl.firmware.flight`): same result
+    and plot as against the stand-in, the truth from ArduPilot's own SIMSTATE."""
+    from sitl.firmware.flight import FirmwareFlight, fly_ardupilot
+
+    scenario = load_scenario(options.scenario)
+    dest = short_destination(scenario, options.short_km) if options.short else (scenario.dest_lat_deg,
+                                                                               scenario.dest_lon_deg)
+    out = Path(options.out_dir) if options.out_dir else \
+        REPO / "out" / "fly" / f"{scenario.name}-ardupilot-{datetime.now():%Y%m%d-%H%M%S}"
+    mission = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON")
+    values = {**{k: v for k, v in scenario.nav_overrides().items() if k not in mission}, **options.extra_params}
+    run = fly_ardupilot(FirmwareFlight(
+        start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out, values=values,
+        speedup=options.speedup or 50.0, instance=options.fc_instance, start_unix_s=scenario.start_posix,
+        timeout_s=options.timeout_s, quiet=options.quiet))
+    code = {"arrived": 0, "failed": 1, "timeout": 3}.get(run.status, 1)
+    return _evaluate(options, scenario, out, dest, run.status, code, run.message, run.wall_s, truth=run.truth)
 
 
 def fly(options: FlyOptions) -> FlyResult:
@@ -244,11 +266,12 @@ def fly(options: FlyOptions) -> FlyResult:
 
 
 def _evaluate(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float, float], status: str, code: int,
-              message: str, wall_s: float) -> FlyResult:
+              message: str, wall_s: float, truth: dict | None = None) -> FlyResult:
     truth_path, steps_path = out / "sitl" / "truth.csv", out / "companion" / "steps.csv"
     summary_path = out / "companion" / "summary.json"
     companion = json.loads(summary_path.read_text()) if summary_path.exists() else {}
-    truth = read_truth_csv(truth_path) if truth_path.exists() else {}
+    if truth is None:
+        truth = read_truth_csv(truth_path) if truth_path.exists() else {}
     steps = [row for row in read_steps_csv(steps_path) if row["event"] == "step"] if steps_path.exists() else []
     remaining = final = est_remaining = sim_s = math.nan
     iterations = 0
@@ -338,7 +361,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="pace the simulator at this many times real time instead of lockstep")
     p.add_argument("--short", action="store_true", help=f"move the destination to {SHORT_KM:g} km from the start")
     p.add_argument("--short-km", type=float, default=SHORT_KM, help="distance of the --short destination")
-    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="conventions of our stand-in (--fc sim)")
+    p.add_argument("--fc", choices=("sim", "ardupilot"), default="sim",
+                   help="flight controller: our stand-in (fcmpc-sitl), or real ArduPilot Rover SITL "
+                        "($FCMPC_ARDUPILOT or ../shared/ardupilot/ardurover; GPS denied from take-off)")
+    p.add_argument("--fc-instance", type=int, default=0, help="ArduPilot SITL instance (-I): TCP 5760+10*I")
     p.add_argument("--fault", action="append", default=[], help="simulator fault KIND:AT_S[:DURATION_S[:VALUE]]")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="extra companion parameter")
     p.add_argument("--compare", action="store_true", help="also fly the same seed in-process and print it")
@@ -363,10 +391,13 @@ def main(argv: list[str] | None = None) -> int:
     options = FlyOptions(scenario=args.scenario, seed=args.seed, lockstep=args.speedup is None,
                          speedup=args.speedup, short=args.short, short_km=args.short_km, autopilot=args.autopilot,
                          out_dir=args.out_dir, timeout_s=args.timeout, faults=tuple(args.fault), extra_params=extra,
-                         compare=args.compare, plot=not args.no_plot, tlog=not args.no_tlog, data_dir=args.data_dir)
+                         compare=args.compare, plot=not args.no_plot, tlog=not args.no_tlog, data_dir=args.data_dir,
+                         fc=args.fc, fc_instance=args.fc_instance)
+    from sitl.firmware import FirmwareMissing
+
     try:
-        result = fly(options)
-    except (ValueError, OSError) as err:
+        result = fly_on_ardupilot(options) if options.fc == "ardupilot" else fly(options)
+    except (ValueError, OSError, FirmwareMissing) as err:
         print(f"fcmpc-fly: {err}", file=sys.stderr)
         return 2
     if args.json:

@@ -1,0 +1,154 @@
+"""One mission flown by the companion against real ArduPilot Rover SITL (``fcmpc-fly --fc ardupilot``).
+
+The world is ArduPilot's own: its simulated boat (``--model motorboat``, waves, wind 3 m/s),
+its magnetic field (ArduPilot's IGRF tables, not the navigator's WMM), its compass-derived yaw,
+its EKF. The companion runs as a process on SERIAL1 with the scenario's start and destination;
+a ground station on SERIAL0 (:class:`~sitl.firmware.monitor.FirmwareMonitor`) records the truth
+(SIMSTATE), denies GPS the moment the vehicle arms (``SIM_GPS1_ENABLE 0``: GPS for start-up
+only, as in the paper's scenario), and waits for the companion to end the mission and the boat
+to come to rest. Records: ``truth.csv`` (firmware time, true position, mode, armed, GPS fix),
+``companion/`` (steps.csv, summary.json, tlog), ``ardupilot/`` (its log and eeprom).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from companion.params import write_parm_file
+from sitl.firmware.ardupilot import ArduPilotSitl
+from sitl.firmware.monitor import FirmwareMonitor
+
+__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "BOAT_CRUISE_KMH"]
+
+BOAT_CRUISE_KMH = 28.8      # 8 m/s: ArduPilot's SITL motorboat makes 10 m/s at full throttle
+REST_SPEED_MPS = 0.3
+REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class FirmwareFlight:
+    """What to fly: start, destination, companion parameters, and the firmware's pacing."""
+
+    start: tuple[float, float]
+    destination: tuple[float, float]
+    out_dir: Path
+    values: dict = field(default_factory=dict)     # companion parameters beyond start/destination
+    speedup: float = 50.0
+    instance: int = 0
+    start_unix_s: float | None = None
+    timeout_s: float = 7200.0
+    deny_gps_at_arming: bool = True
+    quiet: bool = False
+
+
+@dataclass
+class FirmwareRun:
+    status: str            # arrived | failed | timeout | error
+    message: str
+    truth: dict            # time_s, lat_deg, lon_deg lists (firmware time)
+    wall_s: float
+    companion_exit: int | None
+    gps_denied_at_s: float = math.nan
+
+
+def _say(flight: FirmwareFlight, text: str) -> None:
+    if not flight.quiet:
+        print(f"fcmpc-fly: {text}", file=sys.stderr, flush=True)
+
+
+def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
+    """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
+    out = Path(flight.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    parm = out / "fly.parm"
+    write_parm_file(parm, {"NAV_START_LAT": flight.start[0], "NAV_START_LON": flight.start[1],
+                           "NAV_DEST_LAT": flight.destination[0], "NAV_DEST_LON": flight.destination[1],
+                           "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH, **flight.values},
+                    header="fcmpc-fly --fc ardupilot")
+    sitl = ArduPilotSitl(workdir=out / "ardupilot", instance=flight.instance, home=flight.start,
+                         speedup=flight.speedup, start_unix_s=flight.start_unix_s)
+    wall0 = time.monotonic()
+    companion = None
+    monitor = None
+    denied_at = math.nan
+    status, message = "error", ""
+    sitl.start()
+    try:
+        sitl.wait_listening()
+        monitor = FirmwareMonitor(sitl.serial0, rates_hz={"SIMSTATE": 1.0, "VFR_HUD": 1.0, "GPS_RAW_INT": 1.0})
+        monitor.start()
+        companion = subprocess.Popen(
+            [sys.executable, "-m", "companion.app", "--connect", sitl.serial1, "--params", str(parm), "--log-dir",
+             str(out / "companion"), "--exit-when-done", "--quiet"],
+            cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=open(out / "companion.log", "wb"))
+        _say(flight, f"ArduPilot SITL instance {flight.instance} at {flight.speedup:g}x, companion on "
+                     f"{sitl.serial1}; records in {out}")
+        deadline = wall0 + flight.timeout_s
+        last_report = 0.0
+
+        def tick(m: FirmwareMonitor) -> bool:
+            nonlocal denied_at, last_report
+            if flight.deny_gps_at_arming and m.armed and not math.isfinite(denied_at):
+                m.set_param("SIM_GPS1_ENABLE", 0)
+                denied_at = m.time_s
+                _say(flight, f"armed at {m.time_s:.0f} s: GPS denied from take-off")
+            if time.monotonic() - last_report > 30.0 and m.truth:
+                last_report = time.monotonic()
+                from companion.nav.geo import geodesic_distance_m
+
+                s = m.truth[-1]
+                _say(flight, f"{s.time_s / 3600.0:5.2f} h simulated, "
+                             f"{geodesic_distance_m(s.lat_deg, s.lon_deg, *flight.destination) / 1000.0:.1f} km to go")
+            return companion.poll() is not None
+
+        monitor.pump(tick, max(deadline - time.monotonic(), 1.0), "the end of the mission")
+        code = companion.returncode
+        status, message = ("arrived", "") if code == 0 else ("failed", f"companion exited with {code}")
+        # the boat coasts after the last step: wait until it is at rest (at most 120 s of firmware time)
+        t_done = monitor.time_s
+        monitor.pump(lambda m: m.time_s > t_done + 120.0 or _at_rest(m), 120.0, "the vehicle at rest")
+    except TimeoutError as err:
+        status, message = "timeout", str(err)
+    except (RuntimeError, OSError) as err:
+        status, message = "error", str(err)
+    finally:
+        if companion is not None and companion.poll() is None:
+            companion.terminate()
+            try:
+                companion.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                companion.kill()
+        if monitor is not None:
+            monitor.close()
+        sitl.stop()
+    truth = _write_truth(out / "truth.csv", monitor.truth if monitor is not None else [])
+    return FirmwareRun(status, message, truth, time.monotonic() - wall0,
+                       companion.returncode if companion is not None else None, denied_at)
+
+
+def _at_rest(monitor: FirmwareMonitor) -> bool:
+    truth = monitor.truth
+    if len(truth) < 6:
+        return False
+    from companion.nav.geo import geodesic_distance_m
+
+    a, b = truth[-6], truth[-1]
+    return geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg) / max(b.time_s - a.time_s, 1e-3) \
+        < REST_SPEED_MPS
+
+
+def _write_truth(path: Path, samples: list) -> dict:
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["time_s", "lat_deg", "lon_deg", "yaw_deg", "mode", "armed", "gps_fix"])
+        for s in samples:
+            writer.writerow([f"{s.time_s:.3f}", f"{s.lat_deg:.8f}", f"{s.lon_deg:.8f}", f"{s.yaw_deg:.2f}", s.mode,
+                             int(s.armed), s.gps_fix])
+    return {"time_s": [s.time_s for s in samples], "lat_deg": [s.lat_deg for s in samples],
+            "lon_deg": [s.lon_deg for s in samples]}
