@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from companion.params import write_parm_file
-from sitl.firmware.ardupilot import ArduPilotSitl
+from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
 from sitl.firmware.monitor import FirmwareMonitor
 
 __all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "BOAT_CRUISE_KMH"]
@@ -63,6 +63,7 @@ def _say(flight: FirmwareFlight, text: str) -> None:
 
 def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
     """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
+    binary = ardupilot_binary()        # FirmwareMissing before anything is written
     out = Path(flight.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     parm = out / "fly.parm"
@@ -71,7 +72,7 @@ def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
                            "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH, **flight.values},
                     header="fcmpc-fly --fc ardupilot")
     sitl = ArduPilotSitl(workdir=out / "ardupilot", instance=flight.instance, home=flight.start,
-                         speedup=flight.speedup, start_unix_s=flight.start_unix_s)
+                         speedup=flight.speedup, start_unix_s=flight.start_unix_s, binary=binary)
     wall0 = time.monotonic()
     companion = None
     monitor = None

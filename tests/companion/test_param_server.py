@@ -245,3 +245,16 @@ def test_persistence_is_atomic_under_sigkill(tmp_path):
     leftovers = [p for p in tmp_path.iterdir() if p.name != "atomic.parm"]
     assert all(p.name.startswith(".atomic.parm.") for p in leftovers)  # only temporaries, never the target
     assert math.isfinite(len(seen))
+
+
+def test_a_set_to_all_components_for_another_components_parameter_is_left_alone(served):
+    """PARAM_SET CRUISE_SPEED to component 0 is the flight controller's business: no warning, no
+    change; the same name addressed to us is refused with a STATUSTEXT."""
+    served.client.mav.param_set_send(1, 0, b"CRUISE_SPEED", 14.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    served.client.mav.param_request_read_send(1, 191, b"MPC_HORIZON", -1)   # an event that the set was handled
+    assert served.recv("PARAM_VALUE") is not None
+    assert not [m for m in served.drain() if m.get_type() == "STATUSTEXT"]
+    served.client.mav.param_set_send(1, 191, b"CRUISE_SPEED", 14.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    text = served.recv("STATUSTEXT")
+    assert text is not None and "no parameter CRUISE_SPEED" in text.text
+    assert served.server.sets_accepted == 0

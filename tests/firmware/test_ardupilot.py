@@ -121,3 +121,17 @@ def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
         _assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"])
         checked += 1
     assert checked >= 10, f"only {checked} steps flown without GPS"
+
+
+def test_main_job_says_in_one_line_when_the_firmware_is_missing(tmp_path):
+    import subprocess
+    import sys
+
+    env = {**os.environ, "FCMPC_ARDUPILOT": str(tmp_path / "no-such-ardurover")}
+    done = subprocess.run([sys.executable, "-m", "scripts.fly", "--fc", "ardupilot", "--out-dir", str(tmp_path / "run")],
+                          capture_output=True, text=True, env=env, timeout=120, stdin=subprocess.DEVNULL,
+                          cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no-such-ardurover" in lines[0] and "Traceback" not in done.stderr
+    assert not (tmp_path / "run").exists()                          # nothing written for a run that never started
