@@ -55,6 +55,7 @@ def test_noise_free_compass_starts_and_every_quadrant_is_driven_forward(rig_fact
     t2 = mon.texts_matching("phase probe2", 191)[0][0]
     mon.pump(lambda m: m.time_s >= t2 + 60.0, WALL_S, "end of the second probe")
     assert not mon.texts_matching("stuck", 191), "a quiet compass was judged stuck"
+    assert not mon.texts_matching("target not received", 1), "a setpoint gap: ArduPilot stopped"
     courses = [(90.0 - p) % 360.0 for p in probes]
     _assert_forward_on(mon.truth, t1 + 15.0, t2, courses[0])
     _assert_forward_on(mon.truth, t2 + 15.0, t2 + 58.0, courses[1])
