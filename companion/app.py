@@ -285,6 +285,7 @@ class CompanionApp:
         self.last_arm_cmd = -math.inf
         self.last_hold_cmd = -math.inf
         self.hold_commanded = False
+        self.fc_failsafe_hold = ""      # the FC's own failsafe that took it out of GUIDED (re-engage when cleared)
         self.was_following = False
         self.failsafe_active = False
         self.last_gps = None
@@ -866,12 +867,18 @@ class CompanionApp:
         fc = self.link.fc
         following = fc.armed and fc.guided
         if self.was_following and not following and not self.hold_commanded:
-            # a mode change we did not ask for (pilot, ground station, or the autopilot's own
-            # failsafe): respect it; the mission waits until GUIDED/OFFBOARD is selected again
+            # a mode change we did not ask for: the autopilot's own failsafe is waited out and the
+            # mission re-engages when it clears; a pilot's or ground station's is respected, and
+            # the mission waits until GUIDED/OFFBOARD is selected again
             conv = fc.conventions
             guided = conv.mode_name(conv.custom_mode(conv.guided_main, conv.guided_sub))
-            self._say(f"FcMPC: FC left {guided} (now {fc.mode_name}{'' if fc.armed else ', disarmed'}): "
-                      "mission paused", mavlink.MAV_SEVERITY_WARNING)
+            self.fc_failsafe_hold = self.fc_view.fc_failsafe
+            why = f"its own failsafe ({self.fc_failsafe_hold}): re-engaging when it clears" \
+                if self.fc_failsafe_hold else "mission paused"
+            self._say(f"FcMPC: FC left {guided} (now {fc.mode_name}{'' if fc.armed else ', disarmed'}): {why}"[:200],
+                      mavlink.MAV_SEVERITY_WARNING)
+        if following:
+            self.fc_failsafe_hold = ""
         self.was_following = following
         self._advance_dead_reckoning(now, dt, following and not reasons)
         if reasons or not following:
@@ -882,8 +889,8 @@ class CompanionApp:
             return False
         sent = self._stream(self.command.course_rad, self.command.speed_mps) if self.command is not None else False
         if not following:
-            if self.hold_commanded:
-                self._engage(now)   # we put it in hold for a failsafe: take it back (COMP_ARM_ENABLE = 1)
+            if self.hold_commanded or (self.fc_failsafe_hold and not self.fc_view.fc_failsafe):
+                self._engage(now)   # our failsafe's hold, or the FC's own failsafe cleared: take it back
             return sent
         if self.mission_time(now) >= self.next_step_m:
             self._step(self.next_step_m)

@@ -19,7 +19,9 @@ Three questions decide how the navigator may use what the flight controller repo
    is no step at the switch-over, and blends towards the navigator's estimate.
 
 It also tracks arming refusals (COMMAND_ACK of MAV_CMD_COMPONENT_ARM_DISARM and the
-flight controller's "PreArm:"/"Arm:" STATUSTEXT) so the application can say why and back off.
+flight controller's "PreArm:"/"Arm:" STATUSTEXT) so the application can say why and back off,
+and the flight controller's own failsafes ("EKF failsafe" ... "EKF failsafe cleared"), so a mode
+change it made itself is told from a pilot's.
 All times are message time.
 """
 from __future__ import annotations
@@ -60,7 +62,7 @@ class ArmingBackoff:
 class FcView:
     """The flight controller's heading source, GPS state and position feed; see the module docstring."""
 
-    def __init__(self, heading_source: int, position_publish: int, blend_mps: float = 3.0) -> None:
+    def __init__(self, heading_source: int, position_publish: int, blend_mps: float = 0.5) -> None:
         self.heading_source = heading_source
         self.position_publish = position_publish
         self.reader: FcParamReader | None = None
@@ -72,6 +74,7 @@ class FcView:
         self.feeding_own = False              # the feed carries our estimate (the FC has no GPS)
         self.arming = ArmingBackoff()
         self.prearm_text = ""
+        self.fc_failsafe = ""                 # the FC's own failsafe in force ("EKF failsafe"), "" when none
         self._verdict: HeadingVerdict | None = None
 
     # --- receive ---------------------------------------------------------------------------
@@ -103,6 +106,8 @@ class FcView:
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", errors="replace")
             if text.startswith(("PreArm:", "Arm:", "Arming denied", "Preflight Fail")):
                 self.prearm_text = text.strip()
+            elif "failsafe" in text.lower() and msg.get_srcComponent() != 191:
+                self.fc_failsafe = "" if "cleared" in text.lower() else text.strip()
 
     # --- heading ---------------------------------------------------------------------------
     def poll_requests(self, link: MavlinkLink, now_s: float) -> None:

@@ -137,7 +137,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_ARM_ENABLE", int, 0, 0, 1, "", "1 lets the companion switch to GUIDED/OFFBOARD and arm"),
     _p("COMP_POS_PUB", int, 3, 0, 3, "", "give the FC our position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off, 3 GPS_INPUT as its second GPS (an echo while its own GPS works)"),
     _p("COMP_FEED_ACC_M", float, 5.0, 0.5, 1000.0, "m", "horizontal accuracy claimed in GPS_INPUT: the feed's short-term (relative) accuracy; the EKF diverges when told the km-level absolute one"),
-    _p("COMP_FEED_BLEND", float, 3.0, 0.1, 20.0, "m/s", "speed at which a new estimate is blended into the fed position (no steps the EKF would reject)"),
+    _p("COMP_FEED_BLEND", float, 0.5, 0.1, 20.0, "m/s", "speed at which a new estimate is blended into the fed position: no steps the EKF would reject, and slow because the FC's speed loop sees the fed speed (GUIDED velocity steering needs no position)"),
     _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
     _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),

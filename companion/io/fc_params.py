@@ -2,7 +2,7 @@
 
 The companion must know whether the yaw it gets in ATTITUDE comes from the same compass it
 measures the field with. On ArduPilot (EKF3) that is ``EK3_SRC1_YAW`` (1 compass, 2 GPS,
-3 GPS with compass fallback, 5 ExternalNav, 6 GSF) together with ``COMPASS_USE``; on PX4
+3 GPS with compass fallback, 6 ExternalNav, 8 GSF) together with ``COMPASS_USE``; on PX4
 (EKF2) ``EKF2_MAG_TYPE`` (0 automatic, 1 magnetic heading, 5 none, 6 init only) and the GNSS
 dual-antenna heading bit of ``EKF2_GPS_CTRL``. A compass-derived yaw is the compass heading
 plus a declination table evaluated at the flight controller's own position estimate, so D
@@ -29,7 +29,7 @@ HEADING_PARAMS = {"ardupilot": ARDUPILOT_HEADING_PARAMS, "px4": PX4_HEADING_PARA
 
 _PX4_INT_PARAMS = frozenset(PX4_HEADING_PARAMS)
 _EK3_YAW = {0: "none", 1: "compass", 2: "GPS (dual antenna)", 3: "GPS with compass fallback",
-            5: "ExternalNav", 6: "GSF (gyro and GPS velocity)", 8: "GPS with compass fallback"}
+            6: "ExternalNav", 8: "GSF (gyro and GPS velocity)"}   # AP_NavEKF3 EK3_SRC1_YAW
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ def judge_heading(autopilot: str, values: dict[str, float]) -> HeadingVerdict:
     if src is None:
         return HeadingVerdict(None, "EK3_SRC1_YAW not answered")
     name = _EK3_YAW.get(int(src), f"source {int(src)}")
-    if int(src) in (1, 3, 8):
+    if int(src) in (1, 3):
         if use is not None and int(use) == 0 and int(src) != 1:
             return HeadingVerdict(False, f"EK3_SRC1_YAW {int(src)} ({name}) with COMPASS_USE 0")
         # 3/8 fall back to the compass exactly when GPS is lost: the flight this navigator is for

@@ -62,7 +62,7 @@ class FeedSample:
 class PositionFeed:
     """A smooth position for the flight controller: anchor + velocity * t + blended correction."""
 
-    def __init__(self, blend_mps: float = 3.0) -> None:
+    def __init__(self, blend_mps: float = 0.5) -> None:
         if not blend_mps > 0.0:
             raise ValueError(f"blend_mps must be positive, got {blend_mps}")
         self.blend_mps = blend_mps

@@ -22,7 +22,8 @@ from companion.nav.magnetometer import decl_incl_deg, gravity_inclination_deg
     ({"EK3_SRC1_YAW": 3, "COMPASS_USE": 1, "AHRS_EKF_TYPE": 3}, True),    # falls back to the compass without GPS
     ({"EK3_SRC1_YAW": 2, "COMPASS_USE": 1, "AHRS_EKF_TYPE": 3}, False),   # dual-antenna GPS yaw
     ({"EK3_SRC1_YAW": 3, "COMPASS_USE": 0, "AHRS_EKF_TYPE": 3}, False),
-    ({"EK3_SRC1_YAW": 6, "COMPASS_USE": 0, "AHRS_EKF_TYPE": 3}, False),   # GSF
+    ({"EK3_SRC1_YAW": 8, "COMPASS_USE": 0, "AHRS_EKF_TYPE": 3}, False),   # GSF
+    ({"EK3_SRC1_YAW": 6, "COMPASS_USE": 1, "AHRS_EKF_TYPE": 3}, False),   # ExternalNav
     ({"EK3_SRC1_YAW": 2, "COMPASS_USE": 1, "AHRS_EKF_TYPE": 2}, True),    # EKF2 uses the compass
 ])
 def test_ardupilot_heading_verdicts(values, compass):
