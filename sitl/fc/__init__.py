@@ -11,6 +11,7 @@ module per part; :class:`~sitl.fc.server.SitlServer` wires them:
     streams     which message how often (SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM)
     commands    COMMAND_LONG/INT, modes, setpoints, TIMESYNC, PING, ODOMETRY
     params      the FC's own parameters (PARAM_REQUEST_LIST/_READ, PARAM_SET)
+    param_table their names, types, ranges and defaults (ArduPilot or PX4)
     router      input from the links, frame splitting, routing between links, dispatch
     outbox      output: queue, link faults, tlog, datagrams
     lockstep    pacing against wall time and the lockstep wait

@@ -4,9 +4,10 @@ Each fault (``kind``, ``at_s``, ``duration_s``, ``value``; see :data:`sitl.scena
 is active on ``[at_s, at_s + duration_s)`` of simulated time and announced by STATUSTEXT when
 it starts and ends. :class:`FaultInjector` turns the active set into flags the other parts
 read: the magnetometer (``mag_off``, ``mag_stuck``, ``mag_nan``, ``mag_spike_nt``), GPS
-(``gps_off``), the heartbeat (``heartbeat_off``), the link (``loss`` and ``dup``
-probabilities, ``delay_us``) and the storm (``storm_scale``: None without a ``storm_onset``
-fault, else the scale of the storm part of the field, 0 before the onset).
+(``gps_off``; the SIM_GPS1_ENABLE parameter sets it too), the heartbeat (``heartbeat_off``),
+the link (``loss`` and ``dup`` probabilities, ``delay_us``) and the storm (``storm_scale``:
+None without a ``storm_onset`` fault, else the scale of the storm part of the field, 0 before
+the onset).
 """
 from __future__ import annotations
 
@@ -35,6 +36,8 @@ class FaultInjector:
         self.loss = self.dup = 0.0
         self.delay_us = 0
         self.heartbeat_off = self.gps_off = self.mag_off = self.mag_stuck = self.mag_nan = False
+        self._gps_fault = False
+        self.gps_disabled = False       # SIM_GPS1_ENABLE = 0: denied like a gps_off fault
         self.mag_spike_nt = 0.0
         self.storm_scale: float | None = None if not any(f.kind == "storm_onset" for f in self.faults) else 0.0
         self.next_us = self._next_change_us(-1)
@@ -67,7 +70,8 @@ class FaultInjector:
             self.mag_stuck = "mag_stuck" in kinds
             self.mag_nan = "mag_nan" in kinds
             self.mag_spike_nt = sum(f.value for f in active if f.kind == "mag_spike")
-            self.gps_off = "gps_off" in kinds
+            self._gps_fault = "gps_off" in kinds
+            self.gps_off = self._gps_fault or self.gps_disabled
             self.heartbeat_off = "heartbeat_off" in kinds
             self.loss = min(1.0, max(0.0, max([f.value for f in active if f.kind == "link_loss"], default=0.0)))
             self.dup = min(1.0, max(0.0, max([f.value for f in active if f.kind == "link_duplicate"], default=0.0)))
@@ -78,6 +82,11 @@ class FaultInjector:
                 storm_changed = True
         self.next_us = self._next_change_us(self.clock.t_us)
         return storm_changed
+
+    def set_gps_enabled(self, enabled: bool) -> None:
+        """The SIM_GPS1_ENABLE switch: when off, GPS is denied exactly as by a ``gps_off`` fault."""
+        self.gps_disabled = not enabled
+        self.gps_off = self._gps_fault or self.gps_disabled
 
     def describe(self) -> str:
         """The active faults for the truth log: ``kind`` or ``kind=value``, ``;``-separated."""

@@ -31,13 +31,14 @@ from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig, parse_fau
 from sitl.fc.faults import FaultInjector
 from sitl.fc.lockstep import Stepper
 from sitl.fc.outbox import Counters, Outbox
+from sitl.fc.param_table import ardupilot_params, heading_source_of, px4_params
 from sitl.fc.params import FcParams
 from sitl.fc.records import Records, format_summary, write_summary
 from sitl.fc.router import Router
 from sitl.fc.streams import StreamScheduler
 from sitl.fc.telemetry import Telemetry
 from sitl.fc.vehicle import VehicleSim
-from sitl.guidance import DIALECTS, Guidance
+from sitl.guidance import DIALECTS, PX4, Guidance
 from sitl.links import Link, open_link, parse_endpoint
 from sitl.mavframe import FrameEncoder
 from sitl.scenario import Scenario, ScenarioError, load_scenario
@@ -100,8 +101,13 @@ class SitlServer:
         self.gate = LockstepGate(config.lockstep_period_s, config.lockstep_timeout_s,
                                  config.lockstep_start_timeout_s, config.lockstep_peer,
                                  config.lockstep_slack) if config.lockstep else None
-        self.fc_params = FcParams(self.out, self.guidance, self.counters, sysid=self.sysid,
-                                  max_speed_mps=sc.vehicle.max_speed_mps, speedup=speedup)
+        table = px4_params if self.dialect is PX4 else ardupilot_params
+        self.fc_params = FcParams(table(sysid=self.sysid, cruise_speed_mps=self.guidance.cruise_speed_mps,
+                                        setpoint_timeout_s=self.guidance.setpoint_timeout_s,
+                                        max_speed_mps=sc.vehicle.max_speed_mps, speedup=speedup,
+                                        heading_source=heading_source_of(sc)),
+                                  self.out, self.guidance, self.faults, self.counters, sysid=self.sysid,
+                                  compid=self.compid, bytewise=self.dialect is PX4)
         self.links: list[Link] = self._open_links(config)
         self.records = Records(config, sc.name)
         self.out.links = self.links
@@ -158,9 +164,9 @@ class SitlServer:
         return self.vehicle.state
 
     @property
-    def params(self) -> dict[str, list]:
-        """The flight controller's parameter table, by name."""
-        return self.fc_params.table
+    def params(self) -> dict[str, float]:
+        """The flight controller's parameter values, by name (:mod:`sitl.fc.param_table`)."""
+        return self.fc_params.values
 
     @property
     def log_dir(self):

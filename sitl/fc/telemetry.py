@@ -19,7 +19,7 @@ from companion import wrap_2pi, wrap_pi
 from sitl.clock import SimClock
 from sitl.mavframe import INT16_MAX, int16
 
-__all__ = ["CAPABILITIES", "MAV_TYPE_SURFACE_BOAT", "Telemetry"]
+__all__ = ["CAPABILITIES", "MAV_TYPE_SURFACE_BOAT", "PX4_CAPABILITIES", "Telemetry"]
 
 MAV_TYPE_SURFACE_BOAT = 11
 MAV_STATE_BOOT, MAV_STATE_STANDBY, MAV_STATE_ACTIVE = 1, 3, 4
@@ -28,6 +28,9 @@ CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOC
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+# PX4 encodes INT32 parameters bytewise in PARAM_VALUE's float (see sitl.fc.params)
+PX4_CAPABILITIES = (CAPABILITIES & ~mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT) \
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
 
 
 class Telemetry:
@@ -180,6 +183,7 @@ class Telemetry:
                       int(self.scenario.alt_m * 1000), self.clock.t_us)
 
     def send_autopilot_version(self) -> None:
+        capabilities = PX4_CAPABILITIES if self.dialect.autopilot == mavlink.MAV_AUTOPILOT_PX4 else CAPABILITIES
         self.out.emit(mavlink.MAVLink_autopilot_version_message,
-                      CAPABILITIES, self.dialect.version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
+                      capabilities, self.dialect.version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
                       0x5157_0000 + self.sysid, [0] * 18)
