@@ -40,9 +40,26 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["US_PER_S", "Pacer", "LockstepGate"]
+__all__ = ["US_PER_S", "SimClock", "Pacer", "LockstepGate"]
 
 US_PER_S = 1_000_000
+
+
+class SimClock:
+    """Simulated time since boot in integer microseconds, shared by the simulator's parts.
+
+    Only the simulation loop advances it; everyone else reads ``t_us`` or ``time_s``.
+    """
+
+    __slots__ = ("t_us",)
+
+    def __init__(self, t_us: int = 0) -> None:
+        self.t_us = t_us
+
+    @property
+    def time_s(self) -> float:
+        """Simulated seconds since boot."""
+        return self.t_us / US_PER_S
 
 
 class Pacer:

@@ -25,7 +25,19 @@ except ImportError:  # pragma: no cover - fastcrc is a dependency
     def _checksum(data: bytes) -> int:
         return x25crc(data).crc
 
-__all__ = ["FrameEncoder"]
+__all__ = ["INT16_MAX", "FrameEncoder", "int16"]
+
+INT16_MAX = 32767
+
+
+def int16(value: float) -> int:
+    """``value`` rounded and saturated to an int16 field (MAVLink's RAW_IMU, SCALED_IMU, velocities).
+
+    >>> int16(40000.4), int16(-1.6)
+    (32767, -2)
+    """
+    v = int(round(value))
+    return INT16_MAX if v > INT16_MAX else (-INT16_MAX - 1 if v < -INT16_MAX - 1 else v)
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 

@@ -1,25 +1,15 @@
-"""Fault injection, records and the command line: runs of ``python -m sitl.server`` checked from its tlog and CSV."""
+"""sitl.fc.faults: a run of ``python -m sitl.server`` with every fault kind, checked from its tlog and CSV."""
 from __future__ import annotations
 
 import math
-import socket
 
 import numpy as np
 import pytest
 
 from sitl.scenario import load_scenario
-from sitl.server import main
-from sitl.truthlog import TRUTH_COLUMNS, read_truth_csv
+from sitl.truthlog import read_truth_csv
 from tests.sitl.conftest import REPO, body_to_ned, read_tlog, run_cli
-
-
-def _closed_udp_port() -> int:
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
-    return port
-
+from tests.sitl.fc.helpers import closed_udp_port
 
 FAULTS = ["mag_off:10:5", "mag_stuck:20:5", "mag_spike:30:2:5000", "mag_nan:35:3", "heartbeat_off:40:5",
           "link_loss:50:5:0.5", "link_duplicate:55:3:1", "link_delay:58:2:0.5"]
@@ -34,7 +24,7 @@ def fault_run(tmp_path_factory):
     scenario = tmp / "pacific_faults.toml"
     scenario.write_text(text)
     args = ["--scenario", str(scenario), "--speedup", "0", "--duration", "62", "--init-s", "0.2", "--seed", "3",
-            "--rate", "HIGHRES_IMU:10", "--tlog", "--out", f"udp:127.0.0.1:{_closed_udp_port()}"]
+            "--rate", "HIGHRES_IMU:10", "--tlog", "--out", f"udp:127.0.0.1:{closed_udp_port()}"]
     for fault in FAULTS:
         args += ["--fault", fault]
     summary, log_dir = run_cli(args, tmp)
@@ -128,79 +118,11 @@ def test_link_loss_duplicate_delay(fault_run):
     assert prompt and all(abs(m.sim_s - m.time_usec / 1e6) < 1e-3 for m in prompt)
 
 
-def test_runs_are_reproducible_for_a_seed(tmp_path):
-    port = _closed_udp_port()
-    args = ["--speedup", "0", "--duration", "30", "--tlog", "--out", f"udp:127.0.0.1:{port}", "--fault",
-            "link_loss:5:10:0.3"]
-    runs = []
-    for k, seed in enumerate((7, 7, 8)):
-        folder = tmp_path / f"r{k}"
-        folder.mkdir()
-        _, log_dir = run_cli(args + ["--seed", str(seed)], folder)
-        runs.append(((log_dir / "truth.csv").read_bytes(), (log_dir / "sitl.tlog").read_bytes()))
-    assert runs[0] == runs[1]
-    assert runs[0][0] != runs[2][0] and runs[0][1] != runs[2][1]
-
-
-def test_truth_log_columns_and_fc_drift(tmp_path):
-    _, log_dir = run_cli(["--speedup", "0", "--duration", "1800", "--out", f"udp:127.0.0.1:{_closed_udp_port()}"],
-                         tmp_path)
-    log = read_truth_csv(log_dir / "truth.csv")
-    assert tuple(log) == TRUTH_COLUMNS
-    assert len(log["time_s"]) == 1801                          # 0..1800 s at 1 Hz (the final row is t = 1800)
-    err = np.hypot(log["fc_err_e_m"], log["fc_err_n_m"])
-    assert err[0] > 100.0 and np.all(np.isfinite(err))          # Table 1: km-scale initial INS error
-    assert np.ptp(err) > 1.0                                    # and it drifts
-    assert log["remaining_m"][0] == pytest.approx(799_071.9, abs=1.0)
-    assert set(log["gps_fix"]) == {0.0}                         # pacific denies GPS from t = 0
-
-
 def test_storm_onset_fault(tmp_path, shared_data):
     _, log_dir = run_cli(["--scenario", "long_storm", "--speedup", "0", "--duration", "40", "--expected-duration",
                           "60", "--fault", "storm_onset:20", "--data-dir", str(shared_data),
-                          "--out", f"udp:127.0.0.1:{_closed_udp_port()}"], tmp_path)
+                          "--out", f"udp:127.0.0.1:{closed_udp_port()}"], tmp_path)
     log = read_truth_csv(log_dir / "truth.csv")
     t = np.array(log["time_s"])
     dist = np.abs(np.array([log["dist_n_nt"], log["dist_e_nt"], log["dist_d_nt"]])).sum(axis=0)
     assert np.all(dist[t < 20] == 0.0) and np.all(dist[t >= 20] > 10.0)
-
-
-def test_cli_errors_exit_2(capsys):
-    assert main(["--scenario", "no_such_scenario", "--quiet"]) == 2
-    assert "no scenario" in capsys.readouterr().err
-    assert main(["--fault", "mag_explode:1", "--quiet", "--no-truth-log"]) == 2
-    assert main(["--out", "serial:/dev/null", "--quiet", "--no-truth-log"]) == 2
-    assert main(["--fault", "storm_onset:5", "--quiet", "--no-truth-log"]) == 2   # pacific has no storm
-
-
-def test_sigterm_stops_cleanly_and_flushes_records(tmp_path):
-    import json
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    log_dir = tmp_path / "sig"
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    proc = subprocess.Popen([sys.executable, "-m", "sitl.server", "--speedup", "50", "--tlog", "--log-dir",
-                             str(log_dir), "--out", f"udp:127.0.0.1:{_closed_udp_port()}"],
-                            env=env, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 20
-        while not (log_dir / "truth.csv").exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
-    summary = json.loads((log_dir / "summary.json").read_text())
-    assert 10.0 < summary["sim_s"] < 500.0
-    log = read_truth_csv(log_dir / "truth.csv")
-    assert log["time_s"][-1] == pytest.approx(summary["sim_s"])
-    assert len(read_tlog(log_dir / "sitl.tlog")) == summary["tx_messages"]
-    assert b"simulated in" in err

@@ -1,0 +1,141 @@
+"""What the stand-in sends: messages queued during one simulated instant, then flushed to every link.
+
+:class:`Outbox` encodes each message once (:class:`sitl.mavframe.FrameEncoder`), rate-limits
+repeated STATUSTEXT warnings (one per kind per 5 s of *simulated* time), and at the end of
+each instant applies the link faults of :class:`sitl.fc.faults.FaultInjector` (loss and
+duplication drawn from the seeded link generator; a delay is a FIFO, so no frame overtakes a
+delayed one), writes the tlog, and packs the frames into datagrams of at most
+``MAX_DATAGRAM_BYTES`` (``batch``) before sending them to every link.
+:class:`Counters` is the run's tally of events, reported in the summary.
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sitl.clock import SimClock
+from sitl.links import MAX_DATAGRAM_BYTES, Link
+from sitl.mavframe import FrameEncoder
+
+__all__ = ["STATUSTEXT_MIN_INTERVAL_S", "Counters", "Outbox"]
+
+STATUSTEXT_MIN_INTERVAL_S = 5.0    # per kind of repeated warning
+
+
+class Counters(dict):
+    """Event counts by name (a dict, so the summary can print it as it is)."""
+
+    def add(self, key: str, n: int = 1) -> None:
+        self[key] = self.get(key, 0) + n
+
+
+class Outbox:
+    """Queue of encoded frames for the current simulated instant, and their delivery."""
+
+    def __init__(self, encoder: FrameEncoder, clock: SimClock, counters: Counters, faults, link_rng,
+                 start_unix_us: int, batch: bool = True, quiet: bool = False) -> None:
+        self.encoder = encoder
+        self.clock = clock
+        self.counters = counters
+        self.faults = faults            # reads .loss, .dup, .delay_us
+        self.link_rng = link_rng
+        self.start_unix_us = start_unix_us
+        self.batch = batch
+        self.quiet = quiet
+        self.links: list[Link] = []
+        self.tlog = None
+        self.tx_by_type: dict[str, int] = {}
+        self.delayed: list[tuple[int, bytes]] = []
+        self._out: list[bytes] = []
+        self._last_say: dict[str, float] = {}
+
+    def emit(self, cls, *fields) -> None:
+        """Queue one message (class and ``*_encode`` arguments) for the end of this iteration."""
+        self._out.append(self.encoder.frame(cls, *fields))
+        name = cls.msgname
+        self.tx_by_type[name] = self.tx_by_type.get(name, 0) + 1
+
+    def say(self, key: str | None, severity: int, text: str) -> None:
+        """STATUSTEXT (at most one per ``key`` per 5 s of simulated time when ``key`` is given)."""
+        now = self.clock.time_s
+        if key is not None:
+            last = self._last_say.get(key)
+            if last is not None and now - last < STATUSTEXT_MIN_INTERVAL_S:
+                self.counters.add("statustext_suppressed")
+                return
+            self._last_say[key] = now
+        if not self.quiet and os.environ.get("FCMPC_SITL_ECHO"):
+            print(f"[{now:10.1f}] {text}", file=sys.stderr)
+        self.emit(mavlink.MAVLink_statustext_message, severity, text.encode("ascii", "replace")[:50])
+
+    def relay_events(self, source) -> None:
+        """Announce (and clear) the ``(severity, text)`` events a part such as Guidance collected."""
+        events, source.events = source.events, []
+        for severity, text in events:
+            self.say(None, severity, text)
+
+    def _impair(self, frames: list[bytes]) -> list[bytes]:
+        """Loss and duplication faults, drawn per frame from the link generator."""
+        loss, dup = self.faults.loss, self.faults.dup
+        kept = []
+        rand = self.link_rng.random
+        for frame in frames:
+            if loss and rand() < loss:
+                self.counters.add("tx_dropped_fault")
+                continue
+            kept.append(frame)
+            if dup and rand() < dup:
+                kept.append(frame)
+                self.counters.add("tx_duplicated_fault")
+        return kept
+
+    def _delay(self, frames: list[bytes]) -> list[bytes]:
+        """A FIFO link with latency: frames leave in order, none overtakes a delayed one."""
+        now_us, delay_us = self.clock.t_us, self.faults.delay_us
+        if frames:
+            release = now_us + delay_us
+            if self.delayed:
+                release = max(release, self.delayed[-1][0])
+            self.delayed.extend((release, frame) for frame in frames)
+            if delay_us:
+                self.counters.add("tx_delayed_fault", len(frames))
+        k = 0
+        while k < len(self.delayed) and self.delayed[k][0] <= now_us:
+            k += 1
+        frames = [frame for _, frame in self.delayed[:k]]
+        del self.delayed[:k]
+        return frames
+
+    def flush(self) -> None:
+        """Send what this instant queued (after the link faults) to every link."""
+        frames, self._out = self._out, []
+        faults = self.faults
+        if faults.loss or faults.dup:
+            frames = self._impair(frames)
+        if faults.delay_us or self.delayed:
+            frames = self._delay(frames)
+        if not frames:
+            for link in self.links:
+                link.flush()
+            return
+        self.counters.add("tx_messages", len(frames))
+        if self.tlog is not None:
+            stamp = self.start_unix_us + self.clock.t_us
+            for frame in frames:
+                self.tlog.write(stamp, frame)
+        if self.batch:
+            chunks, current, size = [], [], 0
+            for frame in frames:
+                if size + len(frame) > MAX_DATAGRAM_BYTES and current:
+                    chunks.append(b"".join(current))
+                    current, size = [], 0
+                current.append(frame)
+                size += len(frame)
+            chunks.append(b"".join(current))
+        else:
+            chunks = frames
+        for link in self.links:
+            for chunk in chunks:
+                link.send(chunk)

@@ -1,0 +1,136 @@
+"""The stand-in's own parameters over the MAVLink parameter protocol, like ArduPilot (or PX4) serves them.
+
+PARAM_REQUEST_LIST sends every parameter of :mod:`sitl.fc.param_table` (``param_index`` =
+position, ``param_count`` = the table's size); PARAM_REQUEST_READ answers one, by index, or
+by name when ``param_index`` is -1 (the MAVLink rule); PARAM_SET is range-checked and always
+answered with PARAM_VALUE: the new value, or the unchanged one plus a STATUSTEXT naming the
+allowed values when refused. Unknown names get no answer (as ArduPilot), and are counted.
+
+Only requests addressed to this vehicle are served: ``target_system`` our system id and
+``target_component`` 1 or 0. A request to another component (the companion's 191) is
+routed to it untouched, so ground stations listing the companion's parameters never see ours.
+
+Encoding of INT32 values in the float ``param_value``: ArduPilot sends the value converted to
+float (C cast); PX4 copies the int32's four bytes (bytewise), and reads PARAM_SET the same way.
+"""
+from __future__ import annotations
+
+import struct
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sitl.fc.param_table import MAV_PARAM_TYPE_INT32, ParamSpec
+from sitl.guidance import SEVERITY_WARNING
+
+__all__ = ["FcParams", "float_from_int32_bytes", "int32_from_float_bytes"]
+
+_F32 = struct.Struct("<f")
+_I32 = struct.Struct("<i")
+
+
+def float_from_int32_bytes(value: int) -> float:
+    """The float whose four bytes are the int32 ``value`` (PX4's bytewise encoding).
+
+    >>> int32_from_float_bytes(float_from_int32_bytes(15))
+    15
+    """
+    return _F32.unpack(_I32.pack(int(value)))[0]
+
+
+def int32_from_float_bytes(value: float) -> int:
+    """The int32 whose four bytes are the float ``value`` (decodes PX4's bytewise encoding)."""
+    return _I32.unpack(_F32.pack(value))[0]
+
+
+class FcParams:
+    """The flight controller's parameter table and its protocol handlers."""
+
+    def __init__(self, specs: tuple[ParamSpec, ...], out, guidance, faults, counters, *, sysid: int, compid: int,
+                 bytewise: bool = False) -> None:
+        self.specs = {spec.name: spec for spec in specs}
+        self.names = [spec.name for spec in specs]
+        self.values: dict[str, float] = {spec.name: spec.default for spec in specs}
+        self.out = out
+        self.guidance = guidance
+        self.faults = faults
+        self.counters = counters
+        self.sysid, self.compid = sysid, compid
+        self.bytewise = bytewise
+
+    def handlers(self) -> dict:
+        return {"PARAM_REQUEST_LIST": self.on_request_list, "PARAM_REQUEST_READ": self.on_request_read,
+                "PARAM_SET": self.on_set}
+
+    def _for_us(self, msg) -> bool:
+        if msg.target_system == self.sysid and msg.target_component in (0, self.compid):
+            return True
+        self.counters.add("param_not_for_us")
+        return False
+
+    def _encode(self, spec: ParamSpec, value: float) -> float:
+        if self.bytewise and spec.kind == MAV_PARAM_TYPE_INT32:
+            return float_from_int32_bytes(int(value))
+        return float(value)
+
+    def _decode(self, spec: ParamSpec, value: float) -> float:
+        if self.bytewise and spec.kind == MAV_PARAM_TYPE_INT32:
+            return float(int32_from_float_bytes(value))
+        return float(value)
+
+    def _send(self, name: str) -> None:
+        spec = self.specs[name]
+        self.out.emit(mavlink.MAVLink_param_value_message, name.encode(), self._encode(spec, self.values[name]),
+                      spec.kind, len(self.names), self.names.index(name))
+
+    @staticmethod
+    def _name(msg) -> str:
+        raw = msg.param_id
+        return (raw if isinstance(raw, str) else raw.decode("ascii", "replace")).rstrip("\x00")
+
+    def on_request_list(self, msg) -> None:
+        if not self._for_us(msg):
+            return
+        for name in self.names:
+            self._send(name)
+
+    def on_request_read(self, msg) -> None:
+        if not self._for_us(msg):
+            return
+        if msg.param_index >= 0:
+            if msg.param_index < len(self.names):
+                self._send(self.names[msg.param_index])
+                return
+        else:
+            name = self._name(msg)
+            if name in self.specs:
+                self._send(name)
+                return
+        self.counters.add("param_read_unknown")
+
+    def on_set(self, msg) -> None:
+        if not self._for_us(msg):
+            return
+        name = self._name(msg)
+        spec = self.specs.get(name)
+        if spec is None:
+            self.counters.add("param_set_unknown")
+            return
+        value = self._decode(spec, msg.param_value)
+        if spec.accepts(value):
+            self.values[name] = value
+            self._apply(name, value)
+            self.counters.add("param_set_accepted")
+        else:
+            self.counters.add("param_set_refused")
+            self.out.say(f"param_{name}", SEVERITY_WARNING, f"{name} refused: {spec.rule()}")
+        self._send(name)
+
+    def _apply(self, name: str, value: float) -> None:
+        """The parameters that change what the simulator does."""
+        if name == "CRUISE_SPEED":
+            self.guidance.cruise_speed_mps = value
+        elif name in ("GUID_TIMEOUT", "COM_OF_LOSS_T"):
+            self.guidance.setpoint_timeout_s = value
+        elif name == "SIM_GPS1_ENABLE":
+            self.faults.set_gps_enabled(value != 0.0)
+            self.out.say(None, SEVERITY_WARNING, f"SITL GPS1 {'enabled' if value else 'disabled'} (SIM_GPS1_ENABLE)")

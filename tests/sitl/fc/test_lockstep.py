@@ -1,0 +1,86 @@
+"""sitl.fc.lockstep over real loopback sockets: time advances only with the companion, and a closed loop is bit-reproducible."""
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from tests.sitl.fc.helpers import ARM, DO_SET_MODE, GUIDED, HOLD, send_velocity, stop_and_wait
+
+
+def test_lockstep_advances_only_with_the_companion(sitl):
+    server, client = sitl(lockstep=True, lockstep_timeout_s=0.3, lockstep_start_timeout_s=10.0, init_s=0.2,
+                          speedup=None, duration_s=None)
+    # answer each boundary (SYSTEM_TIME at every 0.2 s) with a setpoint stamped with that time
+    answered = 0
+    last = -1
+    while answered < 50:
+        st = client.recv("SYSTEM_TIME", 5.0)
+        if st.time_boot_ms > last:
+            last = st.time_boot_ms
+            client.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            answered += 1
+    t_answered = client.time_ms()
+    assert server.gate.timeouts == 0
+    assert t_answered == pytest.approx(50 * 200, abs=600)
+    # silence: one period per timeout (0.3 s wall), never a deadlock
+    time.sleep(1.0)
+    advanced = server.t_us / 1000 - t_answered
+    assert 0 < advanced <= 6 * 200
+    assert server.gate.timeouts >= 2
+
+
+def test_lockstep_timed_answers_are_exact(sitl):
+    server, client = sitl(lockstep=True, lockstep_timeout_s=2.0, init_s=0.2, speedup=None, duration_s=None)
+    for _ in range(30):
+        st = client.recv("SYSTEM_TIME", 5.0)
+        # a setpoint stamped with the boundary it answers (ignored in HOLD, but it answers the step)
+        send_velocity(client, st.time_boot_ms, 0.0, 0.0)
+    time.sleep(0.3)
+    # the simulator can be at most one period ahead of the last answered boundary
+    assert server.gate.timeouts == 0
+    assert server.gate.peer_time_ms >= 0
+    assert server.t_us / 1000 <= server.gate.peer_time_ms + 2 * 200
+
+
+def _scripted_companion(client, boundaries: int) -> None:
+    """A deterministic companion: arm and GUIDED once the vehicle is ready, then at every lockstep
+    boundary a setpoint computed from the latest GLOBAL_POSITION_INT, stamped with the boundary."""
+    latest = None
+    commanded = False
+    answered = 0
+    while answered < boundaries:
+        msg = client.recv(["SYSTEM_TIME", "GLOBAL_POSITION_INT", "HEARTBEAT"], 10.0)
+        name = msg.get_type()
+        if name == "GLOBAL_POSITION_INT":
+            latest = msg
+        elif name == "HEARTBEAT":
+            if msg.get_srcComponent() == 1 and msg.custom_mode == HOLD and not commanded:
+                client.mav.command_long_send(1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0)
+                client.mav.command_long_send(1, 1, DO_SET_MODE, 0, 1, GUIDED, 0, 0, 0, 0, 0)
+                commanded = True
+        else:
+            b = msg.time_boot_ms
+            north = (32.99 - latest.lat / 1e7) if latest else 0.0
+            east = (152.01 - latest.lon / 1e7) if latest else 0.0
+            course = math.atan2(east * math.cos(math.radians(33.0)), north)
+            speed = 6.0 + 2.0 * math.sin(b / 7000.0)
+            send_velocity(client, b, speed * math.cos(course), speed * math.sin(course))
+            answered += 1
+
+
+@pytest.mark.parametrize("slack", [1, 0])
+def test_lockstep_closed_loop_is_bit_reproducible(sitl, tmp_path, slack):
+    logs = []
+    for run in range(2):
+        folder = tmp_path / f"run{run}"
+        server, client = sitl(lockstep=True, lockstep_slack=slack, speedup=None, duration_s=60.0, init_s=0.2,
+                              seed=11, log_dir=str(folder), tlog=str(folder / "sitl.tlog"))
+        _scripted_companion(client, boundaries=301)           # 0.0, 0.2, ... 60.0
+        stop_and_wait(server)
+        assert server.gate.timeouts == 0 and server.summary["sim_s"] == pytest.approx(60.0)
+        assert server.state.distance_m > 150.0
+        logs.append((folder / "truth.csv").read_bytes())
+    assert logs[0] == logs[1]
