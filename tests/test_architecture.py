@@ -28,8 +28,8 @@ def _modules(folder: str) -> list[Path]:
 
 
 @pytest.mark.parametrize("path", _modules("companion"), ids=lambda p: str(p.relative_to(ROOT)))
-def test_companion_never_imports_sitl_or_scripts(path: Path):
-    bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts")}
+def test_companion_never_imports_sitl_scripts_or_replay(path: Path):
+    bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts", "replay")}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
@@ -55,3 +55,18 @@ def test_world_models_are_pure():
     for path in _modules("sitl/world"):
         bad = {name for name in _imports(path) if name.split(".")[0] in IMPURE - {"os", "pathlib"}}
         assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
+
+
+@pytest.mark.parametrize("path", _modules("replay"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_replay_evaluation_never_imports_sitl_or_scripts(path: Path):
+    """The log evaluation reads logs with companion's sources and judges with companion.nav only."""
+    bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts")}
+    assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
+
+
+@pytest.mark.parametrize("path", [ROOT / "scripts" / "replay.py"] + _modules("replay"),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_replay_modules_stay_under_500_lines(path: Path):
+    """Rooms a person can hold (issue 11): the replay package and its entry point."""
+    lines = path.read_text(encoding="utf-8").count("\n")
+    assert lines <= 500, f"{path.relative_to(ROOT)} has {lines} lines"
