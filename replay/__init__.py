@@ -46,9 +46,9 @@ Modules: :mod:`replay.logdata` (reading), :mod:`replay.models` (date, field mode
 """
 from __future__ import annotations
 
-from replay.evaluate import evaluate
-from replay.logdata import LogData, read_log
-from replay.models import log_decimal_year, select_model
+from replay.logdata import LogData, read_boots
+from replay.logeval import LogEvaluation, evaluate, evaluate_log
+from replay.models import LogDate, log_date, select_model
 from replay.outputs import summary_dict, write_outputs
 from replay.records import ReplayEvaluation
 from replay.report import format_report
@@ -58,10 +58,13 @@ __all__ = [
     "LogData",
     "Segments",
     "ReplayEvaluation",
-    "read_log",
+    "LogEvaluation",
+    "LogDate",
+    "read_boots",
+    "evaluate_log",
     "find_segments",
     "select_model",
-    "log_decimal_year",
+    "log_date",
     "evaluate",
     "format_report",
     "summary_dict",

@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 from companion.io.sensors.base import SensorError
-from companion.io.sensors.replay import sniff_log_format
 import replay
-from replay.evaluate import DEFAULT_WINDOWS_S, evaluate
+from replay.evaluate import DEFAULT_WINDOWS_S
+from replay.logeval import evaluate_log
 from replay.outputs import write_outputs
-from replay.report import format_report
+from replay.report import format_log_report, format_report
 
 __all__ = ["main"]
 
@@ -27,9 +27,12 @@ def _windows(text: str) -> tuple[float, ...]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fcmpc-replay", description=replay.__doc__.split("\n")[0])
-    parser.add_argument("log", metavar="LOG", help="ArduPilot DataFlash .bin or MAVLink .tlog")
+    parser.add_argument("log", metavar="LOG",
+                        help="ArduPilot DataFlash .bin, MAVLink .tlog, PX4 .ulg or a .csv (columns in the README)")
     parser.add_argument("--model", default=None,
                         help="WMM2010|WMM2015|WMM2015V2|WMM2020|WMM2025 or a .COF path (default: by the log's date)")
+    parser.add_argument("--date", default=None, metavar="YYYY-MM-DD",
+                        help="the date of a log that carries none (default: from the log, which says its source)")
     parser.add_argument("--window-s", type=_windows, default=DEFAULT_WINDOWS_S,
                         help="averaging windows in seconds, comma separated (default 1,10,30)")
     parser.add_argument("--out", default=None, help="output folder (default out/replay/<log stem>)")
@@ -40,17 +43,27 @@ def main(argv: list[str] | None = None) -> int:
                         help="the airborne span ends this long before a detected crash (default 10)")
     parser.add_argument("--no-plots", action="store_true")
     args = parser.parse_args(argv)
+    # A user error (unreadable or unsupported log, no date, a model that does not cover it) is one
+    # line naming the file or option and exit code 2; anything else is a bug and keeps its traceback.
     try:
-        sniff_log_format(args.log)
-        ev = evaluate(args.log, args.model, args.window_s, args.prior_offset_km, args.crash_guard_s,
-                      args.mag_instance)
+        result = evaluate_log(args.log, args.model, args.window_s, args.prior_offset_km, args.crash_guard_s,
+                              args.mag_instance, args.date)
     except (SensorError, ValueError, OSError) as err:
         print(f"fcmpc-replay: {err}", file=sys.stderr)
         return 2
-    report = format_report(ev)
-    print(report)
     out = Path(args.out) if args.out else Path("out") / "replay" / Path(args.log).stem
-    written = write_outputs(ev, out, plots=not args.no_plots)
+    if len(result.evaluations) == 1 and not result.skipped:
+        report = format_report(result.evaluations[0])
+        written = write_outputs(result.evaluations[0], out, plots=not args.no_plots)
+    else:
+        report = format_log_report(result)
+        written = []
+        for label, ev in zip(result.labels, result.evaluations):
+            written += write_outputs(ev, out / label, plots=not args.no_plots)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "table.md").write_text(report)
+        written.insert(0, out / "table.md")
+    print(report)
     print(f"written: {', '.join(str(p) for p in written)}", file=sys.stderr)
     return 0
 

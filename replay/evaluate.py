@@ -2,52 +2,55 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
-from companion.nav.field import PositionFixError, decl_incl_gradient, geomagnetic_fix
+from companion.nav.field import PositionFixError, WorldMagneticModel, decl_incl_gradient, geomagnetic_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
 from companion.nav.magnetometer import PeriodAverager, SpikeFilter, tilt_compensated_di
 from replay.heading import model_di_gradient, run_mission
 from replay.ins import ins_track, stationary_bias
-from replay.logdata import read_log
-from replay.models import log_decimal_year, select_model
+from replay.logdata import LogData
+from replay.models import LogDate
 from replay.records import DIRow, FixRow, FusedRow, HeadingRow, InsRow, ReplayEvaluation, WindowRecord
-from replay.segments import HOVER_SPEED_MPS, HOVER_TILT_DEG, find_segments
-from replay.stats import interp_gps, percentile, wrap180, wrap_pi
+from replay.segments import HOVER_SPEED_MPS, HOVER_TILT_DEG, Flight, Segments, find_segments
+from replay.stats import circ_mean_deg, circ_std_deg, interp_gps, percentile, wrap180, wrap_pi
 
-__all__ = ["evaluate", "DEFAULT_WINDOWS_S", "INS_REPORT_S", "SPIKE_NT"]
+__all__ = ["evaluate_flight", "DEFAULT_WINDOWS_S", "INS_REPORT_S", "SPIKE_NT"]
 
 DEFAULT_WINDOWS_S = (1.0, 10.0, 30.0)
 INS_REPORT_S = (10.0, 30.0, 60.0)
 SPIKE_NT = 5000.0            # COMP_SPIKE_NT default
+F_RATIO_TOLERANCE = 0.15     # |F| measured / model beyond 1 +- this: the magnetometer is uncalibrated
+MIN_INS_RATE_HZ = 20.0       # below this IMU rate the dead reckoning is flagged
 
 
-def evaluate(
-    path: str | os.PathLike[str],
-    model_spec: str | None = None,
+def evaluate_flight(
+    data: LogData,
+    flight: Flight | None,
+    model: WorldMagneticModel,
+    model_note: str,
+    date: LogDate,
     windows_s: tuple[float, ...] = DEFAULT_WINDOWS_S,
     prior_offset_km: float = 10.0,
     crash_guard_s: float = 10.0,
-    mag_instance: int = 0,
 ) -> ReplayEvaluation:
-    """Run the whole evaluation; raises SensorError/ValueError with a clear message on bad input."""
-    data = read_log(path, mag_instance)
-    if len(data.gps) < 2:
-        raise ValueError(f"{path}: fewer than two 3D GPS fixes; the evaluation needs the log's GPS as truth")
-    if len(data.mag) < 2 or len(data.att) < 2:
-        raise ValueError(f"{path}: needs magnetometer {mag_instance} and attitude samples "
-                         f"(got {len(data.mag)} and {len(data.att)})")
-    dated = log_decimal_year(data)
-    year, date = (dated if dated is not None else (None, None))
-    model, model_note = select_model(model_spec, year)
-    if year is None:
-        year = 0.5 * (model.valid_from + model.valid_until)
-        model_note += f"; no date in the log, evaluated at {year:.2f}"
+    """Evaluate one flight of one boot (``flight`` None: a recording that is not a flight).
 
+    ``data`` is the boot's data cut to the flight's window; ValueError when it lacks GPS,
+    magnetometer or attitude samples.
+    """
+    path = data.path
+    where = f"{path}" + (f" (boot {data.boot + 1} of {data.boots})" if data.boots > 1 else "")
+    if len(data.gps) < 2:
+        raise ValueError(f"{where}: fewer than two 3D GPS fixes; the evaluation needs the log's GPS as truth")
+    if len(data.mag) < 2 or len(data.att) < 2:
+        raise ValueError(f"{where}: needs magnetometer {data.mag_instance} and attitude samples "
+                         f"(got {len(data.mag)} and {len(data.att)})")
+    year = date.decimal_year
+    mag_instance = data.mag_instance
     gps, att = data.gps, data.att
     # --- 1. per-sample D, I (measured) and the model at the GPS position ------------------------
     mag = data.mag[(data.mag[:, 0] >= gps[0, 0]) & (data.mag[:, 0] <= gps[-1, 0])]
@@ -67,7 +70,7 @@ def evaluate(
     err_f = meas[:, 2] - wmm.f_nt
     accepted = meas[:, 3] > 0.5
 
-    seg = find_segments(data, t_m, meas[:, 0], crash_guard_s)
+    seg = find_segments(data, t_m, meas[:, 0], crash_guard_s, flight)
     tilt_m = np.degrees(np.maximum(np.abs(wrap_pi(roll)), np.abs(wrap_pi(pitch))))
     speed_m = np.hypot(np.interp(t_m, gps[:, 0], np.nan_to_num(gps[:, 4])),
                        np.interp(t_m, gps[:, 0], np.nan_to_num(gps[:, 5])))
@@ -83,7 +86,7 @@ def evaluate(
     elif seg.takeoff_s is not None:
         segment_masks.append(("ground", seg.first_fix_s, ground_end,
                               (t_m >= seg.first_fix_s) & (t_m < ground_end), False))
-    label = "airborne" if seg.takeoff_s is not None else "whole log after first fix"
+    label = "airborne" if seg.takeoff_s is not None else "whole recording after first fix"
     segment_masks.append((label, nav0, nav1, in_nav, True))
     if seg.takeoff_s is not None:
         hover = in_nav & (tilt_m < HOVER_TILT_DEG) & (speed_m < HOVER_SPEED_MPS)
@@ -100,8 +103,8 @@ def evaluate(
             continue
         di_rows.append(DIRow(
             name, a, b, n,
-            float(wmm.decl_deg[m].mean() + err_d[m].mean()), float(wmm.decl_deg[m].mean()),
-            float(err_d[m].mean()), float(err_d[m].std()),
+            float(wrap180(wmm.decl_deg[m].mean() + circ_mean_deg(err_d[m]))), float(wmm.decl_deg[m].mean()),
+            circ_mean_deg(err_d[m]), circ_std_deg(err_d[m]),
             float(meas[m, 1].mean()), float(wmm.incl_deg[m].mean()),
             float(err_i[m].mean()), float(err_i[m].std()), float(err_f[m].mean()), judged))
 
@@ -132,7 +135,7 @@ def evaluate(
         errors = {}
         for dt_s in INS_REPORT_S:
             errors[f"+{dt_s:g} s"] = float(np.interp(ti[0] + dt_s, ti, err)) if ti[0] + dt_s <= ti[-1] else math.nan
-        errors["end of airborne span"] = float(np.interp(nav1, ti, err)) if nav1 <= ti[-1] else math.nan
+        errors["end of judged span"] = float(np.interp(nav1, ti, err)) if nav1 <= ti[-1] else math.nan
         ins_rows.append(InsRow(name, float(ti[0]), errors))
     nav_ins_name = ins_defs[1][0] if len(ins_defs) > 1 else ins_defs[0][0]
     ins_t, ins_e, ins_n = tracks[nav_ins_name]
@@ -143,6 +146,8 @@ def evaluate(
 
     # --- 2, 4, 5: per window ---------------------------------------------------------------------
     rate_hz = 1.0 / float(np.median(np.diff(t_m))) if len(t_m) > 1 else 10.0
+    warnings = list(data.notes) + _warnings(data, seg, meas[in_nav & accepted, 2], wmm.f_nt[in_nav & accepted],
+                                            rate_hz)
     airborne_speed = np.hypot(gps[:, 4], gps[:, 5])[(gps[:, 0] >= nav0) & (gps[:, 0] <= nav1)]
     cruise_mps = max(1.0, float(np.nanmedian(airborne_speed))) if len(airborne_speed) else 1.0
     fix_rows: list[FixRow] = []
@@ -185,18 +190,18 @@ def evaluate(
             recs.append(rec)
         if not recs:
             continue
-        mean_e = np.array([np.mean([r.err_decl_deg for r in recs]), np.mean([r.err_incl_deg for r in recs])])
+        mean_e = np.array([circ_mean_deg([r.err_decl_deg for r in recs]), np.mean([r.err_incl_deg for r in recs])])
         for r in recs:
             la, lo, al = (float(v) for v in interp_gps(gps, r.centre_s))
             g = model_di_gradient(model, la, lo, al, year)[2]
-            e_noise = np.array([r.err_decl_deg, r.err_incl_deg]) - mean_e
+            e_noise = np.array([float(wrap180(r.err_decl_deg - mean_e[0])), r.err_incl_deg - mean_e[1]])
             r.predicted_noise_m = float(np.hypot(*np.linalg.solve(g, e_noise)))
         fixes = [r.fix_error_m for r in recs]
         preds = [r.predicted_m for r in recs]
         ratios = [r.fix_error_m / r.predicted_m for r in recs if math.isfinite(r.fix_error_m) and r.predicted_m > 0]
         fix_rows.append(FixRow(
             w, len(recs), sum(1 for r in recs if r.fix_failed),
-            float(mean_e[0]), float(np.std([r.err_decl_deg for r in recs])),
+            float(mean_e[0]), circ_std_deg([r.err_decl_deg for r in recs]),
             float(mean_e[1]), float(np.std([r.err_incl_deg for r in recs])),
             percentile(fixes, 50), percentile(fixes, 90), percentile(preds, 50), percentile(preds, 90),
             percentile(ratios, 50), min(ratios) if ratios else math.nan, max(ratios) if ratios else math.nan,
@@ -233,7 +238,7 @@ def evaluate(
     for name, (ti, pe, pn) in tracks.items():
         series[f"ins:{name}"] = np.column_stack([ti, pe, pn])
     return ReplayEvaluation(
-        log=str(path), format=data.format, model=model.name, model_note=model_note, date=date,
+        log=str(path), format=data.format, model=model.name, model_note=model_note, date=date.iso,
         decimal_year=float(year), mag_instance=mag_instance, counts=dict(data.counts),
         first_s=dict(data.first_s), last_s=dict(data.last_s), flagged=dict(data.flagged),
         truncated=data.end.truncated, end_detail=data.end.detail, segments=seg,
@@ -242,10 +247,38 @@ def evaluate(
                       "f_nt": float(start_el.f_nt)},
         spikes_rejected=int((~accepted).sum()), di_rows=di_rows, fix_rows=fix_rows, ins_rows=ins_rows,
         fused_rows=fused_rows, heading_rows=heading_rows, windows=all_windows, mission_note=mission_note,
-        prior_offset_m=prior_offset, mag_rate_hz=rate_hz, source_note=_source_note(Path(path)), series=series)
+        prior_offset_m=prior_offset, mag_rate_hz=rate_hz, source_note=_source_note(Path(path)),
+        date_source=date.source, date_note=date.note, boot=data.boot, boots=data.boots,
+        imu_rate_hz=data.imu_rate_hz, f_ratio=_f_ratio(meas[in_nav & accepted, 2], wmm.f_nt[in_nav & accepted]),
+        warnings=warnings, series=series)
 
 
 def _source_note(path: Path) -> str:
     """A pointer to the log's provenance file (``<stem>.SOURCE.md`` beside it), if there is one."""
     note = path.with_name(path.stem + ".SOURCE.md")
     return f"source and licence of the log: {note.name}" if note.is_file() else ""
+
+
+def _f_ratio(f_meas: np.ndarray, f_model: np.ndarray) -> float:
+    """Median of measured |F| over the model's F (1 for a calibrated magnetometer)."""
+    return float(np.median(f_meas / f_model)) if len(f_meas) else math.nan
+
+
+def _warnings(data: LogData, seg: Segments, f_meas: np.ndarray, f_model: np.ndarray, mag_rate_hz: float) -> list[str]:
+    """What makes this log's numbers mean less than they seem, in words for the report."""
+    out = []
+    ratio = _f_ratio(f_meas, f_model)
+    if math.isfinite(ratio) and abs(ratio - 1.0) > F_RATIO_TOLERANCE:
+        out.append(f"UNCALIBRATED MAGNETOMETER: the measured |F| is a median {ratio:.2f} times the model's "
+                   f"({float(np.median(f_meas)) / 1e3:.1f} uT against {float(np.median(f_model)) / 1e3:.1f} uT; a "
+                   f"calibrated one is within {F_RATIO_TOLERANCE:.0%}): hard/soft-iron offsets are not removed, so "
+                   "D and I below measure the installation, not the Earth's field; calibrate the compass first")
+    imu_hz = data.imu_rate_hz
+    if math.isfinite(imu_hz) and imu_hz < MIN_INS_RATE_HZ:
+        out.append(f"IMU at {imu_hz:.2g} Hz: dead reckoning needs tens of Hz (a flight controller logs 50-400); "
+                   "the INS-only and fused figures from these samples are indicative only")
+    if seg.takeoff_s is None:
+        out.append("not a flight: " + ("the vehicle was never armed in this recording" if data.armed_source
+                                       else "GPS never showed a take-off") + "; the numbers describe a recording "
+                   "on the ground or carried, not navigation in flight")
+    return out

@@ -135,12 +135,30 @@ class ReplayEvaluation:
     prior_offset_m: tuple[float, float]
     mag_rate_hz: float = math.nan
     source_note: str = ""
+    date_source: str = ""
+    date_note: str = ""
+    boot: int = 0
+    boots: int = 1
+    imu_rate_hz: float = math.nan
+    f_ratio: float = math.nan
+    warnings: list[str] = field(default_factory=list)
+    flight: int = 0  # 1-based number of the flight in its boot; 0 for a recording that is not a flight
+    flights: int = 0
     # time series for the plots (not in summary.json)
     series: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
     def span_s(self) -> tuple[float, float]:
         return min(self.first_s.values()), max(self.last_s.values())
+
+    @property
+    def is_flight(self) -> bool:
+        """True when the judged span is airborne (a take-off was found)."""
+        return self.segments.takeoff_s is not None
+
+    @property
+    def uncalibrated(self) -> bool:
+        return any(w.startswith("UNCALIBRATED") for w in self.warnings)
 
     def di_row(self, segment: str) -> DIRow | None:
         return next((r for r in self.di_rows if r.segment == segment), None)

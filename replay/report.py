@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from companion.nav.fusion import FusionSettings
-from replay.evaluate import INS_REPORT_S, SPIKE_NT
-from replay.records import ReplayEvaluation
+from replay.evaluate import INS_REPORT_S, MIN_INS_RATE_HZ, SPIKE_NT
+from replay.logeval import LogEvaluation
+from replay.records import FixRow, ReplayEvaluation
 
-__all__ = ["format_report"]
+__all__ = ["format_report", "format_log_report"]
 
 def _f(value: float, digits: int = 2) -> str:
     return "n/a" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
@@ -22,16 +23,60 @@ def _km(value_m: float) -> str:
     return f"{value_m / 1e3:.1f}" if value_m >= 10e3 else f"{value_m / 1e3:.2f}"
 
 
+def _hz(rate: float) -> str:
+    return "n/a Hz" if not math.isfinite(rate) else f"{rate:.2g} Hz"
+
+
+def _failed(row: FixRow | None) -> str:
+    """The share of fixes that failed, said beside every median of the ones that did not."""
+    if row is None or row.n == 0:
+        return "no fixes"
+    return f"{100.0 * row.failed / row.n:.0f} % of {row.n} failed"
+
+
+def _unit_words(ev: ReplayEvaluation) -> str:
+    parts = []
+    if ev.boots > 1:
+        parts.append(f"boot {ev.boot + 1} of {ev.boots}")
+    if ev.is_flight and ev.flights > 1:
+        parts.append(f"flight {ev.flight} of {ev.flights}")
+    elif not ev.is_flight:
+        parts.append("a recording, not a flight")
+    return ", ".join(parts)
+
+
+def format_log_report(result: LogEvaluation) -> str:
+    """A log with several boots or flights: the list of what was evaluated, then each report."""
+    lines = [f"# Replay evaluation of `{Path(result.path).name}`: {result.boots} boot(s), "
+             f"{len(result.evaluations)} evaluation(s)", ""]
+    for label, ev in zip(result.labels, result.evaluations):
+        seg = ev.segments
+        fix = ev.fix_row(10.0) or (ev.fix_rows[0] if ev.fix_rows else None)
+        lines.append(f"- `{label}/`: {_unit_words(ev) or 'the only flight'}, judged {seg.nav_start_s:.1f}-"
+                     f"{seg.end_s:.1f} s; fix median "
+                     + (f"{_km(fix.fix_median_m)} km over {fix.window_s:g} s ({_failed(fix)})" if fix else "n/a")
+                     + "".join(f"; warning: {w.split(':')[0]}" for w in ev.warnings))
+    for note in result.skipped:
+        lines.append(f"- not evaluated: {note}")
+    lines.append("")
+    return "\n".join(lines) + "\n" + "\n".join(format_report(ev) for ev in result.evaluations)
+
+
 def format_report(ev: ReplayEvaluation) -> str:
     """The markdown report (what is printed and written to table.md)."""
     seg = ev.segments
     lines: list[str] = []
     add = lines.append
     t0, t1 = ev.span_s
-    add(f"# Replay evaluation of `{Path(ev.log).name}` against its own GPS")
+    what = _unit_words(ev)
+    add(f"# Replay evaluation of `{Path(ev.log).name}` against its own GPS" + (f": {what}" if what else ""))
     add("")
+    for warning in ev.warnings:
+        add(f"**Warning: {warning}.**")
+        add("")
     add(f"- Log: {ev.format}, {t1 - t0:.1f} s of sensor data ({t0:.1f}-{t1:.1f} s log time)"
-        + (f", date {ev.date} (decimal year {ev.decimal_year:.2f})" if ev.date else "")
+        + (f", date {ev.date} (decimal year {ev.decimal_year:.2f}) from the {ev.date_source}" if ev.date else "")
+        + (f" ({ev.date_note})" if ev.date_note else "")
         + (f"; TRUNCATED: {ev.end_detail}" if ev.truncated else "") + ".")
     add(f"- Field model: {ev.model_note}. At the first fix: D {ev.wmm_at_start['decl_deg']:.2f} deg, "
         f"I {ev.wmm_at_start['incl_deg']:.2f} deg, F {ev.wmm_at_start['f_nt']:.0f} nT; gradient G = "
@@ -58,8 +103,9 @@ def format_report(ev: ReplayEvaluation) -> str:
             f"{r.decl_bias_deg:+.2f} | {r.decl_std_deg:.2f} | {r.incl_meas_deg:.2f} | {r.incl_wmm_deg:.2f} | "
             f"{r.incl_bias_deg:+.2f} | {r.incl_std_deg:.2f} | {r.f_bias_nt:+.0f} |")
     add("")
-    add(f"Bias = mean of (measured - model), spread = standard deviation of single samples ({ev.mag_rate_hz:.0f} Hz); "
-        "rows in italics are not judged. The measured D "
+    add(f"Bias = mean of (measured - model), spread = standard deviation of single samples "
+        f"({_hz(ev.mag_rate_hz)}); for D both are circular (mean direction, sqrt(-2 ln R)), so errors near "
+        "+-180 deg do not average to zero; rows in italics are not judged. The measured D "
         "uses the logged yaw, which is the flight controller's own heading estimate computed from this compass and "
         "a declination: D is a consistency check of the flight controller, not an independent measurement. "
         "I does not depend on yaw, only on roll, pitch and the compass calibration, so the I bias is a real "
@@ -67,24 +113,29 @@ def format_report(ev: ReplayEvaluation) -> str:
     add("")
     add("## 2. Geomagnetic position fix (eq. 49) vs GPS")
     add("")
-    add(f"Fix from D, I averaged over non-overlapping windows of the airborne span, Newton from a prior "
+    add(f"Fix from D, I averaged over non-overlapping windows of the judged span, Newton from a prior "
         f"{math.hypot(*ev.prior_offset_m) / 1e3:.0f} km north-east of the GPS position; predicted = |G^-1 e| "
         f"with e the window's (D, I) error and G the model gradient at the GPS position; "
         f"'noise only' = the same with the span's mean error removed (as if the bias were calibrated out).")
     add("")
     add("| Window (s) | Windows | Fix failed | D error mean +- std (deg) | I error mean +- std (deg) "
-        "| Fix error median (km) | Fix error p90 (km) | Predicted median (km) | Predicted p90 (km) "
+        "| Fix error median (km), failed share | Fix error p90 (km) | Predicted median (km) | Predicted p90 (km) "
         "| Fix / predicted median [min-max] | Noise only, predicted median (km) |")
     add("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in ev.fix_rows:
         add(f"| {r.window_s:g} | {r.n} | {r.failed} | {r.err_decl_mean_deg:+.2f} +- {r.err_decl_std_deg:.2f} | "
-            f"{r.err_incl_mean_deg:+.2f} +- {r.err_incl_std_deg:.2f} | {_km(r.fix_median_m)} | {_km(r.fix_p90_m)} | "
+            f"{r.err_incl_mean_deg:+.2f} +- {r.err_incl_std_deg:.2f} | {_km(r.fix_median_m)} ({_failed(r)}) | "
+            f"{_km(r.fix_p90_m)} | "
             f"{_km(r.predicted_median_m)} | {_km(r.predicted_p90_m)} | {_f(r.ratio_median)} "
             f"[{_f(r.ratio_min)}-{_f(r.ratio_max)}] | {_km(r.predicted_noise_median_m)} |")
     add("")
     add("## 3. INS-only drift (horizontal error vs GPS, m)")
     add("")
-    keys = [f"+{s:g} s" for s in INS_REPORT_S] + ["end of airborne span"]
+    keys = [f"+{s:g} s" for s in INS_REPORT_S] + ["end of judged span"]
+    if math.isfinite(ev.imu_rate_hz) and ev.imu_rate_hz < MIN_INS_RATE_HZ:
+        add(f"**Warning: the IMU is logged at {_hz(ev.imu_rate_hz)}; dead reckoning at this rate misses the "
+            "vehicle's accelerations, so these numbers are indicative only.**")
+        add("")
     add("| INS | Start (s) | " + " | ".join(keys) + " |")
     add("|---|---|" + "---|" * len(keys))
     for r in ev.ins_rows:
@@ -102,7 +153,8 @@ def format_report(ev: ReplayEvaluation) -> str:
     add("|---|---|---|---|---|---|---|---|")
     for r in ev.fused_rows:
         add(f"| {r.window_s:g} | {r.steps} | {_km(r.fused_median_m)} | {_km(r.fused_p90_m)} | {_km(r.fused_final_m)} | "
-            f"{_km(r.sigma_final_m)} | {_f(r.ins_median_m, 0)} | {_km(r.fix_median_m)} |")
+            f"{_km(r.sigma_final_m)} | {_f(r.ins_median_m, 0)} | "
+            f"{_km(r.fix_median_m)} ({_failed(ev.fix_row(r.window_s))}) |")
     add("")
     rc_km = math.sqrt(FusionSettings().rc_m2) / 1e3
     worst = max(ev.fused_rows, key=lambda r: r.fused_median_m, default=None)
@@ -135,10 +187,12 @@ def format_report(ev: ReplayEvaluation) -> str:
         add("")
     add("## Limitations")
     add("")
-    add(f"This is a {ev.segments.end_s - ev.segments.nav_start_s:.0f} s flight within "
+    add(f"This is a {ev.segments.end_s - ev.segments.nav_start_s:.0f} s {'flight' if ev.is_flight else 'recording'} "
+        "within "
         f"{max(1.0, _track_extent_m(ev)):.0f} m of its first fix, not the paper's measured experiment (Section 4.3: "
         "Xi'an to Jiayuguan, 1,368 km of GPS track in Table 8): the field model changes by far less across the "
-        "whole flight than the sensor's noise, so it can show the size of the measurement errors and what they do "
+        f"whole {'flight' if ev.is_flight else 'recording'} than the sensor's noise, so it can show the size of "
+        "the measurement errors and what they do "
         "to a fix, not whether Fc-MPC reaches a destination. "
         "The heading comparison is a plumbing check of the open-loop controller, not a navigation result.")
     return "\n".join(lines) + "\n"
@@ -191,7 +245,8 @@ def _meaning(ev: ReplayEvaluation) -> str:
         f"{1.0 / s_max:.0f}-{1.0 / s_min:.0f} km. Averaged over {fix.window_s:g} s windows of the judged span, "
         f"this magnetometer's D is off by {fix.err_decl_mean_deg:+.2f} +- {fix.err_decl_std_deg:.2f} deg and I by "
         f"{fix.err_incl_mean_deg:+.2f} +- {fix.err_incl_std_deg:.2f} deg, and the geomagnetic fix lands a median "
-        f"{_km(fix.fix_median_m)} km from GPS (|G^-1 e| predicts {_km(fix.predicted_median_m)} km). Calibrating "
+        f"{_km(fix.fix_median_m)} km from GPS ({_failed(fix)}, not in the median; |G^-1 e| predicts "
+        f"{_km(fix.predicted_median_m)} km). Calibrating "
         f"the mean bias away perfectly would still leave {_km(fix.predicted_noise_median_m)} km from the "
         f"window-to-window spread alone{_averaging_words(ev)}. The IMU dead-reckons ({ins.name}) to "
         f"{_f(ins.errors_m['+30 s'], 0)} m after 30 s and {_f(ins.errors_m['+60 s'], 0)} m after 60 s; a fix that "
@@ -201,7 +256,10 @@ def _meaning(ev: ReplayEvaluation) -> str:
         f"log the geomagnetic fix is good to {_magnitude_words(fix.fix_median_m)}: that only means something on "
         f"routes much longer "
         f"than the error, and only after a calibration of the bias against the model that a {minutes:.1f}-minute "
-        f"flight at one place cannot check.")
+        f"{'flight' if ev.is_flight else 'recording'} at one place cannot check."
+        + (" And first of all: the magnetometer is uncalibrated (|F| is "
+           f"{ev.f_ratio:.2f} times the model's), so these errors are the installation's, not the method's."
+           if ev.uncalibrated else ""))
 
 
 def _track_extent_m(ev: ReplayEvaluation) -> float:

@@ -417,17 +417,32 @@ _TLOG_TYPES = frozenset({"ATTITUDE", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SC
 
 
 class _TlogClock:
-    """Puts every tlog message on the vehicle's boot clock."""
+    """Puts every tlog message on the vehicle's boot clock.
+
+    A reboot (boot time going back by more than ``REBOOT_BACK_S``) forgets the UNIX-minus-boot
+    offset of the previous boot, so UNIX stamps are not put on the old boot's clock until the
+    new boot's SYSTEM_TIME arrives (the recording timestamps bridge the gap).
+    """
+
+    REBOOT_BACK_S = 1.0
 
     def __init__(self) -> None:
         self.unix_minus_boot: float | None = None
         self.boot_minus_capture: float | None = None
+        self.last_boot_s: float | None = None
+
+    def _seen(self, t: float) -> None:
+        if self.last_boot_s is not None and t < self.last_boot_s - self.REBOOT_BACK_S:
+            self.unix_minus_boot = None  # a reboot: the old offset belongs to the old boot
+        self.last_boot_s = t
 
     def system_time(self, msg: Any) -> None:
+        self._seen(msg.time_boot_ms * 1e-3)
         if msg.time_unix_usec:
             self.unix_minus_boot = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
 
     def _boot(self, t: float, msg: Any) -> float:
+        self._seen(t)
         self.boot_minus_capture = t - msg._timestamp
         return t
 
