@@ -155,9 +155,9 @@ def evaluate_flight(
     heading_rows: list[HeadingRow] = []
     all_windows: list[WindowRecord] = []
     mission_note = (
-        f"Fc-MPC, start = first fix ({ref[0]:.6f}, {ref[1]:.6f}), destination = last airborne fix "
+        f"Fc-MPC, start = first fix ({ref[0]:.6f}, {ref[1]:.6f}), destination = last fix of the judged span "
         f"({dest[0]:.6f}, {dest[1]:.6f}), {geodesic_distance_m(*ref, *dest):.0f} m apart; cruise speed "
-        f"{cruise_mps:.1f} m/s (median airborne GPS speed), period = window; state bounds widened to "
+        f"{cruise_mps:.1f} m/s (median GPS speed of the judged span), period = window; state bounds widened to "
         f"D in [-180, 180], I in [-90, 90] deg (Table 4's I in [10, 100] excludes the southern hemisphere)")
     for w in windows_s:
         recs: list[WindowRecord] = []
@@ -280,5 +280,5 @@ def _warnings(data: LogData, seg: Segments, f_meas: np.ndarray, f_model: np.ndar
     if seg.takeoff_s is None:
         out.append("not a flight: " + ("the vehicle was never armed in this recording" if data.armed_source
                                        else "GPS never showed a take-off") + "; the numbers describe a recording "
-                   "on the ground or carried, not navigation in flight")
+                   "on the ground or carried, not navigation in the air")
     return out

@@ -5,9 +5,11 @@ from pathlib import Path
 
 import numpy as np
 
+from replay.evaluate import MIN_INS_RATE_HZ
 from replay.records import ReplayEvaluation
+from replay.stats import wrap180
 
-__all__ = ["write_plots"]
+__all__ = ["write_plots", "di_figure", "errors_figure", "heading_figure", "track_figure", "data_limits"]
 
 def _save(fig, path: Path) -> Path:
     """Lay out, write as PNG and close a figure; returns its path."""
@@ -30,37 +32,77 @@ def _shade(ax, ev: ReplayEvaluation) -> None:
                     color="grey")
 
 
-def write_plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
+def data_limits(measured: np.ndarray, model: np.ndarray, pad_deg: float = 1.0) -> tuple[float, float]:
+    """Axis limits that hold 99 % of the measured values (the rest are spikes) and all of the
+    model, padded by 5 % of the range and at least ``pad_deg``."""
+    values = np.asarray(measured, dtype=float)
+    values = values[np.isfinite(values)]
+    lo = min(float(np.percentile(values, 0.5)) if len(values) else np.inf, float(np.nanmin(model)))
+    hi = max(float(np.percentile(values, 99.5)) if len(values) else -np.inf, float(np.nanmax(model)))
+    pad = max(pad_deg, 0.05 * (hi - lo))
+    return lo - pad, hi + pad
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    s = ev.series
-    written = []
-    windows = sorted({r.window_s for r in ev.windows})
-    colours = dict(zip(windows, ("tab:blue", "tab:orange", "tab:red", "tab:purple", "tab:brown")))
+    return plt
 
+
+def _colours(ev: ReplayEvaluation) -> tuple[list[float], dict[float, str]]:
+    windows = sorted({r.window_s for r in ev.windows})
+    return windows, dict(zip(windows, ("tab:blue", "tab:orange", "tab:red", "tab:purple", "tab:brown")))
+
+
+def _ins_caveat(ev: ReplayEvaluation) -> str:
+    rate = ev.imu_rate_hz
+    return f" (WARNING: IMU at {rate:.2g} Hz, indicative only)" if np.isfinite(rate) and rate < MIN_INS_RATE_HZ else ""
+
+
+def _span_words(ev: ReplayEvaluation) -> str:
+    return "airborne span" if ev.is_flight else "recording (not a flight)"
+
+
+def di_figure(ev: ReplayEvaluation):
+    """D and I measured (at the log's real rate and as window means) vs the model; axes from the data."""
+    plt = _pyplot()
+    s = ev.series
+    windows, colours = _colours(ev)
     fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    ok = s["accepted"]
     for ax, key, label in ((axes[0], "decl", "D (deg)"), (axes[1], "incl", "I (deg)")):
-        ok = s["accepted"]
-        ax.plot(s["t_mag"][ok], s[f"{key}_meas"][ok], ".", ms=1.5, color="0.6", label="measured, 10 Hz")
+        model = s[f"{key}_wmm"]
+        meas = s[f"{key}_meas"]
+        if key == "decl":  # plotted next to the model, so a D near +-180 deg does not jump across the axis
+            meas = model + wrap180(meas - model)
+        ax.plot(s["t_mag"][ok], meas[ok], ".", ms=1.5, color="0.6",
+                label=f"measured, {ev.mag_rate_hz:.2g} Hz")
         for w in windows:
             recs = [r for r in ev.windows if r.window_s == w]
             values = [r.decl_deg if key == "decl" else r.incl_deg for r in recs]
             ax.step([r.start_s for r in recs] + [recs[-1].end_s], values + values[-1:], where="post",
                     color=colours[w], lw=1.2, label=f"measured, {w:g} s mean")
-        ax.plot(s["t_mag"], s[f"{key}_wmm"], "k-", lw=1.5, label=f"{ev.model} at GPS position")
+        ax.plot(s["t_mag"], model, "k-", lw=1.5, label=f"{ev.model} at GPS position")
         _shade(ax, ev)
+        ax.set_ylim(*data_limits(meas[ok], model))
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].set_ylim(-20, 40)
-    axes[1].set_ylim(-80, -55) if ev.wmm_at_start["incl_deg"] < 0 else axes[1].set_ylim(55, 80)
-    axes[0].legend(fontsize=7, ncol=3, loc="lower right")
+    axes[0].legend(fontsize=7, ncol=3, loc="best")
     axes[1].set_xlabel("log time (s)")
-    axes[0].set_title(f"{Path(ev.log).name}: D and I measured vs {ev.model} (green: airborne span judged)")
-    written.append(_save(fig, out / "di.png"))
+    axes[0].set_title(f"{Path(ev.log).name}: D and I measured vs {ev.model} (green: {_span_words(ev)} judged)"
+                      + (f"\nWARNING: uncalibrated magnetometer (|F| {ev.f_ratio:.2f} x model)" if ev.uncalibrated
+                         else ""))
+    return fig
 
+
+def errors_figure(ev: ReplayEvaluation):
+    """Fix, predicted, fused and INS-only horizontal errors against time (log scale)."""
+    plt = _pyplot()
+    s = ev.series
+    windows, colours = _colours(ev)
     fig, ax = plt.subplots(figsize=(10, 5.5))
     for w in windows:
         recs = [r for r in ev.windows if r.window_s == w]
@@ -81,9 +123,14 @@ def write_plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.set_xlabel("log time (s)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Geomagnetic fix, INS-only drift and fused error")
-    written.append(_save(fig, out / "errors.png"))
+    ax.set_title("Geomagnetic fix, INS-only drift and fused error" + _ins_caveat(ev))
+    return fig
 
+
+def heading_figure(ev: ReplayEvaluation):
+    """Course commanded by the open-loop Fc-MPC vs course over ground flown."""
+    plt = _pyplot()
+    windows, colours = _colours(ev)
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for w in windows:
         recs = [r for r in ev.windows if r.window_s == w and r.command_phase]
@@ -99,8 +146,13 @@ def write_plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=3)
     ax.set_title("Course commanded by the open-loop Fc-MPC vs course over ground flown")
-    written.append(_save(fig, out / "heading.png"))
+    return fig
 
+
+def track_figure(ev: ReplayEvaluation):
+    """GPS track vs INS-only tracks, to the end of the judged span."""
+    plt = _pyplot()
+    s = ev.series
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     ax.plot(s["gps_e"], s["gps_n"], "k-", lw=1.5, label="GPS")
     for key in [k for k in s if k.startswith("ins:")]:
@@ -112,6 +164,12 @@ def write_plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
     ax.set_ylabel("north of first fix (m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    ax.set_title("Track: GPS vs INS-only (to the end of the airborne span)")
-    written.append(_save(fig, out / "track.png"))
-    return written
+    ax.set_title(f"Track: GPS vs INS-only (to the end of the {_span_words(ev)})" + _ins_caveat(ev))
+    return fig
+
+
+def write_plots(ev: ReplayEvaluation, out: Path) -> list[Path]:
+    """di.png, errors.png, heading.png, track.png in ``out``."""
+    figures = (("di.png", di_figure), ("errors.png", errors_figure), ("heading.png", heading_figure),
+               ("track.png", track_figure))
+    return [_save(build(ev), out / name) for name, build in figures]
