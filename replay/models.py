@@ -13,13 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.nav.field import WorldMagneticModel
+from replay.csvlog import CSV_SOURCE
 from replay.events import GPS_RAW_SOURCE, GPS_WEEK_SOURCE, SYSTEM_TIME_SOURCE, TLOG_SOURCE
 from replay.logdata import LogData
+from replay.ulog import ULOG_GPS_SOURCE
 
 __all__ = ["PYGEOMAG_MODELS", "DATE_SOURCES", "LogDate", "log_date", "select_model"]
 
-ULOG_GPS_SOURCE = "vehicle_gps_position.time_utc_usec"
-CSV_SOURCE = "unix_time_s column"
 USER_SOURCE = "--date"
 DATE_SOURCES = (GPS_WEEK_SOURCE, GPS_RAW_SOURCE, ULOG_GPS_SOURCE, SYSTEM_TIME_SOURCE, CSV_SOURCE, TLOG_SOURCE)
 _DISAGREE_S = 86400.0

@@ -153,3 +153,59 @@ def write_tlog(path: Path, boots: list[tuple[Track, float]], *, gps_time: str = 
                     int(round(speed * 100)), int(round(cog * 100)) % 36000, 12), unix)
     path.write_bytes(bytes(out))
     return path
+
+
+def quaternion(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Hamilton (w, x, y, z) of ZYX Euler angles (body -> NED), as PX4 logs vehicle_attitude.q."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.column_stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
+
+
+def write_ulog(path: Path, track: Track, unix0: float, gps_every: int = 2) -> Path:
+    """A PX4-style ULog of a track: vehicle_magnetometer, vehicle_attitude, sensor_combined,
+    vehicle_gps_position (with time_utc_usec) and vehicle_status (arming_state 2 = armed)."""
+    from tests.replay.ulog_writer import ULogWriter
+
+    w = ULogWriter()
+    w.topic("vehicle_magnetometer", [("uint64_t", "timestamp"), ("float[3]", "magnetometer_ga")])
+    w.topic("vehicle_attitude", [("uint64_t", "timestamp"), ("float[4]", "q")])
+    w.topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
+                                ("float[3]", "accelerometer_m_s2")])
+    w.topic("vehicle_gps_position", [("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec"), ("int32_t", "lat"),
+                                     ("int32_t", "lon"), ("int32_t", "alt"), ("float", "eph"),
+                                     ("float", "vel_n_m_s"), ("float", "vel_e_m_s"), ("uint8_t", "fix_type")])
+    w.topic("vehicle_status", [("uint64_t", "timestamp"), ("uint8_t", "arming_state")])
+    q = quaternion(track.roll, track.pitch, track.yaw)
+    for k, t in enumerate(track.t):
+        us = int(round(t * 1e6))
+        w.add("vehicle_magnetometer", (us, tuple(track.mag_nt[k] / 1e5)))
+        w.add("vehicle_attitude", (us, tuple(q[k])))
+        w.add("sensor_combined", (us, (0.0, 0.0, 0.0), tuple(track.acc[k])))
+        if k % gps_every == 0:
+            w.add("vehicle_gps_position", (us, int((unix0 + t) * 1e6), int(round(track.lat[k] * 1e7)),
+                                           int(round(track.lon[k] * 1e7)), int(round(track.alt[k] * 1e3)), 0.8,
+                                           track.vn[k], track.ve[k], 3))
+        if k % 10 == 0:
+            w.add("vehicle_status", (us, 2 if track.armed[k] else 1))
+    return w.write(path)
+
+
+def write_csv(path: Path, track: Track, unix0: float | None = None, gps_every: int = 2) -> Path:
+    """The CSV columns of replay.csvlog (mag in uT, angles in degrees, GPS every other row)."""
+    import csv
+
+    with path.open("w", newline="") as handle:
+        out = csv.writer(handle)
+        out.writerow(["time_s", "mag_x_ut", "mag_y_ut", "mag_z_ut", "roll_deg", "pitch_deg", "yaw_deg",
+                      "lat_deg", "lon_deg", "alt_m", "acc_x_mps2", "acc_y_mps2", "acc_z_mps2", "armed"]
+                     + (["unix_time_s"] if unix0 is not None else []))
+        for k, t in enumerate(track.t):
+            gps = [f"{track.lat[k]:.8f}", f"{track.lon[k]:.8f}", f"{track.alt[k]:.2f}"] if k % gps_every == 0 else [""] * 3
+            out.writerow([f"{t:.3f}", *(f"{v / 1e3:.4f}" for v in track.mag_nt[k]),
+                          *(f"{math.degrees(a):.3f}" for a in (track.roll[k], track.pitch[k], track.yaw[k])),
+                          *gps, *(f"{v:.4f}" for v in track.acc[k]), int(track.armed[k])]
+                         + ([f"{unix0 + t:.3f}"] if unix0 is not None else []))
+    return path
