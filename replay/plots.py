@@ -24,7 +24,8 @@ def _save(fig, path: Path) -> Path:
 def _shade(ax, ev: ReplayEvaluation) -> None:
     seg = ev.segments
     ax.axvspan(seg.nav_start_s, seg.end_s, color="tab:green", alpha=0.08, lw=0)
-    marks = ((seg.decl_step_s, "decl. applied"), (seg.takeoff_s, "take-off"), (seg.crash_s, "crash"))
+    marks = ((seg.armed_s, "armed"), (seg.decl_step_s, "decl. applied"), (seg.takeoff_s, "take-off"),
+             (seg.crash_s, "crash"), (seg.disarmed_s, "disarmed"))
     for k, (t, label) in enumerate(marks):
         if t is not None:
             ax.axvline(t, color="grey", ls=":", lw=1)
