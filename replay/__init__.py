@@ -46,7 +46,8 @@ Modules: :mod:`replay.logdata` (reading), :mod:`replay.models` (date, field mode
 """
 from __future__ import annotations
 
-from replay.logdata import LogData, read_boots
+from replay.logdata import LogData
+from replay.reading import read_boots
 from replay.logeval import LogEvaluation, evaluate, evaluate_log
 from replay.models import LogDate, log_date, select_model
 from replay.outputs import summary_dict, write_outputs

@@ -7,13 +7,15 @@ import sys
 from pathlib import Path
 
 from companion.io.sensors.base import SensorError
-import replay
 from replay.evaluate import DEFAULT_WINDOWS_S
 from replay.logeval import evaluate_log
 from replay.outputs import write_outputs
 from replay.report import format_log_report, format_report
 
 __all__ = ["main"]
+
+DESCRIPTION = ("Measured-data evaluation like the paper's Table 8: a recorded flight log replayed open-loop "
+               "against its own GPS.")
 
 def _windows(text: str) -> tuple[float, ...]:
     try:
@@ -26,7 +28,7 @@ def _windows(text: str) -> tuple[float, ...]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="fcmpc-replay", description=replay.__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="fcmpc-replay", description=DESCRIPTION)
     parser.add_argument("log", metavar="LOG",
                         help="ArduPilot DataFlash .bin, MAVLink .tlog, PX4 .ulg or a .csv (columns in the README)")
     parser.add_argument("--model", default=None,

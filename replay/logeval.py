@@ -10,7 +10,7 @@ import os
 from dataclasses import dataclass, field
 
 from replay.evaluate import DEFAULT_WINDOWS_S, evaluate_flight
-from replay.logdata import read_boots
+from replay.reading import read_boots
 from replay.models import log_date, select_model
 from replay.records import ReplayEvaluation
 from replay.segments import find_flights

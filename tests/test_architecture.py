@@ -70,3 +70,23 @@ def test_replay_modules_stay_under_500_lines(path: Path):
     """Rooms a person can hold (issue 11): the replay package and its entry point."""
     lines = path.read_text(encoding="utf-8").count("\n")
     assert lines <= 500, f"{path.relative_to(ROOT)} has {lines} lines"
+
+
+def test_replay_package_has_no_import_circle():
+    """Issue 11: the replay modules import one way (any import, also inside a function)."""
+    modules = {".".join(p.relative_to(ROOT).with_suffix("").parts): p for p in _modules("replay")}
+    modules = {name.removesuffix(".__init__"): p for name, p in modules.items()}
+    graph = {name: {m for m in _imports(p) if m in modules and m != name} for name, p in modules.items()}
+    state: dict[str, int] = {}
+
+    def visit(name: str, path: list[str]) -> None:
+        state[name] = 1
+        for nxt in sorted(graph.get(name, ())):
+            assert state.get(nxt) != 1, "import circle: " + " -> ".join(path + [name, nxt])
+            if nxt not in state:
+                visit(nxt, path + [name])
+        state[name] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [])

@@ -11,7 +11,7 @@ import pytest
 
 from replay import evaluate, evaluate_log
 from replay.events import GPS_RAW_SOURCE, SYSTEM_TIME_SOURCE, TLOG_SOURCE
-from replay.logdata import read_boots
+from replay.reading import read_boots
 from tests.replay.synth import UNIX_2018, Phase, fly, write_tlog
 
 W = (10.0,)

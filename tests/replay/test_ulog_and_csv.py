@@ -14,7 +14,7 @@ import pytest
 from companion.io.sensors.base import SensorError
 from replay import evaluate
 from replay.cli import main
-from replay.logdata import read_boots
+from replay.reading import read_boots
 from replay.ulog import ULOG_GPS_SOURCE, euler_from_quaternion
 from tests.replay.synth import UNIX_2018, Phase, fly, quaternion, write_csv, write_ulog
 
@@ -95,3 +95,11 @@ def test_csv_user_errors_name_the_file_and_line(tmp_path: Path, capsys: pytest.C
     path.write_text(text)
     with pytest.raises(SensorError, match="z axis points up"):
         read_boots(path)
+
+
+def test_a_log_without_any_date_asks_for_one_instead_of_guessing(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "undated.csv", drive())                  # no unix_time_s column
+    with pytest.raises(ValueError, match="pass --date"):
+        evaluate(path, model_spec="WMM2015", windows_s=W)
+    ev = evaluate(path, model_spec="WMM2015", windows_s=W, date="2018-06-01")
+    assert ev.date == "2018-06-01" and ev.date_source == "--date" and ev.decimal_year == pytest.approx(2018.41, abs=0.01)
