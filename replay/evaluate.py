@@ -1,4 +1,6 @@
-"""The evaluation of one log: D and I vs the model, fixes (eq. 49), INS, fusion, open-loop mission."""
+"""The evaluation of one flight: D and I vs the model (:mod:`replay.di`), the geomagnetic fix
+(eq. 49) and its |G^-1 e| prediction per averaging window, INS drift (:mod:`replay.ins`), the
+Table 3 fusion (eq. 46-58), and the open-loop Fc-MPC mission (:mod:`replay.heading`)."""
 from __future__ import annotations
 
 import math
@@ -9,14 +11,15 @@ import numpy as np
 from companion.nav.field import PositionFixError, WorldMagneticModel, decl_incl_gradient, geomagnetic_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
-from companion.nav.magnetometer import PeriodAverager, SpikeFilter, tilt_compensated_di
+from companion.nav.magnetometer import PeriodAverager
+from replay.di import measure_di, segment_rows
 from replay.heading import model_di_gradient, run_mission
-from replay.ins import ins_track, stationary_bias
+from replay.ins import ins_drift
 from replay.logdata import LogData
 from replay.models import LogDate
-from replay.records import DIRow, FixRow, FusedRow, HeadingRow, InsRow, ReplayEvaluation, WindowRecord
-from replay.segments import HOVER_SPEED_MPS, HOVER_TILT_DEG, Flight, Segments, find_segments
-from replay.stats import circ_mean_deg, circ_std_deg, interp_gps, percentile, wrap180, wrap_pi
+from replay.records import FixRow, FusedRow, HeadingRow, ReplayEvaluation, WindowRecord
+from replay.segments import Flight, Segments, find_segments
+from replay.stats import circ_mean_deg, circ_std_deg, interp_gps, percentile, wrap180
 
 __all__ = ["evaluate_flight", "DEFAULT_WINDOWS_S", "INS_REPORT_S", "SPIKE_NT"]
 
@@ -51,62 +54,14 @@ def evaluate_flight(
                          f"(got {len(data.mag)} and {len(data.att)})")
     year = date.decimal_year
     mag_instance = data.mag_instance
-    gps, att = data.gps, data.att
+    gps = data.gps
     # --- 1. per-sample D, I (measured) and the model at the GPS position ------------------------
-    mag = data.mag[(data.mag[:, 0] >= gps[0, 0]) & (data.mag[:, 0] <= gps[-1, 0])]
-    t_m = mag[:, 0]
-    roll = np.interp(t_m, att[:, 0], att[:, 1])
-    pitch = np.interp(t_m, att[:, 0], att[:, 2])
-    yaw = np.interp(t_m, att[:, 0], att[:, 3])
-    spikes = SpikeFilter(SPIKE_NT)
-    meas = np.full((len(mag), 4), np.nan)  # D, I, |F|, accepted
-    for k, row in enumerate(mag):
-        d, i, ned = tilt_compensated_di((row[1], row[2], row[3]), roll[k], pitch[k], yaw[k])
-        meas[k] = (d, i, math.sqrt(ned[0] ** 2 + ned[1] ** 2 + ned[2] ** 2), 1.0 if spikes.accept(ned) else 0.0)
-    lat_m, lon_m, alt_m = interp_gps(gps, t_m)
-    wmm = model.elements(lat_m, lon_m, alt_m, year)
-    err_d = wrap180(meas[:, 0] - wmm.decl_deg)
-    err_i = meas[:, 1] - wmm.incl_deg
-    err_f = meas[:, 2] - wmm.f_nt
-    accepted = meas[:, 3] > 0.5
-
+    di = measure_di(data, model, year, SPIKE_NT)
+    t_m, meas, wmm, accepted = di.t, di.meas, di.model, di.accepted
     seg = find_segments(data, t_m, meas[:, 0], crash_guard_s, flight)
-    tilt_m = np.degrees(np.maximum(np.abs(wrap_pi(roll)), np.abs(wrap_pi(pitch))))
-    speed_m = np.hypot(np.interp(t_m, gps[:, 0], np.nan_to_num(gps[:, 4])),
-                       np.interp(t_m, gps[:, 0], np.nan_to_num(gps[:, 5])))
     nav0, nav1 = seg.nav_start_s, seg.end_s
     in_nav = (t_m >= nav0) & (t_m <= nav1)
-    segment_masks: list[tuple[str, float, float, np.ndarray, bool]] = []
-    ground_end = seg.takeoff_s if seg.takeoff_s is not None else nav1
-    if seg.decl_step_s is not None:
-        segment_masks.append(("ground, before declination applied", seg.first_fix_s, seg.decl_step_s,
-                              (t_m >= seg.first_fix_s) & (t_m < seg.decl_step_s), False))
-        segment_masks.append(("ground, declination applied", seg.decl_step_s, ground_end,
-                              (t_m >= seg.decl_step_s) & (t_m < ground_end), False))
-    elif seg.takeoff_s is not None:
-        segment_masks.append(("ground", seg.first_fix_s, ground_end,
-                              (t_m >= seg.first_fix_s) & (t_m < ground_end), False))
-    label = "airborne" if seg.takeoff_s is not None else "whole recording after first fix"
-    segment_masks.append((label, nav0, nav1, in_nav, True))
-    if seg.takeoff_s is not None:
-        hover = in_nav & (tilt_m < HOVER_TILT_DEG) & (speed_m < HOVER_SPEED_MPS)
-        segment_masks.append(("airborne, hover", nav0, nav1, hover, True))
-        segment_masks.append(("airborne, moving or tilted", nav0, nav1, in_nav & ~hover, True))
-    if seg.crash_s is not None:
-        segment_masks.append((f"crash - {crash_guard_s:g} s and after (excluded)", seg.end_s, float(t_m[-1]),
-                              t_m > seg.end_s, False))
-    di_rows = []
-    for name, a, b, mask, judged in segment_masks:
-        m = mask & accepted
-        n = int(m.sum())
-        if n == 0:
-            continue
-        di_rows.append(DIRow(
-            name, a, b, n,
-            float(wrap180(wmm.decl_deg[m].mean() + circ_mean_deg(err_d[m]))), float(wmm.decl_deg[m].mean()),
-            circ_mean_deg(err_d[m]), circ_std_deg(err_d[m]),
-            float(meas[m, 1].mean()), float(wmm.incl_deg[m].mean()),
-            float(err_i[m].mean()), float(err_i[m].std()), float(err_f[m].mean()), judged))
+    di_rows = segment_rows(di, gps, seg, crash_guard_s)
 
     # --- references -------------------------------------------------------------------------------
     ref = (float(gps[0, 1]), float(gps[0, 2]))  # the first 3D fix: INS start, mission start, frame
@@ -119,25 +74,7 @@ def evaluate_flight(
 
     # --- 3. INS ----------------------------------------------------------------------------------
     gps_e, gps_n = enu_offset(ref[0], ref[1], gps[:, 1], gps[:, 2])
-    ins_rows: list[InsRow] = []
-    rest_end = (seg.takeoff_s - 2.0) if seg.takeoff_s is not None else seg.first_fix_s
-    bias = stationary_bias(data, seg.first_fix_s, rest_end)
-    tracks: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    ins_defs = [("INS, raw IMU, from first fix", seg.first_fix_s, None)]
-    if bias is not None:
-        ins_defs.append(("INS, static alignment, from first fix", seg.first_fix_s, bias))
-        if seg.takeoff_s is not None:
-            ins_defs.append(("INS, static alignment, from take-off", seg.takeoff_s, bias))
-    for name, start, b in ins_defs:
-        ti, pe, pn = ins_track(data, start, ref, b)
-        tracks[name] = (ti, pe, pn)
-        err = np.hypot(pe - np.interp(ti, gps[:, 0], gps_e), pn - np.interp(ti, gps[:, 0], gps_n))
-        errors = {}
-        for dt_s in INS_REPORT_S:
-            errors[f"+{dt_s:g} s"] = float(np.interp(ti[0] + dt_s, ti, err)) if ti[0] + dt_s <= ti[-1] else math.nan
-        errors["end of judged span"] = float(np.interp(nav1, ti, err)) if nav1 <= ti[-1] else math.nan
-        ins_rows.append(InsRow(name, float(ti[0]), errors))
-    nav_ins_name = ins_defs[1][0] if len(ins_defs) > 1 else ins_defs[0][0]
+    ins_rows, tracks, nav_ins_name = ins_drift(data, seg, ref, gps_e, gps_n, INS_REPORT_S)
     ins_t, ins_e, ins_n = tracks[nav_ins_name]
 
     def ins_latlon(t: float) -> tuple[float, float]:

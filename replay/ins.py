@@ -1,13 +1,18 @@
 """INS-only drift: horizontal strapdown dead reckoning of the log's IMU with its attitude."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from companion.io.sensors.attitude import mat_nb_from_euler
 from companion.nav.geo import enu_offset
 from replay.logdata import LogData
+from replay.records import InsRow
+from replay.segments import Segments
 
-__all__ = ["ins_track", "stationary_bias"]
+__all__ = ["ins_track", "stationary_bias", "ins_drift"]
+
 
 def ins_track(data: LogData, start_s: float, ref: tuple[float, float],
                bias_body: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -60,3 +65,31 @@ def stationary_bias(data: LogData, start_s: float, end_s: float) -> np.ndarray |
     t_mid = float(np.median(imu[sel, 0]))
     c = np.array(mat_nb_from_euler(*(float(np.interp(t_mid, att[:, 0], att[:, k])) for k in (1, 2, 3))))
     return f_mean - c.T @ np.array([0.0, 0.0, -float(np.linalg.norm(f_mean))])
+
+
+def ins_drift(data: LogData, seg: Segments, ref: tuple[float, float], gps_e: np.ndarray, gps_n: np.ndarray,
+              report_s: tuple[float, ...]) -> tuple[list[InsRow], dict[str, tuple[np.ndarray, ...]], str]:
+    """The INS variants (raw IMU from the first fix; statically aligned from the first fix and
+    from take-off), their errors against GPS ``report_s`` after their start and at the end of the
+    judged span, their tracks, and the name of the one the navigation uses (aligned from the fix)."""
+    gps = data.gps
+    nav1 = seg.end_s
+    rest_end = (seg.takeoff_s - 2.0) if seg.takeoff_s is not None else seg.first_fix_s
+    bias = stationary_bias(data, seg.first_fix_s, rest_end)
+    tracks: dict[str, tuple[np.ndarray, ...]] = {}
+    defs = [("INS, raw IMU, from first fix", seg.first_fix_s, None)]
+    if bias is not None:
+        defs.append(("INS, static alignment, from first fix", seg.first_fix_s, bias))
+        if seg.takeoff_s is not None:
+            defs.append(("INS, static alignment, from take-off", seg.takeoff_s, bias))
+    rows = []
+    for name, start, b in defs:
+        ti, pe, pn = ins_track(data, start, ref, b)
+        tracks[name] = (ti, pe, pn)
+        err = np.hypot(pe - np.interp(ti, gps[:, 0], gps_e), pn - np.interp(ti, gps[:, 0], gps_n))
+        errors = {}
+        for dt_s in report_s:
+            errors[f"+{dt_s:g} s"] = float(np.interp(ti[0] + dt_s, ti, err)) if ti[0] + dt_s <= ti[-1] else math.nan
+        errors["end of judged span"] = float(np.interp(nav1, ti, err)) if nav1 <= ti[-1] else math.nan
+        rows.append(InsRow(name, float(ti[0]), errors))
+    return rows, tracks, (defs[1][0] if len(defs) > 1 else defs[0][0])
