@@ -61,6 +61,9 @@ def evaluate_flight(
     seg = find_segments(data, t_m, meas[:, 0], crash_guard_s, flight)
     nav0, nav1 = seg.nav_start_s, seg.end_s
     in_nav = (t_m >= nav0) & (t_m <= nav1)
+    if int((in_nav & accepted).sum()) < 2:
+        raise ValueError(f"{where}: fewer than two magnetometer {data.mag_instance} samples in the judged span "
+                         f"{nav0:.1f}-{nav1:.1f} s")
     di_rows = segment_rows(di, gps, seg, crash_guard_s)
 
     # --- references -------------------------------------------------------------------------------

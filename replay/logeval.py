@@ -68,7 +68,11 @@ def evaluate_log(
         result.skipped += [f"{name}: {n}" for n in notes]
         units = [(None, data)] if not flights else [(f, data.window(*f.window_s)) for f in flights]
         for k, (flight, part) in enumerate(units):
-            ev = evaluate_flight(part, flight, model, model_note, when, windows_s, prior_offset_km, crash_guard_s)
+            try:
+                ev = evaluate_flight(part, flight, model, model_note, when, windows_s, prior_offset_km, crash_guard_s)
+            except ValueError as err:  # a flight without magnetometer or attitude samples in its window
+                result.skipped.append(f"{name}, flight {k + 1}: not evaluated: {err}")
+                continue
             ev.flight = k + 1 if flight is not None else 0
             ev.flights = len(flights)
             result.evaluations.append(ev)

@@ -111,3 +111,21 @@ def test_a_model_outside_its_validity_is_refused_with_the_date_and_its_source(tm
     path = _short(tmp_path, "boot_gps.tlog", gps_time="boot")
     with pytest.raises(ValueError, match=r"2018-06-01.*SYSTEM_TIME"):
         evaluate(path, model_spec="WMM2025", windows_s=W)
+
+
+def test_a_flight_that_cannot_be_judged_is_listed_and_the_others_evaluated(tmp_path: Path) -> None:
+    """Two flights in a CSV whose magnetometer columns go empty before the second take-off."""
+    from tests.replay.synth import write_csv
+
+    track = fly([Phase(10.0), Phase(3.0, armed=True), Phase(40.0, armed=True, speed_mps=8.0, course_deg=80.0),
+                 Phase(30.0, armed=True, speed_mps=8.0, turn_dps=6.0), Phase(15.0), Phase(3.0, armed=True),
+                 Phase(40.0, armed=True, speed_mps=8.0, course_deg=200.0), Phase(5.0)], seed=9)
+    path = write_csv(tmp_path / "mag_lost.csv", track, UNIX_2018)
+    lines = path.read_text().splitlines()
+    cut = track.takeoffs[1] - 10.0
+    blanked = [lines[0]] + [",".join(cells[:1] + [""] * 3 + cells[4:]) if float(cells[0]) > cut else line
+                            for line in lines[1:] for cells in [line.split(",")]]
+    path.write_text("\n".join(blanked) + "\n")
+    result = evaluate_log(path, windows_s=W)
+    assert [ev.flight for ev in result.evaluations] == [1]
+    assert any("flight 2: not evaluated" in s and "magnetometer" in s for s in result.skipped)
