@@ -7,7 +7,7 @@ import numpy as np
 
 from replay.evaluate import MIN_INS_RATE_HZ
 from replay.records import ReplayEvaluation
-from replay.stats import wrap180
+from replay.stats import circ_mean_deg, wrap180
 
 __all__ = ["write_plots", "di_figure", "errors_figure", "heading_figure", "track_figure", "data_limits"]
 
@@ -77,13 +77,22 @@ def di_figure(ev: ReplayEvaluation):
     for ax, key, label in ((axes[0], "decl", "D (deg)"), (axes[1], "incl", "I (deg)")):
         model = s[f"{key}_wmm"]
         meas = s[f"{key}_meas"]
-        if key == "decl":  # plotted next to the model, so a D near +-180 deg does not jump across the axis
-            meas = model + wrap180(meas - model)
+        centre = circ_mean_deg(wrap180(meas[ok] - model[ok])) if key == "decl" else 0.0
+
+        def unwrapped(t: np.ndarray, values: np.ndarray) -> np.ndarray:
+            """D around the model + its circular mean error, so nothing jumps across +-180 deg."""
+            if key != "decl":
+                return values
+            m = np.interp(t, s["t_mag"], model)
+            return m + centre + wrap180(np.asarray(values) - m - centre)
+
+        meas = unwrapped(s["t_mag"], meas)
         ax.plot(s["t_mag"][ok], meas[ok], ".", ms=1.5, color="0.6",
                 label=f"measured, {ev.mag_rate_hz:.2g} Hz")
         for w in windows:
             recs = [r for r in ev.windows if r.window_s == w]
-            values = [r.decl_deg if key == "decl" else r.incl_deg for r in recs]
+            values = list(unwrapped(np.array([r.centre_s for r in recs]),
+                                    np.array([r.decl_deg if key == "decl" else r.incl_deg for r in recs])))
             ax.step([r.start_s for r in recs] + [recs[-1].end_s], values + values[-1:], where="post",
                     color=colours[w], lw=1.2, label=f"measured, {w:g} s mean")
         ax.plot(s["t_mag"], model, "k-", lw=1.5, label=f"{ev.model} at GPS position")

@@ -87,3 +87,16 @@ def test_every_fix_median_carries_the_failed_share(one_hz_ground) -> None:
     medians = [line for line in report.splitlines() if line.startswith("| 10 |")]
     assert sum(share in line for line in medians) == 2                   # fix table and fused table
     assert f"from GPS ({share}" in report                                 # and in the words
+
+
+def test_di_plot_shows_a_declination_near_180_deg_in_one_piece(uncalibrated) -> None:
+    fig = di_figure(uncalibrated)
+    ax = fig.axes[0]
+    lo, hi = ax.get_ylim()
+    measured = [line for line in ax.lines if line.get_label().startswith("measured")]
+    assert len(measured) == 2                                              # samples and the 10 s means
+    for line in measured:
+        y = np.asarray(line.get_ydata(), dtype=float)
+        assert lo <= y.min() and y.max() <= hi
+        assert np.ptp(y) < 20.0                                            # not split at +-180 deg
+    assert "uncalibrated" in ax.get_title()
