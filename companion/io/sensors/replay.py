@@ -59,6 +59,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (after the environment is set)
 
 from companion import wrap_2pi  # noqa: E402
+from companion.io.sensors.tlog import _TLOG_TYPES, _TlogClock, _tlog_convert  # noqa: E402
 from companion.io.sensors.base import (  # noqa: E402
     AttitudeSample,
     GpsSample,
@@ -412,86 +413,3 @@ _DF_KINDS: dict[str, tuple[str, int]] = {
     "GPA": ("ACC", 0), "GPA2": ("ACC", 1), "UBX3": ("ACC", 0),
 }
 
-_TLOG_TYPES = frozenset({"ATTITUDE", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3",
-                         "HIGHRES_IMU", "GPS_RAW_INT", "GPS2_RAW", "SYSTEM_TIME"})
-
-
-class _TlogClock:
-    """Puts every tlog message on the vehicle's boot clock."""
-
-    def __init__(self) -> None:
-        self.unix_minus_boot: float | None = None
-        self.boot_minus_capture: float | None = None
-
-    def system_time(self, msg: Any) -> None:
-        if msg.time_unix_usec:
-            self.unix_minus_boot = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
-
-    def _boot(self, t: float, msg: Any) -> float:
-        self.boot_minus_capture = t - msg._timestamp
-        return t
-
-    def time_s(self, msg: Any) -> float | None:
-        ms = getattr(msg, "time_boot_ms", None)
-        if ms is not None:
-            return self._boot(ms * 1e-3, msg)
-        us = getattr(msg, "time_usec", 0)
-        if 0 < us < _BOOT_USEC_LIMIT:
-            return self._boot(us * 1e-6, msg)
-        if us and self.unix_minus_boot is not None:
-            return us * 1e-6 - self.unix_minus_boot
-        if self.boot_minus_capture is not None:
-            return msg._timestamp + self.boot_minus_capture
-        return None
-
-
-def _tlog_convert(msg: Any, mtype: str, t: float) -> list[MagSample | ImuSample | AttitudeSample | GpsSample]:
-    if mtype == "ATTITUDE":
-        return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
-    if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
-        if mtype == "RAW_IMU":
-            instance = int(getattr(msg, "id", 0) or 0)
-        else:
-            instance = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}[mtype]
-        g = GRAVITY_MPS2 * 1e-3
-        temp = getattr(msg, "temperature", 0)
-        return [
-            ImuSample(t, (msg.xacc * g, msg.yacc * g, msg.zacc * g),
-                      (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3),
-                      temp * 0.01 if temp else None, instance),
-            MagSample(t, (msg.xmag * MILLIGAUSS_TO_NT, msg.ymag * MILLIGAUSS_TO_NT,
-                          msg.zmag * MILLIGAUSS_TO_NT), instance),
-        ]
-    if mtype == "HIGHRES_IMU":
-        instance = int(getattr(msg, "id", 0) or 0)
-        updated = msg.fields_updated
-        out: list[MagSample | ImuSample | AttitudeSample | GpsSample] = []
-        if updated & 0x3F:
-            out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
-                                 msg.temperature, instance))
-        if updated & 0x1C0:
-            out.append(MagSample(t, (msg.xmag * GAUSS_TO_NT, msg.ymag * GAUSS_TO_NT,
-                                     msg.zmag * GAUSS_TO_NT), instance))
-        return out
-    if mtype in ("GPS_RAW_INT", "GPS2_RAW"):
-        us = msg.time_usec
-        utc_s = us * 1e-6 if us >= _BOOT_USEC_LIMIT else None
-        return [_tlog_gps(msg, t, 0 if mtype == "GPS_RAW_INT" else 1, utc_s)]
-    return []
-
-
-def _tlog_gps(msg: Any, t: float, instance: int, utc_s: float | None) -> GpsSample:
-    vel = None
-    if msg.vel != 0xFFFF and msg.cog != 0xFFFF:
-        c = math.radians(msg.cog * 0.01)
-        speed = msg.vel * 0.01
-        vel = (speed * math.cos(c), speed * math.sin(c), math.nan)
-    h_acc = getattr(msg, "h_acc", 0)
-    v_acc = getattr(msg, "v_acc", 0)
-    alt_ell = getattr(msg, "alt_ellipsoid", 0)
-    return GpsSample(
-        time_s=t, lat_deg=msg.lat / 1e7, lon_deg=msg.lon / 1e7,
-        alt_m=alt_ell * 1e-3 if alt_ell else math.nan, fix_type=int(msg.fix_type),
-        h_acc_m=h_acc * 1e-3 if h_acc else math.nan, v_acc_m=v_acc * 1e-3 if v_acc else math.nan,
-        vel_ned_mps=vel, num_sv=int(msg.satellites_visible) if msg.satellites_visible != 255 else 0,
-        alt_msl_m=msg.alt * 1e-3, utc_s=utc_s, instance=instance)
