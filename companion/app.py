@@ -117,6 +117,7 @@ HOLD_RETRY_S = 2.0
 STARTUP_GRACE_S = 5.0            # message time for the requested streams to arrive before complaining
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
 ECHO_SIGMA_M = 50.0               # what the echo of the FC's own GPS-aided position is worth to the feed
+PREPARED_START_M = 100.0          # a mission built while READY serves a start this close
 FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
 ECHO_SATELLITES = 6               # fewer than a real receiver: the FC keeps its own GPS as primary
 FEED_SATELLITES = 10
@@ -286,6 +287,7 @@ class CompanionApp:
         self.last_hold_cmd = -math.inf
         self.hold_commanded = False
         self.fc_failsafe_hold = ""      # the FC's own failsafe that took it out of GUIDED (re-engage when cleared)
+        self._prepared: Mission | None = None   # built while READY, used at arming if nothing changed
         self.was_following = False
         self.failsafe_active = False
         self.last_gps = None
@@ -796,6 +798,7 @@ class CompanionApp:
             self._start_mission(now)
             return sent
         sent = self._zero_setpoint()
+        self._prepare_mission(now)
         self._engage(now)
         return sent
 
@@ -816,7 +819,9 @@ class CompanionApp:
         self.m0 = self.mission_time(now)
         startup = self.mag.take(self.m0)
         self.bias, calibration = self._calibration(config, startup, source)
-        self.mission = Mission(config, bias=self.bias)
+        self.mission = self._prepared if self._prepared_fits(config) else Mission(config)
+        self.mission.set_bias(self.bias)
+        self._prepared = None
         self.mission_no += 1
         self.hold_commanded = False
         self.was_following = True
@@ -827,6 +832,29 @@ class CompanionApp:
         if calibration:
             self._say(f"FcMPC: {calibration}"[:200])
         self._step(self.m0, window_limit_s=0.0, avg=startup)
+
+    def _prepare_mission(self, now: float) -> None:
+        """Build the mission (QP set-up, field model) while waiting to be armed, so the moment of
+        arming costs a setpoint tick, not a set-up: at SITL speed-ups 100 ms of set-up was 3 s
+        of firmware time without a setpoint, and ArduPilot stopped."""
+        if self._params_dirty:
+            return
+        lat, lon, _ = self._start_position()
+        code, _ = self._resolve_elements(now)
+        config = self.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=code)
+        if not self._prepared_fits(config):
+            self._prepared = Mission(config)
+
+    def _prepared_fits(self, config: NavConfig) -> bool:
+        """The prepared mission serves ``config``: the same settings, a start within PREPARED_START_M
+        (a drifting boat moves its GPS start every tick; rebuilding each tick starved the link)."""
+        prepared = self._prepared
+        if prepared is None:
+            return False
+        old = prepared.config
+        same = old.replace(start_lat_deg=config.start_lat_deg, start_lon_deg=config.start_lon_deg) == config
+        return same and geodesic_distance_m(old.start_lat_deg, old.start_lon_deg, config.start_lat_deg,
+                                            config.start_lon_deg) <= PREPARED_START_M
 
     def _resolve_elements(self, now: float) -> tuple[int, str]:
         """NAV_ELEMENTS resolved against the heading source: never D with a compass-derived yaw."""

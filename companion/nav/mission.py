@@ -156,9 +156,7 @@ class Mission:
             model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
         self.model = model
         self.elements: ElementSet = element_set(config.elements or ElementSet.PAPER)
-        self.bias = np.zeros(2) if bias is None else np.asarray(bias, dtype=float)
-        if self.bias.shape != (2,) or not np.all(np.isfinite(self.bias)):
-            raise ValueError(f"the element bias must be two finite numbers, got {bias!r}")
+        self.set_bias(bias)
         field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
         self.s_lower, self.s_upper = self._state_bounds(field_at(config.start_lat_deg, config.start_lon_deg))
@@ -178,6 +176,13 @@ class Mission:
         self.window_lag_en = np.zeros(2)
         self.last: _Last | None = None
         self.finished: Command | None = None
+
+    def set_bias(self, bias: tuple[float, float] | None) -> None:
+        """The start-up calibration to subtract from every measurement (None: none), before the first step."""
+        value = np.zeros(2) if bias is None else np.asarray(bias, dtype=float)
+        if value.shape != (2,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"the element bias must be two finite numbers, got {bias!r}")
+        self.bias = value
 
     def reconfigure(self, new: NavConfig) -> list[str]:
         """Take a changed configuration at the next step; returns the registry names of changes

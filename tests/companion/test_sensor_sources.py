@@ -57,6 +57,8 @@ class Rig:
         port = _free_port()
         self.channel = channel
         self.fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+        # this FC peer serves no parameters: declare the heading instead of waiting for EK3_SRC1_YAW
+        (tmp_path / "p.parm").write_text("COMP_HEADING_SRC 1\n")
         args = build_parser().parse_args([
             "--connect", f"udpout:127.0.0.1:{port}", "--params", str(tmp_path / "p.parm"),
             "--log-dir", str(tmp_path / "log"), "--quiet", "--no-tlog", "--startup-s", "0.5",
