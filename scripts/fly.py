@@ -192,10 +192,8 @@ def fly(options: FlyOptions) -> FlyResult:
     if options.short:
         dest = short_destination(scenario, options.short_km)
         scenario_arg = str(write_short_scenario(scenario, dest, out / f"{scenario.name}_short.toml"))
-    # the scenario declares its heading source as an operator would (a gyrocompass: "true")
-    heading = {"true": 1, "ins": 1, "magnetic": 2}[getattr(scenario, "heading_source", "true")]
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1],
-              "COMP_ARM_ENABLE": 1, "COMP_HEADING_SRC": heading, **options.extra_params}
+              "COMP_ARM_ENABLE": 1, **options.extra_params}
     if options.lockstep and "COMP_SP_RATE_HZ" not in options.extra_params:
         values["COMP_SP_RATE_HZ"] = SETPOINT_RATE_HZ
     parm = out / "fly.parm"
