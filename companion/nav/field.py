@@ -521,19 +521,15 @@ def geomagnetic_fix(
     prior_lon_deg: float,
     alt_m: float,
     year: float,
-    max_iter: int = 20,
-    tol_m: float = 1.0,
-    max_step_m: float = 200e3,
-    max_condition: float = 1e6,
-    step_m: float = 500.0,
+    **newton: float,
 ) -> PositionFix:
     """The position whose model (D, I) equals the measured (D, I): the paper's eq. 49.
 
-    :func:`element_fix` on the paper's element set; see there.
+    :func:`element_fix` on the paper's element set; ``newton`` are its iteration settings
+    (``max_iter``, ``tol_m``, ``max_step_m``, ``max_condition``, ``step_m``).
     """
     return element_fix(model, ELEMENT_SETS[ElementSet.PAPER], (decl_deg, incl_deg), prior_lat_deg,
-                       prior_lon_deg, alt_m, year, max_iter=max_iter, tol_m=tol_m, max_step_m=max_step_m,
-                       max_condition=max_condition, step_m=step_m)
+                       prior_lon_deg, alt_m, year, **newton)
 
 
 def element_fix(
