@@ -117,6 +117,7 @@ HOLD_RETRY_S = 2.0
 STARTUP_GRACE_S = 5.0            # message time for the requested streams to arrive before complaining
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
 ECHO_SIGMA_M = 50.0               # what the echo of the FC's own GPS-aided position is worth to the feed
+SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
 PREPARED_START_M = 100.0          # a mission built while READY serves a start this close
 FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
 ECHO_SATELLITES = 6               # fewer than a real receiver: the FC keeps its own GPS as primary
@@ -1005,6 +1006,9 @@ class CompanionApp:
         if nav_fault:
             self._nav_failure(nav_fault, cmd)
             return
+        previous = self.command
+        if previous is None or abs(previous.course_rad - cmd.course_rad) > 0.02 or previous.speed_mps != cmd.speed_mps:
+            self.mag.settle_until_s = now + SETTLE_AFTER_COMMAND_S   # turn and speed transient: no I_g
         self.command = cmd
         if cmd.phase != self.last_phase:
             self._say(f"FcMPC: step {cmd.step} phase {cmd.phase}"

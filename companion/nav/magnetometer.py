@@ -22,7 +22,9 @@ Per sample:
    horizontal plane, from the two sensors alone, rotation-invariant, so it needs neither the
    flight controller's attitude estimate nor a heading. On a vehicle holding course and speed
    the mean specific force is gravity (waves and heave average out); samples while turning
-   (``|gyro z| > max_turn_radps``: centripetal acceleration tilts ``f``) are left out of it.
+   (``|gyro z| > max_turn_radps``: centripetal acceleration tilts ``f``) and until
+   ``settle_until_s`` after a new command (the speed change after a turn tilts ``f`` along the
+   track: 1 m/s^2 is 6 degrees) are left out of it.
 6. **Averaging**: D (unwrapped around the first sample) and I are averaged over the accepted
    samples of the period, which is what the in-process Monte Carlo means by "D and I averaged
    along the period's path" (:mod:`sitl.inprocess`). The result also carries the mean sample
@@ -327,6 +329,8 @@ class MagProcessor:
 
     max_turn_radps: float = math.radians(1.5)
     """Gravity-referenced I leaves out samples turning faster than this (centripetal acceleration)."""
+    settle_until_s: float = -math.inf
+    """Message time before which gravity-referenced I is left out (a new command's transient)."""
 
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
@@ -408,7 +412,7 @@ class MagProcessor:
             st.paused += 1
             return False
         incl_grav = math.nan
-        if imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
+        if imu is not None and abs(imu[2][2]) <= self.max_turn_radps and time_s >= self.settle_until_s:
             incl_grav = gravity_inclination_deg(calibrated, imu[1])
         self.averager.add(time_s - self.mission_offset_s, d, i, ned, incl_grav)
         st.accepted += 1
