@@ -58,7 +58,7 @@ from sitl.guidance import (  # noqa: E402
 from sitl.mavframe import FrameEncoder  # noqa: E402
 from sitl.links import MAX_DATAGRAM_BYTES, Link, open_link, parse_endpoint  # noqa: E402
 from sitl.scenario import FAULT_KINDS, Fault, Scenario, ScenarioError, load_scenario  # noqa: E402
-from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion  # noqa: E402
+from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion, make_error_models  # noqa: E402
 from sitl.truthlog import TlogWriter, TruthLog  # noqa: E402
 from sitl.world.build import build_truth_field  # noqa: E402
 from sitl.world.magnetic import TruthField, decl_incl_from_ned  # noqa: E402
@@ -239,16 +239,17 @@ class SitlServer:
         if any(f.kind == "storm_onset" for f in self.scenario.faults) and not self.scenario.storm.enabled:
             raise ScenarioError("storm_onset fault needs a scenario with [storm] enabled = true")
         self.truth_full = truth if truth is not None else build_truth_field(
-            self.scenario, config.data_dir, config.expected_duration_s)
+            self.scenario, config.data_dir, config.expected_duration_s, seed=config.seed)
         self.truth = self.truth_full
         self.sysid, self.compid = config.sysid, 1
-        rng_sensors, rng_nav, rng_link, rng_gps = (np.random.default_rng(s)
-                                                   for s in np.random.SeedSequence(config.seed).spawn(4))
+        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(6))
         self._link_rng = rng_link
         sc = self.scenario
         self.state = VehicleState(sc.start_lat_deg, sc.start_lon_deg, 0.0, 0.0)
         self.wave = WaveMotion(roll_amp_deg=config.wave_roll_deg, pitch_amp_deg=config.wave_pitch_deg)
-        self.sensors = SensorSuite(sc.sensors, rng_sensors)
+        errors = make_error_models(sc, rng_att, rng_cal)   # sitl.world's attitude/calibration errors
+        self.sensors = SensorSuite(sc.sensors, rng_sensors, errors.attitude, errors.mag, errors.decl_table_deg)
         self.nav = NavSolution(sc.ins, rng_nav, aided_noise_m=0.2 * sc.sensors.gps_noise_m,
                                ins_step_s=config.ins_step_s)
         self._gps_rng = rng_gps
@@ -500,12 +501,12 @@ class SitlServer:
             return
         if self._field_us < 0:
             self._update_field()
-        x, y, z = self.sensors.sample_mag(self._field, self._true_attitude(), self._mag_spike_nt)
+        x, y, z = self.sensors.sample_mag(self._field, self._true_attitude(), self._mag_spike_nt, self.time_s)
         self._mag_ints = (_int16(x / 100.0), _int16(y / 100.0), _int16(z / 100.0))   # nT -> mGauss
 
     def _sample_imu(self) -> None:
         sensors = self.sensors
-        sensors.sample_imu(self._true_attitude(), self._accel_ned)
+        sensors.sample_imu(self._true_attitude(), self._accel_ned, self.time_s, self.nav.ins, self._fc_position)
         ax, ay, az = sensors.accel_mps2
         gx, gy, gz = sensors.gyro_radps
         k = 1000.0 / GRAVITY_MPS2
