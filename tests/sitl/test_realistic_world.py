@@ -300,3 +300,31 @@ def test_ideal_preset_flies_exactly_as_before_the_realistic_world():
     true = model_for_date(YEAR).elements(result.true_lat_deg[-1], result.true_lon_deg[-1], 0.0, YEAR)
     assert last.f_nt == pytest.approx(true.f_nt, abs=30.0) and last.z_nt == pytest.approx(true.z_nt, abs=30.0)
     assert len(result.elements) == result.iterations + 1
+
+
+# --- the MAVLink stand-in shows the same world ----------------------------------------------------
+def test_stand_in_attitude_with_a_magnetic_heading_puts_d_on_the_igrf_table(sitl, tmp_path):
+    from sitl.scenario import SCENARIO_DIR
+    from tests.sitl.conftest import body_to_ned
+
+    text = (SCENARIO_DIR / "pacific_real.toml").read_text().replace('heading_source = "ins"',
+                                                                      'heading_source = "magnetic"')
+    path = tmp_path / "pacific_magnetic.toml"
+    path.write_text(text)
+    server, client = sitl(scenario=str(path), speedup=60.0, init_s=0.2, seed=3)
+    msgs = client.collect(["RAW_IMU", "ATTITUDE", "GLOBAL_POSITION_INT"], 32_000)
+    att = {m.time_boot_ms: m for m in msgs if m.get_type() == "ATTITUDE"}
+    fc = [m for m in msgs if m.get_type() == "GLOBAL_POSITION_INT"][-1]
+    decl = []
+    for raw in (m for m in msgs if m.get_type() == "RAW_IMU" and m.time_usec >= 2_000_000):
+        a = att.get(raw.time_usec // 1000)
+        if a is not None:
+            n, e, _ = body_to_ned(a.roll, a.pitch, a.yaw, raw.xmag * 100.0, raw.ymag * 100.0, raw.zmag * 100.0)
+            decl.append(math.degrees(math.atan2(e, n)))
+    assert len(decl) >= 250
+    table = igrf14_model(YEAR).elements(fc.lat * 1e-7, fc.lon * 1e-7, 0.0, YEAR).decl_deg
+    sigma = np.std(decl) / math.sqrt(len(decl))
+    assert np.mean(decl) == pytest.approx(table, abs=5 * sigma + 0.01)
+    # the truth at the true position differs (crust, IGRF vs the position error): D is the table's
+    true_d = float(server.truth.decl_incl_deg(server.state.lat_deg, server.state.lon_deg, 0.0, 30.0)[0])
+    assert server.truth.crustal is not None and abs(np.mean(decl) - true_d) > 3 * sigma   # 0.09 deg, seed 3
