@@ -3,6 +3,13 @@
 One scenario file drives the in-process Monte Carlo and the MAVLink simulator alike
 (``sitl/scenarios/*.toml``; ``--scenario pacific`` names a bundled one, a path names any
 file). Bad files raise :class:`ScenarioError` naming the file and the key.
+
+Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration residuals and
+``inprocess_samples``), ``[ins]``, ``[storm]``, ``[[faults]]``, and for the realistic world
+``[field]`` (``main = "wmm" | "igrf14"``, ``crustal = true`` with ``crustal_rms_down_nt``,
+``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
+"true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt).
+Absent tables leave the paper's ideal world.
 """
 from __future__ import annotations
 
