@@ -126,6 +126,21 @@ def test_magnetic_heading_makes_d_equal_the_tables_declination_at_the_believed_p
         assert abs(d - true_d) > 0.05                          # ... and not the true declination
 
 
+def test_in_process_magnetic_heading_gives_the_tables_declination_too():
+    """The Monte Carlo's sample path: D averaged over a period = the table at the FC's positions."""
+    scenario = load_scenario("pacific_real")
+    truth = build_truth_field(scenario, seed=2)
+    mags = MagErrors.draw(scenario.sensors.mag_errors, np.random.default_rng(8))   # residuals cancel from D
+    times = np.linspace(0.0, 360.0, 13)
+    lats, lons = np.linspace(33.0, 32.97, 13), np.linspace(152.0, 152.04, 13)
+    table = igrf14_model(YEAR).elements(lats + 0.05, lons - 0.08, 0.0, YEAR).decl_deg   # FC ~10 km off
+    slow = np.tile([0.002, -0.001, 0.0], (13, 1))                                       # tilt errors
+    period = PeriodKnots(times, truth.field_ned_nt(lats, lons, 0.0, times), np.full(13, 2.3), slow, table)
+    settings = SampleSettings(10.0, 0.0, 0.0, (0.0, 0.0, 0.0), 0.0, "magnetic")
+    avg = sample_period(period, settings, WaveMotion().tilt_rad, mags.apply, np.random.default_rng(0))
+    assert avg.decl_deg == pytest.approx(np.mean(table[1:]), abs=1e-6)
+
+
 def test_true_heading_sensor_has_its_bias_and_gauss_markov_drift():
     config = AttitudeErrorConfig(heading_source="true", heading_bias_deg=0.05, heading_drift_deg=0.1,
                                  heading_drift_tau_s=600.0)
