@@ -27,10 +27,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
-
-from typing import Callable
 
 from companion.frames import ned_to_body
 from companion.nav.geo import radii_of_curvature_m
