@@ -3,6 +3,9 @@
     fcmpc-montecarlo --scenario pacific --runs 50          # Table 5: LTI-, LTV-, Fc-MPC
     fcmpc-montecarlo --scenario long_storm --runs 50       # Table 6: LTV- vs Fc-MPC
     fcmpc-montecarlo --scenario short_storm --runs 50      # Table 7
+    fcmpc-montecarlo --scenario pacific_real --runs 50     # the realistic world (issue 9)
+    fcmpc-montecarlo --scenario pacific_real --errors -heading,+crustal   # switch error sources
+    fcmpc-montecarlo --scenario pacific_real --budget --runs 10           # the error budget
 
 Each run draws its own INS errors and sensor noise from its seed; every controller meets the
 same draws for the same seed. Runs go to worker processes with a progress bar. The script
@@ -42,7 +45,7 @@ from companion.nav.metrics import cep50, cep_paper, mean_terminal_location, trac
 from companion.nav.geo import geodesic_distance_m
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
 from sitl.inprocess import fly_in_process
-from sitl.scenario import Scenario, load_scenario
+from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import decl_incl_from_ned
 
@@ -102,8 +105,8 @@ class RunRow:
 _WORKER: dict = {}
 
 
-def _init_worker(scenario_ref: str, values: dict, data_dir: str | None) -> None:
-    scenario = load_scenario(scenario_ref)
+def _init_worker(scenario_ref: str | Scenario, values: dict, data_dir: str | None) -> None:
+    scenario = load_scenario(scenario_ref) if isinstance(scenario_ref, str) else scenario_ref
     _WORKER["scenario"] = scenario
     _WORKER["values"] = values
     _WORKER["truth"] = {True: build_truth_field(scenario, data_dir) if scenario.storm.enabled else None,
@@ -269,12 +272,19 @@ def plot_results(out: Path, scenario: Scenario, rows: list[RunRow], tracks: list
 
 
 # --- main --------------------------------------------------------------------------------------
-def run_montecarlo(scenario_ref: str, runs: int, controllers: list[int], workers: int, values: dict,
-                   data_dir: str | None = None, progress: bool = True, first_seed: int = 0):
-    """All (controller, seed[, storm off]) runs; returns (rows, tracks)."""
-    scenario = load_scenario(scenario_ref)
-    tasks = [(c, first_seed + s, True) for c in controllers for s in range(runs)] if scenario.storm.enabled else []
-    tasks += [(c, first_seed + s, False) for c in controllers for s in range(runs)]
+def run_montecarlo(scenario_ref: str | Scenario, runs: int, controllers: list[int], workers: int, values: dict,
+                   data_dir: str | None = None, progress: bool = True, first_seed: int = 0,
+                   quiet_too: bool = True):
+    """All (controller, seed[, storm off]) runs; returns (scenario, rows, tracks).
+
+    ``scenario_ref`` is a bundled name, a TOML path or a :class:`Scenario` (e.g. with error
+    sources switched); ``quiet_too`` also flies a storm scenario's seeds with the storm off.
+    """
+    scenario = load_scenario(scenario_ref) if isinstance(scenario_ref, str) else scenario_ref
+    storm = scenario.storm.enabled
+    tasks = [(c, first_seed + s, True) for c in controllers for s in range(runs)] if storm else []
+    if quiet_too or not storm:
+        tasks += [(c, first_seed + s, False) for c in controllers for s in range(runs)]
     rows, tracks = [], []
     if workers <= 1:
         _init_worker(scenario_ref, values, data_dir)
@@ -297,6 +307,68 @@ def run_montecarlo(scenario_ref: str, runs: int, controllers: list[int], workers
     return scenario, rows, tracks
 
 
+def run_budget(real: Scenario, runs: int, workers: int, values: dict, data_dir: str | None = None,
+               progress: bool = True, first_seed: int = 0) -> list[dict]:
+    """The error budget: Fc-MPC with each source of ``real`` alone, with none and with all.
+
+    Per row: the median |e_D|, |e_I| the source puts on the destination's measurement, the
+    predicted fix error |G^-1 e| (median over the seeds; for "all" the sum of the sources' e
+    per seed), and the measured median and 90th-percentile miss over ``runs`` missions.
+    """
+    from sitl.budget import SOURCES, only, predicted_fix_error
+    from sitl.world.build import expected_mission_duration_s
+
+    duration = expected_mission_duration_s(real)
+    seeds = [first_seed + k for k in range(runs)]
+    predicted = {source: [predicted_fix_error(real, source, seed, duration,
+                                              lambda sc: build_truth_field(sc, data_dir)) for seed in seeds]
+                 for source in SOURCES if source != "storm" or real.storm.enabled}
+    rows = []
+    for source in ("none", *predicted, "all"):
+        scenario = only(real, None if source == "none" else source)
+        _, flown, _ = run_montecarlo(scenario, runs, [Controller.FC], workers, values, data_dir, progress,
+                                     first_seed, quiet_too=False)
+        miss = np.array([r.remaining_km for r in flown])
+        if source == "all":
+            from companion.nav.field import decl_incl_gradient, model_for_date
+            g = decl_incl_gradient(model_for_date(real.year), real.dest_lat_deg, real.dest_lon_deg, real.alt_m,
+                                   real.year)
+            e = np.array([[sum(p[k].decl_deg for p in predicted.values()), sum(p[k].incl_deg for p in predicted.values())]
+                          for k in range(runs)])
+            fix = np.hypot(*np.linalg.solve(g, e.T)) / 1e3
+        elif source == "none":
+            e, fix = np.zeros((runs, 2)), np.zeros(runs)
+        else:
+            e = np.array([[p.decl_deg, p.incl_deg] for p in predicted[source]])
+            fix = np.array([p.fix_error_m for p in predicted[source]]) / 1e3
+        rows.append({"source": source, "e_decl_deg": float(np.median(np.abs(e[:, 0]))),
+                     "e_incl_deg": float(np.median(np.abs(e[:, 1]))), "predicted_km": float(np.median(fix)),
+                     "median_km": float(np.median(miss)), "p90_km": float(np.percentile(miss, 90)),
+                     "arrived": int(sum(r.phase == "arrived" for r in flown)), "runs": runs})
+    return rows
+
+
+def format_budget(rows: list[dict]) -> str:
+    """The budget as a Markdown table (the README carries one from a real run)."""
+    lines = ["| Error source (alone) | median abs e_D (deg) | median abs e_I (deg) | predicted abs(G^-1 e), median (km) "
+             "| miss, median (km) | miss, p90 (km) | arrived |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['source']} | {r['e_decl_deg']:.4f} | {r['e_incl_deg']:.4f} | {r['predicted_km']:.1f} "
+                     f"| {r['median_km']:.2f} | {r['p90_km']:.2f} | {r['arrived']}/{r['runs']} |")
+    return "\n".join(lines)
+
+
+def realistic_counterpart(scenario: Scenario) -> Scenario:
+    """The ``*_real`` preset a scenario's error sources are switched from (itself if there is none)."""
+    if scenario.name.endswith("_real"):
+        return scenario
+    try:
+        return load_scenario(f"{scenario.name}_real")
+    except ScenarioError:
+        return scenario
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path (default pacific)")
@@ -311,9 +383,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="out/montecarlo", help="output folder (default out/montecarlo)")
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--errors", default=None, metavar="SPEC",
+                        help="switch error sources of the realistic world on (+name) or off (-name), comma "
+                             "separated: heading, main_field, crustal, calibration, noise, storm, ins; 'none', 'all'")
+    parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
+                        help="override the scenario's [attitude] heading_source")
+    parser.add_argument("--budget", action="store_true",
+                        help="error budget: Fc-MPC with each error source alone, none and all (--runs per row)")
     args = parser.parse_args(argv)
 
     scenario = load_scenario(args.scenario)
+    real = realistic_counterpart(scenario)
+    if args.heading_source:
+        real = replace(real, attitude=replace(real.attitude, heading_source=args.heading_source))
+        scenario = replace(scenario, attitude=replace(scenario.attitude, heading_source=args.heading_source))
+    if args.errors:
+        from sitl.budget import parse_errors, with_errors
+        try:
+            scenario = with_errors(scenario, parse_errors(args.errors), real)
+        except ValueError as err:
+            parser.error(str(err))
     overrides = read_parm_file(args.params) if args.params else {}
     for item in args.param:
         name, _, value = item.partition("=")
@@ -325,8 +414,20 @@ def main(argv: list[str] | None = None) -> int:
     except KeyError as err:
         parser.error(f"unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
 
+    if args.budget:
+        started = time.perf_counter()
+        budget = run_budget(real, args.runs, args.workers, values, args.data_dir, not args.quiet, args.first_seed)
+        out = Path(args.out) / real.name
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "budget.json").write_text(json.dumps({"scenario": real.name, "runs": args.runs, "rows": budget,
+                                                     "wall_s": time.perf_counter() - started}, indent=2))
+        print(f"\nError budget, {real.name}: Fc-MPC, {args.runs} runs per row "
+              f"({time.perf_counter() - started:.0f} s wall)\n")
+        print(format_budget(budget))
+        print(f"results: {out / 'budget.json'}")
+        return 0
     started = time.perf_counter()
-    scenario, rows, tracks = run_montecarlo(args.scenario, args.runs, controllers, args.workers, values,
+    scenario, rows, tracks = run_montecarlo(scenario, args.runs, controllers, args.workers, values,
                                             args.data_dir, progress=not args.quiet, first_seed=args.first_seed)
     wall = time.perf_counter() - started
     storm = scenario.storm.enabled

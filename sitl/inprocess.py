@@ -3,12 +3,30 @@
 The Monte Carlo and the tests use this; the MAVLink simulator wraps the same world models.
 Per control period the vehicle tracks the last command (kinematics at ``substep_s``), the
 INS error propagates along the true track, and the companion's measurement is formed as it
-would be on the vehicle: D and I of the true field averaged along the period's path, plus the
-averaged sensor noise of the scenario (:meth:`SensorModel.averaged_di_noise_deg`).
+would be on the vehicle. Two measurement paths, chosen by the scenario's
+``[sensors] inprocess_samples``:
 
-Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams for the INS
-errors and the measurement noise, so LTI-, LTV- and Fc-MPC meet the same INS and the same
-noise for the same seed.
+* analytic (the paper's ideal world, ``pacific`` and the storm presets): D and I of the true
+  field averaged along the period's path, plus the averaged sensor noise of the scenario
+  (:meth:`SensorModel.averaged_di_noise_deg`), one normal each;
+* samples (the realistic presets): every magnetometer and attitude sample of the period is
+  simulated with the run's heading source, calibration residuals and noise, and averaged as
+  the companion does (:func:`sitl.world.sampling.sample_period`).
+
+Either way the averaged elements D, I, F, H, Z of each step are kept in
+``RunResult.elements`` (:class:`~sitl.world.sampling.AveragedElements`) for a navigator that
+uses heading-free elements; the mission itself is fed :class:`Measurement` (D, I).
+
+The navigator's field model is its own (``Mission`` picks WMM from ``NavConfig``); the truth
+field (``truth``) may be a different model plus crust and storm. The flight controller's
+position, which the ``magnetic`` heading source evaluates its declination table at, is the
+INS-indicated position (GPS is denied from the start).
+
+Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams: [0] INS errors,
+[1] measurement noise (analytic D, I or the samples), [2] attitude errors, [3] calibration
+residuals, [4] the analytic F/H/Z noise; the crustal field is drawn from ``seed`` by
+:meth:`TruthField.for_seed`. LTI-, LTV- and Fc-MPC meet the same draws for the same seed, and
+the ideal world's streams [0] and [1] are drawn exactly as before the others existed.
 """
 from __future__ import annotations
 
@@ -17,12 +35,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.nav.geo import geodesic_distance_m
+from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
+from sitl.sensors import WaveMotion, make_error_models
 from sitl.world.ins import InsErrorModel
 from sitl.world.magnetic import TruthField
+from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
 from sitl.world.vehicle import VehicleState, step_vehicle
 
 __all__ = ["RunResult", "fly_in_process"]
@@ -46,6 +66,7 @@ class RunResult:
     duration_s: float
     ins_error_m: np.ndarray     # INS position error magnitude at each step
     commands: tuple[Command, ...] = field(default=(), repr=False)
+    elements: tuple[AveragedElements, ...] = field(default=(), repr=False)  # measured, per step
 
     @property
     def arrived(self) -> bool:
@@ -53,39 +74,87 @@ class RunResult:
 
 
 def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthField,
-                   substep_s: float = 30.0, keep_commands: bool = False) -> RunResult:
-    """Fly one seeded mission to its end (arrival, failure or the step limit)."""
-    ins_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)
+                   substep_s: float = 30.0, keep_commands: bool = False,
+                   nav_model=None) -> RunResult:
+    """Fly one seeded mission to its end (arrival, failure or the step limit).
+
+    ``nav_model`` is the navigator's field model; by default ``truth.model`` when the truth's
+    main field is the navigator's WMM (the ideal world), else the model ``NavConfig`` names.
+    """
+    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed = np.random.SeedSequence(seed).spawn(5)
     noise_rng = np.random.default_rng(noise_seed)
+    fhz_rng = np.random.default_rng(fhz_seed)
     ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
-    mission = Mission(nav, truth.model)
+    truth = truth.for_seed(seed)
+    if nav_model is None and scenario.field_model.main == "wmm":
+        nav_model = truth.model
+    mission = Mission(nav, nav_model)
     state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
-    start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
-    sigma_d, sigma_i = scenario.sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
-                                                              float(start_field.f_nt))
+    sensors = scenario.sensors
+    sampled = sensors.inprocess_samples
     substeps = max(1, int(round(nav.period_s / substep_s)))
     dt = nav.period_s / substeps
+    errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
+    if not sampled:
+        start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
+        sigma_d, sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
+                                                         float(start_field.f_nt))
+        sigma_f = sensors.mag_noise_nt / math.sqrt(max(1.0, sensors.mag_rate_hz * nav.period_s))
+    settings = SampleSettings(sensors.mag_rate_hz, sensors.mag_noise_nt, sensors.mag_lsb_nt, sensors.mag_bias_nt,
+                              sensors.attitude_noise_deg, scenario.heading_source)
+    wave = WaveMotion()
+    mag_apply = errors.mag.apply if errors.mag is not None else None
 
-    def measure(time_s: float, lats: np.ndarray, lons: np.ndarray, window_s: float) -> Measurement:
-        d, i = truth.decl_incl_deg(lats, lons, nav.alt_m, time_s)
+    def slow_errors(time_s: float, s: VehicleState) -> tuple[tuple[float, float, float], float]:
+        """The attitude's slow errors and the FC's table declination at a sub-step."""
+        slow = (0.0, 0.0, 0.0)
+        if errors.attitude is not None:
+            slow = errors.attitude.slow_errors_rad(time_s, s.course_rad, ins)
+        decl = math.nan
+        if errors.decl_table_deg is not None:
+            decl = float(errors.decl_table_deg(*ins.indicated_position(s.lat_deg, s.lon_deg)))
+        return slow, decl
+
+    def measure(time_s: float, knots: list, window_s: float) -> tuple[Measurement, AveragedElements]:
+        """``knots``: (time, state, slow errors, table declination) from the period's start."""
+        lats = np.array([k[1].lat_deg for k in knots])
+        lons = np.array([k[1].lon_deg for k in knots])
+        times = np.array([k[0] for k in knots])
         ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg)
-        return Measurement(time_s, float(np.mean(d)) + noise_rng.normal(0.0, sigma_d),
-                           float(np.mean(i)) + noise_rng.normal(0.0, sigma_i), ins_lat, ins_lon, window_s)
+        if sampled:
+            ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
+            period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
+                                 np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
+            avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng)
+            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s), avg
+        # analytic path: the path's points after the start knot (the start alone at step 0)
+        path = slice(1, None) if len(knots) > 1 else slice(0, 1)
+        ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
+        n, e, d = ned[..., 0], ned[..., 1], ned[..., 2]
+        h = np.hypot(n, e)
+        decl = float(np.mean(np.degrees(np.arctan2(e, n)))) + noise_rng.normal(0.0, sigma_d)
+        incl = float(np.mean(np.degrees(np.arctan2(d, h)))) + noise_rng.normal(0.0, sigma_i)
+        fn, hn, zn = (float(np.mean(v)) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
+        avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)))
+        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s), avg
 
     time_s = 0.0
     lats, lons = [state.lat_deg], [state.lon_deg]
     est_lats, est_lons, ins_err = [state.lat_deg], [state.lon_deg], [math.hypot(*ins.position_error_m(state.lat_deg))]
-    command = mission.step(measure(time_s, np.array([state.lat_deg]), np.array([state.lon_deg]), 0.0))
-    commands = [command]
+    measurement, avg = measure(time_s, [(0.0, state, *slow_errors(0.0, state))], 0.0)
+    command = mission.step(measurement)
+    commands, elements = [command], [avg]
     while not command.done:
-        path_lat, path_lon = [], []
-        for _ in range(substeps):
+        knots = [(time_s, state, *slow_errors(time_s, state))]
+        for index in range(substeps):
             state = step_vehicle(state, dt, command.course_rad, command.speed_mps, scenario.vehicle)
             ins.propagate(dt, state.lat_deg, state.vel_east_mps, state.vel_north_mps)
-            path_lat.append(state.lat_deg)
-            path_lon.append(state.lon_deg)
+            t = time_s + (index + 1) * dt
+            knots.append((t, state, *slow_errors(t, state)))
         time_s += nav.period_s
-        command = mission.step(measure(time_s, np.array(path_lat), np.array(path_lon), nav.period_s))
+        measurement, avg = measure(time_s, knots, nav.period_s)
+        command = mission.step(measurement)
+        elements.append(avg)
         if keep_commands:
             commands.append(command)
         lats.append(state.lat_deg)
@@ -99,5 +168,5 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         est_lat_deg=np.array(est_lats), est_lon_deg=np.array(est_lons),
         remaining_m=geodesic_distance_m(state.lat_deg, state.lon_deg, nav.dest_lat_deg, nav.dest_lon_deg),
         length_m=state.distance_m, duration_s=time_s, ins_error_m=np.array(ins_err),
-        commands=tuple(commands) if keep_commands else (),
+        commands=tuple(commands) if keep_commands else (), elements=tuple(elements),
     )

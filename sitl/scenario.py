@@ -3,6 +3,13 @@
 One scenario file drives the in-process Monte Carlo and the MAVLink simulator alike
 (``sitl/scenarios/*.toml``; ``--scenario pacific`` names a bundled one, a path names any
 file). Bad files raise :class:`ScenarioError` naming the file and the key.
+
+Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration residuals and
+``inprocess_samples``), ``[ins]``, ``[storm]``, ``[[faults]]``, and for the realistic world
+``[field]`` (``main = "wmm" | "igrf14"``, ``crustal = true`` with ``crustal_rms_down_nt``,
+``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
+"true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt).
+Absent tables leave the paper's ideal world.
 """
 from __future__ import annotations
 
@@ -12,10 +19,14 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+from sitl.world.attitude import AttitudeErrorConfig
+from sitl.world.crustal import CrustalConfig
 from sitl.world.ins import InsErrorConfig
+from sitl.world.magerrors import MagErrorConfig
 from sitl.world.vehicle import VehicleLimits
 
-__all__ = ["Scenario", "SensorModel", "StormConfig", "Fault", "ScenarioError", "load_scenario", "SCENARIO_DIR"]
+__all__ = ["Scenario", "SensorModel", "StormConfig", "FieldConfig", "Fault", "ScenarioError", "load_scenario",
+           "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heartbeat_off",
@@ -40,6 +51,20 @@ class SensorModel:
     attitude_noise_deg: float = 0.05     # white error of the autopilot's ATTITUDE estimate
     gps_noise_m: float = 2.5
     gps_denied_after_s: float = 0.0      # GPS has no fix from this mission time on
+    # calibration residuals drawn per run (sitl.world.magerrors), 1-sigma; 0 = absent
+    mag_hard_iron_resid_nt: float = 0.0
+    mag_soft_iron_resid: float = 0.0
+    mag_temp_coeff_nt_per_k: float = 0.0
+    mag_temp_swing_k: float = 0.0
+    # in-process Monte Carlo: False = the analytic averaged draw below (the paper's ideal world),
+    # True = every magnetometer and attitude sample simulated and averaged as the companion does
+    inprocess_samples: bool = False
+
+    @property
+    def mag_errors(self) -> MagErrorConfig:
+        """The calibration-residual sizes as a :class:`MagErrorConfig`."""
+        return MagErrorConfig(self.mag_hard_iron_resid_nt, self.mag_soft_iron_resid,
+                              self.mag_temp_coeff_nt_per_k, self.mag_temp_swing_k)
 
     def averaged_di_noise_deg(self, period_s: float, horizontal_nt: float, total_nt: float) -> tuple[float, float]:
         """1-sigma (D, I) error in degrees of the field averaged over one control period.
@@ -68,6 +93,26 @@ class StormConfig:
     @property
     def window_posix(self) -> tuple[float, float]:
         return tuple(_parse_utc(text).timestamp() for text in self.window_utc)  # type: ignore[return-value]
+
+
+MAIN_FIELD_MODELS = ("wmm", "igrf14")
+
+
+@dataclass(frozen=True)
+class FieldConfig:
+    """The ``[field]`` table: the truth's main-field model and its crustal anomaly field.
+
+    ``main = "wmm"`` is the navigator's own model (the paper's ideal world: the map is the
+    territory); ``"igrf14"`` is IGRF-14 (:mod:`sitl.world.igrf`). The crustal field
+    (:mod:`sitl.world.crustal`) is drawn per run from the run's seed.
+    """
+
+    main: str = "wmm"
+    crustal: CrustalConfig = CrustalConfig()
+
+    def __post_init__(self) -> None:
+        if self.main not in MAIN_FIELD_MODELS:
+            raise ValueError(f"main must be one of {', '.join(MAIN_FIELD_MODELS)}, not {self.main!r}")
 
 
 @dataclass(frozen=True)
@@ -102,6 +147,13 @@ class Scenario:
     storm: StormConfig = StormConfig()
     faults: tuple[Fault, ...] = field(default_factory=tuple)
     source: str = ""
+    attitude: AttitudeErrorConfig = AttitudeErrorConfig()
+    field_model: FieldConfig = FieldConfig()
+
+    @property
+    def heading_source(self) -> str:
+        """Where the flight controller's yaw comes from: ``true``, ``ins`` or ``magnetic``."""
+        return self.attitude.heading_source
 
     @property
     def start_posix(self) -> float:
@@ -149,7 +201,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{path}: {err}") from None
-    unknown = set(data) - {"name", "description", "mission", "vehicle", "sensors", "ins", "storm", "faults"}
+    unknown = set(data) - {"name", "description", "mission", "vehicle", "sensors", "ins", "storm", "faults",
+                           "attitude", "field"}
     if unknown:
         raise ScenarioError(f"{path}: unknown key(s) or table(s): {', '.join(sorted(unknown))}")
     mission = _section(data, "mission", path)
@@ -182,6 +235,12 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
                    {"window_utc": tuple, "stations": tuple})
     if storm.time_map not in ("compress", "utc"):
         raise ScenarioError(f"{path}: [storm] time_map must be 'compress' or 'utc'")
+    field_table = dict(_section(data, "field", path))
+    # crustal = true, crustal_rms_down_nt, crustal_correlation_length_m, crustal_waves
+    crustal = {("enabled" if key == "crustal" else key.removeprefix("crustal_")): field_table.pop(key)
+               for key in list(field_table) if key.startswith("crustal")}
+    field_config = _build(FieldConfig, {**field_table, "crustal": _build(CrustalConfig, crustal, path, "field")},
+                          path, "field")
     return Scenario(
         name=str(data.get("name", path.stem)),
         description=str(data.get("description", "")),
@@ -195,4 +254,6 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         storm=storm,
         faults=tuple(faults),
         source=str(path),
+        attitude=_build(AttitudeErrorConfig, _section(data, "attitude", path), path, "attitude"),
+        field_model=field_config,
     )

@@ -8,10 +8,13 @@ MAVLink messages of :mod:`sitl.server`:
 * :class:`WaveMotion`: the true roll and pitch of a boat in a seaway (sinusoids of a few
   degrees), so a client must tilt-compensate the magnetometer. Yaw = course over ground.
 * :class:`SensorSuite`: magnetometer (field rotated into the body frame by the *true*
-  attitude, plus fixed bias, white noise, quantisation to ``mag_lsb_nt``), accelerometer
-  and gyro (with white noise), and the autopilot's attitude estimate (true attitude plus
-  white noise ``attitude_noise_deg``). Each sensor is sampled at its own rate; messages
-  carry the latest sample.
+  attitude, then the run's calibration residuals of :mod:`sitl.world.magerrors`, fixed bias,
+  white noise, quantisation to ``mag_lsb_nt``), accelerometer and gyro (with white noise),
+  and the autopilot's attitude estimate: the true attitude plus the slow errors of
+  :mod:`sitl.world.attitude` (heading from the scenario's ``heading_source``: an independent
+  true-heading sensor, the INS azimuth error, or the compass and an IGRF declination table at
+  the flight controller's own position) plus white noise ``attitude_noise_deg``. Each sensor
+  is sampled at its own rate; messages carry the latest sample.
 * :class:`NavSolution`: the flight controller's position/velocity solution: GPS-aided
   (truth plus a small white error) while GPS has a fix, the INS error model's indicated
   position once it has none.
@@ -24,15 +27,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from companion.frames import ned_to_body
 from companion.nav.geo import radii_of_curvature_m
 from sitl.scenario import SensorModel
+from sitl.world.attitude import AttitudeErrors, compass_yaw_rad
 from sitl.world.ins import InsErrorConfig, InsErrorModel
+from sitl.world.magerrors import MagErrors
 
-__all__ = ["Normals", "WaveMotion", "Attitude", "SensorSuite", "NavSolution", "GRAVITY_MPS2"]
+__all__ = ["Normals", "WaveMotion", "Attitude", "SensorSuite", "NavSolution", "GRAVITY_MPS2", "ErrorModels",
+           "make_error_models"]
 
 GRAVITY_MPS2 = 9.80665
 
@@ -86,6 +93,14 @@ class WaveMotion:
     pitch_period_s: float = 6.3
     pitch_phase_rad: float = 1.0
 
+    def tilt_rad(self, time_s) -> tuple[np.ndarray, np.ndarray]:
+        """True (roll, pitch) in radians at an array of times (the vectorised :meth:`attitude`)."""
+        t = np.asarray(time_s, float)
+        roll = math.radians(self.roll_amp_deg) * np.sin(2.0 * math.pi / self.roll_period_s * t)
+        pitch = math.radians(self.pitch_amp_deg) * np.sin(2.0 * math.pi / self.pitch_period_s * t
+                                                           + self.pitch_phase_rad)
+        return roll, pitch
+
     def attitude(self, time_s: float, yaw_rad: float, yaw_rate_radps: float = 0.0) -> Attitude:
         """True attitude at ``time_s`` with the given yaw (course over ground for a boat)."""
         wr = 2.0 * math.pi / self.roll_period_s
@@ -97,27 +112,68 @@ class WaveMotion:
                         ap * wp * math.cos(wp * time_s + self.pitch_phase_rad), yaw_rate_radps)
 
 
+@dataclass(frozen=True)
+class ErrorModels:
+    """One run's slow sensor errors: attitude, magnetometer calibration, declination table."""
+
+    attitude: AttitudeErrors | None
+    mag: MagErrors | None
+    decl_table_deg: Callable[[float, float], float] | None
+
+
+def make_error_models(scenario, rng_attitude: np.random.Generator, rng_mag: np.random.Generator) -> ErrorModels:
+    """Draw a run's attitude and calibration errors of ``scenario`` (None where it has none) and
+    give the flight controller's declination table (IGRF-14 at the scenario's year) when its
+    heading is magnetic. The simulator and the in-process Monte Carlo both call this."""
+    from sitl.world.igrf import igrf14_model
+
+    attitude = None if scenario.attitude.ideal else AttitudeErrors(scenario.attitude, rng_attitude)
+    mag_config = scenario.sensors.mag_errors
+    mag = MagErrors.draw(mag_config, rng_mag) if mag_config.active else None
+    table = None
+    if scenario.heading_source == "magnetic":
+        model, year, alt = igrf14_model(scenario.year), scenario.year, scenario.alt_m
+
+        def table(lat_deg, lon_deg):
+            return model.elements(lat_deg, lon_deg, alt, year).decl_deg
+    return ErrorModels(attitude, mag, table)
+
+
 class SensorSuite:
     """Magnetometer, accelerometer, gyro and attitude estimate of the simulated autopilot.
 
     ``sample_mag`` / ``sample_imu`` draw a new sample; the ``mag_nt``, ``accel_mps2``,
     ``gyro_radps`` and ``attitude_est`` attributes hold the latest one for the messages.
+    ``attitude_errors`` and ``mag_errors`` are the run's slow errors (None: the ideal world);
+    ``decl_table_deg(lat, lon)`` is the flight controller's declination table, needed by the
+    ``magnetic`` heading source. White noise comes from ``rng`` in the same order as ever, so
+    an ideal scenario draws exactly the samples it drew before these errors existed.
     """
 
-    def __init__(self, model: SensorModel, rng: np.random.Generator) -> None:
+    def __init__(self, model: SensorModel, rng: np.random.Generator, attitude_errors: AttitudeErrors | None = None,
+                 mag_errors: MagErrors | None = None,
+                 decl_table_deg: Callable[[float, float], float] | None = None) -> None:
         self.model = model
         self._normal = Normals(rng)
+        self.attitude_errors = attitude_errors
+        self.mag_errors = mag_errors
+        self.decl_table_deg = decl_table_deg
+        self.mag_clean_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)   # before noise and rounding
         self.mag_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.accel_mps2: tuple[float, float, float] = (0.0, 0.0, -GRAVITY_MPS2)
         self.gyro_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.attitude_est = Attitude(0.0, 0.0, 0.0)
 
     def sample_mag(self, field_ned_nt: tuple[float, float, float], attitude: Attitude,
-                   extra_nt: float = 0.0) -> tuple[float, float, float]:
-        """Body-frame reading in nT: rotate by the true attitude, add bias, noise and ``extra_nt``
-        (a spike, on each axis), quantise to ``mag_lsb_nt``."""
+                   extra_nt: float = 0.0, time_s: float = 0.0) -> tuple[float, float, float]:
+        """Body-frame reading in nT: rotate by the true attitude, apply the calibration residuals
+        (at ``time_s``, for the temperature drift), add bias, noise and ``extra_nt`` (a spike,
+        on each axis), quantise to ``mag_lsb_nt``."""
         m = self.model
         bx, by, bz = ned_to_body(field_ned_nt, attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad)
+        if self.mag_errors is not None:
+            bx, by, bz = (float(v) for v in self.mag_errors.apply((bx, by, bz), time_s))
+        self.mag_clean_nt = (bx, by, bz)
         sigma, lsb = m.mag_noise_nt, m.mag_lsb_nt
         bias = m.mag_bias_nt
         normal = self._normal
@@ -129,8 +185,14 @@ class SensorSuite:
         self.mag_nt = raw
         return raw
 
-    def sample_imu(self, attitude: Attitude, accel_ned_mps2: tuple[float, float, float]) -> None:
-        """Accelerometer (specific force), gyro and the attitude estimate at the true attitude."""
+    def sample_imu(self, attitude: Attitude, accel_ned_mps2: tuple[float, float, float], time_s: float = 0.0,
+                   ins: InsErrorModel | None = None,
+                   fc_position: Callable[[], tuple[float, float]] | None = None) -> None:
+        """Accelerometer (specific force), gyro and the attitude estimate at the true attitude.
+
+        ``ins`` is the flight controller's INS error model (None while GPS-aided);
+        ``fc_position()`` its position estimate, called only by the ``magnetic`` source.
+        """
         m = self.model
         normal = self._normal
         an, ae, ad = accel_ned_mps2
@@ -142,8 +204,22 @@ class SensorSuite:
         sg = m.gyro_noise_radps
         self.gyro_radps = (p + sg * normal(), q + sg * normal(), r + sg * normal())
         sat = math.radians(m.attitude_noise_deg)
-        self.attitude_est = Attitude(attitude.roll_rad + sat * normal(), attitude.pitch_rad + sat * normal(),
-                                     attitude.yaw_rad + sat * normal(), p, q, r)
+        errors = self.attitude_errors
+        if errors is None:
+            self.attitude_est = Attitude(attitude.roll_rad + sat * normal(), attitude.pitch_rad + sat * normal(),
+                                         attitude.yaw_rad + sat * normal(), p, q, r)
+            return
+        d_roll, d_pitch, d_yaw = errors.slow_errors_rad(time_s, attitude.yaw_rad, ins)
+        roll = attitude.roll_rad + d_roll + sat * normal()
+        pitch = attitude.pitch_rad + d_pitch + sat * normal()
+        if errors.config.heading_source == "magnetic":
+            if self.decl_table_deg is None or fc_position is None:
+                raise ValueError("the magnetic heading source needs a declination table and the FC position")
+            decl = self.decl_table_deg(*fc_position())
+            yaw = float(compass_yaw_rad(self.mag_clean_nt, roll, pitch, decl)) + sat * normal()
+        else:
+            yaw = attitude.yaw_rad + d_yaw + sat * normal()
+        self.attitude_est = Attitude(roll, pitch, yaw, p, q, r)
 
 
 class NavSolution:

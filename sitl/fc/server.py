@@ -63,10 +63,11 @@ class SitlServer:
         self.scenario = sc = replace(base, faults=tuple(base.faults) + extra_faults)
         if any(f.kind == "storm_onset" for f in sc.faults) and not sc.storm.enabled:
             raise ScenarioError("storm_onset fault needs a scenario with [storm] enabled = true")
-        truth_full = truth if truth is not None else build_truth_field(sc, config.data_dir, config.expected_duration_s)
+        truth_full = truth if truth is not None else build_truth_field(sc, config.data_dir, config.expected_duration_s,
+                                                                       seed=config.seed)
         self.sysid, self.compid = config.sysid, 1
-        rng_sensors, rng_nav, rng_link, rng_gps = (np.random.default_rng(s)
-                                                   for s in np.random.SeedSequence(config.seed).spawn(4))
+        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(6))
         self.clock = SimClock()
         self.counters = Counters()
         self._stop = threading.Event()
@@ -81,6 +82,7 @@ class SitlServer:
         self.faults = FaultInjector(sc.faults, self.clock, self.counters, self.out.say)
         self.out.faults = self.faults
         self.vehicle = VehicleSim(sc, truth_full, self.clock, self.faults, rng_sensors, rng_nav, rng_gps,
+                                  rng_att=rng_att, rng_cal=rng_cal,
                                   ins_step_s=config.ins_step_s, wave_roll_deg=config.wave_roll_deg,
                                   wave_pitch_deg=config.wave_pitch_deg)
         self.telemetry = Telemetry(self.out, self.vehicle, self.faults, self.guidance, self.dialect, self.clock,

@@ -23,7 +23,7 @@ from companion.nav.geo import metres_per_degree
 from sitl.clock import US_PER_S, SimClock
 from sitl.mavframe import int16
 from sitl.scenario import Scenario
-from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion
+from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion, make_error_models
 from sitl.world.magnetic import TruthField
 from sitl.world.vehicle import VehicleState, step_vehicle
 
@@ -34,7 +34,8 @@ class VehicleSim:
     """World state of the stand-in's vehicle; ``faults`` supplies the sensor and GPS fault flags."""
 
     def __init__(self, scenario: Scenario, truth: TruthField, clock: SimClock, faults, rng_sensors, rng_nav,
-                 rng_gps, *, ins_step_s: float, wave_roll_deg: float, wave_pitch_deg: float) -> None:
+                 rng_gps, *, ins_step_s: float, wave_roll_deg: float, wave_pitch_deg: float, rng_att=None,
+                 rng_cal=None) -> None:
         sc = scenario
         self.scenario = scenario
         self.clock = clock
@@ -43,7 +44,8 @@ class VehicleSim:
         self.truth = truth
         self.state = VehicleState(sc.start_lat_deg, sc.start_lon_deg, 0.0, 0.0)
         self.wave = WaveMotion(roll_amp_deg=wave_roll_deg, pitch_amp_deg=wave_pitch_deg)
-        self.sensors = SensorSuite(sc.sensors, rng_sensors)
+        errors = make_error_models(sc, rng_att, rng_cal)   # sitl.world's attitude/calibration errors
+        self.sensors = SensorSuite(sc.sensors, rng_sensors, errors.attitude, errors.mag, errors.decl_table_deg)
         self.nav = NavSolution(sc.ins, rng_nav, aided_noise_m=0.2 * sc.sensors.gps_noise_m, ins_step_s=ins_step_s)
         self.gps_rng = rng_gps
         self.cmd = (0.0, 0.0)           # commanded (course rad, speed m/s)
@@ -137,12 +139,12 @@ class VehicleSim:
             return
         if self.field_us < 0:
             self.update_field()
-        x, y, z = self.sensors.sample_mag(self.field, self.true_attitude(), faults.mag_spike_nt)
+        x, y, z = self.sensors.sample_mag(self.field, self.true_attitude(), faults.mag_spike_nt, self.clock.time_s)
         self.mag_ints = (int16(x / 100.0), int16(y / 100.0), int16(z / 100.0))   # nT -> mGauss
 
     def sample_imu(self) -> None:
         sensors = self.sensors
-        sensors.sample_imu(self.true_attitude(), self.accel_ned)
+        sensors.sample_imu(self.true_attitude(), self.accel_ned, self.clock.time_s, self.nav.ins, self.fc_position)
         ax, ay, az = sensors.accel_mps2
         gx, gy, gz = sensors.gyro_radps
         k = 1000.0 / GRAVITY_MPS2

@@ -1,0 +1,9 @@
+"""Pure truth models of the simulated world (no I/O beyond coefficient files, no clocks).
+
+``magnetic`` (the true field: main field + crust + storm), ``igrf`` (IGRF-14, the realistic
+world's main field), ``crustal`` (the seeded anomaly field), ``ins`` (the 15-state INS error
+model), ``attitude`` (heading sources and attitude errors), ``magerrors`` (magnetometer
+calibration residuals), ``sampling`` (one control period of samples, vectorised),
+``vehicle`` (kinematics) and ``build`` (a scenario's truth field). Shared by the in-process
+Monte Carlo and the MAVLink simulator (``sitl.server``).
+"""

@@ -1,9 +1,12 @@
 """Build the true field of a scenario: one function for the Monte Carlo and the MAVLink simulator.
 
 :func:`build_truth_field` turns a :class:`~sitl.scenario.Scenario` into a
-:class:`~sitl.world.magnetic.TruthField`: the World Magnetic Model of the scenario's date
-(:func:`companion.nav.field.model_for_date`) plus, when ``[storm] enabled``, the storm
-disturbance of :mod:`sitl.storms` with the scenario's time rule:
+:class:`~sitl.world.magnetic.TruthField`: the main field of ``[field] main`` (the World
+Magnetic Model of the scenario's date, :func:`companion.nav.field.model_for_date`, the
+navigator's own model; or IGRF-14, :func:`sitl.world.igrf.igrf14_model`), the crustal anomaly
+field when ``[field] crustal = true`` (drawn for ``seed``; the Monte Carlo redraws it per run
+with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm disturbance of
+:mod:`sitl.storms` with the scenario's time rule:
 
 ``utc``
     storm time = scenario ``start_utc`` + mission elapsed seconds (real time).
@@ -19,6 +22,7 @@ longer than expected keeps a finite field instead of stopping the simulator.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from companion.nav.field import model_for_date
@@ -26,6 +30,7 @@ from companion.nav.geo import geodesic_distance_m
 from companion.params import SPEC_BY_NAME
 from sitl.scenario import Scenario
 from sitl.storms import default_data_dir
+from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
 __all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s"]
@@ -52,8 +57,10 @@ def expected_mission_duration_s(scenario: Scenario, speed_mps: float | None = No
 
 
 def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
-                      expected_duration_s: float | None = None, outside: str = "hold") -> TruthField:
-    """The scenario's true field: WMM at ``scenario.year`` plus its storm disturbance, if enabled.
+                      expected_duration_s: float | None = None, outside: str = "hold",
+                      seed: int = 0) -> TruthField:
+    """The scenario's true field: main field at ``scenario.year``, crust (drawn for ``seed``)
+    and its storm disturbance, each if the scenario has it.
 
     ``data_dir`` holds ``storms/intermagnet`` (default :func:`default_data_dir`);
     ``expected_duration_s`` is the mission length the ``compress`` rule spreads the storm
@@ -62,10 +69,13 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     ``raise``). Raises :class:`StormUnavailableError` naming the cause when the storm cannot
     be built.
     """
-    model = model_for_date(scenario.year)
+    main = scenario.field_model.main
+    model = igrf14_model(scenario.year) if main == "igrf14" else model_for_date(scenario.year)
+    quiet = TruthField(model=model, year=scenario.year, crustal_config=scenario.field_model.crustal,
+                       crustal_origin=(scenario.start_lat_deg, scenario.start_lon_deg)).for_seed(seed)
     storm = scenario.storm
     if not storm.enabled:
-        return TruthField(model=model, year=scenario.year)
+        return quiet
     from sitl import storms
     folder = Path(data_dir) if data_dir is not None else default_data_dir()
     try:
@@ -80,5 +90,4 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
         window = storms.StormWindow(f"{scenario.name} storm", start_s, end_s)
         duration = expected_duration_s if expected_duration_s is not None else expected_mission_duration_s(scenario)
         time_map = storms.StormTimeMap.compress(window, duration)
-    return TruthField(model=model, year=scenario.year, disturbance=disturbance,
-                      storm_time_s=time_map.storm_time_s, storm_scale=storm.scale)
+    return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale)

@@ -128,6 +128,19 @@ class InsErrorModel:
         """The INS-indicated (east, north) velocity in m/s."""
         return vel_east_mps + self.state[3], vel_north_mps + self.state[4]
 
+    def attitude_error_rad(self, yaw_rad: float) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) errors of the INS attitude, indicated minus true, in radians.
+
+        The misalignment ``phi`` (ENU) rotates the true navigation frame into the computed one,
+        ``C_b^n' = (I - [phi x]) C_b^n``; in NED the error rotation is ``-(phi_n, phi_e, -phi_u)``.
+        Its components along the body axes of a level vehicle with this yaw (clockwise from
+        north) are the Euler errors: roll ``-(phi_n cos psi + phi_e sin psi)``, pitch
+        ``phi_n sin psi - phi_e cos psi``, yaw ``+phi_u`` (the azimuth error psi_z).
+        """
+        phi_e, phi_n, phi_u = (float(v) for v in self.state[0:3])
+        c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+        return -(phi_n * c + phi_e * s), phi_n * s - phi_e * c, phi_u
+
     def position_error_m(self, lat_deg: float) -> tuple[float, float]:
         """Current (east, north) position error in metres."""
         m, n = (float(r) for r in radii_of_curvature_m(lat_deg))

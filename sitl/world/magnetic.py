@@ -1,18 +1,25 @@
-"""The true magnetic field the simulated vehicle flies through: WMM plus a storm disturbance.
+"""The true magnetic field the simulated vehicle flies through: main field + crust + storm.
 
-The Monte Carlo and the MAVLink simulator both read the field here, so a storm changes
-what either sees in the same way.
+``TruthField`` sums a main-field model (the navigator's own WMM in the paper's ideal world,
+IGRF-14 in the realistic one: :mod:`sitl.world.igrf`), an optional seeded crustal anomaly
+field (:mod:`sitl.world.crustal`) and an optional time-varying storm disturbance
+(:mod:`sitl.storms`). The Monte Carlo and the MAVLink simulator both read the field here, so
+each part changes what either sees in the same way.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 
 from companion.nav.field import WorldMagneticModel
+from sitl.world.crustal import CrustalConfig, CrustalField
 
-__all__ = ["Disturbance", "TruthField", "decl_incl_from_ned"]
+__all__ = ["Disturbance", "TruthField", "decl_incl_from_ned", "CRUSTAL_SEED_KEY"]
+
+CRUSTAL_SEED_KEY = 0x63727374
+"""Second word of the crustal field's seed ``[seed, CRUSTAL_SEED_KEY]``: its own stream."""
 
 
 class Disturbance(Protocol):
@@ -29,10 +36,13 @@ def decl_incl_from_ned(north_nt, east_nt, down_nt) -> tuple[np.ndarray, np.ndarr
 
 @dataclass(frozen=True)
 class TruthField:
-    """WMM at ``year`` plus an optional disturbance evaluated at ``storm_time_s(elapsed_s)``.
+    """Main field ``model`` at ``year``, plus crust, plus a disturbance at ``storm_time_s(elapsed_s)``.
 
-    ``storm_time_s`` maps mission elapsed seconds onto the disturbance's own time axis
-    (POSIX UTC seconds); ``storm_scale`` multiplies the disturbance.
+    ``model`` is the *truth's* main-field model (not necessarily the navigator's).
+    ``storm_time_s`` maps mission elapsed seconds onto the disturbance's own time axis (POSIX
+    UTC seconds); ``storm_scale`` multiplies the disturbance. ``crustal_config`` and
+    ``crustal_origin`` describe the anomaly field; ``crustal`` is its realisation for one seed
+    (:meth:`for_seed`).
     """
 
     model: WorldMagneticModel
@@ -40,15 +50,38 @@ class TruthField:
     disturbance: Disturbance | None = None
     storm_time_s: object = None  # callable elapsed_s -> POSIX seconds, or None
     storm_scale: float = 1.0
+    crustal_config: CrustalConfig = CrustalConfig()
+    crustal_origin: tuple[float, float] = (0.0, 0.0)
+    crustal: CrustalField | None = None
+
+    def for_seed(self, seed: int) -> TruthField:
+        """The same field with the crustal anomaly drawn for ``seed`` (itself when there is none)."""
+        if not self.crustal_config.enabled:
+            return self
+        rng = np.random.default_rng([int(seed), CRUSTAL_SEED_KEY])
+        return replace(self, crustal=CrustalField.draw(self.crustal_config, rng, *self.crustal_origin))
+
+    def main_ned_nt(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
+        """The main-field model alone (..., 3) north/east/down in nT."""
+        main = self.model.elements(lat_deg, lon_deg, alt_m, self.year)
+        return np.stack(np.broadcast_arrays(main.x_nt, main.y_nt, main.z_nt), axis=-1).astype(float)
+
+    def storm_ned_nt(self, lat_deg, lon_deg, elapsed_s) -> np.ndarray | None:
+        """The disturbance's part (..., 3) in nT, or None when there is none."""
+        if self.disturbance is None or self.storm_scale == 0.0:
+            return None
+        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
+        dn, de, dd = self.disturbance.disturbance_ned_nt(lat_deg, lon_deg, t)
+        return self.storm_scale * np.stack(np.broadcast_arrays(dn, de, dd), axis=-1)
 
     def field_ned_nt(self, lat_deg, lon_deg, alt_m, elapsed_s) -> np.ndarray:
         """True field (..., 3) north/east/down in nT."""
-        wmm = self.model.elements(lat_deg, lon_deg, alt_m, self.year)
-        ned = np.stack(np.broadcast_arrays(wmm.x_nt, wmm.y_nt, wmm.z_nt), axis=-1).astype(float)
-        if self.disturbance is not None and self.storm_scale != 0.0:
-            t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
-            dn, de, dd = self.disturbance.disturbance_ned_nt(lat_deg, lon_deg, t)
-            ned = ned + self.storm_scale * np.stack(np.broadcast_arrays(dn, de, dd), axis=-1)
+        ned = self.main_ned_nt(lat_deg, lon_deg, alt_m)
+        if self.crustal is not None:
+            ned = ned + self.crustal.ned_nt(lat_deg, lon_deg, alt_m)
+        storm = self.storm_ned_nt(lat_deg, lon_deg, elapsed_s)
+        if storm is not None:
+            ned = ned + storm
         return ned
 
     def decl_incl_deg(self, lat_deg, lon_deg, alt_m, elapsed_s) -> tuple[np.ndarray, np.ndarray]:

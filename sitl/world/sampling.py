@@ -1,0 +1,140 @@
+"""One control period of magnetometer and attitude samples, simulated and averaged (vectorised).
+
+What the in-process Monte Carlo runs in the realistic world, so it sees what the companion
+sees from the MAVLink simulator (:class:`sitl.sensors.SensorSuite` draws the same errors one
+sample at a time), sample by sample rather than as an analytic averaged draw:
+
+1. sample times ``t_j`` at ``rate_hz`` over the period; the true field at each sample
+   interpolated linearly in time between the kinematic sub-steps (``knot``s, 30 s apart by
+   default: a few hundred metres, far below the crustal field's correlation length);
+2. true attitude: the wave roll/pitch at ``t_j`` and yaw = course over ground of the sub-step;
+   the body field ``b = C_bn B``, then the run's calibration residuals
+   (:class:`sitl.world.magerrors.MagErrors`), the fixed bias, white noise per axis,
+   quantisation to ``lsb_nt``;
+3. the flight controller's attitude: true plus the slow errors of the sub-step (biases, heading
+   drift, INS tilt and azimuth errors, :class:`sitl.world.attitude.AttitudeErrors`) plus white
+   noise; for the ``magnetic`` source the yaw is the compass yaw of the sample's calibrated
+   field against the declination table at the flight controller's position
+   (:func:`sitl.world.attitude.compass_yaw_rad`);
+4. the companion's processing (:mod:`companion.nav.magnetometer`): the measured body field
+   rotated into NED with the reported attitude, D, I, H, Z and F per sample, averaged over the
+   period (D unwrapped around the first sample): :class:`AveragedElements`.
+
+Pure: arrays and a seeded generator in, averages out.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from sitl.world.attitude import compass_yaw_rad
+
+__all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "sample_period",
+           "rotation_nb"]
+
+
+@dataclass(frozen=True)
+class AveragedElements:
+    """Field elements averaged over one control period, as the companion forms them.
+
+    ``decl_deg``, ``incl_deg`` in degrees; ``f_nt`` total intensity, ``h_nt`` horizontal
+    intensity, ``z_nt`` vertical (down) component, all nT; ``samples`` averaged; ``time_s`` the
+    end of the period.
+    """
+
+    time_s: float
+    decl_deg: float
+    incl_deg: float
+    f_nt: float
+    h_nt: float
+    z_nt: float
+    samples: int
+
+
+@dataclass(frozen=True)
+class SampleSettings:
+    """Per-sample sensor settings (from :class:`sitl.scenario.SensorModel`)."""
+
+    rate_hz: float
+    mag_noise_nt: float
+    mag_lsb_nt: float
+    mag_bias_nt: tuple[float, float, float]
+    attitude_noise_deg: float
+    heading_source: str = "true"
+
+
+@dataclass(frozen=True)
+class PeriodKnots:
+    """The kinematic sub-steps of one period (K >= 2 knots, the first at the period's start).
+
+    ``field_ned_nt`` (K, 3) true field; ``course_rad`` (K,) yaw over the sub-step ending at each
+    knot; ``slow_error_rad`` (K, 3) roll/pitch/yaw slow errors; ``decl_table_deg`` (K,) the
+    flight controller's table declination at its position (NaN unless magnetic).
+    """
+
+    time_s: np.ndarray
+    field_ned_nt: np.ndarray
+    course_rad: np.ndarray
+    slow_error_rad: np.ndarray
+    decl_table_deg: np.ndarray
+
+
+def rotation_nb(roll, pitch, yaw) -> np.ndarray:
+    """Body -> NED rotation matrices (..., 3, 3) of ZYX Euler angles (``companion.frames``)."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy], -1),
+                     np.stack([cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], -1),
+                     np.stack([-sp, sr * cp, cr * cp], -1)], -2)
+
+
+def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:
+    """Average per-sample D, I, F, H, Z of NED vectors (N, 3), D unwrapped around the first."""
+    n, e, d = ned[:, 0], ned[:, 1], ned[:, 2]
+    h = np.hypot(n, e)
+    decl = np.degrees(np.arctan2(e, n))
+    decl = decl[0] + (decl - decl[0] + 180.0) % 360.0 - 180.0
+    return AveragedElements(time_s, float(decl.mean()), float(np.degrees(np.arctan2(d, h)).mean()),
+                            float(np.sqrt(n * n + e * e + d * d).mean()), float(h.mean()), float(d.mean()), len(n))
+
+
+def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callable[[np.ndarray], tuple],
+                  mag_apply: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+                  rng: np.random.Generator) -> AveragedElements:
+    """Simulate and average the samples of one period (see the module docstring).
+
+    ``tilt_rad(t)`` gives the true (roll, pitch) arrays at sample times; ``mag_apply(body, t)``
+    the calibration residuals (None: none). Draws 3 magnetometer then 3 attitude normals per
+    sample, as one (N, 6) block.
+    """
+    t0, t1 = float(knots.time_s[0]), float(knots.time_s[-1])
+    count = max(1, int(round((t1 - t0) * settings.rate_hz))) if t1 > t0 else max(1, int(round(settings.rate_hz)))
+    if t1 > t0:
+        t = t0 + (np.arange(count) + 1.0) * (t1 - t0) / count
+        field = np.stack([np.interp(t, knots.time_s, knots.field_ned_nt[:, i]) for i in range(3)], -1)
+        index = np.clip(np.searchsorted(knots.time_s, t, side="left"), 1, len(knots.time_s) - 1)
+    else:   # stationary start-up average at one point
+        t = t0 + (np.arange(count) + 1.0) / settings.rate_hz
+        field = np.repeat(knots.field_ned_nt[:1], count, axis=0)
+        index = np.zeros(count, dtype=int)
+    roll, pitch = tilt_rad(t)
+    yaw = knots.course_rad[index]
+    c_nb = rotation_nb(roll, pitch, yaw)
+    body = np.einsum("nji,nj->ni", c_nb, field)                 # C_bn B = C_nb^T B
+    clean = mag_apply(body, t) if mag_apply is not None else body
+    noise = rng.standard_normal((count, 6))
+    meas = clean + np.asarray(settings.mag_bias_nt, float) + settings.mag_noise_nt * noise[:, :3]
+    if settings.mag_lsb_nt > 0.0:
+        meas = np.round(meas / settings.mag_lsb_nt) * settings.mag_lsb_nt
+    sat = math.radians(settings.attitude_noise_deg)
+    slow = knots.slow_error_rad[index]
+    roll_est = roll + slow[:, 0] + sat * noise[:, 3]
+    pitch_est = pitch + slow[:, 1] + sat * noise[:, 4]
+    if settings.heading_source == "magnetic":
+        yaw_est = compass_yaw_rad(clean, roll_est, pitch_est, knots.decl_table_deg[index]) + sat * noise[:, 5]
+    else:
+        yaw_est = yaw + slow[:, 2] + sat * noise[:, 5]
+    ned = np.einsum("nij,nj->ni", rotation_nb(roll_est, pitch_est, yaw_est), meas)
+    return elements_from_ned(ned, t1)
