@@ -15,7 +15,8 @@ would be on the vehicle. Two measurement paths, chosen by the scenario's
 
 Either way the averaged elements D, I, F, H, Z of each step are kept in
 ``RunResult.elements`` (:class:`~sitl.world.sampling.AveragedElements`) for a navigator that
-uses heading-free elements; the mission itself is fed :class:`Measurement` (D, I).
+uses heading-free elements; the mission is fed :class:`Measurement` with D, I and F and uses the
+two of its element set (NAV_ELEMENTS: 0/1 (D, I), 2 (I, F)).
 
 The navigator's field model is its own (``Mission`` picks WMM from ``NavConfig``); the truth
 field (``truth``) may be a different model plus crust and storm. The flight controller's
@@ -126,7 +127,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
             avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng)
-            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s), avg
+            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt), avg
         # analytic path: the path's points after the start knot (the start alone at step 0)
         path = slice(1, None) if len(knots) > 1 else slice(0, 1)
         ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
@@ -136,7 +137,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         incl = float(np.mean(np.degrees(np.arctan2(d, h)))) + noise_rng.normal(0.0, sigma_i)
         fn, hn, zn = (float(np.mean(v)) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
         avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)))
-        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s), avg
+        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn), avg
 
     time_s = 0.0
     lats, lons = [state.lat_deg], [state.lon_deg]
