@@ -47,11 +47,13 @@ class FrozenDetector:
     can repeat its value) may repeat its reading for as long as the vehicle holds its
     attitude. A *frozen* one repeats it although the body turned: a rotation of ``min_turn_rad``
     changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT),
-    many LSB. So the judgement needs ``limit`` identical readings in a row *and* a rotation of
+    many LSB. So the judgement needs ``limit`` identical readings in a row *and* a net rotation of
     at least ``min_turn_rad`` since the repetition began, measured by integrating the gyro
-    (``|omega| dt``, the raw rate sensor: an attitude *estimate* can wander while the vehicle is
-    still, e.g. an EKF without GPS, and would flag a good sensor). Without any gyro the
-    repetition alone cannot tell, and nothing is flagged.
+    vector (``|sum omega dt|``, the raw rate sensor: an attitude *estimate* can wander while the
+    vehicle is still, e.g. an EKF without GPS, and would flag a good sensor). The *net* rotation,
+    not the path: a boat rocking in waves returns to the attitude, and the field to the reading,
+    it had, and summing ``|omega| dt`` also sums the gyro's noise (a stationary ArduPilot SITL
+    boat was called stuck after hours). Without any gyro nothing is flagged.
 
     >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
     >>> [d.check((1, 2, 3), k * 0.1, (0.0, 0.0, 0.0)) for k in range(5)][-1] == SampleFlag.NONE   # still
@@ -67,19 +69,21 @@ class FrozenDetector:
         self.min_turn_rad = min_turn_rad
         self._last: Hashable | None = None
         self._repeats = 0
-        self._turned_rad = 0.0
+        self._turned = [0.0, 0.0, 0.0]
         self._time_s = math.nan
 
     def check(self, raw: Hashable, time_s: float, gyro_radps: tuple[float, float, float] | None) -> SampleFlag:
         dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
         self._time_s = time_s
         if raw != self._last:
-            self._last, self._repeats, self._turned_rad = raw, 1, 0.0
+            self._last, self._repeats, self._turned = raw, 1, [0.0, 0.0, 0.0]
             return SampleFlag.NONE
         self._repeats += 1
         if gyro_radps is not None and 0.0 < dt < 1.0:
-            self._turned_rad += math.sqrt(sum(w * w for w in gyro_radps)) * dt
-        if self._repeats >= self.limit and self._turned_rad >= self.min_turn_rad:
+            for k in range(3):
+                self._turned[k] += gyro_radps[k] * dt
+        turned = math.sqrt(sum(a * a for a in self._turned))
+        if self._repeats >= self.limit and turned >= self.min_turn_rad:
             return SampleFlag.STUCK
         return SampleFlag.NONE
 
