@@ -26,7 +26,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse
 import csv
 import json
 import math
@@ -38,11 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.cli import ArgumentParser, UsageError, param_items, run_main
 from companion.nav.metrics import cep50, cep_paper, mean_terminal_location, track_metrics
 from companion.nav.geo import geodesic_distance_m
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
 from sitl.inprocess import fly_in_process
-from sitl.scenario import Scenario, load_scenario
+from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import decl_incl_from_ned
 
@@ -234,20 +234,34 @@ def plot_results(out: Path, scenario: Scenario, rows: list[RunRow], tracks: list
     fig, ax = plt.subplots(figsize=(7, 6))
     line = WGS84.InverseLine(scenario.start_lat_deg, scenario.start_lon_deg, scenario.dest_lat_deg, scenario.dest_lon_deg)
     geo = [line.Position(s) for s in np.linspace(0, line.s13, 200)]
-    ax.plot([p["lon2"] for p in geo], [p["lat2"] for p in geo], "k--", lw=1, label="geodesic")
+    geo_lon, geo_lat = np.array([p["lon2"] for p in geo]), np.array([p["lat2"] for p in geo])
+    ax.plot(geo_lon, geo_lat, "k--", lw=1, label="geodesic")
+    shown = [(r, t) for r, t in zip(rows, tracks) if r.storm == storm]
+    fence = outlier_fence_km([r for r, _ in shown], line.s13 / 1000.0)
+    inside = [t for r, t in shown if r.max_dev_km <= fence]
+    lon_all = np.concatenate([geo_lon] + [np.asarray(t[1]) for t in inside])
+    lat_all = np.concatenate([geo_lat] + [np.asarray(t[0]) for t in inside])
     colours = dict(zip(names, ("tab:red", "tab:blue", "tab:green")))
     for name in names:
-        runs = [(r, t) for r, t in zip(rows, tracks) if r.controller == name and r.storm == storm]
+        runs = [(r, t) for r, t in shown if r.controller == name]
         best = min(runs, key=lambda rt: rt[0].remaining_km)
-        for _, (lat, lon) in runs:
-            ax.plot(lon, lat, color=colours[name], lw=0.4, alpha=0.25)
+        far = [r for r, _ in runs if r.max_dev_km > fence]
+        for run, (lat, lon) in runs:
+            ax.plot(lon, lat, color=colours[name], lw=0.4, alpha=0.25, ls=":" if run.max_dev_km > fence else "-")
         ax.plot(best[1][1], best[1][0], color=colours[name], lw=1.5, label=f"{name} (best of {len(runs)})")
+        if far:
+            ax.plot([], [], color=colours[name], lw=0.8, ls=":",
+                    label=f"{name}: {len(far)} run(s) beyond the frame (max deviation up to "
+                          f"{max(r.max_dev_km for r in far):.0f} km)")
     ax.plot(scenario.start_lon_deg, scenario.start_lat_deg, "ko")
     ax.plot(scenario.dest_lon_deg, scenario.dest_lat_deg, "k*", ms=12)
+    pad_lon, pad_lat = 0.05 * np.ptp(lon_all) + 0.01, 0.05 * np.ptp(lat_all) + 0.01
+    ax.set_xlim(lon_all.min() - pad_lon, lon_all.max() + pad_lon)
+    ax.set_ylim(lat_all.min() - pad_lat, lat_all.max() + pad_lat)
     ax.set_xlabel("longitude (deg E)")
     ax.set_ylabel("latitude (deg N)")
-    ax.set_title(f"{scenario.name}: trajectories")
-    ax.legend()
+    ax.set_title(f"{scenario.name}: trajectories (frame: runs within {fence:.0f} km of the geodesic)", fontsize=10)
+    ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     written.append(out / "trajectories.png")
     fig.savefig(written[-1], dpi=120)
@@ -266,6 +280,19 @@ def plot_results(out: Path, scenario: Scenario, rows: list[RunRow], tracks: list
     fig.savefig(written[-1], dpi=120)
     plt.close(fig)
     return written
+
+
+def outlier_fence_km(rows: list[RunRow], route_km: float) -> float:
+    """Maximum path deviation beyond which a run does not set the trajectory plot's frame: the
+    upper Tukey fence (Q3 + 3 IQR) of the runs' maximum deviations, at least 5 % of the route, so
+    one wandering run cannot shrink the others to a sliver; such runs are drawn dotted, clipped
+    and counted in the legend."""
+    dev = np.array([r.max_dev_km for r in rows], dtype=float)
+    dev = dev[np.isfinite(dev)]
+    if dev.size == 0:
+        return math.inf
+    q1, q3 = np.percentile(dev, [25, 75])
+    return float(max(q3 + 3.0 * (q3 - q1), 0.05 * route_km))
 
 
 # --- main --------------------------------------------------------------------------------------
@@ -297,33 +324,60 @@ def run_montecarlo(scenario_ref: str, runs: int, controllers: list[int], workers
     return scenario, rows, tracks
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path (default pacific)")
-    parser.add_argument("--runs", type=int, default=50)
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise ValueError(text)
+    return value
+
+
+_positive_int.__name__ = "integer >= 1"     # argparse names the type in its one-line error
+
+
+def build_parser() -> ArgumentParser:
+    parser = ArgumentParser(prog="fcmpc-montecarlo", description=__doc__.split("\n")[0])
+    parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path; default pacific")
+    parser.add_argument("--runs", type=_positive_int, default=50, help="runs per controller; default 50")
     parser.add_argument("--controllers", default=None,
-                        help="comma list of lti,ltv,fc (default: all three; ltv,fc for storm scenarios)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--params", help="a .parm file overlaid on the defaults")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override one parameter")
-    parser.add_argument("--data-dir", default=None, help="real data folder (default ../shared/data)")
-    parser.add_argument("--out", default="out/montecarlo", help="output folder (default out/montecarlo)")
+                        help="comma list of lti,ltv,fc; default all three (ltv,fc for storm scenarios)")
+    parser.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                        help="worker processes; default one per core")
+    parser.add_argument("--first-seed", type=int, default=0, help="seed of the first run; default 0")
+    parser.add_argument("--params", metavar="FILE", help="a .parm file overlaid on the defaults")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="override one parameter (repeatable)")
+    parser.add_argument("--data-dir", default=None, help="real data folder; default ../shared/data")
+    parser.add_argument("--out", default="out/montecarlo", help="output folder; default out/montecarlo")
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = parser.parse_args(argv)
+    return parser
 
+
+def check_missions(values: dict, controllers: list[int]) -> None:
+    """Build each controller's mission once here, so a refused configuration (the destination's
+    field outside the state bounds, ...) is one line before any worker starts, not a traceback."""
+    from companion.nav.mission import Mission
+
+    for controller in controllers:
+        try:
+            Mission(NavConfig.from_values({**values, "NAV_CONTROLLER": controller}))
+        except ValueError as err:
+            raise UsageError(f"mission refused: {err}") from None
+
+
+def _run(argv: list[str] | None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
     scenario = load_scenario(args.scenario)
     overrides = read_parm_file(args.params) if args.params else {}
-    for item in args.param:
-        name, _, value = item.partition("=")
-        overrides[name.strip().upper()] = value
+    overrides.update(param_items(args.param))
     values = validate_all({**scenario.nav_overrides(), **overrides})
     keys = args.controllers.split(",") if args.controllers else (["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
     try:
         controllers = [CONTROLLER_KEYS[k.strip().lower()] for k in keys]
     except KeyError as err:
-        parser.error(f"unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
+        parser.error(f"--controllers: unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
+    check_missions(values, controllers)
 
     started = time.perf_counter()
     scenario, rows, tracks = run_montecarlo(args.scenario, args.runs, controllers, args.workers, values,
@@ -355,6 +409,10 @@ def main(argv: list[str] | None = None) -> int:
         print("\nplots: " + ", ".join(str(p) for p in written))
     print(f"results: {out / 'runs.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_main("fcmpc-montecarlo", lambda: _run(argv), (ScenarioError,))
 
 
 if __name__ == "__main__":
