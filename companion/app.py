@@ -151,6 +151,7 @@ class AppOptions:
     max_wall_s: float | None = None
     quiet: bool = False
     sensors: str | None = None
+    linger_s: float = 0.0               # --exit-when-done: message time after the end before exiting
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -260,6 +261,7 @@ class CompanionApp:
         self.last_phase = ""
         self.exit_code: int | None = None
         self.done_wall = math.nan
+        self.done_msg_s = math.nan        # message time the mission ended
         self._stop = False
         self._params_dirty = False
         # clocks and timers (message time unless *_wall)
@@ -540,7 +542,8 @@ class CompanionApp:
                 self._evaluate_health()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe_active and self.state == State.RUNNING:
                     self._failsafe_actions()
-        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S:
+        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
+                and self._lingered():
             self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1
         if self.opts.max_wall_s is not None and wall - self.wall_start > self.opts.max_wall_s:
             self._say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
@@ -894,9 +897,16 @@ class CompanionApp:
         self.command = None
         self._enter_startup(f"restart {self.restarts} after: {reason}")
 
+    def _lingered(self) -> bool:
+        """--exit-when-done: ``--linger-s`` of message time passed since the mission ended (the
+        companion keeps answering a lockstep simulator meanwhile, so the records show the vehicle
+        coming to rest; the FC's INS velocity drifts too much to judge that on board)."""
+        return not math.isfinite(self.done_msg_s) or self.now - self.done_msg_s >= self.opts.linger_s
+
     def _finish(self, cmd: Command, failed_reason: str = "") -> None:
         self.state = State.DONE
         self.done_wall = time.monotonic()
+        self.done_msg_s = self.now
         self.stream_since = math.nan
         if failed_reason:
             self._say(f"FcMPC: mission FAILED: {failed_reason}"[:200], mavlink.MAV_SEVERITY_ERROR)
@@ -1014,7 +1024,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="send a timed message every setpoint period even when not steering "
                         "(a lockstep simulator waits for it)")
     p.add_argument("--exit-when-done", action="store_true",
-                   help="exit when the mission ends: 0 arrived, 1 failed")
+                   help="exit when the mission ends (after --linger-s): 0 arrived, 1 failed")
+    p.add_argument("--linger-s", type=float, default=0.0, metavar="S",
+                   help="with --exit-when-done: keep running this many seconds of message time after the "
+                        "mission ended, e.g. until the vehicle has come to rest; default 0")
     p.add_argument("--param-encoding", choices=ENCODINGS, default="auto",
                    help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or from the FC; default auto")
     p.add_argument("--mag-message", choices=MAG_MESSAGES, default=None,
@@ -1039,7 +1052,7 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
-                      sensors=args.sensors)
+                      sensors=args.sensors, linger_s=args.linger_s)
 
 
 def _run(argv: list[str] | None) -> int:
