@@ -79,6 +79,8 @@ import os
 os.environ.setdefault("MAVLINK20", "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import io  # noqa: E402
 import math  # noqa: E402
 import signal  # noqa: E402
 import statistics  # noqa: E402
@@ -89,6 +91,7 @@ from datetime import datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from companion import wrap_2pi  # noqa: E402
+from companion.cli import ArgumentParser, UsageError, one_line, run_main  # noqa: E402
 from companion.failsafe import Health, HealthLimits, diverged  # noqa: E402
 from companion.fc_view import FcView  # noqa: E402
 from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
@@ -123,6 +126,7 @@ FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
 ECHO_SATELLITES = 6               # fewer than a real receiver: the FC keeps its own GPS as primary
 FEED_SATELLITES = 10
 SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-time offset beyond this jump
+WAITING_REPEAT_WALL_S = 30.0      # repeat "waiting for a heartbeat" while no flight controller is heard
 
 # NavConfig fields that define the mission: a change applies to the next mission only.
 LIVE_FROZEN_FIELDS = FROZEN_IN_FLIGHT
@@ -156,6 +160,7 @@ class AppOptions:
     max_wall_s: float | None = None
     quiet: bool = False
     sensors: str | None = None
+    linger_s: float = 0.0               # --exit-when-done: message time after the end before exiting
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -270,6 +275,7 @@ class CompanionApp:
         self.last_phase = ""
         self.exit_code: int | None = None
         self.done_wall = math.nan
+        self.done_msg_s = math.nan        # message time the mission ended
         self._stop = False
         self._params_dirty = False
         # clocks and timers (message time unless *_wall)
@@ -300,6 +306,7 @@ class CompanionApp:
         self.core_latency_s: list[float] = []
         self.events: list[str] = []
         self.wall_start = time.monotonic()
+        self._waiting_said_wall = self.wall_start
         self.messages_from_fc = 0
         self.invalid_mag = 0
         self.fc_reboots = 0
@@ -343,10 +350,14 @@ class CompanionApp:
         return now - self.offset_s
 
     # ------------------------------------------------------------------ output helpers
+    def _stamp(self) -> str:
+        """``[message time]``, or ``[no FC time]`` before the first time-stamped message."""
+        return f"[{self.now:10.1f}]" if math.isfinite(self.now) else "[no FC time]"
+
     def _say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
-        self.events.append(f"[{self.now:10.1f}] {text}")
+        self.events.append(f"{self._stamp()} {text}")
         if not self.opts.quiet:
-            print(f"fcmpc-companion [{self.now:10.1f}] {text}", file=sys.stderr, flush=True)
+            print(f"fcmpc-companion {self._stamp()} {text}", file=sys.stderr, flush=True)
         if self.link.conn is not None:
             self.link.send_statustext(text, severity)
 
@@ -363,12 +374,19 @@ class CompanionApp:
             self.sensors.open()          # SensorError: main() exits with 2 before anything else opens
             self.source_open = True
         try:
-            self.link.open()
+            with contextlib.redirect_stdout(io.StringIO()):   # pymavlink prints its TCP retries
+                self.link.open()
+        except OSError as err:
+            self._close_sensors()
+            raise ConnectionError(f"cannot connect to {self.opts.connect}: {err.strerror or err}") from err
         except BaseException:
             self._close_sensors()
             raise
         self.recorder = StepRecorder(self.log_dir / "steps.csv")
         self._send_heartbeat()   # a udpout link must speak first
+        self._waiting_said_wall = time.monotonic()
+        if not self.opts.quiet:
+            print(f"fcmpc-companion: waiting for a heartbeat on {self.opts.connect}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.link.conn is not None and self.link.fc.detected and self.link.fc.guided and self.link.fc.armed \
@@ -542,11 +560,17 @@ class CompanionApp:
         wall = time.monotonic()
         if wall - self.last_hb_sent_wall >= 1.0:
             self._send_heartbeat()
+            if self.state == State.WAIT_FC and wall - self._waiting_said_wall >= WAITING_REPEAT_WALL_S:
+                self._waiting_said_wall = wall
+                if not self.opts.quiet:
+                    print(f"fcmpc-companion: still waiting for a heartbeat on {self.opts.connect} "
+                          f"({wall - self.wall_start:.0f} s)", file=sys.stderr, flush=True)
             if self.link.fc.detected and self.link.clock.started:
                 self._evaluate_health()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe_active and self.state == State.RUNNING:
                     self._failsafe_actions()
-        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S:
+        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
+                and self._lingered():
             self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1
         if self.opts.max_wall_s is not None and wall - self.wall_start > self.opts.max_wall_s:
             self._say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
@@ -1064,9 +1088,16 @@ class CompanionApp:
         self.command = None
         self._enter_startup(f"restart {self.restarts} after: {reason}")
 
+    def _lingered(self) -> bool:
+        """--exit-when-done: ``--linger-s`` of message time passed since the mission ended (the
+        companion keeps answering a lockstep simulator meanwhile, so the records show the vehicle
+        coming to rest; the FC's INS velocity drifts too much to judge that on board)."""
+        return not math.isfinite(self.done_msg_s) or self.now - self.done_msg_s >= self.opts.linger_s
+
     def _finish(self, cmd: Command, failed_reason: str = "") -> None:
         self.state = State.DONE
         self.done_wall = time.monotonic()
+        self.done_msg_s = self.now
         self.stream_since = math.nan
         if failed_reason:
             self._say(f"FcMPC: mission FAILED: {failed_reason}"[:200], mavlink.MAV_SEVERITY_ERROR)
@@ -1174,36 +1205,41 @@ def benchmark(**kwargs) -> dict:
 
 # ---------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="fcmpc-companion",
         description="Fc-MPC geomagnetic navigation companion: flies a GPS-free mission over MAVLink "
-                    "(ArduPilot GUIDED or PX4 OFFBOARD) as component 191.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "(ArduPilot GUIDED or PX4 OFFBOARD) as component 191.")
     p.add_argument("--connect", "--master", dest="connect", default="udp:127.0.0.1:14550",
                    help="pymavlink connection: udp:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, "
-                        "tcpin:HOST:PORT, or a serial device DEVICE,BAUD")
-    p.add_argument("--params", default=None,
-                   help=".parm file loaded at start and rewritten atomically on every PARAM_SET "
-                        "(default <log-dir>/companion.parm)")
-    p.add_argument("--log-dir", default=None, help="records folder (default out/companion/<time>-<pid>)")
+                        "tcpin:HOST:PORT, or a serial device DEVICE,BAUD; default udp:127.0.0.1:14550")
+    p.add_argument("--params", default=None, metavar="FILE",
+                   help=".parm file loaded at start and rewritten atomically on every PARAM_SET; it must exist "
+                        "unless --params-create is given; default <log-dir>/companion.parm (created)")
+    p.add_argument("--params-create", action="store_true",
+                   help="start from the defaults when the --params FILE does not exist yet (it is written on "
+                        "the first PARAM_SET)")
+    p.add_argument("--log-dir", default=None, help="records folder; default out/companion/<time>-<pid>")
     p.add_argument("--sysid", type=int, default=None,
-                   help="only follow the flight controller with this system id (default: the first one heard)")
+                   help="only follow the flight controller with this system id; default the first one heard")
     p.add_argument("--lockstep", action="store_true",
                    help="send a timed message every setpoint period even when not steering "
                         "(a lockstep simulator waits for it)")
     p.add_argument("--exit-when-done", action="store_true",
-                   help="exit when the mission ends: 0 arrived, 1 failed")
+                   help="exit when the mission ends (after --linger-s): 0 arrived, 1 failed")
+    p.add_argument("--linger-s", type=float, default=0.0, metavar="S",
+                   help="with --exit-when-done: keep running this many seconds of message time after the "
+                        "mission ended, e.g. until the vehicle has come to rest; default 0")
     p.add_argument("--param-encoding", choices=ENCODINGS, default="auto",
-                   help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or auto from the FC")
+                   help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or from the FC; default auto")
     p.add_argument("--mag-message", choices=MAG_MESSAGES, default=None,
-                   help="magnetometer message to use (default: the first one the FC sends)")
+                   help="magnetometer message to use; default the first one the FC sends")
     p.add_argument("--sensors", default=None, metavar="SPEC",
                    help="read sensors from this source instead of the FC's streams (kinds it lacks still come "
                         "from the FC): i2c:/dev/i2c-1, ubx:/dev/ttyACM0:115200, dronecan:can0, "
-                        "dronecan:virtual:vbus0, replay:log.bin?speed=1, or several joined with + "
-                        "(default: MAVLink only)")
+                        "dronecan:virtual:vbus0, replay:log.bin?speed=1, or several joined with +; "
+                        "default MAVLink only")
     p.add_argument("--startup-s", type=float, default=None,
-                   help="stationary averaging before the first step, s of message time (default NAV_PERIOD_S)")
+                   help="stationary averaging before the first step, s of message time; default NAV_PERIOD_S")
     p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
     p.add_argument("--no-stream-requests", action="store_true",
                    help="do not send MAV_CMD_SET_MESSAGE_INTERVAL (use the FC's configured rates)")
@@ -1217,33 +1253,45 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
-                      sensors=args.sensors)
+                      sensors=args.sensors, linger_s=args.linger_s)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _run(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    if args.params is not None and not args.params_create and not Path(args.params).is_file():
+        # a typo in a path must not fly the default mission
+        raise UsageError(f"--params {args.params}: no such file (give --params-create to start from the "
+                         f"defaults and create it)")
     try:
         app = CompanionApp(options_from_args(args))
-    except (OSError, ValueError, SensorError) as err:
-        print(f"fcmpc-companion: {err}", file=sys.stderr)
-        return 2
+    except SensorError as err:
+        raise UsageError(f"--sensors {args.sensors}: {one_line(err)}") from None
+    except (OSError, ValueError) as err:
+        raise UsageError(one_line(err)) from None
     if app.params.load_error:
         print(f"fcmpc-companion: parameter file rejected, serving defaults and refusing to steer: "
               f"{app.params.load_error}", file=sys.stderr)
+    stopped_by: list[int] = []
 
     def stop(signum, frame):  # noqa: ARG001
+        stopped_by.append(signum)
         app.request_stop()
 
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
     try:
-        return app.run()
+        code = app.run()
     except SensorError as err:
-        print(f"fcmpc-companion: sensor source {args.sensors!r} failed: {err}", file=sys.stderr)
-        return 2
+        raise UsageError(f"sensor source {args.sensors!r} failed: {one_line(err)}") from None
     except OSError as err:
-        print(f"fcmpc-companion: {err}", file=sys.stderr)
-        return 2
+        raise UsageError(one_line(err)) from None
+    if stopped_by and app.exit_code is None:
+        return 128 + stopped_by[0]        # stopped before the mission ended: not "arrived"
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_main("fcmpc-companion", lambda: _run(argv))
 
 
 if __name__ == "__main__":

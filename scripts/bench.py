@@ -16,13 +16,13 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse
 import sys
 import time
 from typing import Callable
 
 import numpy as np
 
+from companion.cli import ArgumentParser, run_main
 from companion.nav.field import decl_incl_gradient, geomagnetic_fix, load_wmm
 from companion.nav.mission import Measurement, Mission
 from companion.nav.mpc import MpcController, MpcSettings
@@ -141,8 +141,8 @@ def bench_companion() -> list[tuple[str, str]]:
     return [(f"companion {k}", f"{v}") for k, v in benchmark().items()]
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="fcmpc benchmarks (medians)")
+def _run(argv: list[str] | None) -> int:
+    parser = ArgumentParser(prog="fcmpc-bench", description="fcmpc benchmarks (medians)")
     parser.add_argument("--quick", action="store_true", help="skip the Monte Carlo and the closed-loop parts")
     args = parser.parse_args(argv)
     sections: list[Callable[[], list[tuple[str, str]]]] = [bench_mpc, bench_field, bench_mission_step]
@@ -161,6 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     for name, value in rows:
         print(f"{name:<{width}}{value}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_main("fcmpc-bench", lambda: _run(argv))
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse
 import csv
 import json
 import math
@@ -41,10 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.cli import ArgumentParser, UsageError, param_items, run_main
 from companion.nav.metrics import cep50, cep_paper, mean_terminal_location, track_metrics
 from companion.nav.geo import geodesic_distance_m
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
 from sitl.inprocess import fly_in_process
+from scripts.montecarlo_plots import outlier_fence_km, plot_results  # noqa: E402, F401
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import decl_incl_from_ned
@@ -223,55 +224,6 @@ def format_table(scenario: str, summary: dict, storm: bool) -> str:
 
 
 # --- plots -------------------------------------------------------------------------------------
-def plot_results(out: Path, scenario: Scenario, rows: list[RunRow], tracks: list, storm: bool) -> list[Path]:
-    """Trajectories on a lon/lat map (Fig. 4/7/9) and box plots (Fig. 6/8)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from companion.nav.geo import WGS84
-
-    written = []
-    names = list(dict.fromkeys(r.controller for r in rows))
-    fig, ax = plt.subplots(figsize=(7, 6))
-    line = WGS84.InverseLine(scenario.start_lat_deg, scenario.start_lon_deg, scenario.dest_lat_deg, scenario.dest_lon_deg)
-    geo = [line.Position(s) for s in np.linspace(0, line.s13, 200)]
-    ax.plot([p["lon2"] for p in geo], [p["lat2"] for p in geo], "k--", lw=1, label="geodesic")
-    colours = dict(zip(names, ("tab:red", "tab:blue", "tab:green")))
-    for name in names:
-        runs = [(r, t) for r, t in zip(rows, tracks) if r.controller == name and r.storm == storm]
-        best = min(runs, key=lambda rt: rt[0].remaining_km)
-        for _, (lat, lon) in runs:
-            ax.plot(lon, lat, color=colours[name], lw=0.4, alpha=0.25)
-        ax.plot(best[1][1], best[1][0], color=colours[name], lw=1.5, label=f"{name} (best of {len(runs)})")
-    ax.plot(scenario.start_lon_deg, scenario.start_lat_deg, "ko")
-    ax.plot(scenario.dest_lon_deg, scenario.dest_lat_deg, "k*", ms=12)
-    ax.set_xlabel("longitude (deg E)")
-    ax.set_ylabel("latitude (deg N)")
-    ax.set_title(f"{scenario.name}: trajectories")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    written.append(out / "trajectories.png")
-    fig.savefig(written[-1], dpi=120)
-    plt.close(fig)
-
-    fig, axes = plt.subplots(1, 4, figsize=(14, 4))
-    for ax, (key, label) in zip(axes, (("iterations", "iterations"), ("step_var_km2", "step variance (km^2)"),
-                                       ("length_km", "trajectory length (km)"), ("remaining_km", "remaining (km)"))):
-        ax.boxplot([[getattr(r, key) for r in rows if r.controller == n and r.storm == storm] for n in names])
-        ax.set_xticks(range(1, len(names) + 1), names)
-        ax.set_title(label)
-        ax.grid(alpha=0.3)
-    fig.suptitle(f"{scenario.name}: {sum(1 for r in rows if r.storm == storm) // len(names)} Monte Carlo runs")
-    fig.tight_layout()
-    written.append(out / "boxplots.png")
-    fig.savefig(written[-1], dpi=120)
-    plt.close(fig)
-    return written
-
-
-# --- main --------------------------------------------------------------------------------------
 def run_montecarlo(scenario_ref: str | Scenario, runs: int, controllers: list[int], workers: int, values: dict,
                    data_dir: str | None = None, progress: bool = True, first_seed: int = 0,
                    quiet_too: bool = True):
@@ -369,18 +321,30 @@ def realistic_counterpart(scenario: Scenario) -> Scenario:
         return scenario
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path (default pacific)")
-    parser.add_argument("--runs", type=int, default=50)
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise ValueError(text)
+    return value
+
+
+_positive_int.__name__ = "integer >= 1"     # argparse names the type in its one-line error
+
+
+def build_parser() -> ArgumentParser:
+    parser = ArgumentParser(prog="fcmpc-montecarlo", description=__doc__.split("\n")[0])
+    parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path; default pacific")
+    parser.add_argument("--runs", type=_positive_int, default=50, help="runs per controller; default 50")
     parser.add_argument("--controllers", default=None,
-                        help="comma list of lti,ltv,fc (default: all three; ltv,fc for storm scenarios)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--params", help="a .parm file overlaid on the defaults")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override one parameter")
-    parser.add_argument("--data-dir", default=None, help="real data folder (default ../shared/data)")
-    parser.add_argument("--out", default="out/montecarlo", help="output folder (default out/montecarlo)")
+                        help="comma list of lti,ltv,fc; default all three (ltv,fc for storm scenarios)")
+    parser.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                        help="worker processes; default one per core")
+    parser.add_argument("--first-seed", type=int, default=0, help="seed of the first run; default 0")
+    parser.add_argument("--params", metavar="FILE", help="a .parm file overlaid on the defaults")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="override one parameter (repeatable)")
+    parser.add_argument("--data-dir", default=None, help="real data folder; default ../shared/data")
+    parser.add_argument("--out", default="out/montecarlo", help="output folder; default out/montecarlo")
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--errors", default=None, metavar="SPEC",
@@ -390,8 +354,24 @@ def main(argv: list[str] | None = None) -> int:
                         help="override the scenario's [attitude] heading_source")
     parser.add_argument("--budget", action="store_true",
                         help="error budget: Fc-MPC with each error source alone, none and all (--runs per row)")
-    args = parser.parse_args(argv)
+    return parser
 
+
+def check_missions(values: dict, controllers: list[int]) -> None:
+    """Build each controller's mission once here, so a refused configuration (the destination's
+    field outside the state bounds, ...) is one line before any worker starts, not a traceback."""
+    from companion.nav.mission import Mission
+
+    for controller in controllers:
+        try:
+            Mission(NavConfig.from_values({**values, "NAV_CONTROLLER": controller}))
+        except ValueError as err:
+            raise UsageError(f"mission refused: {err}") from None
+
+
+def _run(argv: list[str] | None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
     scenario = load_scenario(args.scenario)
     real = realistic_counterpart(scenario)
     if args.heading_source:
@@ -404,15 +384,14 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as err:
             parser.error(str(err))
     overrides = read_parm_file(args.params) if args.params else {}
-    for item in args.param:
-        name, _, value = item.partition("=")
-        overrides[name.strip().upper()] = value
+    overrides.update(param_items(args.param))
     values = validate_all({**scenario.nav_overrides(), **overrides})
     keys = args.controllers.split(",") if args.controllers else (["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
     try:
         controllers = [CONTROLLER_KEYS[k.strip().lower()] for k in keys]
     except KeyError as err:
-        parser.error(f"unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
+        parser.error(f"--controllers: unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
+    check_missions(values, controllers)
 
     if args.budget:
         started = time.perf_counter()
@@ -456,6 +435,10 @@ def main(argv: list[str] | None = None) -> int:
         print("\nplots: " + ", ".join(str(p) for p in written))
     print(f"results: {out / 'runs.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_main("fcmpc-montecarlo", lambda: _run(argv), (ScenarioError,))
 
 
 if __name__ == "__main__":

@@ -3,12 +3,15 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -29,6 +32,7 @@ def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0) -> tuple[dict, di
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}", "--params", str(parm),
          "--log-dir", str(tmp_path / "companion"), "--lockstep", "--max-wall-s", "60", "--quiet", "--no-tlog"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for_file(tmp_path / "companion" / "steps.csv", [companion], 60.0)   # its port is bound
     sitl = subprocess.Popen(
         [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration",
          str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
@@ -72,3 +76,47 @@ def test_cli_rejects_bad_arguments(argv):
     result = subprocess.run([sys.executable, "-m", "companion.app", *argv], capture_output=True, text=True,
                             env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=30)
     assert result.returncode == 2 and "invalid choice" in result.stderr
+
+
+def _companion(tmp_path: Path, *argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "companion.app", "--log-dir", str(tmp_path / "log"), *argv],
+                            cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(REPO)), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def test_missing_params_file_is_refused_not_replaced_by_the_default_mission(tmp_path):
+    proc = _companion(tmp_path, "--params", str(tmp_path / "my_mision.parm"))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and err.count("\n") == 1
+    assert "my_mision.parm" in err and "--params-create" in err
+    assert not (tmp_path / "log").exists() and not (tmp_path / "my_mision.parm").exists()
+
+
+def test_params_create_starts_from_the_defaults(tmp_path):
+    port = _free_port()
+    proc = _companion(tmp_path, "--params", str(tmp_path / "new.parm"), "--params-create",
+                      "--connect", f"udp:127.0.0.1:{port}", "--max-wall-s", "30")
+    try:
+        line = proc.stderr.readline()          # the first status line: the link is open
+        assert line.strip() == f"fcmpc-companion: waiting for a heartbeat on udp:127.0.0.1:{port}"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130                      # stopped by Ctrl-C, not "arrived"
+    assert "nan" not in line + err
+    summary = json.loads((tmp_path / "log" / "summary.json").read_text())
+    assert summary["param_load_error"] is None and summary["state"] == "wait_fc"
+
+
+def test_refused_tcp_connection_names_the_address(tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:   # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = _companion(tmp_path, "--connect", f"tcp:127.0.0.1:{port}")
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == (f"fcmpc-companion: cannot connect to tcp:127.0.0.1:{port}: "
+                                            f"Connection refused")

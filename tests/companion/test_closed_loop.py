@@ -1,4 +1,4 @@
-"""Closed loop: the simulator and the companion as separate processes on loopback (via scripts.fly).
+"""Closed loop: the simulator and the companion as separate processes on loopback (via fcmpc_fly).
 
 Tolerance against the in-process Monte Carlo of the same seed: ``remaining <= max(1.5 * MC, 1.5 km)``.
 The closed loop and the in-process run draw different noise: the in-process run draws one
@@ -25,24 +25,34 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from companion.io.records import read_steps_csv  # noqa: E402
-from scripts.fly import FlyOptions, FlyResult, fly  # noqa: E402
+from fcmpc_fly import FlyOptions, FlyResult, fly  # noqa: E402
 from sitl.scenario import load_scenario  # noqa: E402
 
 FLOOR_M = 1500.0
+# A guard against a hung run, not a performance requirement: a short run takes about 70 s of wall
+# time on an idle 2-core machine and several times that under load, which must not turn CI red.
+HANG_S = 800.0
+pytestmark = pytest.mark.timeout(HANG_S + 100.0)
 
 
 def assert_close_to_monte_carlo(result: FlyResult, floor_m: float = FLOOR_M) -> None:
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
-    assert math.isfinite(result.remaining_m) and math.isfinite(result.mc_remaining_m)
+    # the in-process vehicle stops dead at its last step: compare the true distance at the last step
+    assert math.isfinite(result.step_remaining_m) and math.isfinite(result.mc_remaining_m)
     limit = max(1.5 * result.mc_remaining_m, floor_m)
-    assert result.remaining_m <= limit, (
-        f"closed loop {result.remaining_m:.0f} m vs in-process {result.mc_remaining_m:.0f} m (limit {limit:.0f} m)")
+    assert result.step_remaining_m <= limit, (
+        f"closed loop {result.step_remaining_m:.0f} m vs in-process {result.mc_remaining_m:.0f} m (limit {limit:.0f} m)")
+    # ... and the vehicle came to rest: the headline distance is where it stopped, near the last step's
+    assert result.came_to_rest and math.isfinite(result.rest_remaining_m)
+    assert abs(result.rest_remaining_m - result.step_remaining_m) <= 1000.0
+    saved = json.loads((Path(result.out_dir) / "result.json").read_text())
+    assert saved["status"] == "arrived" and saved["rest_remaining_m"] == pytest.approx(result.rest_remaining_m)
     assert abs(result.iterations - result.mc_iterations) <= max(5, 0.15 * result.mc_iterations)
     assert result.plot_path and Path(result.plot_path).stat().st_size > 10_000
 
 
 def test_short_pacific_mission_closed_loop(tmp_path):
-    result = fly(FlyOptions(short=True, compare=True, out_dir=str(tmp_path / "run"), timeout_s=150.0))
+    result = fly(FlyOptions(short=True, compare=True, out_dir=str(tmp_path / "run"), timeout_s=HANG_S))
     assert_close_to_monte_carlo(result)
     comp = result.companion
     assert comp["setpoints_refused"] == 0 and comp["setpoints_sent"] > 1000 and comp["bad_frames"] == 0
@@ -61,7 +71,7 @@ def test_short_pacific_mission_closed_loop(tmp_path):
 
 def test_short_mission_px4_offboard(tmp_path):
     result = fly(FlyOptions(short=True, short_km=40.0, autopilot="px4", compare=True,
-                            out_dir=str(tmp_path / "run"), timeout_s=150.0, tlog=False))
+                            out_dir=str(tmp_path / "run"), timeout_s=HANG_S, tlog=False))
     assert_close_to_monte_carlo(result)
     assert result.companion["fc"]["autopilot"] == "PX4"
     # it flew in OFFBOARD: the simulator's truth log says so
@@ -81,7 +91,7 @@ LATENCY_S = 1.0 + 0.4 + 0.1     # one lockstep period (1 s) + one setpoint tick 
 def faulted_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("failsafe")
     faults = tuple(f"{kind}:{at:g}:{dur:g}" for kind, (at, dur) in FAULTS.items())
-    result = fly(FlyOptions(short=True, short_km=60.0, faults=faults, out_dir=str(out / "run"), timeout_s=150.0,
+    result = fly(FlyOptions(short=True, short_km=60.0, faults=faults, out_dir=str(out / "run"), timeout_s=HANG_S,
                             tlog=False, sitl_extra=("--tlog",)))
     start = load_scenario("pacific").start_posix
     log = mavutil.mavlink_connection(str(out / "run" / "sitl" / "sitl.tlog"))
@@ -132,5 +142,5 @@ def e_reason_ok(reason: str, kind: str) -> bool:
 def test_mission_completes_after_the_faults(faulted_run):
     result = faulted_run[0]
     assert result.status == "arrived", result.message
-    assert result.remaining_m <= FLOOR_M
+    assert result.step_remaining_m <= FLOOR_M
     assert result.companion["failsafes"] >= 3

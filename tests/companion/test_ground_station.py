@@ -29,6 +29,7 @@ from pathlib import Path
 import pytest
 
 from companion.params import REGISTRY, read_parm_file
+from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -39,28 +40,50 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_for_companion_heartbeat(port: int, timeout_s: float) -> None:
+    """Listen where the ground station will, until the companion's HEARTBEAT (system 1, component
+    191) arrives through the simulator's routing; then free the port for the ground station."""
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
+            if msg is not None and msg.get_srcSystem() == 1 and msg.get_srcComponent() == 191:
+                return
+        raise AssertionError(f"no heartbeat from the companion (1/191) on udp port {port} within {timeout_s:g} s")
+    finally:
+        conn.close()
+
+
 @pytest.fixture
 def vehicle(tmp_path):
-    """Companion + simulator (real time x5) processes; yields (gcs_port, parm_path)."""
+    """Companion + simulator (real time x5) processes; yields (gcs_port, parm_path) once the
+    companion's heartbeat reaches the ground-station port, so a client's first parameter
+    download already finds component 191."""
     companion_port, gcs_port = _free_port(), _free_port()
     parm = tmp_path / "companion.parm"
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
     companion = subprocess.Popen(
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{companion_port}", "--params", str(parm),
-         "--log-dir", str(tmp_path / "companion"), "--max-wall-s", "120", "--quiet"],
+         "--params-create", "--log-dir", str(tmp_path / "companion"), "--max-wall-s", "120", "--quiet"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    sitl = subprocess.Popen(
-        [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{companion_port}",
-         "--out", f"udp:127.0.0.1:{gcs_port}", "--speedup", "5", "--duration", "900",
-         "--log-dir", str(tmp_path / "sitl"), "--quiet"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs = [companion]
     try:
+        wait_for_file(tmp_path / "companion" / "steps.csv", procs, 60.0)   # written once its port is bound
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{companion_port}",
+             "--out", f"udp:127.0.0.1:{gcs_port}", "--speedup", "5", "--duration", "900",
+             "--log-dir", str(tmp_path / "sitl"), "--quiet"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        wait_for_companion_heartbeat(gcs_port, 60.0)
         yield gcs_port, parm
     finally:
-        for proc in (companion, sitl):
+        for proc in procs:
             if proc.poll() is None:
                 proc.terminate()
-        for proc in (companion, sitl):
+        for proc in procs:
             try:
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:

@@ -1,0 +1,45 @@
+"""``fcmpc-fly --fc ardupilot``: the main job against real ArduPilot Rover SITL.
+
+The flight itself is :func:`sitl.firmware.flight.fly_ardupilot` (ArduPilot's own boat, field,
+compass-derived yaw and EKF; GPS denied the moment the vehicle arms; SIMSTATE as the truth).
+This module turns the scenario and the user's options into that flight, and its records into the
+same result, plot and summary as a flight against our stand-in (:func:`fcmpc_fly.runner.finish`).
+"""
+from __future__ import annotations
+
+import time
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from fcmpc_fly.results import STATUS_EXIT, FlyResult, TruthTrack
+from fcmpc_fly.runner import REPO, FlyOptions, finish, prepare
+
+__all__ = ["fly_on_ardupilot"]
+
+_MISSION = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON", "COMP_ARM_ENABLE", "COMP_SP_RATE_HZ")
+
+
+def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
+    """Fly the scenario's mission (or its ``--short`` leg) against ArduPilot SITL; FirmwareMissing
+    (before anything is written) when the binary is absent."""
+    from sitl.firmware.ardupilot import ardupilot_binary
+    from sitl.firmware.flight import FirmwareFlight, fly_ardupilot
+
+    ardupilot_binary()
+    scenario, dest, values = prepare(options)
+    wall0 = time.monotonic()
+    out = Path(options.out_dir) if options.out_dir else \
+        REPO / "out" / "fly" / f"{scenario.name}-ardupilot-{datetime.now():%Y%m%d-%H%M%S}"
+    companion_values = {k: v for k, v in values.items() if k not in _MISSION and k in {**scenario.nav_overrides(),
+                                                                                    **options.extra_params}}
+    run = fly_ardupilot(FirmwareFlight(
+        start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
+        values=companion_values, speedup=options.speedup or 50.0, instance=options.fc_instance,
+        start_unix_s=scenario.start_posix, timeout_s=options.timeout_s, quiet=options.progress_s is None))
+    t = run.truth
+    truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \
+        if t["time_s"] else None
+    return finish(options, scenario, out, dest, run.status, STATUS_EXIT.get(run.status, 1), run.message, wall0,
+                  truth=truth)

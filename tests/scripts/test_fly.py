@@ -1,0 +1,149 @@
+"""fcmpc-fly: Ctrl-C gives a result and exit 130; the three distances; the track plot says how
+the run ended. The interrupt tests run the real command (simulator and companion as processes)
+and send the signal once its progress line shows the mission running, never after a sleep."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geographiclib.geodesic import Geodesic
+
+from fcmpc_fly.plots import plot_track, title_for
+from fcmpc_fly.results import REST_TOL_M, REST_WINDOW_S, FlyResult, TruthTrack, distances, summary_lines
+
+REPO = Path(__file__).resolve().parents[2]
+DEST = (32.5, 152.6)
+
+
+class Lines:
+    """A process's stderr read line by line on a thread, so the test can wait for one."""
+
+    def __init__(self, stream) -> None:
+        self.queue: queue.Queue[str] = queue.Queue()
+        self.seen: list[str] = []
+        threading.Thread(target=lambda: [self.queue.put(line) for line in stream], daemon=True).start()
+
+    def wait_for(self, text: str, timeout_s: float) -> str | None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                line = self.queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self.seen.append(line)
+            if text in line:
+                return line
+        return None
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(p) for p in path.read_text().split()] if path.exists() else []
+
+
+@pytest.mark.parametrize("target", ["terminal", "parent", "simulator"])
+def test_interrupt_gives_a_summary_result_and_plot(tmp_path, target):
+    """``terminal``: SIGINT to the whole process group, as Ctrl-C in a shell; ``parent``: to
+    fcmpc-fly alone; ``simulator``: only the simulator child dies from it (not a miss either)."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "scripts.fly", "--short", "--no-tlog", "--out-dir", str(out)],
+                            cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        lines = Lines(proc.stderr)
+        started = lines.wait_for("fcmpc-fly: step ", 120.0)
+        assert started is not None, lines.seen
+        children = _children(proc.pid)
+        assert len(children) == 2, children
+        if target == "terminal":
+            os.killpg(proc.pid, signal.SIGINT)
+        elif target == "parent":
+            os.kill(proc.pid, signal.SIGINT)
+        else:
+            sitl = [c for c in children if "sitl.server" in Path(f"/proc/{c}/cmdline").read_text()]
+            os.kill(sitl[0], signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, (stdout, lines.seen)
+    assert stdout.startswith("fcmpc-fly: interrupted before arriving") and " km from the destination" in stdout
+    assert "arrived" not in stdout
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "interrupted" and result["exit_code"] == 130
+    assert result["iterations"] >= 0 and result["rest_remaining_m"] > 1000.0      # it was far from there
+    assert (out / "track.png").stat().st_size > 10_000
+    assert all(not Path(f"/proc/{c}").exists() or "zombie" in Path(f"/proc/{c}/status").read_text()
+               for c in children), "a child outlived fcmpc-fly"
+
+
+# --- the three distances, on tracks built here ------------------------------------------------
+def _track(points: list[tuple[float, float, float]]) -> TruthTrack:
+    t, lat, lon = (np.array(v, dtype=float) for v in zip(*points))
+    return TruthTrack(t, lat, lon)
+
+
+def _dist(a: tuple[float, float], b: tuple[float, float]) -> float:
+    return Geodesic.WGS84.Inverse(a[0], a[1], b[0], b[1])["s12"]
+
+
+def _along(distance_m: float) -> tuple[float, float]:
+    """A point ``distance_m`` north of the destination."""
+    g = Geodesic.WGS84.Direct(DEST[0], DEST[1], 0.0, distance_m)
+    return g["lat2"], g["lon2"]
+
+
+def test_distances_separate_last_step_rest_and_belief():
+    at_step, at_rest = _along(400.0), _along(150.0)
+    points = [(float(t), *_along(400.0 - 10.0 * max(0.0, t - 100.0))) for t in range(90, 126)]   # slows to a stop
+    points += [(float(t), *at_rest) for t in range(126, 126 + int(REST_WINDOW_S) + 5)]
+    steps = [{"step": 7, "msg_time_s": 100.0, "remaining_m": 320.0}]
+    d = distances(_track(points), steps, DEST)
+    assert d["step_remaining_m"] == pytest.approx(_dist(at_step, DEST), abs=0.01)
+    assert d["rest_remaining_m"] == pytest.approx(_dist(at_rest, DEST), abs=0.01)
+    assert d["believed_remaining_m"] == 320.0 and d["iterations"] == 7 and d["came_to_rest"]
+
+
+def test_a_track_that_ends_moving_is_not_at_rest():
+    points = [(float(t), *_along(1000.0 - 3.0 * REST_TOL_M * t / REST_WINDOW_S)) for t in range(0, 30)]
+    d = distances(_track(points), [], DEST)
+    assert not d["came_to_rest"] and math.isnan(d["step_remaining_m"]) and d["iterations"] == 0
+    assert d["rest_remaining_m"] == pytest.approx(_dist((points[-1][1], points[-1][2]), DEST), abs=0.01)
+
+
+def _result(status: str, rest_m: float, **kw) -> FlyResult:
+    base = dict(status=status, exit_code=0, scenario="pacific", seed=0, iterations=5, rest_remaining_m=rest_m,
+                step_remaining_m=rest_m + 50.0, believed_remaining_m=rest_m - 70.0, came_to_rest=status == "arrived",
+                wall_s=3.0, sim_s=1800.0, out_dir="x", plot_path=None, dest_lat_deg=DEST[0], dest_lon_deg=DEST[1])
+    return FlyResult(**{**base, **kw})
+
+
+def test_summary_puts_the_resting_point_first_and_never_calls_an_interruption_a_miss():
+    lines = summary_lines(_result("arrived", 128.0))
+    assert lines[0].startswith("arrived: the vehicle came to rest 128 m from the destination")
+    assert "at the last control step: 178 m" in lines[1] and "believed:   58 m" in lines[2]
+    head = summary_lines(_result("interrupted", 747_201.0))[0]
+    assert head.startswith("interrupted before arriving") and "747.2 km" in head
+
+
+def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
+    start = _along(60_000.0)
+    points = [(float(t), *_along(60_000.0 - 13.9 * t)) for t in range(0, 2000, 10)]
+    steps = [{"step": k, "msg_time_s": 360.0 * k, "remaining_m": 60_000.0 - 5000.0 * k,
+              "est_lat_deg": _along(60_000.0 - 5000.0 * k + 300.0)[0], "est_lon_deg": DEST[1]} for k in range(5)]
+    result = _result("interrupted", _dist((points[-1][1], points[-1][2]), DEST))
+    title = title_for(result, "pacific")
+    assert "INTERRUPTED" in title and f"{result.rest_remaining_m / 1000.0:.2f} km" in title
+    path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "pacific")
+    assert path.stat().st_size > 20_000
