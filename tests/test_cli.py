@@ -37,6 +37,8 @@ CASES = [
     ("fcmpc-fly", ["--sped", "3"], "--sped"),
     ("fcmpc-sitl", ["--scenario", "pacifc"], "'pacifc'"),
     ("fcmpc-sitl", ["--fault", "mag_of:10"], "mag_of:10"),
+    ("fcmpc-sitl", ["--sped", "3"], "--sped"),
+    ("fcmpc-sitl", ["--speedup", "fast"], "--speedup"),
     ("fcmpc-companion", ["--params", "missing.parm"], "missing.parm"),
     ("fcmpc-companion", ["--param-encoding", "nonsense"], "--param-encoding"),
     ("fcmpc-montecarlo", ["--scenario", "pacifc"], "'pacifc'"),

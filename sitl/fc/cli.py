@@ -10,6 +10,7 @@ import argparse
 import signal
 import sys
 
+from companion.cli import ArgumentParser   # the one-line user-error policy of every console script
 from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig
 from sitl.fc.server import SitlServer
 from sitl.guidance import DIALECTS
@@ -19,7 +20,7 @@ __all__ = ["build_parser", "config_from_args", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="fcmpc-sitl",
         description="MAVLink 2 simulator of an ArduPilot Rover (or PX4) boat flying a geomagnetic-navigation "
                     "scenario faster than real time. Every message carries simulated time.",
