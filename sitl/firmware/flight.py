@@ -48,7 +48,7 @@ class FirmwareFlight:
 
 @dataclass
 class FirmwareRun:
-    status: str            # arrived | failed | timeout | error
+    status: str            # arrived | failed | timeout | error | interrupted
     message: str
     truth: dict            # time_s, lat_deg, lon_deg lists (firmware time)
     wall_s: float
@@ -116,6 +116,8 @@ def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
         monitor.pump(lambda m: m.time_s > t_done + 120.0 or _at_rest(m), 120.0, "the vehicle at rest")
     except TimeoutError as err:
         status, message = "timeout", str(err)
+    except KeyboardInterrupt:   # Ctrl-C: stop both, and still write the records and the result
+        status, message = "interrupted", "interrupted by the user"
     except (RuntimeError, OSError) as err:
         status, message = "error", str(err)
     finally:
