@@ -466,11 +466,9 @@ def decl_incl_gradient(
     Rows (D, I), columns (east, north) of the MPC's local plane (x east, y north, metres), by
     central differences of +-``step_m`` metres (:func:`companion.nav.geo.offset_position`), all
     four points in one vectorised model call. Declination differences are wrapped, so G stays
-    right where D crosses +-180 degrees.
+    right where D crosses +-180 degrees. :func:`element_gradient` on the paper's element set.
     """
-    if not (math.isfinite(step_m) and step_m > 0.0):
-        raise ValueError(f"step_m must be a positive number of metres, got {step_m}")
-    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m)[1]
+    return element_gradient(model, ELEMENT_SETS[ElementSet.PAPER], lat_deg, lon_deg, alt_m, year, step_m)
 
 
 class PositionFixError(RuntimeError):
