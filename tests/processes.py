@@ -1,11 +1,35 @@
 """Helpers for tests that start real processes: wait on events (a file, a message), never on sleeps."""
 from __future__ import annotations
 
+import queue
 import subprocess
+import threading
 import time
 from pathlib import Path
 
-__all__ = ["wait_for_file"]
+__all__ = ["wait_for_file", "Lines"]
+
+
+class Lines:
+    """A process's output read line by line on a thread, so a test can wait for one (an event)."""
+
+    def __init__(self, stream) -> None:
+        self.queue: queue.Queue[str] = queue.Queue()
+        self.seen: list[str] = []
+        threading.Thread(target=lambda: [self.queue.put(line.rstrip()) for line in stream], daemon=True).start()
+
+    def wait_for(self, text: str, timeout_s: float) -> str | None:
+        """The first line containing ``text`` within ``timeout_s`` of wall time (a hang guard), else None."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                line = self.queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self.seen.append(line)
+            if text in line:
+                return line
+        return None
 
 
 def wait_for_file(path: Path, procs: list[subprocess.Popen], timeout_s: float) -> None:

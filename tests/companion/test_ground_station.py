@@ -18,18 +18,16 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import os
-import queue
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
 from companion.params import REGISTRY, read_parm_file
-from tests.processes import wait_for_file
+from tests.processes import Lines, wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -154,29 +152,15 @@ class Console:
 
     def __init__(self, proc: subprocess.Popen) -> None:
         self.proc = proc
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.seen: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.put(line.rstrip())
+        self._lines = Lines(proc.stdout)
+        self.seen = self._lines.seen
 
     def send(self, command: str) -> None:
         self.proc.stdin.write(command + "\n")
         self.proc.stdin.flush()
 
     def wait_for(self, text: str, timeout_s: float) -> str | None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            try:
-                line = self.lines.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            self.seen.append(line)
-            if text in line:
-                return line
-        return None
+        return self._lines.wait_for(text, timeout_s)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("MAVProxy") is None,

@@ -6,12 +6,9 @@ from __future__ import annotations
 import json
 import math
 import os
-import queue
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,29 +18,10 @@ from geographiclib.geodesic import Geodesic
 from fcmpc_fly.plots import plot_track, title_for
 from fcmpc_fly.results import REST_TOL_M, REST_WINDOW_S, FlyResult, TruthTrack, distances, summary_lines
 
+from tests.processes import Lines  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[2]
 DEST = (32.5, 152.6)
-
-
-class Lines:
-    """A process's stderr read line by line on a thread, so the test can wait for one."""
-
-    def __init__(self, stream) -> None:
-        self.queue: queue.Queue[str] = queue.Queue()
-        self.seen: list[str] = []
-        threading.Thread(target=lambda: [self.queue.put(line) for line in stream], daemon=True).start()
-
-    def wait_for(self, text: str, timeout_s: float) -> str | None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            try:
-                line = self.queue.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            self.seen.append(line)
-            if text in line:
-                return line
-        return None
 
 
 def _children(pid: int) -> list[int]:
