@@ -102,6 +102,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_ELEMENTS", int, 0, 0, 2, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free"),
     _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
+    _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -323,6 +324,7 @@ class NavConfig(_FromRegistry):
     s_margin_deg: float = _from("MPC_S_MARGIN")
     elements: int = _from("NAV_ELEMENTS")
     calibrate: int = _from("NAV_CALIBRATE")
+    fix_gate_m: float = _from("NAV_FIX_GATE_M")
     solver: int = _from("MPC_SOLVER")
     fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
     fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)

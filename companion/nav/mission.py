@@ -176,6 +176,7 @@ class Mission:
         self.window_lag_en = np.zeros(2)
         self.last: _Last | None = None
         self.finished: Command | None = None
+        self.rejected_fixes = 0
 
     def set_bias(self, bias: tuple[float, float] | None) -> None:
         """The start-up calibration to subtract from every measurement (None: none), before the first step."""
@@ -346,6 +347,11 @@ class Mission:
             weak = float(np.linalg.svd(in_degrees, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
         except PositionFixError:
             fix, weak = None, True
+        if fix is not None and geodesic_inverse(self.est[0], self.est[1], *fix)[0] > c.fix_gate_m:
+            # farther from the dead-reckoned position than the vehicle can have strayed in a step
+            # (a wrong crossing of the contours, a disturbed measurement): not a fix
+            fix, weak = None, True
+            self.rejected_fixes += 1
         have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
         fused, sigma = False, math.sqrt(c.fusion_rc_m2)
         if weak and have_ins:

@@ -421,3 +421,22 @@ def test_start_up_bias_is_removed_from_every_measurement(model, elements):
     assert last.phase == Phase.ARRIVED
     assert miss_calibrated < 2.0 * nav.arrive_m
     assert miss_raw > 2000.0
+
+
+def test_a_fix_far_from_the_dead_reckoning_is_rejected(model):
+    """A blunder (a disturbed measurement puts the fix 300 km away) is not a fix: the step keeps
+    its dead reckoning and counts the rejection; the mission still arrives."""
+    nav = nav_config(None)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    commands = [mission.step(world.measure())]
+    blunder_at = 4
+    while not commands[-1].done and len(commands) < 300:
+        meas = world.fly(commands[-1])
+        if len(commands) == blunder_at:
+            meas = dataclasses.replace(meas, incl_deg=meas.incl_deg + 3.0)   # ~250 km of I
+        commands.append(mission.step(meas))
+    bad = commands[blunder_at]
+    assert mission.rejected_fixes == 1 and math.isnan(bad.fix_lat_deg)
+    assert WGS84.Inverse(bad.est_lat_deg, bad.est_lon_deg, commands[blunder_at - 1].est_lat_deg,
+                         commands[blunder_at - 1].est_lon_deg)["s12"] < nav.speed_mps * nav.period_s * 1.01
+    assert commands[-1].phase == Phase.ARRIVED and world.miss_m() < 2.0 * nav.arrive_m
