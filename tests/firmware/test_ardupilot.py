@@ -98,7 +98,7 @@ def test_arming_refusal_reaches_the_operator_with_backoff(rig_factory):
 def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
     """GPS lost 30 s after arming: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
     30 simulated minutes and flies the companion's courses (the truth's track follows them)."""
-    rig = rig_factory("gps_lost", speedup=10.0)
+    rig = rig_factory("gps_lost")
     log_dir = rig.start_companion(NAV_DEST_LAT=28.0, NAV_DEST_LON=158.0, NAV_PERIOD_S=120.0)
     mon = rig.monitor
     mon.pump(lambda m: m.armed and m.mode == GUIDED, WALL_S, "armed in GUIDED")
