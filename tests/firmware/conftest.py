@@ -22,8 +22,9 @@ REPO = Path(__file__).resolve().parents[2]
 _INSTANCES = itertools.count(11)
 # Wall-time pacing: the companion must answer in wall time (a setpoint at least every 3 s and
 # GPS_INPUT every 0.1 s of firmware time, or ArduPilot stops / calls the GPS unhealthy), so a loaded
-# 2-core machine needs margin: at 10x a 300 ms stall of the companion is still no gap (measured: at
-# 40x with a load average of 12 the feed fell behind; at 20x one CI run saw a gap).
+# 2-core machine needs margin: at 10x a stall of the companion must stay under 300 ms of wall time
+# (150 ms at 20x; measured: at 40x with a load average of 12 the feed fell behind, at 20x one loaded
+# CI run saw a setpoint gap).
 SPEEDUP = 10.0
 CRUISE_KMH = 28.8     # 8 m/s: the SITL motorboat's top speed is 10 m/s at full throttle
 
