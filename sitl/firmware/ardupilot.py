@@ -21,7 +21,8 @@ from pathlib import Path
 
 from companion.params import format_value
 
-__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "project_parm", "read_ardupilot_parm"]
+__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "project_parm", "read_ardupilot_parm",
+           "free_instance"]
 
 BASE_PORT = 5760
 
@@ -172,3 +173,24 @@ def _port_open(port: int) -> bool:
             return s.connect_ex(("127.0.0.1", port)) == 0
     hex_port = f"{port:04X}"
     return any(r.split()[1].endswith(":" + hex_port) and r.split()[3] == "0A" for r in rows)
+
+
+def _listening_ports() -> set[int]:
+    try:
+        with open("/proc/net/tcp") as table:
+            rows = table.read().splitlines()[1:]
+    except OSError:
+        return set()
+    return {int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows if r.split()[3] == "0A"}
+
+
+def free_instance(first: int = 10, last: int = 99, taken: set[int] | None = None) -> int:
+    """An instance number whose SITL ports (5760..5763 + 10 i) nobody listens on, so tests in two
+    checkouts at once (a developer's and CI's) do not collide; ``taken``: numbers handed out
+    already in this process. Racy between processes only for the instant of the check."""
+    busy = _listening_ports()
+    for instance in range(first, last + 1):
+        ports = range(BASE_PORT + 10 * instance, BASE_PORT + 10 * instance + 4)
+        if (taken is None or instance not in taken) and not busy.intersection(ports):
+            return instance
+    raise RuntimeError(f"no free ArduPilot SITL instance in {first}..{last}")

@@ -6,8 +6,8 @@ connects first, the companion on SERIAL1, as on a vehicle with the companion on 
 """
 from __future__ import annotations
 
-import itertools
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,10 +16,11 @@ import pytest
 
 from companion.params import write_parm_file
 from sitl.firmware import ArduPilotSitl, FirmwareMissing, ardupilot_binary
+from sitl.firmware.ardupilot import free_instance
 from sitl.firmware.monitor import FirmwareMonitor
 
 REPO = Path(__file__).resolve().parents[2]
-_INSTANCES = itertools.count(11)
+_TAKEN: set[int] = set()     # instances this test session handed out (free_instance skips busy ports too)
 # Wall-time pacing: the companion must answer in wall time (a setpoint at least every 3 s and
 # GPS_INPUT every 0.1 s of firmware time, or ArduPilot stops / calls the GPS unhealthy), so a loaded
 # 2-core machine needs margin: at 10x a stall of the companion must stay under 300 ms of wall time
@@ -41,7 +42,9 @@ class Rig:
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
-        self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=next(_INSTANCES), speedup=speedup,
+        instance = free_instance(first=11 + (os.getpid() % 8) * 10, taken=_TAKEN)
+        _TAKEN.add(instance)
+        self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, speedup=speedup,
                                   params=params or {}, binary=_binary_or_skip())
         self.sitl.start()
         self.sitl.wait_listening()
