@@ -119,7 +119,9 @@ def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
         start, end = step["msg_time_s"], following["msg_time_s"]
         if start < t_lost or end - start < 60.0:
             continue
-        _assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"])
+        # from 60 s into the step: a reversal of course (one CI run had 132 deg after ~310 deg) is a
+        # turn of the boat that takes tens of seconds; after it, the track must follow the command
+        _assert_forward_on(mon.truth, start + 60.0, end, step["course_deg"])
         checked += 1
     assert checked >= 10, f"only {checked} steps flown without GPS"
 
