@@ -136,9 +136,9 @@ def bench_simulator() -> list[tuple[str, str]]:
 
 def bench_companion() -> list[tuple[str, str]]:
     """The companion's control-step latency and sustained input rate against the simulator."""
-    from companion.app import benchmark
+    from companion.benchmark import run
 
-    return [(f"companion {k}", f"{v}") for k, v in benchmark().items()]
+    return [(f"companion {k}", f"{v}") for k, v in run().items()]
 
 
 def _run(argv: list[str] | None) -> int:

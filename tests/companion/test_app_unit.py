@@ -68,9 +68,9 @@ def rig(tmp_path):
     app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "base_mode": 1, "custom_mode": 4}))   # disarmed in HOLD
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=1000))
     assert app.state == State.STARTUP and not app.failsafe_active
-    app.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}   # sensors fresh
+    app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}   # sensors fresh
     app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))
-    app.state = State.RUNNING
+    app.machine.state = State.RUNNING
     app.m0 = 0.0
     yield app, fc
     app.close()
@@ -91,7 +91,7 @@ def _sent(fc, quiet_s: float = 0.15, limit_s: float = 3.0) -> list:
 def _run_step(app: CompanionApp, command: Command) -> None:
     app.mission = FakeMission(command)
     app.mag.averager.add(0.5, 1.0, 50.0)
-    app._step(1.0)
+    app.stepper.step(1.0)
 
 
 @pytest.mark.parametrize("bad,why", [
@@ -117,7 +117,7 @@ def test_navigation_failure_holds_and_restarts(rig, bad, why):
 def test_good_step_streams_and_publishes(rig):
     app, fc = rig
     app.params.set_value("COMP_POS_PUB", 0)      # EXTERNAL_POSITION_ESTIMATE (the default is GPS_INPUT)
-    app._apply_params()
+    app.apply_params()
     _run_step(app, GOOD)
     app.next_tick = -math.inf
     app.tick()
@@ -134,7 +134,7 @@ def test_good_step_streams_and_publishes(rig):
 def test_odometry_when_selected(rig):
     app, fc = rig
     app.params.set_value("COMP_POS_PUB", 1)
-    app._apply_params()
+    app.apply_params()
     app.handle(_msg("GLOBAL_POSITION_INT", time_boot_ms=1000, lat=325000000, lon=1525000000, alt=0, relative_alt=0,
                     vx=0, vy=0, vz=0, hdg=0))
     app.handle(_msg("LOCAL_POSITION_NED", time_boot_ms=1000, x=1000.0, y=-500.0, z=0.0, vx=0.0, vy=0.0, vz=0.0))
@@ -152,7 +152,7 @@ def test_silent_flight_controller_is_judged_in_wall_time(rig):
     app.command = GOOD
     start = app.link.fc.last_heartbeat_wall_s
     app.link.wall = lambda: start + 3.5                                # 3.5 s of silence (COMP_HB_TMO_S = 3)
-    app.last_hb_sent_wall = -math.inf
+    app.out.last_hb_sent_wall = -math.inf
     app.idle()
     assert app.failsafe_active and any("wall time" in r for r in app.health.reasons)
     texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
@@ -166,7 +166,7 @@ def test_real_mission_first_step_probes_east(rig):
     app, fc = rig
     app.mission = Mission(NavConfig.from_values(default_values()))
     app.mag.averager.add(0.5, -1.5, 48.0)
-    app._step(1.0, window_limit_s=0.0)
+    app.stepper.step(1.0, window_limit_s=0.0)
     assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)
 
 
@@ -189,7 +189,7 @@ def test_operator_mode_change_is_respected(rig):
     app.tick()
     _sent(fc)
     app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "custom_mode": 0}))        # the pilot selects MANUAL
-    app.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+    app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
     app.next_tick = -math.inf
     app.tick()
     sent = _sent(fc)
