@@ -47,15 +47,16 @@ def test_navigation_core_is_pure(path: Path):
 
 @pytest.mark.parametrize("path", _modules("sitl"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_simulator_never_imports_companion_io(path: Path):
-    bad = {name for name in _imports(path) if name.startswith(("companion.io", "companion.app", "scripts",
-                                                                 "fcmpc_fly"))}
+    bad = {name for name in _imports(path) if name.startswith(("companion.io", "companion.app", "companion.process",
+                                                                 "scripts", "fcmpc_fly"))}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
 @pytest.mark.parametrize("path", _modules("fcmpc_fly"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_fly_library_never_imports_scripts_or_the_companion_process(path: Path):
     """fcmpc_fly runs the companion as a process and reads its records; scripts/ are entry points."""
-    bad = {name for name in _imports(path) if name.split(".")[0] == "scripts" or name == "companion.app"}
+    bad = {name for name in _imports(path) if name.split(".")[0] == "scripts" or name == "companion.app"
+           or name.startswith("companion.process")}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
