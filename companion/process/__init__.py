@@ -6,6 +6,7 @@
     machine.py      the phase state machine: states, events and the transition table
     phases.py       what each phase does on a control tick, and the transitions' actions
     failsafe_response.py  health -> failsafe: enter, hold, recover (rules in companion.failsafe)
+    mode_commands.py the mode commands sent and not yet confirmed: ours or the pilot's?
     intake.py       samples in: MAVLink and --sensors samples into the magnetometer pipeline
     preparation.py  start-up and mission preparation: start position, elements, calibration
     control_step.py one control step: measurement -> core -> checks; the INS position

@@ -35,6 +35,7 @@ from companion.process.failsafe_response import FailsafeResponse
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
+from companion.process.mode_commands import ModeCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
@@ -82,6 +83,7 @@ class CompanionApp:
         # the parts
         self.machine = PhaseMachine()
         self.clock = MissionClock(self.mag)
+        self.modes = ModeCommands()
         self.intake = SampleIntake(self, self.sensors)
         self.out = Outputs(self)
         self.failsafe = FailsafeResponse(self)
@@ -305,6 +307,8 @@ class CompanionApp:
         self.fc_view.poll_requests(self.link, now)
         reasons = self.failsafe.evaluate()
         sent = self.phases.tick(now, reasons, dt)
+        if self.link.fc.detected:
+            self.modes.observe(self.link.fc.custom_mode, now)   # after the phase saw the change
         if not sent:
             self.out.stream_since = math.nan
             if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going

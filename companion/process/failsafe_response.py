@@ -23,12 +23,11 @@ HOLD_RETRY_S = 2.0                # message time between repeated hold commands
 
 
 class FailsafeResponse:
-    """``active`` while in failsafe; ``hold_commanded`` while a hold we sent may explain a mode change."""
+    """``active`` while in failsafe; each HOLD sent goes into the app's table of pending mode commands."""
 
     def __init__(self, app) -> None:   # the CompanionApp wiring this part
         self.app = app
         self.active = False
-        self.hold_commanded = False
         self.last_hold_cmd = -math.inf
 
     def evaluate(self) -> list[str]:
@@ -76,9 +75,11 @@ class FailsafeResponse:
 
     def command_hold(self, now: float) -> None:
         if now - self.last_hold_cmd >= HOLD_RETRY_S or not math.isfinite(self.last_hold_cmd):
-            self.app.link.send_hold_mode()
+            link = self.app.link
+            link.send_hold_mode()
+            conv = link.fc.conventions
+            self.app.modes.sent(conv.custom_mode(conv.hold_main, conv.hold_sub), now, "HOLD")
             self.last_hold_cmd = now
-            self.hold_commanded = True
 
     def hold_if_guided(self, now: float) -> None:
         fc = self.app.link.fc

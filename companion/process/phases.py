@@ -42,6 +42,7 @@ class Phases:
         self.last_mode_cmd = -math.inf
         self.last_arm_cmd = -math.inf
         self.fc_failsafe_hold = ""      # the FC's own failsafe that took it out of GUIDED (re-engage when cleared)
+        self.our_hold = False           # the FC left GUIDED for a mode we commanded (re-engage when healthy)
         self.was_following = False
 
     def tick(self, now: float, reasons: list[str], dt: float) -> bool:
@@ -128,6 +129,7 @@ class Phases:
         if not fc.guided:
             if streamed >= conv.offboard_prestream_s and now - self.last_mode_cmd >= COMMAND_RETRY_S:
                 app.link.send_guided_mode()
+                app.modes.sent(conv.custom_mode(conv.guided_main, conv.guided_sub), now, "GUIDED")
                 self.last_mode_cmd = now
         elif not fc.armed:
             self.arm_with_backoff(now)
@@ -162,7 +164,6 @@ class Phases:
         app.mission = prep.take_mission(config)
         app.mission.set_bias(app.bias)
         app.mission_no += 1
-        app.failsafe.hold_commanded = False
         self.was_following = True
         app.machine.fire(Event.ENGAGED)
         app.last_phase = ""
@@ -177,7 +178,9 @@ class Phases:
         app = self.app
         fc = app.link.fc
         following = fc.armed and fc.guided
-        if self.was_following and not following and not app.failsafe.hold_commanded:
+        if self.was_following and not following and not fc.guided and app.modes.confirm(fc.custom_mode, now):
+            self.our_hold = True   # the FC shows a mode we commanded (however late): ours to take back
+        elif self.was_following and not following:
             # a mode change we did not ask for: the autopilot's own failsafe is waited out and the
             # mission re-engages when it clears; a pilot's or ground station's is respected, and
             # the mission waits until GUIDED/OFFBOARD is selected again
@@ -190,6 +193,7 @@ class Phases:
                         mavlink.MAV_SEVERITY_WARNING)
         if following:
             self.fc_failsafe_hold = ""
+            self.our_hold = False
         self.was_following = following
         app.stepper.advance_dead_reckoning(now, dt, following and not reasons)
         if reasons or not following:
@@ -200,7 +204,7 @@ class Phases:
             return False
         sent = app.out.stream(app.command.course_rad, app.command.speed_mps) if app.command is not None else False
         if not following:
-            if app.failsafe.hold_commanded or (self.fc_failsafe_hold and not app.fc_view.fc_failsafe):
+            if self.our_hold or (self.fc_failsafe_hold and not app.fc_view.fc_failsafe):
                 self.engage(now)   # our failsafe's hold, or the FC's own failsafe cleared: take it back
             return sent
         if app.mission_time(now) >= app.next_step_m:
@@ -209,15 +213,13 @@ class Phases:
 
     def resume(self) -> None:
         app = self.app
-        app.failsafe.hold_commanded = False   # following and healthy: later mode changes are the pilot's
-        app.clock.resume(app.now)
+        app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
 
     # ------------------------------------------------------------------ running -> startup / done
     def nav_failure(self, reason: str, cmd: Command) -> None:
         app = self.app
         app.out.say(f"FcMPC FAILSAFE: {reason}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
         app.failsafe.hold_if_guided(app.now)
-        app.failsafe.hold_commanded = True
         app.restarts += 1
         if app.restarts > MAX_RESTARTS:
             app.command = cmd
@@ -255,6 +257,8 @@ class Phases:
         app.out.last_hb_sent = -math.inf
         app.intake.last_valid.clear()
         self.last_mode_cmd = self.last_arm_cmd = app.failsafe.last_hold_cmd = -math.inf
+        app.modes.clear()
+        self.our_hold = False
         app.link.fc.last_heartbeat_time_s = app.now
         app.mag.attitude = None
         app.decoder.fc_position = None
