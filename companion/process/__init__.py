@@ -9,6 +9,7 @@
     mode_commands.py the mode commands sent and not yet confirmed: ours or the pilot's?
     intake.py       samples in: MAVLink and --sensors samples into the magnetometer pipeline
     preparation.py  start-up and mission preparation: start position, elements, calibration
+    plausibility.py is this period's magnetometer one to navigate on? (|F| band, fix jump)
     control_step.py one control step: measurement -> core -> checks; the INS position
     outputs.py      what leaves: STATUSTEXT, heartbeat, setpoints, estimates, GPS_INPUT feed
     reporting.py    steps.csv rows and summary.json

@@ -39,6 +39,7 @@ from companion.process.mode_commands import ModeCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
+from companion.process.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
 
@@ -84,6 +85,7 @@ class CompanionApp:
         self.machine = PhaseMachine()
         self.clock = MissionClock(self.mag)
         self.modes = ModeCommands()
+        self.plausibility = MagPlausibility()
         self.intake = SampleIntake(self, self.sensors)
         self.out = Outputs(self)
         self.failsafe = FailsafeResponse(self)

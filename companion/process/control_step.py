@@ -16,6 +16,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
+from companion.process.plausibility import judge
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
@@ -80,6 +81,9 @@ class ControlStep:
         ins_lat, ins_lon, ins_source = self.ins_position(now)
         meas = Measurement(t_k - app.m0, avg.decl_deg, app.preparation.inclination(avg), ins_lat, ins_lon, window,
                            avg.f_nt)
+        if self.excluded(t_k, meas):
+            app.next_step_m = t_k + period   # fly the last command; measure again one period later
+            return
         core0 = time.perf_counter()
         cmd = mission.step(meas)
         core_latency = time.perf_counter() - core0
@@ -108,6 +112,29 @@ class ControlStep:
             app.phases.finish(cmd)
             return
         app.next_step_m = t_k + mission.config.period_s
+
+    def excluded(self, t_k: float, meas: Measurement) -> bool:
+        """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);
+        True if it is excluded (said, recorded). The first step has no prediction to judge against."""
+        app = self.app
+        cmd, mission = app.command, app.mission
+        if cmd is None or cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
+            return False
+        dt = max(meas.time_s - 0.5 * meas.window_s - cmd.time_s, 0.0)   # to the centre of the window
+        flown = cmd.speed_mps * dt
+        lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
+                                   flown * math.cos(cmd.course_rad))
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
+        config = mission.config
+        judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
+                          meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits)
+        said = app.plausibility.verdict(judgement)
+        if said is not None:
+            app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))
+        if judgement.ok:
+            return False
+        app.reporting.record_event("excluded", judgement.words())
+        return True
 
     def fault(self, cmd) -> str:
         """Why ``cmd`` is a navigation failure ("" if it is not)."""
