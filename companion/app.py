@@ -96,6 +96,8 @@ from companion.failsafe import Health, HealthLimits, diverged  # noqa: E402
 from companion.fc_view import FcView  # noqa: E402
 from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
 from companion.io.param_server import ENCODINGS, ParamServer  # noqa: E402
+from companion.io.link.signing import Signing  # noqa: E402  (issue 10: link)
+from companion.sdnotify import Notifier  # noqa: E402  (issue 10: link)
 from companion.io.records import StepRecorder, write_summary  # noqa: E402
 from companion.io.sensors.base import SampleKind, SensorError, SensorSource, StreamEnd  # noqa: E402
 from companion.io.sensors.factory import make_source  # noqa: E402
@@ -161,6 +163,9 @@ class AppOptions:
     quiet: bool = False
     sensors: str | None = None
     linger_s: float = 0.0               # --exit-when-done: message time after the end before exiting
+    fc_compid: int | None = None        # issue 10 (link): pin the FC's component too
+    signing_key: str | None = None      # issue 10 (link): MAVLink 2 signing key file
+    signing_link_id: int = 0
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -235,10 +240,15 @@ class CompanionApp:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         params_path = options.params if options.params is not None else str(self.log_dir / "companion.parm")
         self.link = MavlinkLink(options.connect, options.sysid,
-                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None)
+                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None,
+                                fc_compid=options.fc_compid,   # issue 10 (link): pinned FC, signing
+                                signing=Signing.from_file(options.signing_key, options.signing_link_id)
+                                if options.signing_key else None)
         self.params = ParamServer(self.link, params_path, on_change=self._param_changed,
                                   encoding=options.param_encoding)
         self.params.load()
+        self.link.apply_ceiling(self.params.ceiling, tlog_max_bytes=int(self.params.values["LINK_TLOG_MB"] * 1e6))
+        self.notifier = Notifier()   # issue 10 (link): systemd READY/WATCHDOG
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
         model_for_date(self.nav_cfg.year, WMM_NAMES.get(self.nav_cfg.wmm))   # load the coefficients now, not at take-off
@@ -384,6 +394,7 @@ class CompanionApp:
             raise
         self.recorder = StepRecorder(self.log_dir / "steps.csv")
         self._send_heartbeat()   # a udpout link must speak first
+        self.notifier.ready()    # issue 10 (link)
         self._waiting_said_wall = time.monotonic()
         if not self.opts.quiet:
             print(f"fcmpc-companion: waiting for a heartbeat on {self.opts.connect}", file=sys.stderr, flush=True)
@@ -423,6 +434,7 @@ class CompanionApp:
                 if self.sensors is not None:
                     self.poll_sensors()
                 self.idle()
+                self.notifier.watchdog()   # issue 10 (link): a stalled loop is restarted by systemd
         finally:
             self.close()
         return self.exit_code if self.exit_code is not None else 0
@@ -558,6 +570,9 @@ class CompanionApp:
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
         wall = time.monotonic()
+        for sysid, compid in self.link.new_autopilots():   # issue 10 (link): reported, never followed
+            self._say(f"FcMPC: second autopilot {sysid}/{compid} ignored (following {self.link.fc.sysid})",
+                      mavlink.MAV_SEVERITY_WARNING)
         if wall - self.last_hb_sent_wall >= 1.0:
             self._send_heartbeat()
             if self.state == State.WAIT_FC and wall - self._waiting_said_wall >= WAITING_REPEAT_WALL_S:
@@ -1169,6 +1184,7 @@ class CompanionApp:
                 "read_errors": self.sensors.stats.read_errors, "last_error": self.sensors.stats.last_error,
                 "dropped_no_fc_clock": self.source_dropped_no_clock, "time_resyncs": self.source_time.resyncs,
                 "time_offset_s": self.source_time.offset_s, "ended": self.source_ended},
+            "link": {**self.link.counters(), "param_sets_from_strangers": self.params.sets_from_strangers},   # issue 10
             "fc": {"autopilot": self.link.fc.conventions.name, "sysid": self.link.fc.sysid,
                    "mode": self.link.fc.mode_name, "armed": self.link.fc.armed,
                    "heading": self._heading_summary(), "positions_fed": self.link.stats.positions_fed,
@@ -1219,8 +1235,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start from the defaults when the --params FILE does not exist yet (it is written on "
                         "the first PARAM_SET)")
     p.add_argument("--log-dir", default=None, help="records folder; default out/companion/<time>-<pid>")
-    p.add_argument("--sysid", type=int, default=None,
-                   help="only follow the flight controller with this system id; default the first one heard")
+    p.add_argument("--sysid", "--fc-sysid", dest="sysid", type=int, default=None,
+                   help="only follow the flight controller with this system id; default the first one heard, "
+                        "then fixed for the run")
+    # issue 10 (link): pinned component, signing
+    p.add_argument("--fc-compid", type=int, default=None,
+                   help="only follow the flight controller with this component id; default the first autopilot's")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key file (make one with fcmpc-signing-key; permission 0600): sign every "
+                        "output, refuse unsigned PARAM_SET, COMMAND_* and SET_*")
+    p.add_argument("--signing-link-id", type=int, default=0, metavar="N",
+                   help="link id in this link's signatures, 0..255; default 0")
     p.add_argument("--lockstep", action="store_true",
                    help="send a timed message every setpoint period even when not steering "
                         "(a lockstep simulator waits for it)")
@@ -1253,7 +1278,8 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
-                      sensors=args.sensors, linger_s=args.linger_s)
+                      sensors=args.sensors, linger_s=args.linger_s,
+                      fc_compid=args.fc_compid, signing_key=args.signing_key, signing_link_id=args.signing_link_id)
 
 
 def _run(argv: list[str] | None) -> int:
