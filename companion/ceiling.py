@@ -81,15 +81,15 @@ class SafetyCeiling:
         if spec is None:
             return None
         if spec.boot_only:
-            return "start-up only (.parm file)"
+            return "start-up only"
         if name in _SPEED_NAMES and value * _KMH > self.speed_mps * (1.0 + 1e-6):
-            return f"above SAFE_SPEED_KMH {self.speed_mps / _KMH:g}"
+            return f"> SAFE_SPEED_KMH {self.speed_mps / _KMH:g}"
         if name in _TIMEOUT_NAMES and value > self.timeout_s * (1.0 + 1e-6):
-            return f"above SAFE_TMO_S {self.timeout_s:g}"
+            return f"> SAFE_TMO_S {self.timeout_s:g}"
         if name in _POSITION_NAMES and self.fence_m > 0.0:
             prefix, axis = _POSITION_NAMES[name]
             lat = value if axis == 0 else float(values[f"{prefix}_LAT"])
             lon = value if axis == 1 else float(values[f"{prefix}_LON"])
             if distance_to_route_m(lat, lon, self.route) > self.fence_m:
-                return f"outside SAFE_FENCE_KM {self.fence_m / 1e3:g} of the start-up route"
+                return f"outside SAFE_FENCE_KM {self.fence_m / 1e3:g}"
         return None

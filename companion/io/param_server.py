@@ -239,7 +239,7 @@ class ParamServer:
         if why is not None:
             self.sets_refused += 1
             self.send_value(name)
-            self.link.send_statustext(f"FcMPC: {name}={value:.6g} refused, {why}"[:100], mavlink.MAV_SEVERITY_WARNING)
+            self.link.send_statustext(f"FcMPC: {name}={value:.6g} {why}"[:100], mavlink.MAV_SEVERITY_WARNING)
             return
         self.set_value(name, value)
         self.send_value(name)

@@ -24,7 +24,7 @@ import time
 from companion.cli import ArgumentParser, run_main
 from companion.io.link.signing import passphrase_key, signing_timestamp, write_key_file
 
-__all__ = ["main", "instructions"]
+__all__ = ["instructions", "main"]
 
 
 def instructions(path: str, passphrase: str, key: bytes, timestamp: int) -> str:

@@ -29,10 +29,14 @@ What unsigned (or badly signed) frames may do
 """
 from __future__ import annotations
 
+import hashlib
+import hmac
 import os
 import stat
+import struct
 import tempfile
 import time
+import types
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -46,6 +50,7 @@ __all__ = [
     "Signing",
     "SigningError",
     "TimestampStore",
+    "check_signature",
     "passphrase_key",
     "read_key_file",
     "signing_timestamp",
@@ -71,6 +76,30 @@ def _signed_only_ids() -> frozenset[int]:
 SIGNED_ONLY_IDS: frozenset[int] = _signed_only_ids()
 
 
+def check_signature(parser, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """pymavlink's signature check with the order fixed: the signature first, then the timestamp.
+
+    pymavlink 2.4.50 records a stream's timestamp *before* comparing the signature, so one forged
+    frame with a large timestamp and the ids of a ground station makes every later genuine frame of
+    that stream "old" (measured: a wrong-key PARAM_SET locked the real GCS out). Here only a frame
+    signed with the key moves a stream's timestamp; a replay (timestamp not above the stream's
+    last) or a new stream more than a minute behind our own timestamp is refused as before.
+    """
+    sig = parser.signing
+    digest = hashlib.sha256(sig.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+    if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+        return False
+    low, high = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
+    timestamp = low + (high << 32)
+    stream = (msgbuf[-13], src_system, src_component)
+    last = sig.stream_timestamps.get(stream)
+    if (last is not None and timestamp <= last) or (last is None and timestamp + 60 * UNITS_PER_S < sig.timestamp):
+        return False
+    sig.stream_timestamps[stream] = timestamp
+    sig.timestamp = max(sig.timestamp, timestamp)
+    return True
+
+
 class SigningError(ValueError):
     """A key file that cannot be used (missing, readable by others, not 32 bytes of hex)."""
 
@@ -81,8 +110,6 @@ def passphrase_key(passphrase: str) -> bytes:
     >>> passphrase_key("fcmpc").hex()[:16]
     '32df8e1c6c259a1b'
     """
-    import hashlib
-
     return hashlib.sha256(passphrase.encode("ascii")).digest()
 
 
@@ -212,6 +239,7 @@ class Signing:
         sig.allow_unsigned_callback = self._accept_unsigned
         sig.stream_timestamps = self.streams    # one replay window for every sender address
         parser._fcmpc_badsig = 0
+        parser.check_signature = types.MethodType(check_signature, parser)
 
     def _accept_unsigned(self, parser, msg_id: int) -> bool:
         """pymavlink's callback for a frame without a valid signature: refuse or let pass."""
