@@ -31,6 +31,7 @@ from companion.io.link.peers import PEER_CAPACITY, PeerPolicy, PeerTable
 from companion.io.link.signing import Signing
 from companion.io.link.tlog import Tlog
 from companion.io.link.transport import STREAM, open_transport
+from companion.params import SPEC_BY_NAME
 
 __all__ = ["LinkStats", "MavlinkLink"]
 
@@ -56,14 +57,15 @@ class MavlinkLink(LinkOutputs):
 
     ``sysid``/``fc_compid`` pin the flight controller (default: the first autopilot heard);
     ``gcs_sysids`` are the ground stations that receive outputs and may set parameters;
-    ``speed_ceiling_mps`` caps every setpoint whatever the caller's limit; ``signing`` signs
+    ``speed_ceiling_mps`` caps every setpoint whatever the caller's limit (default the registry's
+    SAFE_SPEED_KMH); ``signing`` signs
     every output and refuses unsigned commands and parameter writes; ``tlog_max_bytes`` rotates
     the record (0: no cap).
     """
 
     def __init__(self, connect: str, sysid: int | None = None, component: int = COMPANION_COMPONENT,
                  tlog_path=None, wall_clock: Callable[[], float] = time.monotonic, *, fc_compid: int | None = None,
-                 gcs_sysids: frozenset[int] = frozenset({255}), speed_ceiling_mps: float = math.inf,
+                 gcs_sysids: frozenset[int] = frozenset({255}), speed_ceiling_mps: float | None = None,
                  signing: Signing | None = None, tlog_max_bytes: int = 0, peer_capacity: int = PEER_CAPACITY) -> None:
         self.connect_text = connect
         self.fixed_sysid = sysid
@@ -71,7 +73,9 @@ class MavlinkLink(LinkOutputs):
         self.tlog_path = Path(tlog_path) if tlog_path else None
         self.tlog_max_bytes = tlog_max_bytes
         self.wall = wall_clock
-        self.speed_ceiling_mps = speed_ceiling_mps
+        # no ceiling given: the registry's default SAFE_SPEED_KMH, never none at all
+        self.speed_ceiling_mps = (SPEC_BY_NAME["SAFE_SPEED_KMH"].default / 3.6 if speed_ceiling_mps is None
+                                  else speed_ceiling_mps)
         self.signing = signing
         self.fc = FcState()
         self.clock = MessageClock()
