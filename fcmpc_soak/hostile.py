@@ -36,8 +36,14 @@ CLASSES = ("prefix_fd_ff", "garbage", "bitflip", "truncated", "unknown_message",
            "stranger_command", "spoofed_fc", "unsigned_gcs_write")
 
 
+_ENCODERS: dict[tuple[int, int], mavlink.MAVLink] = {}
+
+
 def _pack(msg, sysid: int, compid: int) -> bytes:
-    return msg.pack(mavlink.MAVLink(None, sysid, compid))
+    enc = _ENCODERS.get((sysid, compid))
+    if enc is None:
+        enc = _ENCODERS[(sysid, compid)] = mavlink.MAVLink(None, sysid, compid)
+    return msg.pack(enc)
 
 
 class Hostile:
@@ -70,7 +76,7 @@ class Hostile:
 
     def garbage(self) -> bytes:
         r = self.rng
-        data = bytes(r.randrange(256) for _ in range(r.randrange(1, 300)))
+        data = r.randbytes(r.randrange(1, 300))
         return (r.choice((b"\xfd", b"\xfe", b"")) + data)[:300]
 
     def bitflip(self) -> bytes:
@@ -85,11 +91,11 @@ class Hostile:
 
     def unknown_message(self) -> bytes:
         r = self.rng
-        payload = bytes(r.randrange(256) for _ in range(r.randrange(1, 40)))
+        payload = r.randbytes(r.randrange(1, 40))
         msgid = r.randrange(50000, 2**24)
         header = bytes((0xFD, len(payload), 0, 0, r.randrange(256), 1, 1,
                         msgid & 0xFF, (msgid >> 8) & 0xFF, msgid >> 16))
-        return header + payload + bytes((r.randrange(256), r.randrange(256)))
+        return header + payload + r.randbytes(2)
 
     def stranger_param_set(self) -> bytes:
         r = self.rng
