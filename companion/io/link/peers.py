@@ -21,7 +21,6 @@ companion from 4 % to 67 % CPU and gave a stranger all telemetry). Here:
 """
 from __future__ import annotations
 
-import math
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
@@ -147,13 +146,3 @@ class PeerTable:
         out = [self.fc_address] if self.fc_address is not None else []
         out += [a for a in self.gcs_addresses if a != self.fc_address]
         return out
-
-    def heard_within(self, address: Hashable, seconds: float) -> bool:
-        peer = self.peers.get(address)
-        return peer is not None and self.wall() - peer.last_wall_s <= seconds
-
-    @property
-    def stale_fc(self) -> float:
-        """Wall seconds since the flight controller's address was heard (inf before it is pinned)."""
-        peer = self.peers.get(self.fc_address)
-        return math.inf if peer is None else self.wall() - peer.last_wall_s
