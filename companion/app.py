@@ -104,8 +104,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start from the defaults when the --params FILE does not exist yet (it is written on "
                         "the first PARAM_SET)")
     p.add_argument("--log-dir", default=None, help="records folder; default out/companion/<time>-<pid>")
-    p.add_argument("--sysid", type=int, default=None,
-                   help="only follow the flight controller with this system id; default the first one heard")
+    p.add_argument("--sysid", "--fc-sysid", dest="sysid", type=int, default=None,
+                   help="only follow the flight controller with this system id; default the first one heard, "
+                        "then fixed for the run")
+    p.add_argument("--fc-compid", type=int, default=None,
+                   help="only follow the flight controller with this component id; default the first autopilot's")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key file (make one with fcmpc-signing-key; permission 0600): sign every "
+                        "output, refuse unsigned PARAM_SET, COMMAND_* and SET_*")
+    p.add_argument("--signing-link-id", type=int, default=0, metavar="N",
+                   help="link id in this link's signatures, 0..255; default 0")
     p.add_argument("--lockstep", action="store_true",
                    help="send a timed message every setpoint period even when not steering "
                         "(a lockstep simulator waits for it)")
@@ -138,7 +146,8 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
-                      sensors=args.sensors, linger_s=args.linger_s)
+                      sensors=args.sensors, linger_s=args.linger_s,
+                      fc_compid=args.fc_compid, signing_key=args.signing_key, signing_link_id=args.signing_link_id)
 
 
 def _run(argv: list[str] | None) -> int:

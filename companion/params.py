@@ -58,6 +58,7 @@ class ParamSpec:
     maximum: float
     unit: str
     doc: str
+    boot_only: bool = False   # set only from the command line or the .parm file at start, never over the link
 
     def coerce(self, value: float) -> float | int:
         """The value as this parameter's type, or ParamError naming the parameter and range."""
@@ -80,6 +81,11 @@ class ParamSpec:
 
 def _p(name: str, kind: type, default: float, minimum: float, maximum: float, unit: str, doc: str) -> ParamSpec:
     return ParamSpec(name, kind, default, minimum, maximum, unit, doc)
+
+
+def _boot(name: str, kind: type, default: float, minimum: float, maximum: float, unit: str, doc: str) -> ParamSpec:
+    """A start-up-only parameter: the parameter server serves it but refuses every PARAM_SET of it."""
+    return ParamSpec(name, kind, default, minimum, maximum, unit, doc + " (start-up only: --params file)", True)
 
 
 REGISTRY: tuple[ParamSpec, ...] = (
@@ -144,6 +150,13 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
     _p("COMP_SPIKE_NT", float, 5000.0, 10.0, 1e6, "nT", "reject a magnetometer sample this far from the running median"),
     _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart"),
+    # --- safety ceiling and who may write (start-up only: the link cannot raise them, issue 10) ---
+    _boot("SAFE_SPEED_KMH", float, 60.0, 1.0, 300.0, "km/h", "speed no setpoint may exceed, whatever NAV_SPEED_KMH says"),
+    _boot("SAFE_TMO_S", float, 5.0, 0.1, 60.0, "s", "longest failsafe timeout: COMP_*_TMO_S above it act as this"),
+    _boot("SAFE_FENCE_KM", float, 100.0, 0.0, 20000.0, "km", "start and destination set over the link must lie this close to the start-up route; 0 off"),
+    _boot("LINK_GCS_ID1", int, 255, 0, 255, "", "ground-station system id allowed to set parameters and receive outputs; 0 none"),
+    _boot("LINK_GCS_ID2", int, 0, 0, 255, "", "a second allowed ground-station system id (MAVSDK's default is 245); 0 none"),
+    _p("LINK_TLOG_MB", float, 100.0, 0.0, 1e5, "MB", "companion.tlog is rotated at this size (3 older files kept); 0 no cap"),
     _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (opposite sign of ArduPilot's COMPASS_OFS_X, which is added)"),
     _p("MAG_OFS_Y", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body y"),
     _p("MAG_OFS_Z", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body z"),
@@ -363,8 +376,12 @@ class CompanionConfig(_FromRegistry):
         merged = validate_all({k: v for k, v in values.items() if k in SPEC_BY_NAME})
         from dataclasses import replace
 
+        ceiling = float(merged["SAFE_TMO_S"])   # the start-up ceiling: a link-set timeout cannot exceed it
         return replace(
             base,
+            mag_timeout_s=min(base.mag_timeout_s, ceiling),
+            att_timeout_s=min(base.att_timeout_s, ceiling),
+            heartbeat_timeout_s=min(base.heartbeat_timeout_s, ceiling),
             mag_offset_mgauss=tuple(float(merged[f"MAG_OFS_{a}"]) for a in "XYZ"),
             mag_scale=tuple(float(merged[f"MAG_SCALE_{a}"]) for a in "XYZ"),
         )

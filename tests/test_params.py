@@ -197,3 +197,29 @@ def test_parm_file_written_then_loaded_configures_the_mission(tmp_path):
     cfg = NavConfig.from_values(validate_all(read_parm_file(path)))
     assert (cfg.dest_lat_deg, cfg.speed_mps, cfg.solver) == (29.5, pytest.approx(10.0), 1)
     assert os.path.getsize(path) > 0
+
+
+# ---------------------------------------------------------------------- issue 10: the start-up safety ceiling
+def test_timeouts_set_over_the_link_cannot_exceed_the_start_up_ceiling():
+    from companion.params import SPEC_BY_NAME
+
+    values = {**validate_all({}), "COMP_HB_TMO_S": 60.0, "COMP_MAG_TMO_S": 2.0, "SAFE_TMO_S": 4.0}
+    cfg = CompanionConfig.from_values(values)
+    assert cfg.heartbeat_timeout_s == 4.0 and cfg.mag_timeout_s == 2.0
+    boot_only = {s.name for s in REGISTRY if s.boot_only}
+    assert boot_only == {"SAFE_SPEED_KMH", "SAFE_TMO_S", "SAFE_FENCE_KM", "LINK_GCS_ID1", "LINK_GCS_ID2"}
+    assert "start-up only" in SPEC_BY_NAME["SAFE_SPEED_KMH"].doc
+
+
+def test_safety_ceiling_from_the_start_up_values():
+    from companion.ceiling import SafetyCeiling, distance_to_route_m
+
+    values = {**validate_all({}), "SAFE_SPEED_KMH": 36.0, "LINK_GCS_ID2": 245, "SAFE_FENCE_KM": 50.0}
+    ceiling = SafetyCeiling.from_values(values)
+    assert ceiling.speed_mps == pytest.approx(10.0) and ceiling.gcs_sysids == frozenset({255, 245})
+    assert ceiling.refusal("NAV_SPEED_KMH", 40.0, values) == "> SAFE_SPEED_KMH 36"
+    assert ceiling.refusal("NAV_SPEED_KMH", 36.0, values) is None
+    assert ceiling.refusal("NAV_DEST_LON", 158.5, values) is None                     # 49 km east of the end
+    assert ceiling.refusal("NAV_DEST_LON", 159.0, values) == "outside SAFE_FENCE_KM 50"   # 98 km
+    mid = distance_to_route_m(30.5, 155.0, ceiling.route)                               # near the middle
+    assert mid < 30e3

@@ -28,6 +28,15 @@ Setting
     (temporary file, fsync, rename: a crash leaves the old or the new file, never half of one),
     then reported to ``on_change`` so the application applies them at its next control step.
 
+Who may set
+    Only ground stations whose system id is allowed (LINK_GCS_ID1/ID2, start-up only; default
+    255, the conventional GCS id) and only addressed to this system (target_system 0 is refused
+    for a write); with MAVLink signing on, unsigned or badly signed PARAM_SETs never reach the
+    server (:mod:`companion.io.link.signing`). A stranger's write is dropped without a reply and
+    counted (:attr:`ParamServer.sets_from_strangers`). Values above the start-up safety ceiling
+    (:class:`companion.ceiling.SafetyCeiling`) and every start-up-only parameter are refused like
+    out-of-range values. An accepted value equal to the stored one is answered but not rewritten.
+
 Start-up
     The ``.parm`` file is read with :func:`companion.params.read_parm_file`. A missing file
     means defaults (created on the first PARAM_SET). A *broken* file (unknown name, bad or
@@ -44,9 +53,10 @@ import struct
 from pathlib import Path
 from typing import Callable
 
+from companion.ceiling import SafetyCeiling
+from companion.io.link import COMPANION_COMPONENT, MavlinkLink, mavlink
 from companion.params import REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec, default_values, read_parm_file, \
     validate_all, write_parm_file
-from companion.io.mavlink_link import COMPANION_COMPONENT, MavlinkLink, mavlink
 
 __all__ = ["ParamServer", "encode_value", "decode_value", "ENCODINGS"]
 
@@ -101,7 +111,8 @@ class ParamServer:
     """PARAM_* protocol for one component; MAVProxy-module shaped (``mavlink_packet``/``idle_task``)."""
 
     def __init__(self, link: MavlinkLink, parm_path: str | os.PathLike | None = None,
-                 on_change: Callable[[str, float | int], None] | None = None, encoding: str = "auto") -> None:
+                 on_change: Callable[[str, float | int], None] | None = None, encoding: str = "auto",
+                 ceiling: SafetyCeiling | None = None) -> None:
         if encoding not in ENCODINGS:
             raise ValueError(f"parameter encoding {encoding!r} not one of {', '.join(ENCODINGS)}")
         self.link = link
@@ -111,22 +122,42 @@ class ParamServer:
         self.values: dict[str, float | int] = default_values()
         self.load_error: str | None = None
         self.persist_error: str | None = None
+        self.ceiling = ceiling          # None: taken from the values loaded at start (load())
         self.requests = 0
         self.sets_accepted = 0
         self.sets_refused = 0
+        self.sets_from_strangers = 0
+        self.writes = 0
+        self.stale_removed = 0
 
     # --- start-up -------------------------------------------------------------------------------
     def load(self) -> bool:
-        """Read the .parm file; False (defaults served, :attr:`load_error` set) if it is broken."""
-        if self.path is None or not self.path.exists():
-            return True
-        try:
-            self.values = validate_all(read_parm_file(self.path))
-        except (ParamError, OSError, UnicodeDecodeError) as err:
-            self.values = default_values()
-            self.load_error = str(err)
-            return False
-        return True
+        """Read the .parm file; False (defaults served, :attr:`load_error` set) if it is broken.
+
+        Temporary files a killed writer left beside it (``.NAME.*.tmp``) are removed first. The
+        safety ceiling, unless given, is fixed here from the values read.
+        """
+        ok = True
+        if self.path is not None:
+            self._remove_stale_temporaries()
+        if self.path is not None and self.path.exists():
+            try:
+                self.values = validate_all(read_parm_file(self.path))
+            except (ParamError, OSError, UnicodeDecodeError) as err:
+                self.values = default_values()
+                self.load_error = str(err)
+                ok = False
+        if self.ceiling is None:
+            self.ceiling = SafetyCeiling.from_values(self.values)
+        return ok
+
+    def _remove_stale_temporaries(self) -> None:
+        for stale in self.path.parent.glob(f".{self.path.name}.*.tmp"):
+            try:
+                stale.unlink()
+                self.stale_removed += 1
+            except OSError:  # pragma: no cover - not ours to remove
+                pass
 
     @property
     def bytewise(self) -> bool:
@@ -144,6 +175,9 @@ class ParamServer:
         mtype = msg.get_type()
         if mtype not in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET") or not self._addressed_to_us(msg):
             return False
+        if not self.link.from_allowed_gcs(msg):
+            self.sets_from_strangers += mtype == "PARAM_SET"
+            return True   # a stranger gets nothing: no values, no writes, no reply
         self.requests += 1
         if mtype == "PARAM_REQUEST_LIST":
             for spec in REGISTRY:
@@ -179,6 +213,9 @@ class ParamServer:
     def _handle_set(self, msg) -> None:
         name = self._clean_id(msg.param_id)
         spec = SPEC_BY_NAME.get(name)
+        if msg.target_system != self.link.sysid:   # a write addressed to every system is nobody's
+            self.sets_refused += 1
+            return
         if spec is None:
             if msg.target_component != 0:   # to all components: the flight controller's (CRUISE_SPEED), not ours
                 self.sets_refused += 1
@@ -198,22 +235,36 @@ class ParamServer:
                 why = f"range {spec.minimum:g}..{spec.maximum:g}"
             self.link.send_statustext(f"FcMPC: {name}={raw:.6g} refused, {why}", mavlink.MAV_SEVERITY_WARNING)
             return
+        why = self._ceiling().refusal(name, value, self.values)
+        if why is not None:
+            self.sets_refused += 1
+            self.send_value(name)
+            self.link.send_statustext(f"FcMPC: {name}={value:.6g} {why}"[:100], mavlink.MAV_SEVERITY_WARNING)
+            return
         self.set_value(name, value)
         self.send_value(name)
 
+    def _ceiling(self) -> SafetyCeiling:
+        if self.ceiling is None:
+            self.ceiling = SafetyCeiling.from_values(self.values)
+        return self.ceiling
+
     # --- local API ------------------------------------------------------------------------------
     def set_value(self, name: str, value: float | int) -> None:
-        """Store a validated value, persist it atomically, report it to ``on_change``."""
+        """Store a validated value, persist it atomically (unless unchanged), report it to ``on_change``."""
         old = self.values.get(name)
         self.values[name] = value
         self.sets_accepted += 1
+        if old == value and type(old) is type(value):
+            return   # nothing changed: no rewrite, no fsync
         self.persist()
-        if self.on_change is not None and old != value:
+        if self.on_change is not None:
             self.on_change(name, value)
 
     def persist(self) -> bool:
         if self.path is None or self.load_error is not None:
             return False   # a broken file stays as it is, for the operator to inspect
+        self.writes += 1
         try:
             write_parm_file(self.path, self.values, header="fcmpc companion parameters (written by the parameter server)")
         except OSError as err:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from companion.failsafe import Health, HealthLimits
 from companion.fc_view import FcView
+from companion.io.link.signing import Signing
 from companion.io.mavlink_link import MavlinkLink, mavlink
 from companion.io.param_server import ParamServer
 from companion.io.sensors.base import SampleKind, SensorSource
@@ -42,6 +43,7 @@ from companion.process.phases import Phases
 from companion.process.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
+from companion.sdnotify import Notifier
 
 __all__ = ["CompanionApp", "apply_live_config"]
 
@@ -67,10 +69,15 @@ class CompanionApp:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         params_path = options.params if options.params is not None else str(self.log_dir / "companion.parm")
         self.link = MavlinkLink(options.connect, options.sysid,
-                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None)
+                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None,
+                                fc_compid=options.fc_compid,
+                                signing=Signing.from_file(options.signing_key, options.signing_link_id)
+                                if options.signing_key else None)
         self.params = ParamServer(self.link, params_path, on_change=self._param_changed,
                                   encoding=options.param_encoding)
         self.params.load()
+        self.link.apply_ceiling(self.params.ceiling, tlog_max_bytes=int(self.params.values["LINK_TLOG_MB"] * 1e6))
+        self.notifier = Notifier()   # systemd READY/WATCHDOG (a no-op outside systemd)
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
         model_for_date(self.nav_cfg.year, WMM_NAMES.get(self.nav_cfg.wmm))   # load the coefficients now, not at take-off
@@ -206,6 +213,7 @@ class CompanionApp:
             raise
         self.reporting.open(self.log_dir / "steps.csv")
         self.out.heartbeat()   # a udpout link must speak first
+        self.notifier.ready()
         self._waiting_said_wall = time.monotonic()
         if not self.opts.quiet:
             print(f"fcmpc-companion: waiting for a heartbeat on {self.opts.connect}", file=sys.stderr, flush=True)
@@ -247,6 +255,7 @@ class CompanionApp:
         if self.sensors is not None:
             self.intake.poll()
         self.idle()
+        self.notifier.watchdog()   # a stalled loop is restarted by systemd
 
     def handle(self, msg) -> None:
         """Receive hook: every message read from the link."""
@@ -269,6 +278,9 @@ class CompanionApp:
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
         wall = time.monotonic()
+        for sysid, compid in self.link.new_autopilots():   # reported, never followed
+            self.out.say(f"FcMPC: second autopilot {sysid}/{compid} ignored (following {self.link.fc.sysid})",
+                         mavlink.MAV_SEVERITY_WARNING)
         if wall - self.out.last_hb_sent_wall >= 1.0:
             self.out.heartbeat()
             if self.state == State.WAIT_FC and wall - self._waiting_said_wall >= WAITING_REPEAT_WALL_S:

@@ -33,3 +33,6 @@ class AppOptions:
     quiet: bool = False
     sensors: str | None = None
     linger_s: float = 0.0               # --exit-when-done: message time after the end before exiting
+    fc_compid: int | None = None        # pin the FC's component too (default: the first autopilot's)
+    signing_key: str | None = None      # MAVLink 2 signing key file
+    signing_link_id: int = 0

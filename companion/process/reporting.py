@@ -105,6 +105,7 @@ class Reporting:
             "mag": {**app.mag.stats.as_dict(), "invalid": app.intake.invalid_mag},
             "param_load_error": app.params.load_error,
             "sensors": app.intake.summary(),
+            "link": {**app.link.counters(), "param_sets_from_strangers": app.params.sets_from_strangers},
             "fc": {"autopilot": app.link.fc.conventions.name, "sysid": app.link.fc.sysid,
                    "mode": app.link.fc.mode_name, "armed": app.link.fc.armed,
                    "heading": self.heading_summary(), "positions_fed": stats.positions_fed,

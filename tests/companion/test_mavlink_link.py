@@ -116,9 +116,22 @@ def test_message_clock_monotonic_reboot_and_unix_time():
     clock.observe_system_time(1_700_000_010_000_000, 10_000)
     assert clock.stamp_usec(1_700_000_012_000_000) == pytest.approx(12.0)   # UNIX -> boot
     assert clock.stamp_usec(3_000_000) == pytest.approx(3.0)                 # already boot time
-    clock.observe_boot_ms(30_000)
-    clock.observe_boot_ms(100)                           # 29.9 s back: a reboot
-    assert clock.reboots == 1 and clock.now_s == 0.1
+    clock.observe_boot_ms(11_000)
+    clock.observe_boot_ms(100)                           # 10.9 s back: one frame is no reboot
+    clock.observe_boot_ms(10_000_000)                    # nor is one far-future frame
+    assert clock.reboots == 0 and clock.now_s == 11.0 and (clock.far_past, clock.far_future) == (1, 1)
+    clock.observe_boot_ms(10_800)                        # 0.2 s old: within the reorder window, kept
+    clock.observe_boot_ms(9_000)                         # 2 s old: out of order, dropped
+    assert clock.out_of_order == 1 and clock.now_s == 11.0
+    # a real reboot: a new base that ticks like a clock, with a SYSTEM_TIME and a heartbeat
+    for ms in (100, 200, 300):
+        clock.observe_boot_ms(ms)
+    clock.heartbeat()
+    assert clock.observe_system_time(1_700_000_030_000_000, 400) is False    # 4 stamps: not yet
+    assert clock.reboots == 0
+    clock.observe_boot_ms(500)
+    assert clock.reboots == 1 and clock.now_s == 0.5
+    assert clock.stamp_usec(1_700_000_031_000_000) == pytest.approx(1.4)    # the new base's pairing
 
 
 def test_parse_connection():

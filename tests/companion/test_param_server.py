@@ -258,3 +258,74 @@ def test_a_set_to_all_components_for_another_components_parameter_is_left_alone(
     text = served.recv("STATUSTEXT")
     assert text is not None and "no parameter CRUISE_SPEED" in text.text
     assert served.server.sets_accepted == 0
+
+
+# ---------------------------------------------------------------------- issue 10: who may write, and what
+def _stranger(served, sysid: int = 200):
+    return mavutil.mavlink_connection(f"udpout:127.0.0.1:{served.link.conn.remote[1]}", source_system=sysid,
+                                      source_component=190)
+
+
+def test_a_stranger_can_neither_write_nor_read(served, tmp_path):
+    stranger = _stranger(served)
+    try:
+        stranger.mav.param_set_send(1, 191, b"NAV_SPEED_KMH", 40.0, mavlink.MAV_PARAM_TYPE_REAL32)
+        stranger.mav.param_request_list_send(1, 191)
+        deadline = time.monotonic() + 5.0
+        while served.server.sets_from_strangers < 1 and time.monotonic() < deadline:
+            time.sleep(0.02)   # the pump thread handles it; this only polls its counter
+        assert served.server.sets_from_strangers == 1
+        assert served.server.values["NAV_SPEED_KMH"] == 50.0 and not (tmp_path / "companion.parm").exists()
+        assert stranger.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5) is None
+    finally:
+        stranger.close()
+
+
+@pytest.mark.parametrize("name,value,why", [
+    ("NAV_SPEED_KMH", 100.0, "> SAFE_SPEED_KMH 60"),           # in range (300), above the ceiling
+    ("COMP_HB_TMO_S", 60.0, "> SAFE_TMO_S 5"),
+    ("SAFE_SPEED_KMH", 300.0, "start-up only"),
+    ("LINK_GCS_ID2", 200.0, "start-up only"),
+    ("NAV_DEST_LAT", 10.0, "outside SAFE_FENCE_KM 100"),            # 2000 km off the route
+])
+def test_the_link_cannot_raise_the_safety_ceiling(served, tmp_path, name, value, why):
+    before = served.server.values[name]
+    kind = mavlink.MAV_PARAM_TYPE_INT32 if isinstance(before, int) else mavlink.MAV_PARAM_TYPE_REAL32
+    served.client.mav.param_set_send(1, 191, name.encode(), value, kind)
+    reply = served.recv("PARAM_VALUE", condition=lambda m: m.param_id == name)
+    text = served.recv("STATUSTEXT", condition=lambda m: name in m.text)
+    assert reply is not None and reply.param_value == before and served.server.values[name] == before
+    assert text is not None and why in text.text
+    assert not (tmp_path / "companion.parm").exists()
+
+
+def test_a_destination_near_the_route_is_accepted(served):
+    served.client.mav.param_set_send(1, 191, b"NAV_DEST_LAT", 28.3, mavlink.MAV_PARAM_TYPE_REAL32)   # 33 km north
+    reply = served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_DEST_LAT")
+    assert reply is not None and reply.param_value == pytest.approx(28.3)
+
+
+def test_a_write_to_every_system_is_refused(served):
+    served.client.mav.param_set_send(0, 191, b"NAV_MAX_STEPS", 500.0, mavlink.MAV_PARAM_TYPE_INT32)
+    served.client.mav.param_request_read_send(1, 191, b"NAV_MAX_STEPS", -1)
+    reply = served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_MAX_STEPS")
+    assert reply is not None and reply.param_value == 1000.0
+
+
+def test_unchanged_value_not_rewritten_and_stale_temporaries_removed(tmp_path):
+    parm = tmp_path / "companion.parm"
+    stale = tmp_path / ".companion.parm.abc123.tmp"      # what a kill during write_parm_file leaves
+    stale.write_text("NAV_SPEED_KMH 1\n")
+    s = Served(parm)
+    try:
+        assert not stale.exists() and s.server.stale_removed == 1
+        s.client.mav.param_set_send(1, 191, b"NAV_SPEED_KMH", 42.0, mavlink.MAV_PARAM_TYPE_REAL32)
+        assert s.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SPEED_KMH") is not None
+        written = parm.stat().st_mtime_ns
+        for _ in range(3):
+            s.client.mav.param_set_send(1, 191, b"NAV_SPEED_KMH", 42.0, mavlink.MAV_PARAM_TYPE_REAL32)
+            assert s.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SPEED_KMH") is not None
+        assert s.server.writes == 1 and parm.stat().st_mtime_ns == written and s.server.sets_accepted == 4
+        assert s.changes == [("NAV_SPEED_KMH", 42.0)]
+    finally:
+        s.close()

@@ -13,9 +13,15 @@ from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _se
 def test_flight_controller_reboot_restarts_the_mission(rig):
     app, fc = rig
     _run_step(app, GOOD)
-    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=900_000))
-    assert app.state == State.RUNNING
-    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # boot time went back
+    for ms in range(2_000, 30_001, 4_000):                                       # the clock ticks on to 30 s
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # one frame 28 s back: no reboot
+    assert app.state == State.RUNNING and app.link.clock.far_past == 1
+    for ms in (2_100, 2_200, 2_300):                                               # the new base ticks on ...
+        app.handle(_msg("ATTITUDE", time_boot_ms=ms, roll=0, pitch=0, yaw=0, rollspeed=0, pitchspeed=0,
+                        yawspeed=0))
+    app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))                                 # ... with the FC's heartbeat
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_400))          # and its SYSTEM_TIME: a reboot
     assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
     assert "rebooted" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
 

@@ -1,0 +1,150 @@
+"""What the companion sends: one helper per output, each going through the link's encoder.
+
+:class:`LinkOutputs` is mixed into :class:`companion.io.link.mavlink_link.MavlinkLink`; it needs
+``mav`` (the encoder), ``fc`` (:class:`~companion.io.link.conventions.FcState`), ``clock``
+(:class:`~companion.io.link.clock.MessageClock`), ``stats`` and ``speed_ceiling_mps``, the start-up
+safety ceiling on speed that no parameter set over the link can raise: every setpoint passes
+:func:`~companion.io.link.conventions.guard_setpoint` with the smaller of the caller's limit and
+that ceiling. ``time_boot_ms`` of a setpoint is the latest flight-controller time seen (a lockstep
+simulator paces its clock on it).
+"""
+from __future__ import annotations
+
+import math
+
+from companion.io.link.conventions import UnsafeSetpoint, guard_setpoint, mavlink
+from companion.io.position_feed import gps_week_time
+
+__all__ = ["EXT_POS_TIME_WRAP_S", "STATUSTEXT_CHUNK", "LinkOutputs"]
+
+GPS_INPUT_IGNORE = (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ | mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT
+                    | mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
+STATUSTEXT_CHUNK = 50
+EXT_POS_TIME_WRAP_S = 250.0   # MAV_CMD_EXTERNAL_POSITION_ESTIMATE param1: wrap <= 250 s
+
+
+class LinkOutputs:
+    """Send helpers (mixin; see the module docstring for what the host class provides)."""
+
+    speed_ceiling_mps: float = math.inf
+
+    def time_boot_ms(self) -> int:
+        return int(self.clock.now_s * 1000.0) & 0xFFFFFFFF if self.clock.started else 0
+
+    def send_heartbeat(self, state: int = mavlink.MAV_STATE_ACTIVE) -> None:
+        self.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, state)
+
+    def send_setpoint(self, course_rad: float, speed_mps: float, max_speed_mps: float) -> bool:
+        """SET_POSITION_TARGET_GLOBAL_INT (velocity, with the yaw where the autopilot wants it), or
+        nothing if :func:`guard_setpoint` refuses it under the smaller of ``max_speed_mps`` and the
+        start-up speed ceiling."""
+        try:
+            sp = guard_setpoint(course_rad, speed_mps, min(max_speed_mps, self.speed_ceiling_mps))
+        except UnsafeSetpoint as err:
+            self.stats.setpoints_refused += 1
+            self.stats.last_refusal = str(err)
+            return False
+        self.mav.set_position_target_global_int_send(
+            self.time_boot_ms(), self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL_INT,
+            self.fc.conventions.setpoint_mask, 0, 0, 0.0, sp.vn_mps, sp.ve_mps, 0.0, 0.0, 0.0, 0.0, sp.yaw_rad, 0.0)
+        self.stats.setpoints_sent += 1
+        return True
+
+    def send_command_long(self, command: int, *params: float) -> None:
+        p = list(params) + [0.0] * (7 - len(params))
+        self.fc.acks.pop(command, None)
+        self.mav.command_long_send(self.fc.sysid, self.fc.compid, command, 0, *p[:7])
+
+    def send_set_mode(self, main: int, sub: int = 0) -> None:
+        """MAV_CMD_DO_SET_MODE with the custom main/sub mode of the detected autopilot."""
+        conv = self.fc.conventions
+        if conv.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            self.send_command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+        else:
+            self.send_command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main)
+
+    def send_guided_mode(self) -> None:
+        c = self.fc.conventions
+        self.send_set_mode(c.guided_main, c.guided_sub)
+
+    def send_hold_mode(self) -> None:
+        c = self.fc.conventions
+        self.send_set_mode(c.hold_main, c.hold_sub)
+
+    def send_arm(self, arm: bool = True) -> None:
+        self.send_command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if arm else 0.0)
+
+    def send_message_interval(self, message_id: int, rate_hz: float) -> None:
+        interval_us = -1.0 if rate_hz < 0 else (0.0 if rate_hz == 0 else 1e6 / rate_hz)
+        self.send_command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, float(message_id), interval_us)
+
+    def send_statustext(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
+        """STATUSTEXT, split into 50-character chunks with a shared id when longer."""
+        data = text.encode("utf-8", errors="replace")
+        if len(data) <= STATUSTEXT_CHUNK:
+            self.mav.statustext_send(severity, data, 0, 0)
+            return
+        self._statustext_id = (self._statustext_id % 65535) + 1
+        chunks = [data[i:i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+        for seq, chunk in enumerate(chunks):
+            self.mav.statustext_send(severity, chunk, self._statustext_id, seq)
+        if len(chunks[-1]) == STATUSTEXT_CHUNK:
+            self.mav.statustext_send(severity, b"", self._statustext_id, len(chunks))
+
+    def send_named_float(self, name: str, value: float) -> None:
+        if len(name) > 10:
+            raise ValueError(f"NAMED_VALUE_FLOAT name {name!r} longer than 10 characters")
+        self.mav.named_value_float_send(self.time_boot_ms(), name.encode("ascii"), float(value))
+
+    def send_external_position(self, lat_deg: float, lon_deg: float, sigma_m: float) -> bool:
+        """MAV_CMD_EXTERNAL_POSITION_ESTIMATE as COMMAND_INT (ArduPilot accepts it only there).
+
+        param1 message time wrapped at 250 s, param2 processing delay 0, param3 1-sigma accuracy
+        (m), x/y latitude/longitude in degE7, z NaN (altitude not used).
+        """
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
+            return False
+        accuracy = float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
+        stamp = math.fmod(self.clock.now_s, EXT_POS_TIME_WRAP_S) if self.clock.started else 0.0
+        lon = ((lon_deg + 180.0) % 360.0) - 180.0
+        self.mav.command_int_send(self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL,
+                                  mavlink.MAV_CMD_EXTERNAL_POSITION_ESTIMATE, 0, 0,
+                                  stamp, 0.0, accuracy, math.nan,
+                                  int(round(lat_deg * 1e7)), int(round(lon * 1e7)), math.nan)
+        return True
+
+    def send_odometry(self, north_m: float, east_m: float, sigma_m: float) -> bool:
+        """ODOMETRY in the flight controller's local NED frame (position only; the rest unknown)."""
+        if not (math.isfinite(north_m) and math.isfinite(east_m)):
+            return False
+        var = float(sigma_m) ** 2 if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
+        nan = math.nan
+        pose_cov = [nan] * 21
+        pose_cov[0], pose_cov[6] = var, var   # upper-triangular row-major: xx at 0, yy at 6
+        self.mav.odometry_send(int(self.clock.now_s * 1e6) if self.clock.started else 0,
+                               mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
+                               float(north_m), float(east_m), nan, [nan, nan, nan, nan], nan, nan, nan,
+                               nan, nan, nan, pose_cov, [nan] * 21, 0, mavlink.MAV_ESTIMATOR_TYPE_NAIVE, 50)
+        return True
+
+    def send_gps_input(self, lat_deg: float, lon_deg: float, sigma_m: float, alt_m: float = 0.0,
+                       satellites: int = 10) -> bool:
+        """GPS_INPUT as a MAVLink GPS (ArduPilot GPSn_TYPE 14, gps_id 1 = the second GPS).
+
+        Position only (velocities flagged ignored: the flight controller derives them from the
+        positions); ``horiz_accuracy`` the honest 1-sigma; GPS week and week-ms from the flight
+        controller's own clock (SYSTEM_TIME), as its GPS checks compare them.
+        """
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
+            return False
+        if self.clock.unix_minus_boot_s is None or not self.clock.started:
+            return False   # no date yet: a GPS without time fails the flight controller's checks
+        unix_s = self.clock.now_s + self.clock.unix_minus_boot_s
+        week, week_ms = gps_week_time(unix_s)
+        accuracy = float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else 100.0
+        lon = ((lon_deg + 180.0) % 360.0) - 180.0
+        self.mav.gps_input_send(int(unix_s * 1e6), 1, GPS_INPUT_IGNORE, week_ms, week, 3,
+                                int(round(lat_deg * 1e7)), int(round(lon * 1e7)), float(alt_m),
+                                1.0, 1.0, 0.0, 0.0, 0.0, 0.0, min(accuracy, 1e6), 5.0, satellites)
+        self.stats.positions_fed += 1
+        return True
