@@ -27,7 +27,12 @@ from companion.io.link.conventions import (
     mavlink,
 )
 from companion.io.link.outputs import LinkOutputs
-from companion.io.link.peers import PEER_CAPACITY, STRANGER_RATE_HZ, PeerPolicy, PeerTable
+from companion.io.link.peers import (
+    PEER_CAPACITY,
+    STRANGER_RATE_HZ,
+    PeerPolicy,
+    PeerTable,
+)
 from companion.io.link.signing import Signing
 from companion.io.link.tlog import Tlog
 from companion.io.link.transport import STREAM, open_transport
