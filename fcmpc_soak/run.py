@@ -69,7 +69,8 @@ def _free_port() -> int:
 
 
 def judge_setpoints(tlogs: list[Path], limit_mps: float) -> tuple[int, int, int]:
-    """(setpoints, non-finite, faster than ``limit_mps``) among the companion's sent setpoints."""
+    """(setpoints, non-finite, faster than ``limit_mps``) among the companion's sent setpoints (system 1,
+    component 191; :class:`~fcmpc_soak.hostile.Hostile` never uses system 1 for a stranger's frames)."""
     from pymavlink import mavutil
 
     total = nonfinite = over = 0
@@ -79,8 +80,8 @@ def judge_setpoints(tlogs: list[Path], limit_mps: float) -> tuple[int, int, int]
             msg = log.recv_match(type="SET_POSITION_TARGET_GLOBAL_INT")
             if msg is None:
                 break
-            if msg.get_srcComponent() != 191:
-                continue
+            if (msg.get_srcSystem(), msg.get_srcComponent()) != (1, 191):
+                continue   # the tlog holds both directions: a stranger's SET_POSITION_TARGET is not ours
             total += 1
             values = (msg.vx, msg.vy, msg.vz, msg.yaw)
             if not all(math.isfinite(v) for v in values):
@@ -220,7 +221,7 @@ def format_table(result: SoakResult) -> str:
         ("failsafes entered", result.failsafes),
         ("control steps during the soak", result.steps_during),
     ]
-    for key in ("bad_frames", "impostor_frames", "peers_evicted", "dropped_stamps", "far_future", "far_past",
+    for key in ("stranger_datagrams_shed", "bad_frames", "impostor_frames", "peers_evicted", "dropped_stamps", "far_future", "far_past",
                 "out_of_order", "param_sets_from_strangers", "bad_signatures"):
         if key in result.link:
             rows.append((f"link: {key}", result.link[key]))

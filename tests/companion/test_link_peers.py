@@ -197,3 +197,28 @@ def test_speed_ceiling_caps_setpoints_whatever_the_caller_says():
     finally:
         link.close()
         receiver.close()
+
+
+def test_a_flood_from_strangers_is_shed_never_the_fcs_frames():
+    """Strangers share a budget of datagrams per wall second (here 10, a frozen clock); beyond it
+    their datagrams are dropped unparsed, while every one of the FC's is parsed."""
+    wall = [0.0]
+    link = MavlinkLink("udpout:127.0.0.1:9", wall_clock=lambda: wall[0], stranger_rate_hz=10.0)
+    link.open()
+    enc = _encoder(1, 1)
+    fc = ("127.0.0.1", 5760)
+    try:
+        for msg in link.feed(fc, _frame(enc, "HEARTBEAT", **AUTOPILOT, mavlink_version=3)):
+            link.observe(msg)
+        stranger = _encoder(200, 1)
+        hb = _frame(stranger, "HEARTBEAT", type=6, autopilot=8, base_mode=0, custom_mode=0, system_status=4,
+                    mavlink_version=3)
+        parsed = sum(len(link.feed(("127.0.0.1", 3000 + k), hb)) for k in range(500))
+        ticks = [link.feed(fc, _frame(enc, "SYSTEM_TIME", time_unix_usec=0, time_boot_ms=1000 + k)) for k in range(50)]
+        assert all(len(t) == 1 for t in ticks)
+        # the burst of 200, less the token the FC's first heartbeat took before it was pinned; then nothing
+        assert parsed == 199 and link.peers.shed == 301
+        wall[0] += 1.0
+        assert sum(len(link.feed(("127.0.0.1", 4000 + k), hb)) for k in range(50)) == 10   # 10 per second
+    finally:
+        link.close()

@@ -27,7 +27,12 @@ from companion.io.link.conventions import (
     mavlink,
 )
 from companion.io.link.outputs import LinkOutputs
-from companion.io.link.peers import PEER_CAPACITY, PeerPolicy, PeerTable
+from companion.io.link.peers import (
+    PEER_CAPACITY,
+    STRANGER_RATE_HZ,
+    PeerPolicy,
+    PeerTable,
+)
 from companion.io.link.signing import Signing
 from companion.io.link.tlog import Tlog
 from companion.io.link.transport import STREAM, open_transport
@@ -66,7 +71,8 @@ class MavlinkLink(LinkOutputs):
     def __init__(self, connect: str, sysid: int | None = None, component: int = COMPANION_COMPONENT,
                  tlog_path=None, wall_clock: Callable[[], float] = time.monotonic, *, fc_compid: int | None = None,
                  gcs_sysids: frozenset[int] = frozenset({255}), speed_ceiling_mps: float | None = None,
-                 signing: Signing | None = None, tlog_max_bytes: int = 0, peer_capacity: int = PEER_CAPACITY) -> None:
+                 signing: Signing | None = None, tlog_max_bytes: int = 0, peer_capacity: int = PEER_CAPACITY,
+                 stranger_rate_hz: float = STRANGER_RATE_HZ) -> None:
         self.connect_text = connect
         self.fixed_sysid = sysid
         self.component = component
@@ -81,7 +87,7 @@ class MavlinkLink(LinkOutputs):
         self.clock = MessageClock()
         self.stats = LinkStats()
         self.peers = PeerTable(self._new_parser, wall_clock, peer_capacity,
-                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)))
+                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)), stranger_rate_hz)
         self.conn = None
         self._mav = None
         self._tlog: Tlog | None = None
@@ -101,6 +107,7 @@ class MavlinkLink(LinkOutputs):
         """What the link refused or dropped, for the session summary and the soak table."""
         out = {"bad_frames": self.stats.bad_frames, "leftover_bytes": self.stats.leftover_bytes,
                "impostor_frames": self.peers.impostor_frames, "peers_evicted": self.peers.evicted,
+               "stranger_datagrams_shed": self.peers.shed,
                "dropped_stamps": self.stats.dropped_stamps, "out_of_order": self.clock.out_of_order,
                "far_future": self.clock.far_future, "far_past": self.clock.far_past,
                "fc_reboots": self.clock.reboots, "time_jumps": self.clock.jumps,
@@ -188,6 +195,8 @@ class MavlinkLink(LinkOutputs):
         """Parse ``data`` from ``address`` (one datagram or stream chunk); the admitted messages."""
         stats = self.stats
         stats.bytes_in += len(data)
+        if not self.peers.admit_datagram(address):
+            return []
         peer = self.peers.peer(address)
         peer.bytes_in += len(data)
         parser = peer.parser
