@@ -114,7 +114,7 @@ def bench_mission_step() -> list[tuple[str, str]]:
 
 def bench_montecarlo() -> list[tuple[str, str]]:
     """Wall seconds of the 50-run, 3-controller Pacific Monte Carlo on all cores."""
-    from scripts.montecarlo import run_montecarlo
+    from montecarlo.batch import run_montecarlo
     from sitl.scenario import load_scenario
 
     scenario = load_scenario("pacific")
