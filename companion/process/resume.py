@@ -14,8 +14,9 @@ the age is judged on the clock the vehicle kept running while the companion was 
 
 * saved no more than ``RESUME_MAX_AGE_S`` ago, mission not finished: the mission is resumed at
   the step it was at (STATUSTEXT "resuming mission N ..."), without a new start-up average;
-* older, finished, or saved before an FC reboot (its clock went back): a new mission starts from
-  the saved estimate ("last estimate"), never from NAV_START in mid-route;
+* older, or saved before an FC reboot (its clock went back): a new mission starts from the saved
+  estimate ("last estimate"), never from NAV_START in mid-route;
+* of a mission that had ended (arrived or failed): said; the next mission starts as configured;
 * unreadable: said, and the start is the usual one (there is nothing to trust).
 """
 from __future__ import annotations
@@ -164,8 +165,10 @@ class Resume:
             app.out.say(f"FcMPC: resuming mission {snap.mission_no} at step {cmd.step} from the state saved "
                         f"{age:.0f} s ago", mavlink.MAV_SEVERITY_NOTICE)
             return
-        why = "finished" if snap.finished else ("saved before an FC reboot" if age < 0.0 else
-                                                f"{age:.0f} s old (resume limit {RESUME_MAX_AGE_S:g} s)")
+        if snap.finished:   # not in mid-route: the next mission starts as configured
+            app.out.say(f"FcMPC: mission {snap.mission_no} of the saved state had ended", mavlink.MAV_SEVERITY_INFO)
+            return
+        why = "saved before an FC reboot" if age < 0.0 else f"{age:.0f} s old (resume limit {RESUME_MAX_AGE_S:g} s)"
         if math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
             app.restart_from = (cmd.est_lat_deg, cmd.est_lon_deg)
             app.out.say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "

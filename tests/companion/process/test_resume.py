@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -115,3 +116,19 @@ def test_the_store_is_atomic_and_says_why_a_file_is_unusable(tmp_path):
     assert not list(tmp_path.glob(".s.navstate.*.tmp"))                   # stale temporary removed
     (tmp_path / "s.navstate").write_bytes(pickle.dumps({"not": "a snapshot"}))
     assert "not a navigator state" in store.load()[1]
+
+
+def test_the_state_of_an_ended_mission_is_not_resumed(tmp_path):
+    _fly_two_steps(tmp_path)
+    store = NavStateStore(tmp_path / "p.navstate")
+    snapshot, _ = store.load()
+    store.save(replace(snapshot, finished=True))
+    app, fc = _app(tmp_path, "second")
+    try:
+        _heard(app, 400.0)
+        app.tick()
+        assert "had ended" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+        assert app.resume.pending is None and app.preparation.start_position()[2] == "NAV_START"
+    finally:
+        app.close()
+        fc.close()
