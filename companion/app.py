@@ -131,6 +131,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "from the FC): i2c:/dev/i2c-1, ubx:/dev/ttyACM0:115200, dronecan:can0, "
                         "dronecan:virtual:vbus0, replay:log.bin?speed=1, or several joined with +; "
                         "default MAVLink only")
+    p.add_argument("--state", default=None, metavar="FILE",
+                   help="the navigator's state, saved atomically every step and read at start: a restart within "
+                        "300 s of message time resumes the mission, an older state starts a new one from its last "
+                        "estimate; default beside --params (<params>.navstate), else in --log-dir")
     p.add_argument("--startup-s", type=float, default=None,
                    help="stationary averaging before the first step, s of message time; default NAV_PERIOD_S")
     p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
@@ -146,7 +150,7 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       lockstep=args.lockstep, exit_when_done=args.exit_when_done, param_encoding=args.param_encoding,
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
-                      sensors=args.sensors, linger_s=args.linger_s,
+                      sensors=args.sensors, linger_s=args.linger_s, state=args.state,
                       fc_compid=args.fc_compid, signing_key=args.signing_key, signing_link_id=args.signing_link_id)
 
 

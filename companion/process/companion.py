@@ -43,6 +43,7 @@ from companion.process.phases import Phases
 from companion.process.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
+from companion.process.resume import Resume
 from companion.sdnotify import Notifier
 
 __all__ = ["CompanionApp", "apply_live_config"]
@@ -100,6 +101,7 @@ class CompanionApp:
         self.stepper = ControlStep(self)
         self.phases = Phases(self)
         self.reporting = Reporting(self)
+        self.resume = Resume(self, self._state_path())
         if self.params.load_error:
             self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
                                         f"{self.params.load_error}")
@@ -161,6 +163,14 @@ class CompanionApp:
         return self.out.events
 
     # ------------------------------------------------------------------ configuration
+    def _state_path(self) -> Path:
+        """--state, else beside the --params file (it outlives the run's log folder), else in the log folder."""
+        if self.opts.state:
+            return Path(self.opts.state)
+        if self.opts.params:
+            return Path(self.opts.params).with_suffix(".navstate")
+        return self.log_dir / "companion.navstate"
+
     def _limits(self) -> HealthLimits:
         c = self.comp_cfg
         return HealthLimits(c.mag_timeout_s, c.att_timeout_s, c.heartbeat_timeout_s)
@@ -321,6 +331,8 @@ class CompanionApp:
         self.fc_view.poll_requests(self.link, now)
         reasons = self.failsafe.evaluate()
         sent = self.phases.tick(now, reasons, dt)
+        if self.state == State.RUNNING:
+            self.resume.maybe_save(now)
         if self.link.fc.detected:
             self.modes.observe(self.link.fc.custom_mode, now)   # after the phase saw the change
         if not sent:

@@ -112,6 +112,7 @@ class ControlStep:
             app.phases.finish(cmd)
             return
         app.next_step_m = t_k + mission.config.period_s
+        app.resume.save()
 
     def excluded(self, t_k: float, meas: Measurement) -> bool:
         """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);

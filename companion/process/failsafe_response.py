@@ -54,6 +54,8 @@ class FailsafeResponse:
             if now - app.fc_detected_at > STARTUP_GRACE_S or not reasons:
                 self.active = bool(reasons)
             return reasons
+        if reasons and app.resume.pending is not None and now - app.fc_detected_at <= STARTUP_GRACE_S:
+            return reasons   # resuming after a restart: the streams had no time to start yet
         if reasons and not self.active:
             self.active = True
             app.out.say(f"FcMPC FAILSAFE: {'; '.join(reasons)}"[:200], mavlink.MAV_SEVERITY_CRITICAL)

@@ -2,7 +2,7 @@
 
 ::
 
-    wait_fc --fc_heard--> startup --averaged--> ready --engaged--> running --ended/gave_up--> done
+    wait_fc --fc_heard--> startup --averaged/resumed--> ready --engaged--> running --ended/gave_up--> done
                             ^  ^                  |                   |
                             |  +---fc_rebooted----+                   |
                             +---------nav_failed / fc_rebooted--------+
@@ -53,6 +53,7 @@ class State:
 class Event:
     FC_HEARD = "fc_heard"            # the first flight-controller heartbeat with a time stamp
     AVERAGED = "averaged"            # the stationary start-up window is full, the heading source known
+    RESUMED = "resumed"              # a recent saved state: no start-up average, the saved mission goes on
     ENGAGED = "engaged"              # armed in GUIDED/OFFBOARD and healthy: the mission starts
     ENDED = "ended"                  # the core says arrived or failed
     NAV_FAILED = "nav_failed"        # solver failure, divergence, non-finite command: restart
@@ -64,6 +65,7 @@ class Event:
 TRANSITIONS: dict[tuple[str, str], str] = {
     (State.WAIT_FC, Event.FC_HEARD): State.STARTUP,
     (State.STARTUP, Event.AVERAGED): State.READY,
+    (State.STARTUP, Event.RESUMED): State.READY,
     (State.STARTUP, Event.FC_REBOOTED): State.STARTUP,
     (State.READY, Event.ENGAGED): State.RUNNING,
     (State.READY, Event.FC_REBOOTED): State.STARTUP,

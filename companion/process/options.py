@@ -32,6 +32,7 @@ class AppOptions:
     max_wall_s: float | None = None
     quiet: bool = False
     sensors: str | None = None
+    state: str | None = None            # the navigator's saved state (resume); default beside --params
     linger_s: float = 0.0               # --exit-when-done: message time after the end before exiting
     fc_compid: int | None = None        # pin the FC's component too (default: the first autopilot's)
     signing_key: str | None = None      # MAVLink 2 signing key file

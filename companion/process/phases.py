@@ -70,6 +70,7 @@ class Phases:
         if app.opts.request_streams:
             app.out.request_streams()
         self.enter_startup(Event.FC_HEARD, "start-up")
+        app.resume.judge_saved()
 
     def enter_startup(self, event: str, why: str) -> None:
         app = self.app
@@ -110,10 +111,15 @@ class Phases:
         fc = app.link.fc
         if fc.armed and fc.guided:
             sent = app.out.zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
-            self.start_mission(now)
+            if app.resume.pending is not None:
+                app.resume.resume_mission(now)
+                self.was_following = True
+            else:
+                self.start_mission(now)
             return sent
         sent = app.out.zero_setpoint()
-        app.preparation.prepare(now)
+        if app.resume.pending is None:
+            app.preparation.prepare(now)
         self.engage(now)
         return sent
 
@@ -164,6 +170,7 @@ class Phases:
         app.mission = prep.take_mission(config)
         app.mission.set_bias(app.bias)
         app.mission_no += 1
+        app.resume.new_mission()
         self.was_following = True
         app.machine.fire(Event.ENGAGED)
         app.last_phase = ""
@@ -246,6 +253,7 @@ class Phases:
         else:
             app.out.say(f"FcMPC: mission {cmd.phase}: {cmd.reason}", mavlink.MAV_SEVERITY_ERROR)
         app.reporting.record_event("done", failed_reason or cmd.reason or cmd.phase)
+        app.resume.save(finished=True)
         app.failsafe.hold_if_guided(app.now)
 
     # ------------------------------------------------------------------ any -> startup
@@ -258,6 +266,7 @@ class Phases:
         app.intake.last_valid.clear()
         self.last_mode_cmd = self.last_arm_cmd = app.failsafe.last_hold_cmd = -math.inf
         app.modes.clear()
+        app.resume.pending = None   # its clock was the FC's old one
         self.our_hold = False
         app.link.fc.last_heartbeat_time_s = app.now
         app.mag.attitude = None

@@ -112,7 +112,7 @@ class Reporting:
                    "arming_refusals": app.fc_view.arming.refusals},
             "elements": ELEMENT_SETS[app.elements_code].label if app.elements_code else "",
             "bias": list(app.bias) if app.bias is not None else None,
-            "mag_excluded_steps": app.plausibility.excluded,
+            "mag_excluded_steps": app.plausibility.excluded, "resumed_from": app.resume.resumed_from,
             "mode_commands": {"confirmed": app.modes.confirmed, "expired": app.modes.expired,
                               "pending": sorted(p.name for p in app.modes.pending.values())},
             "events": app.out.events[-200:], "log_dir": str(app.log_dir),

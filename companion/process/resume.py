@@ -1,0 +1,195 @@
+"""Resume after a crash (issue 10, item 7): the navigator's state saved atomically, read at start.
+
+What is saved (``NavSnapshot``, pickled): the mission's id and number, the restarts so far, the
+last command, the element set and start-up bias, where the mission clock stood (mission time
+since the start, and the next step), and the navigation core's own state: estimate, fusion
+filter (state and covariance), gradient estimate, phase, reference path -- everything of
+:class:`companion.nav.mission.Mission` but the parts rebuilt from its configuration (the field
+model and the QP). Written at every control step, every ``SAVE_EVERY_S`` of message time while
+running (so the time flown since the step is known), and at the end: to a temporary file in the
+same folder, fsync, rename, so a kill at any instant leaves the old state or the new, never half.
+
+At start, once the flight controller is heard (message time is the FC's time since boot, so
+the age is judged on the clock the vehicle kept running while the companion was down):
+
+* saved no more than ``RESUME_MAX_AGE_S`` ago, mission not finished: the mission is resumed at
+  the step it was at (STATUSTEXT "resuming mission N ..."), without a new start-up average;
+* older, or saved before an FC reboot (its clock went back): a new mission starts from the saved
+  estimate ("last estimate"), never from NAV_START in mid-route;
+* of a mission that had ended (arrived or failed): said; the next mission starts as configured;
+* unreadable: said, and the start is the usual one (there is nothing to trust).
+"""
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import tempfile
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.io.mavlink_link import mavlink
+from companion.nav.mission import Command, Mission
+from companion.process.machine import Event
+
+__all__ = ["RESUME_MAX_AGE_S", "SAVE_EVERY_S", "NavSnapshot", "NavStateStore", "Resume"]
+
+RESUME_MAX_AGE_S = 300.0     # message time: the vehicle held this long at most (less than a control period)
+SAVE_EVERY_S = 30.0          # message time between saves while running (besides every step)
+SNAPSHOT_VERSION = 1
+_REBUILT = frozenset({"model", "mpc"})   # Mission attributes rebuilt from its config, not saved
+
+
+@dataclass(frozen=True)
+class NavSnapshot:
+    version: int
+    mission_id: str
+    mission_no: int
+    restarts: int
+    msg_time_s: float            # the FC's message time of the save
+    elapsed_s: float             # mission time since the mission's start, at the save
+    next_step_rel_s: float       # the next step, in mission time since the start
+    command: Command
+    elements_code: int
+    bias: tuple[float, float] | None
+    finished: bool
+    mission_state: dict          # vars(Mission) without _REBUILT
+
+    def mission(self) -> Mission:
+        """The core as it was: built from the saved configuration, then given the saved state."""
+        mission = Mission(self.mission_state["config"])
+        mission.__dict__.update(self.mission_state)
+        return mission
+
+
+class NavStateStore:
+    """One snapshot file, written atomically."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+
+    def save(self, snapshot: NavSnapshot) -> None:
+        data = pickle.dumps(snapshot, protocol=pickle.HIGHEST_PROTOCOL)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            with _quiet():
+                os.unlink(tmp)
+            raise
+
+    def load(self) -> tuple[NavSnapshot | None, str]:
+        """(snapshot, "") / (None, "") when there is none / (None, why it is unusable)."""
+        for stale in self.path.parent.glob(f".{self.path.name}.*.tmp"):   # a kill during a save
+            with _quiet():
+                stale.unlink()
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError:
+            return None, ""
+        except OSError as err:
+            return None, f"cannot read {self.path}: {err.strerror or err}"
+        try:
+            snapshot = pickle.loads(data)   # our own file, written by this process's predecessor
+        except Exception as err:  # noqa: BLE001 - any decoding failure means the same: unusable
+            return None, f"{self.path} is unreadable ({type(err).__name__})"
+        if not isinstance(snapshot, NavSnapshot) or snapshot.version != SNAPSHOT_VERSION:
+            return None, f"{self.path} is not a navigator state of version {SNAPSHOT_VERSION}"
+        return snapshot, ""
+
+
+class _quiet:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return exc[0] is not None and issubclass(exc[0], OSError)
+
+
+class Resume:
+    """Saving while running, and judging the saved state at start (``app``: the CompanionApp)."""
+
+    def __init__(self, app, path: str | os.PathLike[str]) -> None:
+        self.app = app
+        self.store = NavStateStore(path)
+        self.saved, self.load_error = self.store.load()
+        self.pending: NavSnapshot | None = None     # to resume when the vehicle is engaged
+        self.mission_id = ""
+        self.last_save_s = -math.inf
+        self.resumed_from = ""                      # for the summary
+
+    def new_mission(self) -> None:
+        self.mission_id = uuid.uuid4().hex
+
+    # ------------------------------------------------------------------ saving
+    def save(self, finished: bool = False) -> None:
+        app = self.app
+        if app.mission is None or app.command is None:
+            return
+        state = {k: v for k, v in vars(app.mission).items() if k not in _REBUILT}
+        elapsed = app.mission_time() - app.m0
+        snapshot = NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, app.now, elapsed,
+                               app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished, state)
+        try:
+            self.store.save(snapshot)
+        except OSError as err:   # the mission goes on; say it once per failure kind
+            app.out.say(f"FcMPC: cannot save the navigator state: {err.strerror or err}"[:200],
+                        mavlink.MAV_SEVERITY_WARNING)
+        self.last_save_s = app.now
+
+    def maybe_save(self, now: float) -> None:
+        if now - self.last_save_s >= SAVE_EVERY_S:
+            self.save()
+
+    # ------------------------------------------------------------------ at start
+    def judge_saved(self) -> None:
+        """Once the FC is heard (in startup): resume, or start anew from the saved estimate."""
+        app, snap = self.app, self.saved
+        self.saved = None
+        if self.load_error:
+            app.out.say(f"FcMPC: navigator state not used: {self.load_error}"[:200], mavlink.MAV_SEVERITY_WARNING)
+            return
+        if snap is None:
+            return
+        age = app.now - snap.msg_time_s
+        cmd = snap.command
+        if not snap.finished and 0.0 <= age <= RESUME_MAX_AGE_S:
+            self.pending = snap
+            app.machine.fire(Event.RESUMED)
+            app.out.say(f"FcMPC: resuming mission {snap.mission_no} at step {cmd.step} from the state saved "
+                        f"{age:.0f} s ago", mavlink.MAV_SEVERITY_NOTICE)
+            return
+        if snap.finished:   # not in mid-route: the next mission starts as configured
+            app.out.say(f"FcMPC: mission {snap.mission_no} of the saved state had ended", mavlink.MAV_SEVERITY_INFO)
+            return
+        why = "saved before an FC reboot" if age < 0.0 else f"{age:.0f} s old (resume limit {RESUME_MAX_AGE_S:g} s)"
+        if math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
+            app.restart_from = (cmd.est_lat_deg, cmd.est_lon_deg)
+            app.out.say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "
+                        f"{cmd.est_lat_deg:.4f},{cmd.est_lon_deg:.4f}"[:200], mavlink.MAV_SEVERITY_NOTICE)
+
+    def resume_mission(self, now: float) -> None:
+        """READY -> RUNNING with the saved mission: no new start-up, the step clock where it stood."""
+        app, snap = self.app, self.pending
+        self.pending = None
+        app.mission = snap.mission()
+        app.command = snap.command
+        app.elements_code, app.bias = snap.elements_code, snap.bias
+        app.mission_no, app.restarts = snap.mission_no, snap.restarts
+        self.mission_id = snap.mission_id
+        app.m0 = app.mission_time(now) - snap.elapsed_s
+        app.next_step_m = app.m0 + snap.next_step_rel_s
+        app.last_phase = snap.command.phase
+        self.resumed_from = f"mission {snap.mission_no} step {snap.command.step}"
+        app.machine.fire(Event.ENGAGED)
+        remaining = snap.command.remaining_m
+        app.out.say(f"FcMPC: mission {snap.mission_no} resumed at step {snap.command.step}, estimate "
+                    f"{snap.command.est_lat_deg:.4f},{snap.command.est_lon_deg:.4f}"
+                    + (f", {remaining / 1000.0:.1f} km to go" if math.isfinite(remaining) else ""))
+        app.reporting.record_event("resume", self.resumed_from)

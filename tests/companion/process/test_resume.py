@@ -1,0 +1,134 @@
+"""Resume after a crash (issue 10, item 7): the saved navigator state, message by message.
+
+The closed-loop proof with a real SIGKILL is test_resume_closed_loop.py.
+"""
+from __future__ import annotations
+
+import math
+import pickle
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from companion.app import AppOptions, CompanionApp, State
+from companion.io.sensors.base import SampleKind
+from companion.nav.field import model_for_date
+from companion.nav.mission import Mission
+from companion.params import NavConfig, default_values
+from companion.process.resume import RESUME_MAX_AGE_S, NavStateStore
+from tests.companion.process.rig import ARMED_GUIDED, _free_port, _msg, _sent
+
+
+def _app(tmp_path, name: str):
+    port = _free_port()
+    fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    app = CompanionApp(AppOptions(connect=f"udpout:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
+                                  log_dir=str(tmp_path / name), quiet=True, tlog=False))
+    app.open()
+    return app, fc
+
+
+def _heard(app, t_s: float, armed_guided: bool = False) -> None:
+    """The FC's first heartbeat and time stamp (message time ``t_s``), sensors fresh."""
+    hb = ARMED_GUIDED if armed_guided else {**ARMED_GUIDED, "base_mode": 1, "custom_mode": 4}
+    app.handle(_msg("HEARTBEAT", **hb))
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t_s * 1000)))
+    app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+
+
+def _fly_two_steps(tmp_path):
+    """A first run: a real core, its start-up step and the probe step, saved as it goes; then it dies."""
+    app, fc = _app(tmp_path, "first")
+    _heard(app, 1.0)
+    app.machine.state = State.RUNNING
+    app.m0 = 0.0
+    config = NavConfig.from_values(default_values())
+    app.mission = Mission(config)
+    app.mission_no = 1
+    app.resume.new_mission()
+    start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
+    ned = (float(start.x_nt), float(start.y_nt), float(start.z_nt))
+    app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), ned)
+    app.stepper.step(1.0, window_limit_s=0.0)
+    app.mag.averager.add(300.0, float(start.decl_deg) + 0.01, float(start.incl_deg) - 0.01, ned)
+    app.next_tick = math.inf                                            # message time on, no tick
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=361_000))
+    app.stepper.step(361.0)
+    saved = (app.mission.k, app.command, np.copy(app.mission.fusion.kf.P) if hasattr(app.mission.fusion, "kf") else None,
+             app.next_step_m, app.resume.mission_id)
+    app.link.close()     # no orderly close: no summary, no hold
+    fc.close()
+    return saved
+
+
+def test_a_recent_state_resumes_the_mission_where_it_was(tmp_path):
+    k, command, covariance, next_step, mission_id = _fly_two_steps(tmp_path)
+    assert k == 2 and command.phase == "probe2"
+    app, fc = _app(tmp_path, "second")
+    try:
+        _heard(app, 361.0 + RESUME_MAX_AGE_S - 10.0)                 # the FC's clock ran on meanwhile
+        app.tick()
+        texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+        assert "resuming mission 1 at step 1" in texts and "FAILSAFE" not in texts   # (command step 1: probe2)
+        assert app.state == State.READY                              # no new start-up average
+        _heard(app, 361.0 + RESUME_MAX_AGE_S - 9.0, armed_guided=True)
+        app.next_tick = -math.inf
+        app.tick()
+        assert app.state == State.RUNNING and app.mission_no == 1 and app.restarts == 0
+        assert app.mission.k == k and repr(app.command) == repr(command) and app.resume.mission_id == mission_id
+        if covariance is not None:
+            assert np.array_equal(app.mission.fusion.kf.P, covariance)
+        assert app.next_step_m - app.m0 == pytest.approx(next_step)   # the step clock where it stood
+        assert "resumed at step 1" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+        assert app.summary()["resumed_from"] == "mission 1 step 1"
+    finally:
+        app.close()
+        fc.close()
+
+
+@pytest.mark.parametrize("when", ["too old", "before an FC reboot"])
+def test_an_old_state_starts_a_new_mission_from_its_last_estimate(tmp_path, when):
+    _, command, *_ = _fly_two_steps(tmp_path)
+    app, fc = _app(tmp_path, "second")
+    try:
+        _heard(app, 361.0 + RESUME_MAX_AGE_S + 60.0 if when == "too old" else 50.0)
+        app.tick()
+        texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+        assert "new mission from its last estimate" in texts
+        assert app.state == State.STARTUP and app.resume.pending is None
+        lat, lon, source = app.preparation.start_position()
+        assert source == "last estimate" and (lat, lon) == (command.est_lat_deg, command.est_lon_deg)
+        assert (lat, lon) != (app.nav_cfg.start_lat_deg, app.nav_cfg.start_lon_deg)   # never NAV_START mid-route
+    finally:
+        app.close()
+        fc.close()
+
+
+def test_the_store_is_atomic_and_says_why_a_file_is_unusable(tmp_path):
+    store = NavStateStore(tmp_path / "s.navstate")
+    assert store.load() == (None, "")
+    (tmp_path / ".s.navstate.abc.tmp").write_bytes(b"half a save")       # a kill during a save
+    (tmp_path / "s.navstate").write_bytes(b"\x80\x05garbage")
+    snapshot, why = store.load()
+    assert snapshot is None and "unreadable" in why and "s.navstate" in why
+    assert not list(tmp_path.glob(".s.navstate.*.tmp"))                   # stale temporary removed
+    (tmp_path / "s.navstate").write_bytes(pickle.dumps({"not": "a snapshot"}))
+    assert "not a navigator state" in store.load()[1]
+
+
+def test_the_state_of_an_ended_mission_is_not_resumed(tmp_path):
+    _fly_two_steps(tmp_path)
+    store = NavStateStore(tmp_path / "p.navstate")
+    snapshot, _ = store.load()
+    store.save(replace(snapshot, finished=True))
+    app, fc = _app(tmp_path, "second")
+    try:
+        _heard(app, 400.0)
+        app.tick()
+        assert "had ended" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+        assert app.resume.pending is None and app.preparation.start_position()[2] == "NAV_START"
+    finally:
+        app.close()
+        fc.close()
