@@ -30,6 +30,9 @@ import threading
 import time
 from pathlib import Path
 
+from companion.process.companion import CompanionApp
+from companion.process.options import AppOptions
+
 __all__ = ["run"]
 
 REPO = Path(__file__).resolve().parents[1]
@@ -44,13 +47,11 @@ def _free_udp_port() -> int:
 
 def _percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, int(round(q * (len(ordered) - 1)))))]
+    return ordered[min(len(ordered) - 1, max(0, round(q * (len(ordered) - 1))))]
 
 
 def _fly_against_sitl(workdir: Path, sitl_args: list[str], params: str, lockstep: bool, timeout_s: float):
     """Start the simulator, run a CompanionApp here until the simulator exits; (app, sitl summary)."""
-    from companion.app import AppOptions, CompanionApp
-
     port = _free_udp_port()
     parm = workdir / "bench.parm"
     parm.write_text(params, encoding="utf-8")
@@ -72,15 +73,8 @@ def _fly_against_sitl(workdir: Path, sitl_args: list[str], params: str, lockstep
 
     threading.Thread(target=watch, daemon=True).start()
     try:
-        while not app._stop and app.exit_code is None:
-            if app.link.wait_readable(0.02):
-                for _ in range(256):
-                    msgs = app.link.read()
-                    if not msgs:
-                        break
-                    for msg in msgs:
-                        app.handle(msg)
-            app.idle()
+        while not app.stopping:
+            app.spin()
     finally:
         app.close()
         if sitl.poll() is None:
@@ -94,8 +88,6 @@ def _capacity(tlog: Path, params: str, workdir: Path, max_messages: int = 300_00
     """Messages per second through parse_buffer + CompanionApp.handle, from memory."""
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil
-
-    from companion.app import AppOptions, CompanionApp
 
     log = mavutil.mavlink_connection(str(tlog))
     frames = []
@@ -141,8 +133,8 @@ def run(step_sim_s: float = 6000.0, free_sim_s: float = 4000.0, timeout_s: float
         (workdir / "lockstep").mkdir()
         app, sitl = _fly_against_sitl(workdir / "lockstep", ["--lockstep", "--lockstep-period", "1.0", "--duration",
                                                              str(step_sim_s)], params, True, timeout_s)
-        lat = [v * 1e3 for v in app.step_latency_s]
-        core = [v * 1e3 for v in app.core_latency_s]
+        lat = [v * 1e3 for v in app.stepper.step_latency_s]
+        core = [v * 1e3 for v in app.stepper.core_latency_s]
         if lat:
             out.update({"control_steps": len(lat), "step_latency_median_ms": round(statistics.median(lat), 3),
                         "step_latency_p99_ms": round(_percentile(lat, 0.99), 3),

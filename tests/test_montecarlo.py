@@ -7,7 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from scripts.montecarlo import RunRow, main, outlier_fence_km, plot_results
+from montecarlo.plots import outlier_fence_km, plot_results
+from montecarlo.runs import RunRow
+from scripts.montecarlo import main
 from sitl.scenario import load_scenario
 
 
@@ -18,7 +20,8 @@ def test_montecarlo_writes_table_and_results(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "Trajectory length (km)" in printed and "812.1" in printed  # the paper's figure beside ours
     out = tmp_path / "pacific"
-    rows = list(csv.DictReader(open(out / "runs.csv")))
+    with open(out / "runs.csv") as handle:
+        rows = list(csv.DictReader(handle))
     assert {r["controller"] for r in rows} == {"LTV-MPC", "Fc-MPC"} and len(rows) == 4
     summary = json.loads((out / "summary.json").read_text())["summary"]
     fc_remaining = [float(r["remaining_km"]) for r in rows if r["controller"] == "Fc-MPC"]
@@ -64,3 +67,137 @@ def test_trajectory_plot_counts_the_runs_beyond_the_frame(tmp_path):
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any(label.startswith("LTI-MPC: 1 run(s) beyond the frame") and "5000 km" in label for label in labels)
     assert (tmp_path / "trajectories.png").stat().st_size > 10_000
+
+
+# --- engines, sweeps, the Parquet store (issue 13) ----------------------------------------------
+SHORT = ["--param", "NAV_MAX_STEPS=12"]      # runs end at the step limit: a fraction of a second each
+
+
+def _specs(seeds: int = 2):
+    from companion.params import validate_all
+    from montecarlo.batch import plan_runs
+
+    scenario = load_scenario("pacific")
+    values = validate_all({**scenario.nav_overrides(), "NAV_MAX_STEPS": 12})
+    return list(enumerate(plan_runs("pacific", scenario, seeds, [1, 2], values)))
+
+
+def _without_wall(output) -> tuple:
+    """Every field but the wall time, floats by their exact text (NaN equals NaN here)."""
+    from dataclasses import asdict
+
+    row = asdict(output.row)
+    row.pop("wall_s")
+    return tuple((k, repr(v)) for k, v in row.items()), output.lat_deg.tobytes(), output.lon_deg.tobytes()
+
+
+@pytest.mark.slow
+def test_dask_local_cluster_gives_the_local_pool_results_bit_for_bit():
+    """Runs are pure functions of their spec: a 2-worker Dask cluster started here returns the
+    same rows and tracks, bit for bit, as the local pool (one process) for the same seeds."""
+    pytest.importorskip("distributed", reason="the cluster extra is not installed: pip install -e '.[cluster]'")
+    from montecarlo.engines import Engine, run_all
+
+    specs = _specs()
+    local = dict(run_all(specs, Engine("local", 1)))
+    remote = dict(run_all(specs, Engine("dask", 2)))
+    assert sorted(remote) == sorted(local) == list(range(len(specs)))
+    assert {_without_wall(remote[i]) for i in remote} == {_without_wall(local[i]) for i in local}
+    for index, output in local.items():
+        assert _without_wall(remote[index]) == _without_wall(output)
+    # the check can fail: another seed differs
+    assert _without_wall(local[0]) != _without_wall(local[1])
+
+
+def test_local_pool_of_two_gives_the_same_results_as_one_process():
+    from montecarlo.engines import Engine, run_all
+
+    specs = _specs(1)
+    one = dict(run_all(specs, Engine("local", 1)))
+    two = dict(run_all(specs, Engine("local", 2)))
+    assert all(_without_wall(one[i]) == _without_wall(two[i]) for i in one)
+
+
+SWEEP = ["--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
+         "--workers", "1", "--quiet", *SHORT]
+
+
+def test_sweep_writes_one_parquet_row_per_cell_and_seed_and_resumes(tmp_path, capsys):
+    import pyarrow.parquet as pq
+
+    from companion.params import REGISTRY
+    from montecarlo.runs import RunRow
+    from montecarlo.store import RunStore
+
+    assert main([*SWEEP, "--runs", "2", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "8 runs; 0 already stored, 8 flown" in printed
+    folder = tmp_path / "pacific" / "sweep"
+    store = RunStore(folder / "runs")
+    table = store.read()
+    rows = table.to_pylist()
+    assert len(rows) == 8
+    assert len({(r["NAV_PERIOD_S"], r["sensors.mag_noise_nt"], r["seed"]) for r in rows}) == 8
+    assert {(r["NAV_PERIOD_S"], r["sensors.mag_noise_nt"]) for r in rows} == {(360.0, 50.0), (360.0, 450.0),
+                                                                                 (720.0, 50.0), (720.0, 450.0)}
+    columns = set(table.column_names)
+    assert {"run_key", "scenario", "cell"} <= columns
+    assert {spec.name for spec in REGISTRY} <= columns                  # every registry input
+    assert set(RunRow.__dataclass_fields__) <= columns                   # every metric
+    assert {r["controller"] for r in rows} == {"Fc-MPC"} and {r["NAV_CONTROLLER"] for r in rows} == {2}
+    assert all(r["iterations"] <= 12 for r in rows)
+    summary = (folder / "summary.csv").read_text().splitlines()
+    assert len(summary) == 1 + 4                                         # a row per cell
+    assert (folder / "plots" / "heatmap_NAV_PERIOD_S_x_sensors_mag_noise_nt.png").stat().st_size > 5_000
+    assert (folder / "plots" / "line_NAV_PERIOD_S.png").is_file()
+
+    # a third seed per cell: only the 4 new runs fly, the stored ones are kept as they were
+    parts = set(store.parts())
+    walls = {r["run_key"]: r["wall_s"] for r in rows}
+    assert main([*SWEEP, "--runs", "3", "--out", str(tmp_path), "--no-plots"]) == 0
+    assert "12 runs; 8 already stored, 4 flown" in capsys.readouterr().out
+    assert parts < set(store.parts())
+    again = store.read().to_pylist()
+    assert len(again) == 12 and all(walls[r["run_key"]] == r["wall_s"] for r in again if r["run_key"] in walls)
+    assert len(pq.read_table(min(set(store.parts()) - parts))) == 4
+    # the same call again: nothing to fly, no new part file
+    assert main([*SWEEP, "--runs", "3", "--out", str(tmp_path), "--no-plots"]) == 0
+    assert "12 runs; 12 already stored, 0 flown" in capsys.readouterr().out
+    assert len(store.parts()) == len(parts) + 1
+
+
+BAD_SWEEPS = [
+    (["--sweep", "NAV_PERIOD_S"], "expected NAME=V1,V2"),
+    (["--sweep", "NAV_PERIOD_S=180,,720"], "expected NAME=V1,V2"),
+    (["--sweep", "NAV_PERIDO_S=180,360"], "NAV_PERIDO_S"),
+    (["--sweep", "NAV_PERIOD_S=0,360"], "NAV_PERIOD_S"),
+    (["--sweep", "NAV_PERIOD_S=fast"], "NAV_PERIOD_S"),
+    (["--sweep", "NAV_PERIOD_S=180", "--sweep", "nav_period_s=360"], "swept twice"),
+    (["--sweep", "sensors.mag_noise_nt=50,nan"], "sensors.mag_noise_nt"),
+    (["--sweep", "MPC_HORIZON=2,2"], "repeated"),
+    (["--sweep", "MPC_N=2,4,8"], "did you mean"),
+    (["--sweep", "NAV_CONTROLLER=1,2"], "--controllers"),
+]
+
+
+@pytest.mark.parametrize("argv,names", BAD_SWEEPS, ids=[" ".join(a) for a, _ in BAD_SWEEPS])
+def test_bad_sweep_syntax_is_one_line_and_exit_2(tmp_path, capsys, argv, names):
+    code = main([*argv, "--runs", "1", "--quiet", "--out", str(tmp_path)])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(lines) == 1 and lines[0].startswith("fcmpc-montecarlo: --sweep") and names in lines[0], lines
+    assert not any(tmp_path.iterdir())                                   # nothing written
+
+
+def test_bad_sweep_from_the_console_script_is_one_line_and_exit_2(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, "-m", "scripts.montecarlo", "--sweep", "MPC_N=2;4"], cwd=tmp_path,
+                            env=dict(os.environ, PYTHONPATH=str(repo)), capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fcmpc-montecarlo: --sweep 'MPC_N=2;4'"), result.stderr

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["MpcSettings", "MpcSolution", "prediction_matrices", "qp_cost", "MpcController", "SOLVERS"]
+__all__ = ["SOLVERS", "MpcController", "MpcSettings", "MpcSolution", "prediction_matrices", "qp_cost"]
 
 SOLVERS = ("osqp", "daqp")
 
@@ -120,21 +120,40 @@ class _OsqpBackend:
         self.solver.setup(p0, np.zeros(n), a0, -np.ones(2 * n), np.ones(2 * n), verbose=False,
                           warm_starting=True, polishing=False, eps_abs=eps, eps_rel=eps,
                           max_iter=20000, scaling=10)
+        # the compiled solver behind osqp.OSQP (osqp 1.x): updated and solved without the
+        # wrapper's per-call bookkeeping; the public calls are the fallback
+        core = getattr(self.solver, "_solver", None)
+        needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
+        self._core = core if core is not None and all(hasattr(core, a) for a in needed) else None
 
     def solve(self, hess, grad, a_full, lower, upper):
-        self.solver.update(Px=hess[self.p_rows, self.p_cols], Ax=a_full[self.a_rows, self.a_cols],
-                           q=grad, l=lower, u=upper)
-        result = self.solver.solve(raise_error=False)
-        status = str(result.info.status)
-        run_time, iterations = float(result.info.run_time), int(result.info.iter)
+        px, ax = hess[self.p_rows, self.p_cols], a_full[self.a_rows, self.a_cols]
+        if self._core is None:
+            self.solver.update(Px=px, Ax=ax, q=grad, l=lower, u=upper)
+        else:
+            # the same two calls osqp.OSQP.update makes (our bounds are inside +-OSQP_INFTY already)
+            self._core.update_data_vec(q=grad, l=lower, u=upper)
+            self._core.update_data_mat(P_x=px, P_i=None, A_x=ax, A_i=None)
+        x, status, run_time, iterations = self._solve()
         if status != "solved":
             # a warm start from a very different previous problem can stall ("solved inaccurate"
             # after 0 iterations): retry once from zero before calling it a failure
             self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(2 * self.n))
+            x, status, more_time, more_iterations = self._solve()
+            run_time, iterations = run_time + more_time, iterations + more_iterations
+        return x, status == "solved", status, run_time, iterations
+
+    def _solve(self) -> tuple[np.ndarray, str, float, int]:
+        """(x, status, solver run time in s, iterations) of one OSQP solve."""
+        if self._core is None:
             result = self.solver.solve(raise_error=False)
-            status = str(result.info.status)
-            run_time, iterations = run_time + float(result.info.run_time), iterations + int(result.info.iter)
-        return result.x, status == "solved", status, run_time, iterations
+            info, x = result.info, result.x
+        else:
+            # osqp.OSQP.solve copies all 30 info fields into a namespace per call, a third of
+            # an update+solve at N = 2; the extension object answers the four we read
+            self._core.solve()
+            info, x = self._core.info, self._core.solution.x
+        return x, str(info.status), float(info.run_time), int(info.iter)
 
 
 class _DaqpBackend:
@@ -188,6 +207,7 @@ class MpcController:
         self._q_bar = np.concatenate([np.tile(self.q, settings.horizon - 1), self.f])
         self._r_bar2 = 2.0 * np.tile(self.r, settings.horizon)
         self._diag = np.diag_indices(n)
+        self._stack = np.tile(np.arange(2), settings.horizon)   # S(k) repeated over the horizon
         bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
         bounds = bounds[np.isfinite(bounds) & (bounds > 0)]
         self._scale = float(bounds.max()) if bounds.size else 1.0  # x = d * y keeps y of order one
@@ -206,15 +226,15 @@ class MpcController:
         s_target = np.asarray(s_target, dtype=float)
         if not math.isfinite(float(b.sum() + s.sum() + s_target.sum())):
             return self._failed("non-finite model or state")
-        n, horizon = self.n, self.settings.horizon
+        n = self.n
         c = self._c
         for row, col in self._blocks:
             c[2 * row:2 * row + 2, 2 * col:2 * col + 2] = b
         weighted_c = self._q_bar[:, None] * c
         hess = 2.0 * (c.T @ weighted_c)                        # eq. 37
         hess[self._diag] += self._r_bar2
-        free_state = np.tile(s, horizon)                       # M S(k)
-        grad = 2.0 * (weighted_c.T @ (free_state - np.tile(s_target, horizon)))   # eq. 38, factor 2
+        free_state = s[self._stack]                            # M S(k): S repeated over the horizon
+        grad = 2.0 * (weighted_c.T @ (free_state - s_target[self._stack]))   # eq. 38, factor 2
         lower, upper = self._lower, self._upper
         lower[n:] = self._s_lower - free_state
         upper[n:] = self._s_upper - free_state

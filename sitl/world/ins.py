@@ -74,6 +74,7 @@ class InsErrorModel:
         x[9:12] = [draw(config.gyro_bias_degph * DEG_PER_HOUR) for _ in range(3)]
         x[12:15] = [draw(config.gyro_markov_degph * DEG_PER_HOUR) for _ in range(3)]
         self.state = x
+        self._f_constant = self._constant_dynamics()
 
     def _dynamics(self, lat_deg: float, vel_east_mps: float, vel_north_mps: float) -> np.ndarray:
         lat = math.radians(lat_deg)
@@ -83,7 +84,7 @@ class InsErrorModel:
         w_ie = np.array([0.0, EARTH_RATE_RADPS * cl, EARTH_RATE_RADPS * sl])
         w_en = np.array([-vn / m, ve / n, ve * tl / n])
         w_in = w_ie + w_en
-        f = np.zeros((15, 15))
+        f = self._f_constant.copy()   # the blocks that do not depend on the track (below)
         # misalignment: phi_dot = -w_in x phi + d(w_in) - eps
         f[0:3, 0:3] = -_skew(w_in)
         f[0, 4] = -1.0 / m
@@ -91,17 +92,23 @@ class InsErrorModel:
         f[2, 3] = tl / n
         f[1, 6] = -EARTH_RATE_RADPS * sl
         f[2, 6] = EARTH_RATE_RADPS * cl + ve / (n * cl * cl)
-        f[0:3, 9:12] = -np.eye(3)
-        f[0:3, 12:15] = -np.eye(3)
-        # velocity: dv_dot = f_n x phi - (2 w_ie + w_en) x dv (horizontal); f_n = (0, 0, g)
-        f[3:6, 0:3] = _skew(np.array([0.0, 0.0, GRAVITY_MPS2]))
-        f[3:6, 3:6] = -_skew(2.0 * w_ie + w_en)
-        f[5, :] = 0.0  # vertical channel held
+        f[3:5, 3:6] = -_skew(2.0 * w_ie + w_en)[0:2]
         # position: lat_dot = dv_n / M, lon_dot = dv_e / (N cos lat) + lon rate change with lat
         f[6, 4] = 1.0 / m
         f[7, 3] = 1.0 / (n * cl)
         f[7, 6] = ve * tl / (n * cl)
-        # Markov drift
+        return f
+
+    def _constant_dynamics(self) -> np.ndarray:
+        """The part of the error dynamics that is the same at every step: gyro bias and Markov
+        drift into the misalignment, the Markov decay, and the specific force (0, 0, g) acting
+        on the misalignment in the horizontal velocity channel (the vertical row stays zero:
+        the vertical channel is held)."""
+        f = np.zeros((15, 15))
+        f[0:3, 9:12] = -np.eye(3)
+        f[0:3, 12:15] = -np.eye(3)
+        # velocity: dv_dot = f_n x phi - (2 w_ie + w_en) x dv (horizontal); f_n = (0, 0, g)
+        f[3:5, 0:3] = _skew(np.array([0.0, 0.0, GRAVITY_MPS2]))[0:2]
         f[12:15, 12:15] = -np.eye(3) / self.config.gyro_markov_tau_s
         return f
 

@@ -178,14 +178,14 @@ def test_can_magnetometer_going_silent_is_a_failsafe(rig: Rig) -> None:
     # (in its own thread): not the event text's time, printed to 0.1 s, nor last_valid read
     # after a sleep, which raced the app's thread still taking the last CAN frames
     seen_at_failsafe: list[tuple[float, float]] = []
-    say = app._say
+    say = app.out.say
 
     def spy(text: str, *args, **kwargs):
         if "FAILSAFE" in text and not seen_at_failsafe:
             seen_at_failsafe.append((app.now, app.last_valid[SampleKind.MAG]))
         return say(text, *args, **kwargs)
 
-    app._say = spy
+    app.out.say = spy
     # the CAN node stops; the FC keeps talking, message time runs 5x faster than the wall
     rig.until(lambda: "FAILSAFE" in rig.texts() and "sensor source" in rig.texts(), dt=0.05, can_on=False)
     t_fs, last = seen_at_failsafe[0]

@@ -112,7 +112,7 @@ def test_explicit_cof_path_matches_shipped_copy(shared_data: Path, wmm2020: Worl
 
 def test_schmidt_legendre_polynomials_match_scipy() -> None:
     special = pytest.importorskip("scipy.special")
-    n_idx, m_idx, q_poly, dq_poly = field._schmidt_polynomials(field.WMM_DEGREE)
+    n_idx, m_idx, q_poly, dq_poly = field.schmidt_polynomials(field.WMM_DEGREE)
     assert n_idx.size == 90
     s = np.linspace(-1.0, 1.0, 201)
     c = np.sqrt(1.0 - s * s)

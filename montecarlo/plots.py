@@ -1,6 +1,6 @@
-"""The Monte Carlo's plots: trajectories (robust to a wandering run), miss distances, storm figures.
+"""The Monte Carlo's plots: trajectories (robust to a wandering run) and miss distances (Fig. 4-9).
 
-Split out of :mod:`scripts.montecarlo`, which writes them after a run.
+matplotlib is imported when a plot is drawn, so workers never load it.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from sitl.scenario import Scenario
 
-__all__ = ["plot_results", "outlier_fence_km"]
+__all__ = ["outlier_fence_km", "plot_results"]
 
 
 def plot_results(out: Path, scenario: Scenario, rows: list, tracks: list, storm: bool) -> list[Path]:
@@ -88,5 +88,3 @@ def outlier_fence_km(rows: list, route_km: float) -> float:
     q1, q3 = np.percentile(dev, [25, 75])
     return float(max(q3 + 3.0 * (q3 - q1), 0.05 * route_km))
 
-
-# --- main --------------------------------------------------------------------------------------

@@ -1,0 +1,211 @@
+"""Element gradients and the geomagnetic position fix (the paper's eq. 49) on a field model.
+
+* :func:`element_gradient` / :func:`decl_incl_gradient`: the Jacobian ``G = dS/d(east, north)``
+  of an element set's S in element units per metre, by central differences in the local plane.
+* :func:`element_fix` / :func:`geomagnetic_fix`: the position (lambda_c, phi_c) whose model
+  elements equal measured ones, by Newton iteration from a prior.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from companion.nav.elements import ELEMENT_SETS, ElementSet
+from companion.nav.geo import offset_position
+from companion.nav.wmm import WorldMagneticModel
+
+__all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient",
+           "geomagnetic_fix"]
+
+
+def _elements_and_gradient(
+    model: WorldMagneticModel, lat_deg: float, lon_deg: float, alt_m: float, year: float, step_m: float,
+    elements: ElementSet = ELEMENT_SETS[ElementSet.PAPER],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two elements S at the point and G = dS/d(east, north) per metre, from one model call.
+
+    Central differences over +-step_m east and north in the local tangent plane; the error is
+    O(step^2) times the third derivative, negligible for the smooth degree-12 field at 500 m.
+    Declination differences are wrapped, so G stays right where D crosses +-180 degrees.
+    """
+    east = np.array([0.0, step_m, -step_m, 0.0, 0.0])
+    north = np.array([0.0, 0.0, 0.0, step_m, -step_m])
+    lats, lons = offset_position(lat_deg, lon_deg, east, north)
+    values = elements.values(model.elements(lats, lons, alt_m, year))   # (2, 5)
+    span = 2.0 * step_m
+    gradient = np.stack([elements.difference(values[:, 1], values[:, 2]),
+                         elements.difference(values[:, 3], values[:, 4])], axis=1) / span
+    return values[:, 0].copy(), gradient
+
+
+def element_gradient(
+    model: WorldMagneticModel,
+    elements: ElementSet,
+    lat_deg: float,
+    lon_deg: float,
+    alt_m: float,
+    year: float,
+    step_m: float = 500.0,
+) -> np.ndarray:
+    """Jacobian ``G = dS/d(east, north)`` of an element set's S, per metre (rows in the set's order)."""
+    if not (math.isfinite(step_m) and step_m > 0.0):
+        raise ValueError(f"step_m must be a positive number of metres, got {step_m}")
+    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m, elements)[1]
+
+
+def decl_incl_gradient(
+    model: WorldMagneticModel,
+    lat_deg: float,
+    lon_deg: float,
+    alt_m: float,
+    year: float,
+    step_m: float = 500.0,
+) -> np.ndarray:
+    """Jacobian ``G = d(D, I)/d(east, north)`` at a position, in degrees per metre.
+
+    Rows (D, I), columns (east, north) of the MPC's local plane (x east, y north, metres), by
+    central differences of +-``step_m`` metres (:func:`companion.nav.geo.offset_position`), all
+    four points in one vectorised model call. Declination differences are wrapped, so G stays
+    right where D crosses +-180 degrees. :func:`element_gradient` on the paper's element set.
+    """
+    return element_gradient(model, ELEMENT_SETS[ElementSet.PAPER], lat_deg, lon_deg, alt_m, year, step_m)
+
+
+class PositionFixError(RuntimeError):
+    """The geomagnetic position fix failed: no convergence, ill-conditioned gradient or bad input."""
+
+
+@dataclass(frozen=True)
+class PositionFix:
+    """A geomagnetic position fix (the paper's (lambda_c, phi_c), eq. 49).
+
+    ``lat_deg``, ``lon_deg``: WGS84 degrees. ``iterations``: Newton steps taken.
+    ``residual_deg``: norm of the element residual at the fix, in the elements' units (degrees
+    for (D, I); mixed degrees and nT for (I, F)). ``condition``: 2-norm
+    condition number of G at the fix (large means one direction is poorly observable).
+    ``gradient``: the model's G at the fix, element units per metre (rows in the element set's
+    order; columns east, north): an element error e maps to a position error G^-1 e.
+    """
+
+    lat_deg: float
+    lon_deg: float
+    iterations: int
+    residual_deg: float
+    condition: float
+    gradient: np.ndarray | None = None
+
+
+def _condition_2x2(g: np.ndarray) -> float:
+    """2-norm condition number of a 2x2 matrix (closed form; inf when singular, NaN propagates)."""
+    a, b, c, d = (float(v) for v in g.ravel())
+    frobenius2 = a * a + b * b + c * c + d * d
+    det = abs(a * d - b * c)
+    if det == 0.0:
+        return math.inf
+    # sigma_max / sigma_min from sigma1^2 + sigma2^2 = |G|_F^2 and sigma1 * sigma2 = |det G|
+    ratio = frobenius2 / (2.0 * det)
+    return ratio + math.sqrt(max(ratio * ratio - 1.0, 0.0))
+
+
+# Beyond this latitude the local east/north plane (and the +-step gradient) degenerates.
+_MAX_FIX_LAT_DEG = 89.5
+
+
+def geomagnetic_fix(
+    model: WorldMagneticModel,
+    decl_deg: float,
+    incl_deg: float,
+    prior_lat_deg: float,
+    prior_lon_deg: float,
+    alt_m: float,
+    year: float,
+    **newton: float,
+) -> PositionFix:
+    """The position whose model (D, I) equals the measured (D, I): the paper's eq. 49.
+
+    :func:`element_fix` on the paper's element set; ``newton`` are its iteration settings
+    (``max_iter``, ``tol_m``, ``max_step_m``, ``max_condition``, ``step_m``).
+    """
+    return element_fix(model, ELEMENT_SETS[ElementSet.PAPER], (decl_deg, incl_deg), prior_lat_deg,
+                       prior_lon_deg, alt_m, year, **newton)
+
+
+def element_fix(
+    model: WorldMagneticModel,
+    elements: ElementSet,
+    target: ArrayLike,
+    prior_lat_deg: float,
+    prior_lon_deg: float,
+    alt_m: float,
+    year: float,
+    max_iter: int = 20,
+    tol_m: float = 1.0,
+    max_step_m: float = 200e3,
+    max_condition: float = 1e6,
+    step_m: float = 500.0,
+) -> PositionFix:
+    """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
+
+    Newton iteration on the square system ``S(p) = target`` in the local east/north plane,
+    starting at the prior position: at each iterate p solve ``G dp = -r`` with the residual
+    ``r = S(p) - target`` (declination wrapped) and G from :func:`element_gradient`, shorten dp
+    to at most ``max_step_m`` metres, and move with :func:`companion.nav.geo.offset_position`.
+    It has converged once a step is shorter than ``tol_m`` metres; the fix is the position after
+    that step, with its residual and condition.
+
+    Element contours can cross more than once on the globe; the iteration finds the crossing the
+    prior leads to, so the prior should be within a few hundred km. Raises PositionFixError for
+    non-finite inputs, when cond(G) exceeds ``max_condition`` (the two contours nearly parallel:
+    the fix is unobservable along one direction), when an iterate nears a geographic pole, or
+    when ``max_iter`` steps do not converge (e.g. a pair the field never takes nearby).
+    A year outside the model's span raises the model's ValueError.
+    """
+    target = np.asarray(target, dtype=float)
+    inputs = {
+        **dict(zip(elements.names, (float(v) for v in target))), "prior_lat_deg": prior_lat_deg,
+        "prior_lon_deg": prior_lon_deg, "alt_m": alt_m, "year": year,
+    }
+    bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
+    if bad:
+        raise PositionFixError(f"geomagnetic fix needs finite inputs, got {bad}")
+    if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and step_m > 0.0):
+        raise ValueError(
+            f"need max_iter >= 1 and positive tol_m, max_step_m, step_m; got {max_iter}, {tol_m}, "
+            f"{max_step_m}, {step_m}"
+        )
+    if abs(prior_lat_deg) > _MAX_FIX_LAT_DEG:
+        raise PositionFixError(
+            f"prior latitude {prior_lat_deg} deg is too close to a pole for the local east/north plane"
+        )
+
+    lat, lon = float(prior_lat_deg), float(prior_lon_deg)
+    last_step_m = math.inf
+    for iteration in range(max_iter + 1):
+        values, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m, elements)
+        residual = elements.difference(values, target)
+        residual_norm = math.hypot(*residual)
+        condition = _condition_2x2(gradient)
+        where = f"at ({lat:.6f}, {lon:.6f}) deg after {iteration} iterations, residual {residual_norm:.3g}"
+        if not condition <= max_condition:  # also catches NaN
+            raise PositionFixError(
+                f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) {where}"
+            )
+        if last_step_m < tol_m:
+            return PositionFix(lat, lon, iteration, residual_norm, condition, gradient)
+        if iteration == max_iter:
+            break
+        step = np.linalg.solve(gradient, -residual)
+        last_step_m = math.hypot(*step)
+        if last_step_m > max_step_m:
+            step *= max_step_m / last_step_m
+        new_lat, new_lon = offset_position(lat, lon, step[0], step[1])
+        lat, lon = float(new_lat), float(new_lon)
+        if abs(lat) > _MAX_FIX_LAT_DEG:
+            raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; {where}")
+    raise PositionFixError(
+        f"no convergence within {max_iter} iterations: {where}, last Newton step {last_step_m:.3g} m "
+        f"(target {elements.label} = {tuple(float(v) for v in target)})"
+    )

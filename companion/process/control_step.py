@@ -1,0 +1,150 @@
+"""One control step: the period's average and the INS position into the core, its command checked.
+
+Every NAV_PERIOD_S of *mission time* the averaged (D, I) (or (I, F)) and the flight
+controller's INS position (GLOBAL_POSITION_INT; dead reckoning on the commanded velocity when
+it is missing; nothing while that position is GPS-aided or our own estimate fed back) go into
+the core. A non-finite command, a solver failure or an estimate diverging from the geomagnetic
+fix by COMP_DIVERGE_KM is a navigation failure (:meth:`Phases.nav_failure`).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from companion.failsafe import diverged
+from companion.io.mavlink_link import mavlink
+from companion.nav.geo import geodesic_distance_m, offset_position
+from companion.nav.mission import Measurement, Phase
+from companion.process.options import FC_POSITION_MAX_AGE_S
+from companion.process.plausibility import judge
+
+__all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
+
+SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
+
+
+class ControlStep:
+    """The step, its latencies and the dead-reckoned INS position between FC positions."""
+
+    def __init__(self, app) -> None:   # the CompanionApp wiring this part
+        self.app = app
+        self.dr: tuple[float, float, float] | None = None          # (time, lat, lon) dead reckoning
+        self.step_latency_s: list[float] = []
+        self.core_latency_s: list[float] = []
+
+    # ------------------------------------------------------------------ INS position
+    def advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
+        app = self.app
+        pos = app.decoder.fc_position
+        if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+            self.dr = (now, pos.lat_deg, pos.lon_deg)
+            return
+        if self.dr is None:
+            return
+        if moving and app.command is not None and dt > 0.0:
+            c, v = app.command.course_rad, app.command.speed_mps
+            lat, lon = offset_position(self.dr[1], self.dr[2], v * math.sin(c) * dt, v * math.cos(c) * dt)
+            self.dr = (now, float(lat), float(lon))
+
+    def ins_position(self, now: float) -> tuple[float, float, str]:
+        app = self.app
+        independent, why = app.fc_view.position_independent(now)
+        if not independent:   # GPS-aided or our own estimate: never an INS to fuse with
+            return math.nan, math.nan, f"none: FC position {why}"
+        pos = app.decoder.fc_position
+        if pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+            return pos.lat_deg, pos.lon_deg, "fc"
+        if self.dr is not None:
+            return self.dr[1], self.dr[2], "dead_reckoning"
+        return math.nan, math.nan, "none"
+
+    # ------------------------------------------------------------------ the step
+    def step(self, t_k: float, window_limit_s: float | None = None, avg=None) -> None:
+        """The control step at mission time ``t_k`` (``avg``: the start-up average for the first)."""
+        app = self.app
+        wall0 = time.perf_counter()
+        now = app.now
+        if app.params_dirty:
+            app.apply_params()
+        mission = app.mission
+        period = mission.config.period_s
+        if avg is None:
+            avg = app.mag.take(t_k)
+        if not avg.valid:
+            # nothing to measure (should not happen: a silent magnetometer pauses the mission);
+            # keep flying the command and measure again one period later (the core's dead
+            # reckoning uses the actual time between steps)
+            app.next_step_m = t_k + period
+            app.out.say("FcMPC: no magnetometer samples in the period, step postponed", mavlink.MAV_SEVERITY_WARNING)
+            return
+        window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
+        ins_lat, ins_lon, ins_source = self.ins_position(now)
+        meas = Measurement(t_k - app.m0, avg.decl_deg, app.preparation.inclination(avg), ins_lat, ins_lon, window,
+                           avg.f_nt)
+        if self.excluded(t_k, meas):
+            app.next_step_m = t_k + period   # fly the last command; measure again one period later
+            return
+        core0 = time.perf_counter()
+        cmd = mission.step(meas)
+        core_latency = time.perf_counter() - core0
+        nav_fault = self.fault(cmd)
+        app.out.publish(cmd, avg)
+        if app.fc_view.feeding_own and cmd.phase == Phase.CRUISE:
+            app.fc_view.feed.correct_to(now, cmd.est_lat_deg, cmd.est_lon_deg, app.out.feed_sigma())
+        latency = time.perf_counter() - wall0
+        self.step_latency_s.append(latency)
+        self.core_latency_s.append(core_latency)
+        app.reporting.record_step(cmd, meas, avg, ins_source, latency, "step", nav_fault or cmd.reason)
+        if nav_fault:
+            app.phases.nav_failure(nav_fault, cmd)
+            return
+        previous = app.command
+        if previous is None or abs(previous.course_rad - cmd.course_rad) > 0.02 or previous.speed_mps != cmd.speed_mps:
+            app.mag.settle_until_s = now + SETTLE_AFTER_COMMAND_S   # turn and speed transient: no I_g
+        app.command = cmd
+        if cmd.phase != app.last_phase:
+            app.out.say(f"FcMPC: step {cmd.step} phase {cmd.phase}"
+                        + (f", {cmd.remaining_m / 1000.0:.1f} km to go" if math.isfinite(cmd.remaining_m) else "")
+                        + (f": {cmd.reason}" if cmd.reason else ""),
+                        mavlink.MAV_SEVERITY_NOTICE if cmd.phase != Phase.FAILED else mavlink.MAV_SEVERITY_ERROR)
+            app.last_phase = cmd.phase
+        if cmd.done:
+            app.phases.finish(cmd)
+            return
+        app.next_step_m = t_k + mission.config.period_s
+
+    def excluded(self, t_k: float, meas: Measurement) -> bool:
+        """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);
+        True if it is excluded (said, recorded). The first step has no prediction to judge against."""
+        app = self.app
+        cmd, mission = app.command, app.mission
+        if cmd is None or cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
+            return False
+        dt = max(meas.time_s - 0.5 * meas.window_s - cmd.time_s, 0.0)   # to the centre of the window
+        flown = cmd.speed_mps * dt
+        lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
+                                   flown * math.cos(cmd.course_rad))
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
+        config = mission.config
+        judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
+                          meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits)
+        said = app.plausibility.verdict(judgement)
+        if said is not None:
+            app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))
+        if judgement.ok:
+            return False
+        app.reporting.record_event("excluded", judgement.words())
+        return True
+
+    def fault(self, cmd) -> str:
+        """Why ``cmd`` is a navigation failure ("" if it is not)."""
+        if not cmd.done and not (math.isfinite(cmd.course_rad) and math.isfinite(cmd.speed_mps)):
+            return "non-finite command from the navigation core"
+        if not cmd.solver_ok:
+            return f"solver failure: {cmd.reason}"
+        gap = geodesic_distance_m(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg) \
+            if all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg,
+                                              cmd.fix_lon_deg)) else math.nan
+        if diverged(gap, self.app.comp_cfg.diverge_m):
+            return f"estimate diverged: {gap / 1000.0:.1f} km from the geomagnetic fix"
+        return ""

@@ -1,0 +1,191 @@
+"""What the companion sends: STATUSTEXT, its heartbeat, setpoints, the estimate and the GPS_INPUT feed.
+
+No setpoint leaves without :func:`~companion.io.mavlink_link.guard_setpoint` (inside
+:meth:`~companion.io.mavlink_link.MavlinkLink.send_setpoint`). Times are message time unless
+a name ends in ``_wall``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+from companion import wrap_2pi
+from companion.io.mavlink_link import mavlink
+from companion.nav.geo import enu_offset, offset_position
+from companion.nav.mission import Command, Phase
+from companion.process.machine import State
+from companion.process.options import FC_POSITION_MAX_AGE_S, STARTUP_GRACE_S
+
+__all__ = ["MAG_STREAM_HZ", "STREAMS_HZ", "Outputs"]
+
+ECHO_SIGMA_M = 50.0               # what the echo of the FC's own GPS-aided position is worth to the feed
+FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
+ECHO_SATELLITES = 6               # fewer than a real receiver: the FC keeps its own GPS as primary
+FEED_SATELLITES = 10
+
+# Streams requested from the flight controller (MAV_CMD_SET_MESSAGE_INTERVAL), Hz.
+STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "GPS2_RAW": 1.0, "SYSTEM_TIME": 1.0}
+MAG_STREAM_HZ = 10.0
+
+
+class Outputs:
+    """The companion's sink: every message it originates goes through here."""
+
+    def __init__(self, app) -> None:   # the CompanionApp wiring this part
+        self.app = app
+        self.link = app.link
+        self.events: list[str] = []       # everything said, with its message time (summary.json)
+        self.last_hb_sent = -math.inf
+        self.last_hb_sent_wall = -math.inf
+        self.stream_since = math.nan      # message time since setpoints stream without a gap
+        self.next_feed_s = -math.inf
+
+    # ------------------------------------------------------------------ words
+    def stamp(self) -> str:
+        """``[message time]``, or ``[no FC time]`` before the first time-stamped message."""
+        now = self.app.now
+        return f"[{now:10.1f}]" if math.isfinite(now) else "[no FC time]"
+
+    def say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
+        """STATUSTEXT to the vehicle, a line on stderr (unless --quiet), an event in the summary."""
+        self.events.append(f"{self.stamp()} {text}")
+        if not self.app.opts.quiet:
+            print(f"fcmpc-companion {self.stamp()} {text}", file=sys.stderr, flush=True)
+        if self.link.conn is not None:
+            self.link.send_statustext(text, severity)
+
+    def heartbeat(self) -> None:
+        app = self.app
+        state = mavlink.MAV_STATE_CRITICAL if app.failsafe_active else (
+            mavlink.MAV_STATE_ACTIVE if app.state == State.RUNNING else mavlink.MAV_STATE_STANDBY)
+        self.link.send_heartbeat(state)
+        self.last_hb_sent = app.now if self.link.clock.started else -math.inf
+        self.last_hb_sent_wall = time.monotonic()
+
+    def request_streams(self) -> None:
+        link, app = self.link, self.app
+        mag_msg = app.opts.mag_message or ("HIGHRES_IMU" if link.fc.conventions.param_bytewise else "RAW_IMU")
+        link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{mag_msg}"), MAG_STREAM_HZ)
+        for name, hz in STREAMS_HZ.items():
+            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), hz)
+        if app.comp_cfg.position_publish == 1:
+            link.send_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 2.0)
+
+    # ------------------------------------------------------------------ setpoints
+    def zero_setpoint(self) -> bool:
+        att = self.app.mag.attitude
+        course = wrap_2pi(att.yaw_rad) if att is not None else 0.0
+        return self.stream(course, 0.0)
+
+    def stream(self, course_rad: float, speed_mps: float) -> bool:
+        app = self.app
+        limit = app.mission.config.speed_mps if app.mission is not None else app.nav_cfg.speed_mps
+        ok = self.link.send_setpoint(course_rad, speed_mps, limit)
+        if ok and not math.isfinite(self.stream_since):
+            self.stream_since = app.now
+        return ok
+
+    # ------------------------------------------------------------------ the estimate
+    def publish(self, cmd: Command, avg) -> None:
+        """Each step: the measurement and the estimate as NAMED_VALUE_FLOAT, and the estimate to the
+        FC (EXTERNAL_POSITION_ESTIMATE with COMP_POS_PUB 0, ODOMETRY with 1) while cruising."""
+        link, app = self.link, self.app
+        for name, value in (("FC_D", avg.decl_deg), ("FC_I", avg.incl_deg), ("FC_F", avg.f_nt), ("FC_ERR", cmd.est_sigma_m),
+                            ("FC_REM", cmd.remaining_m), ("FC_SOLV", cmd.solver_time_s), ("FC_STEP", cmd.step)):
+            if math.isfinite(value):
+                link.send_named_float(name, value)
+        if cmd.phase != Phase.CRUISE or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
+            return
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
+        mode = app.comp_cfg.position_publish
+        if mode == 0:
+            link.send_external_position(cmd.est_lat_deg, cmd.est_lon_deg, sigma)
+        elif mode == 1:
+            origin = self.local_origin()
+            if origin is not None:
+                east, north = enu_offset(origin[0], origin[1], cmd.est_lat_deg, cmd.est_lon_deg)
+                link.send_odometry(float(north), float(east), sigma)
+
+    def local_origin(self) -> tuple[float, float] | None:
+        """The flight controller's local NED origin from GLOBAL_POSITION_INT and LOCAL_POSITION_NED."""
+        pos, local = self.app.decoder.fc_position, self.app.local_ned
+        if pos is None or local is None or abs(pos.time_s - local[0]) > 1.0:
+            return None
+        lat, lon = offset_position(pos.lat_deg, pos.lon_deg, -local[2], -local[1])
+        return float(lat), float(lon)
+
+    # ------------------------------------------------------------------ GPS_INPUT
+    def feed_due(self, now: float) -> None:
+        """Called for every flight-controller message: the feed at 10 Hz of message time (ArduPilot
+        calls a GPS unhealthy when its updates average over 245 ms apart)."""
+        if now >= self.next_feed_s and self.app.state != State.WAIT_FC:
+            self.next_feed_s = now + FEED_PERIOD_S
+            self.feed_position(now)
+
+    def feed_position(self, now: float) -> None:
+        """GPS_INPUT at the tick rate (COMP_POS_PUB 3), see :mod:`companion.fc_view`.
+
+        While the FC's own GPS has a fix, the feed echoes the FC's GPS-aided position, claiming
+        fewer satellites than a real receiver, so the FC keeps its own GPS as primary and its
+        arming checks see a healthy second GPS. Once its GPS is lost, the feed flies on from the
+        last echo with the commanded velocity and blends towards the navigator's estimate.
+        """
+        app = self.app
+        view, feed = app.fc_view, app.fc_view.feed
+        if not view.feed_wanted() or app.state == State.WAIT_FC:
+            feed.stop()
+            return
+        pos = app.decoder.fc_position
+        fresh = pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S
+        if view.gps_has_fix(now):
+            if fresh:
+                feed.start(now, pos.lat_deg, pos.lon_deg, ECHO_SIGMA_M)
+                if view.feeding_own:
+                    self.say("FcMPC: FC has GPS again: position feed echoes it", mavlink.MAV_SEVERITY_NOTICE)
+                view.feeding_own = False
+                self.link.send_gps_input(pos.lat_deg, pos.lon_deg, app.comp_cfg.feed_accuracy_m,
+                                         satellites=ECHO_SATELLITES)
+            return
+        if not view.gps_seen and app.now - app.fc_detected_at < STARTUP_GRACE_S:
+            return   # no GPS_RAW_INT yet: do not take a slow stream for a lost GPS
+        estimate = self.current_estimate()
+        if not feed.started:
+            if estimate is None:
+                return
+            feed.start(now, estimate[0], estimate[1], self.feed_sigma())
+        if not view.feeding_own:
+            view.feeding_own = True
+            if estimate is not None:
+                feed.correct_to(now, estimate[0], estimate[1], self.feed_sigma())
+            self.say("FcMPC: FC has no GPS: feeding our position (GPS_INPUT)", mavlink.MAV_SEVERITY_NOTICE)
+        following = app.state == State.RUNNING and not app.failsafe_active and not app.clock.paused
+        cmd = app.command if following else None
+        vn, ve = (cmd.speed_mps * math.cos(cmd.course_rad), cmd.speed_mps * math.sin(cmd.course_rad)) \
+            if cmd is not None and not cmd.done else (0.0, 0.0)
+        if (vn, ve) != feed.velocity_ne:
+            feed.set_velocity(now, vn, ve)
+        sample = feed.sample(now)
+        if sample is not None:
+            self.link.send_gps_input(sample.lat_deg, sample.lon_deg, app.comp_cfg.feed_accuracy_m,
+                                     satellites=FEED_SATELLITES)
+
+    def current_estimate(self) -> tuple[float, float] | None:
+        """The navigator's latest position: the mission's estimate, else the start it would use."""
+        app = self.app
+        cmd = app.command
+        if cmd is not None and math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
+            # flown on with the command since its step (mission time stops while paused)
+            dt = max(app.mission_time() - app.m0 - cmd.time_s, 0.0) if not cmd.done else 0.0
+            lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, cmd.speed_mps * math.sin(cmd.course_rad) * dt,
+                                       cmd.speed_mps * math.cos(cmd.course_rad) * dt)
+            return float(lat), float(lon)
+        lat, lon, _ = app.preparation.start_position()
+        return (lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None
+
+    def feed_sigma(self) -> float:
+        app = self.app
+        cmd = app.command
+        if cmd is not None and math.isfinite(cmd.est_sigma_m):
+            return cmd.est_sigma_m
+        return math.sqrt(app.nav_cfg.fusion_rc_m2)

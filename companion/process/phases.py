@@ -1,0 +1,274 @@
+"""What each phase of :mod:`companion.process.machine` does on a control tick, and what its
+transitions do.
+
+``startup``  the vehicle is stationary while D and I are averaged over the start-up window
+             (default one control period), which becomes the first measurement; a failsafe
+             reason or a moving vehicle starts the window again.
+``ready``    zero-velocity setpoints (a sliding start-up window meanwhile); with COMP_ARM_ENABLE 1
+             GUIDED (ArduPilot) or, after >= 1 s of setpoints, OFFBOARD (PX4), then arm, backing
+             off when the FC refuses; with 0 the operator does so. Armed in GUIDED/OFFBOARD: the
+             mission starts (``engaged``).
+``running``  stream the command; every NAV_PERIOD_S of mission time a control step. The mission
+             pauses whenever the vehicle is not following (failsafe, or not armed in
+             GUIDED/OFFBOARD). A mode change the companion did not command is respected: the
+             autopilot's own failsafe is waited out, a pilot's or ground station's pauses the
+             mission until GUIDED/OFFBOARD is selected again.
+``done``     setpoints stop, hold mode is commanded.
+
+Navigation failures hold the vehicle and restart the mission from the last estimate after a new
+stationary start-up (at most MAX_RESTARTS restarts), as does a flight-controller reboot.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from companion.io.mavlink_link import mavlink
+from companion.nav.elements import ELEMENT_SETS
+from companion.nav.mission import Command, Phase
+from companion.process.machine import Event, State
+from companion.process.options import MAX_RESTARTS
+
+__all__ = ["COMMAND_RETRY_S", "Phases"]
+
+COMMAND_RETRY_S = 2.0             # message time between retries of mode commands
+
+
+class Phases:
+    """The phase behaviour; the phase itself is ``app.machine.state``."""
+
+    def __init__(self, app) -> None:   # the CompanionApp wiring this part
+        self.app = app
+        self.last_mode_cmd = -math.inf
+        self.last_arm_cmd = -math.inf
+        self.fc_failsafe_hold = ""      # the FC's own failsafe that took it out of GUIDED (re-engage when cleared)
+        self.our_hold = False           # the FC left GUIDED for a mode we commanded (re-engage when healthy)
+        self.was_following = False
+
+    def tick(self, now: float, reasons: list[str], dt: float) -> bool:
+        """The current phase's work this tick (a phase entered on the way runs too); True if a
+        setpoint was sent."""
+        app = self.app
+        sent = False
+        if app.state == State.STARTUP:
+            self.startup(now, reasons)
+        if app.state == State.READY:
+            sent = self.ready(now, reasons)
+        if app.state == State.RUNNING:
+            sent = self.running(now, reasons, dt)
+        if app.state == State.DONE:
+            app.failsafe.hold_if_guided(now)
+        return sent
+
+    # ------------------------------------------------------------------ wait_fc -> startup
+    def fc_detected(self) -> None:
+        app = self.app
+        fc = app.link.fc
+        app.fc_detected_at = app.now
+        app.out.say(f"FcMPC: {fc.conventions.name} FC sysid {fc.sysid} detected, mode {fc.mode_name}")
+        app.fc_view.start(fc.conventions.family, fc.conventions.param_bytewise, app.now)
+        if app.opts.request_streams:
+            app.out.request_streams()
+        self.enter_startup(Event.FC_HEARD, "start-up")
+
+    def enter_startup(self, event: str, why: str) -> None:
+        app = self.app
+        app.machine.fire(event)
+        app.startup_begin = app.now
+        app.clock.reset()
+        app.mag.clear()
+        app.reporting.record_event("start" if why == "start-up" else "restart", why)
+
+    # ------------------------------------------------------------------ startup
+    def moving(self) -> bool:
+        """The vehicle may be moving: armed and not in a hold mode (a pilot or a mission drives it).
+
+        The flight controller's velocity is no evidence: without GPS its INS velocity drifts."""
+        app = self.app
+        fc = app.link.fc
+        return fc.armed and not fc.holding and not (fc.guided and app.comp_cfg.arm_enable)
+
+    def startup(self, now: float, reasons: list[str]) -> None:
+        app = self.app
+        if reasons or self.moving():
+            app.startup_begin = now
+            app.mag.clear()
+            return
+        if now - app.startup_begin >= app.preparation.startup_window() and len(app.mag.averager):
+            if app.fc_view.heading_verdict(now) is None:
+                return   # still reading the FC's heading parameters: keep averaging
+            app.machine.fire(Event.AVERAGED)
+            app.out.say(f"FcMPC: ready, start-up average of {len(app.mag.averager)} samples"
+                        + ("" if app.comp_cfg.arm_enable else "; arm in GUIDED/OFFBOARD to start"))
+
+    # ------------------------------------------------------------------ ready
+    def ready(self, now: float, reasons: list[str]) -> bool:
+        app = self.app
+        app.mag.drop_before(now - app.preparation.startup_window())   # a sliding window while waiting
+        if reasons:
+            return False
+        fc = app.link.fc
+        if fc.armed and fc.guided:
+            sent = app.out.zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
+            self.start_mission(now)
+            return sent
+        sent = app.out.zero_setpoint()
+        app.preparation.prepare(now)
+        self.engage(now)
+        return sent
+
+    def engage(self, now: float) -> None:
+        """GUIDED/OFFBOARD then arm, with retries (only with COMP_ARM_ENABLE = 1)."""
+        app = self.app
+        fc = app.link.fc
+        if not app.comp_cfg.arm_enable:
+            return
+        conv = fc.conventions
+        since = app.out.stream_since
+        streamed = now - since if math.isfinite(since) else 0.0
+        if not fc.guided:
+            if streamed >= conv.offboard_prestream_s and now - self.last_mode_cmd >= COMMAND_RETRY_S:
+                app.link.send_guided_mode()
+                app.modes.sent(conv.custom_mode(conv.guided_main, conv.guided_sub), now, "GUIDED")
+                self.last_mode_cmd = now
+        elif not fc.armed:
+            self.arm_with_backoff(now)
+
+    def arm_with_backoff(self, now: float) -> None:
+        """Arm; a refusal (COMMAND_ACK) is said once with the FC's reason, and the retry backs off."""
+        app = self.app
+        fc, backoff = app.link.fc, app.fc_view.arming
+        arm = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+        result = fc.acks.pop(arm, None)
+        if result is not None and result not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+            wait = backoff.refused(app.fc_view.prearm_text)
+            app.out.say(f"FcMPC: arming refused by the FC ({backoff.last_reason or f'result {result}'}); "
+                        f"retry in {wait:g} s"[:200], mavlink.MAV_SEVERITY_WARNING)
+        if now - self.last_arm_cmd >= backoff.interval_s:
+            app.fc_view.prearm_text = ""
+            app.link.send_arm(True)
+            self.last_arm_cmd = now
+
+    # ------------------------------------------------------------------ ready -> running
+    def start_mission(self, now: float) -> None:
+        app = self.app
+        prep = app.preparation
+        if app.params_dirty:
+            app.apply_params()
+        lat, lon, source = prep.start_position()
+        app.elements_code, why = prep.resolve_elements(now)
+        config = app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=app.elements_code)
+        app.m0 = app.mission_time(now)
+        startup = app.mag.take(app.m0)
+        app.bias, calibration = prep.calibration(config, startup, source)
+        app.mission = prep.take_mission(config)
+        app.mission.set_bias(app.bias)
+        app.mission_no += 1
+        self.was_following = True
+        app.machine.fire(Event.ENGAGED)
+        app.last_phase = ""
+        app.out.say(f"FcMPC: mission {app.mission_no} start {lat:.4f},{lon:.4f} ({source})")
+        app.out.say(f"FcMPC: elements {ELEMENT_SETS[app.elements_code].label}: {why}"[:200])
+        if calibration:
+            app.out.say(f"FcMPC: {calibration}"[:200])
+        app.stepper.step(app.m0, window_limit_s=0.0, avg=startup)
+
+    # ------------------------------------------------------------------ running
+    def running(self, now: float, reasons: list[str], dt: float) -> bool:
+        app = self.app
+        fc = app.link.fc
+        following = fc.armed and fc.guided
+        if self.was_following and not following and not fc.guided and app.modes.confirm(fc.custom_mode, now):
+            self.our_hold = True   # the FC shows a mode we commanded (however late): ours to take back
+        elif self.was_following and not following:
+            # a mode change we did not ask for: the autopilot's own failsafe is waited out and the
+            # mission re-engages when it clears; a pilot's or ground station's is respected, and
+            # the mission waits until GUIDED/OFFBOARD is selected again
+            conv = fc.conventions
+            guided = conv.mode_name(conv.custom_mode(conv.guided_main, conv.guided_sub))
+            self.fc_failsafe_hold = app.fc_view.fc_failsafe
+            why = f"its own failsafe ({self.fc_failsafe_hold}): re-engaging when it clears" \
+                if self.fc_failsafe_hold else "mission paused"
+            app.out.say(f"FcMPC: FC left {guided} (now {fc.mode_name}{'' if fc.armed else ', disarmed'}): {why}"[:200],
+                        mavlink.MAV_SEVERITY_WARNING)
+        if following:
+            self.fc_failsafe_hold = ""
+            self.our_hold = False
+        self.was_following = following
+        app.stepper.advance_dead_reckoning(now, dt, following and not reasons)
+        if reasons or not following:
+            app.clock.pause(app.now)
+        else:
+            self.resume()
+        if reasons:
+            return False
+        sent = app.out.stream(app.command.course_rad, app.command.speed_mps) if app.command is not None else False
+        if not following:
+            if self.our_hold or (self.fc_failsafe_hold and not app.fc_view.fc_failsafe):
+                self.engage(now)   # our failsafe's hold, or the FC's own failsafe cleared: take it back
+            return sent
+        if app.mission_time(now) >= app.next_step_m:
+            app.stepper.step(app.next_step_m)
+        return sent
+
+    def resume(self) -> None:
+        app = self.app
+        app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
+
+    # ------------------------------------------------------------------ running -> startup / done
+    def nav_failure(self, reason: str, cmd: Command) -> None:
+        app = self.app
+        app.out.say(f"FcMPC FAILSAFE: {reason}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
+        app.failsafe.hold_if_guided(app.now)
+        app.restarts += 1
+        if app.restarts > MAX_RESTARTS:
+            app.command = cmd
+            self.finish(cmd, failed_reason=f"{reason}; gave up after {MAX_RESTARTS} restarts", event=Event.GAVE_UP)
+            return
+        est = (cmd.est_lat_deg, cmd.est_lon_deg)
+        if not all(math.isfinite(v) for v in est) and app.command is not None:
+            est = (app.command.est_lat_deg, app.command.est_lon_deg)
+        app.restart_from = est if all(math.isfinite(v) for v in est) else None
+        app.mission = None
+        app.command = None
+        self.enter_startup(Event.NAV_FAILED, f"restart {app.restarts} after: {reason}")
+
+    def finish(self, cmd: Command, failed_reason: str = "", event: str = Event.ENDED) -> None:
+        app = self.app
+        app.machine.fire(event)
+        app.done_wall = time.monotonic()
+        app.done_msg_s = app.now
+        app.out.stream_since = math.nan
+        if failed_reason:
+            app.out.say(f"FcMPC: mission FAILED: {failed_reason}"[:200], mavlink.MAV_SEVERITY_ERROR)
+        elif cmd.phase == Phase.ARRIVED:
+            app.out.say(f"FcMPC: arrived after {cmd.step} steps, estimated {cmd.remaining_m:.0f} m to go")
+        else:
+            app.out.say(f"FcMPC: mission {cmd.phase}: {cmd.reason}", mavlink.MAV_SEVERITY_ERROR)
+        app.reporting.record_event("done", failed_reason or cmd.reason or cmd.phase)
+        app.failsafe.hold_if_guided(app.now)
+
+    # ------------------------------------------------------------------ any -> startup
+    def fc_rebooted(self) -> None:
+        """The flight controller's clock went back: everything timed is void; start again."""
+        app = self.app
+        app.fc_reboots = app.link.clock.reboots
+        app.next_tick = -math.inf
+        app.out.last_hb_sent = -math.inf
+        app.intake.last_valid.clear()
+        self.last_mode_cmd = self.last_arm_cmd = app.failsafe.last_hold_cmd = -math.inf
+        app.modes.clear()
+        self.our_hold = False
+        app.link.fc.last_heartbeat_time_s = app.now
+        app.mag.attitude = None
+        app.decoder.fc_position = None
+        app.stepper.dr = None
+        app.fc_view.feed.stop()
+        app.fc_view.feeding_own = False
+        reason = "flight controller rebooted (its clock went back)"
+        if app.state == State.RUNNING and app.command is not None:
+            self.nav_failure(reason, app.command)
+        elif app.state in (State.STARTUP, State.READY, State.RUNNING):
+            app.out.say(f"FcMPC: {reason}", mavlink.MAV_SEVERITY_WARNING)
+            app.mission = None
+            self.enter_startup(Event.FC_REBOOTED, reason)

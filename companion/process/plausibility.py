@@ -1,0 +1,115 @@
+"""Magnetometer plausibility (issue 10, item 6): is this period's measurement one to navigate on?
+
+Judged before the core sees the measurement, against where the vehicle should be: the last
+estimate flown on with the last command (:meth:`Outputs.current_estimate`), uncertainty
+``sigma_m`` (the estimate's 1-sigma). Two checks:
+
+``f_band``    ``|F_measured - bias_F - F_model(predicted)|`` over ``f_band_nt`` (1000 nT: the
+              model's own error at sea is ~100 nT, the crustal field a few hundred). A body-frame
+              offset of 3000 nT, a 20000 nT spike fail here.
+``fix_jump``  the position the measurement implies, linearised about the prediction
+              (``d = G^-1 (S_measured - bias - S_model(predicted))``, G the element gradient per
+              metre), further than ``3 sigma + slack x speed x dt + margin_m`` from the prediction.
+              Measured on the clean lockstep Pacific mission: at most 2.2 km (median 0.6 km);
+              the bound there is ~27 km. Skipped where G is ill-conditioned (the fix is weak
+              anyway and the core does not steer on it, FUS_SIGMA).
+
+An implausible measurement is excluded: the step is postponed one period and the vehicle flies
+its last command (the core's dead reckoning uses the actual time between steps). Each exclusion
+says which check failed (STATUSTEXT); ``sustained_steps`` in a row are flagged as a sustained
+offset (CRITICAL); the first plausible one after says so. The core's own 50 km fix gate
+(NAV_FIX_GATE_M) stays as the last line.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.nav.elements import ElementSet
+from companion.nav.field import WorldMagneticModel, element_gradient
+
+__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "judge"]
+
+MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
+
+
+@dataclass(frozen=True)
+class PlausibilityLimits:
+    f_band_nt: float = 1000.0
+    sigma_k: float = 3.0
+    speed_slack: float = 0.5          # fraction of the distance flown since the last step (currents, speed error)
+    margin_m: float = 20_000.0        # model error, storms, the first steps' uncalibrated bias (core gate: 50 km)
+    sustained_steps: int = 2
+
+
+@dataclass(frozen=True)
+class Judgement:
+    ok: bool
+    kind: str = ""                    # "f_band" or "fix_jump"
+    f_offset_nt: float = math.nan
+    jump_m: float = math.nan
+    bound_m: float = math.nan
+
+    def words(self) -> str:
+        if self.kind == "f_band":
+            return f"|F| {self.f_offset_nt:+.0f} nT off the model"
+        if self.kind == "fix_jump":
+            return f"fix would jump {self.jump_m / 1000.0:.1f} km (bound {self.bound_m / 1000.0:.1f} km)"
+        return "plausible"
+
+
+def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, measured: np.ndarray,
+          f_nt: float, bias: np.ndarray, pred_lat_deg: float, pred_lon_deg: float, sigma_m: float,
+          flown_m: float, limits: PlausibilityLimits = PlausibilityLimits()) -> Judgement:
+    """Judge one averaged measurement (``measured``: the element set's two values, bias not yet
+    removed; ``bias``: the start-up calibration of those two) against the predicted position.
+
+    >>> from companion.nav.elements import ELEMENT_SETS
+    >>> from companion.nav.field import model_for_date
+    >>> m, e = model_for_date(2020.5), ELEMENT_SETS[ElementSet.HEADING_FREE]
+    >>> here = m.elements(30.0, 155.0, 0.0, 2020.5)
+    >>> judge(m, e, 2020.5, 0.0, e.values(here), float(here.f_nt), np.zeros(2), 30.0, 155.0, 800.0, 5000.0).ok
+    True
+    >>> judge(m, e, 2020.5, 0.0, e.values(here), float(here.f_nt) + 3000.0, np.zeros(2), 30.0, 155.0,
+    ...       800.0, 5000.0).kind
+    'f_band'
+    """
+    field = model.elements(pred_lat_deg, pred_lon_deg, alt_m, year)
+    f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
+    f_offset = f_nt - f_bias - float(field.f_nt)
+    if not abs(f_offset) <= limits.f_band_nt:
+        return Judgement(False, "f_band", f_offset_nt=f_offset)
+    residual = elements.difference(np.asarray(measured, dtype=float) - bias, elements.values(field))
+    gradient = element_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
+    bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
+    if np.linalg.svd(gradient, compute_uv=False)[-1] < MIN_GRADIENT_SV:
+        return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
+    jump = float(np.hypot(*np.linalg.solve(gradient, residual)))
+    if not jump <= bound:
+        return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound)
+    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound)
+
+
+class MagPlausibility:
+    """Consecutive exclusions and what to say about them (the app's words go through ``say``)."""
+
+    def __init__(self, limits: PlausibilityLimits = PlausibilityLimits()) -> None:
+        self.limits = limits
+        self.in_a_row = 0
+        self.excluded = 0
+
+    def verdict(self, judgement: Judgement) -> tuple[str, str] | None:
+        """(severity name, text) to say for this judgement, or None to say nothing."""
+        if judgement.ok:
+            if not self.in_a_row:
+                return None
+            n, self.in_a_row = self.in_a_row, 0
+            return "NOTICE", f"FcMPC: magnetometer plausible again after {n} excluded step{'s' * (n > 1)}"
+        self.in_a_row += 1
+        self.excluded += 1
+        if self.in_a_row == self.limits.sustained_steps:
+            return "CRITICAL", (f"FcMPC: sustained magnetometer offset ({self.in_a_row} steps): "
+                                f"{judgement.words()}, excluded")
+        return "WARNING", f"FcMPC: implausible magnetometer step: {judgement.words()}, excluded"

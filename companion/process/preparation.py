@@ -1,0 +1,112 @@
+"""Start-up and mission preparation: where the mission starts, on which elements, with which bias.
+
+The start is the GPS fix if the receiver has a 3D fix, else the last estimate after a restart,
+else NAV_START_LAT/LON. The element set is NAV_ELEMENTS resolved against the flight controller's
+heading source (never D with a compass-derived yaw). With a GPS-known start and NAV_CALIBRATE 1,
+the start-up average minus the model there becomes the bias subtracted from every measurement.
+The mission (QP set-up, field model) is built while waiting to be armed (:meth:`prepare`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from companion.nav.elements import ELEMENT_SETS, ElementSet
+from companion.nav.field import model_for_date
+from companion.nav.geo import geodesic_distance_m
+from companion.nav.mission import WMM_NAMES, Mission
+from companion.params import NavConfig
+from companion.process.options import GPS_START_MAX_AGE_S
+
+__all__ = ["PREPARED_START_M", "MissionPreparation"]
+
+PREPARED_START_M = 100.0          # a mission built while READY serves a start this close
+
+
+class MissionPreparation:
+    """The start of the next mission, and the mission built for it in advance."""
+
+    def __init__(self, app) -> None:   # the CompanionApp wiring this part
+        self.app = app
+        self.prepared: Mission | None = None   # built while READY, used at arming if nothing changed
+
+    def startup_window(self) -> float:
+        """Seconds of stationary averaging before the first step (--startup-s, else NAV_PERIOD_S)."""
+        app = self.app
+        return app.opts.startup_s if app.opts.startup_s is not None else app.nav_cfg.period_s
+
+    def start_position(self) -> tuple[float, float, str]:
+        """(lat, lon, what it is): the GPS fix, the last estimate after a restart, or NAV_START."""
+        app = self.app
+        gps = app.intake.last_gps
+        if gps is not None and gps.valid and gps.has_3d_fix and app.now - gps.time_s <= GPS_START_MAX_AGE_S:
+            return gps.lat_deg, gps.lon_deg, "GPS"
+        if app.restart_from is not None:
+            return app.restart_from[0], app.restart_from[1], "last estimate"
+        return app.nav_cfg.start_lat_deg, app.nav_cfg.start_lon_deg, "NAV_START"
+
+    def prepare(self, now: float) -> None:
+        """Build the mission (QP set-up, field model) while waiting to be armed, so the moment of
+        arming costs a setpoint tick, not a set-up: at SITL speed-ups 100 ms of set-up was 3 s
+        of firmware time without a setpoint, and ArduPilot stopped."""
+        app = self.app
+        if app.params_dirty:
+            return
+        lat, lon, _ = self.start_position()
+        code, _ = self.resolve_elements(now)
+        config = app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=code)
+        if not self.fits(config):
+            self.prepared = Mission(config)
+
+    def fits(self, config: NavConfig) -> bool:
+        """The prepared mission serves ``config``: the same settings, a start within PREPARED_START_M
+        (a drifting boat moves its GPS start every tick; rebuilding each tick starved the link)."""
+        prepared = self.prepared
+        if prepared is None:
+            return False
+        old = prepared.config
+        same = old.replace(start_lat_deg=config.start_lat_deg, start_lon_deg=config.start_lon_deg) == config
+        return same and geodesic_distance_m(old.start_lat_deg, old.start_lon_deg, config.start_lat_deg,
+                                            config.start_lon_deg) <= PREPARED_START_M
+
+    def take_mission(self, config: NavConfig) -> Mission:
+        """The prepared mission if it serves ``config``, else a new one; nothing stays prepared."""
+        mission = self.prepared if self.fits(config) else Mission(config)
+        self.prepared = None
+        return mission
+
+    def resolve_elements(self, now: float) -> tuple[int, str]:
+        """NAV_ELEMENTS resolved against the heading source: never D with a compass-derived yaw."""
+        app = self.app
+        verdict = app.fc_view.heading_verdict(now)
+        requested = app.nav_cfg.elements
+        if verdict is None or verdict.compass_derived:
+            reason = verdict.reason if verdict is not None else "heading source unknown"
+            if requested == ElementSet.PAPER:
+                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS 1 asks for D, but the FC yaw is compass-derived "
+                                                 f"({reason}): D is no measurement")
+            return ElementSet.HEADING_FREE, f"FC yaw is compass-derived ({reason})"
+        if requested == 0:
+            return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
+        return requested, f"NAV_ELEMENTS {requested} ({verdict.reason})"
+
+    def inclination(self, avg) -> float:
+        """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
+        elements, so neither a heading nor the FC's attitude estimate enters; else tilt-compensated."""
+        if self.app.elements_code == ElementSet.HEADING_FREE and math.isfinite(avg.incl_grav_deg):
+            return avg.incl_grav_deg
+        return avg.incl_deg
+
+    def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, float] | None, str]:
+        """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""
+        if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
+            return None, "" if not config.calibrate else f"not calibrated (start from {source})"
+        elements = ELEMENT_SETS[config.elements]
+        model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
+        expected = elements.values(model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year))
+        measured = elements.values(replace(startup, incl_deg=self.inclination(startup)))
+        bias = elements.difference(measured, expected)
+        units = ["nT" if n == "f_nt" else "deg" for n in elements.names]
+        words = ", ".join(f"{n[0].upper()} {b:+.3f} {u}" if u == "deg" else f"F {b:+.0f} {u}"
+                          for n, b, u in zip(elements.names, bias, units))
+        return (float(bias[0]), float(bias[1])), f"calibrated at the GPS start: measured - model = {words}"

@@ -1,0 +1,72 @@
+"""One control step against a prepared or a real core: what is sent, and navigation failures."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+
+from companion.app import State
+from companion.io.mavlink_link import mavlink
+from companion.nav.mission import Mission
+from companion.params import NavConfig, default_values
+from tests.companion.process.rig import GOOD, _msg, _run_step, _sent
+
+
+@pytest.mark.parametrize("bad,why", [
+    (replace(GOOD, course_rad=math.nan), "non-finite command"),
+    (replace(GOOD, speed_mps=math.inf), "non-finite command"),
+    (replace(GOOD, solver_ok=False, reason="QP failed: max iterations"), "solver failure"),
+    (replace(GOOD, fix_lat_deg=33.5), "diverged"),                    # 111 km from the estimate
+])
+def test_navigation_failure_holds_and_restarts(rig, bad, why):
+    app, fc = rig
+    _run_step(app, bad)
+    sent = _sent(fc)
+    assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
+    assert app.restart_from == pytest.approx((32.5, 152.5))           # from the last estimate
+    texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert "FAILSAFE" in texts and why in texts
+    holds = [m for m in sent if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+    assert holds and holds[0].param2 == 4                              # ArduPilot Rover HOLD
+    app.tick()
+    assert not [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+
+
+def test_good_step_streams_and_publishes(rig):
+    app, fc = rig
+    app.params.set_value("COMP_POS_PUB", 0)      # EXTERNAL_POSITION_ESTIMATE (the default is GPS_INPUT)
+    app.apply_params()
+    _run_step(app, GOOD)
+    app.next_tick = -math.inf
+    app.tick()
+    sent = _sent(fc)
+    [sp] = [m for m in sent if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+    assert sp.vx == pytest.approx(13.0 * math.cos(2.3), abs=1e-4) and sp.yaw == pytest.approx(2.3)
+    names = {m.name for m in sent if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert {"FC_D", "FC_I", "FC_ERR", "FC_REM", "FC_SOLV", "FC_STEP"} <= names
+    [est] = [m for m in sent if m.get_type() == "COMMAND_INT"]
+    assert est.command == mavlink.MAV_CMD_EXTERNAL_POSITION_ESTIMATE and est.x == 325_000_000
+    assert est.param3 == pytest.approx(800.0) and math.isnan(est.z)
+
+
+def test_odometry_when_selected(rig):
+    app, fc = rig
+    app.params.set_value("COMP_POS_PUB", 1)
+    app.apply_params()
+    app.handle(_msg("GLOBAL_POSITION_INT", time_boot_ms=1000, lat=325000000, lon=1525000000, alt=0, relative_alt=0,
+                    vx=0, vy=0, vz=0, hdg=0))
+    app.handle(_msg("LOCAL_POSITION_NED", time_boot_ms=1000, x=1000.0, y=-500.0, z=0.0, vx=0.0, vy=0.0, vz=0.0))
+    _run_step(app, GOOD)
+    [odo] = [m for m in _sent(fc) if m.get_type() == "ODOMETRY"]
+    # the estimate is the FC's own position here, so it sits at the FC's local (x, y)
+    assert odo.x == pytest.approx(1000.0, abs=0.5) and odo.y == pytest.approx(-500.0, abs=0.5)
+    assert odo.pose_covariance[0] == pytest.approx(800.0 ** 2) and odo.frame_id == mavlink.MAV_FRAME_LOCAL_NED
+
+
+def test_real_mission_first_step_probes_east(rig):
+    app, fc = rig
+    app.mission = Mission(NavConfig.from_values(default_values()))
+    app.mag.averager.add(0.5, -1.5, 48.0)
+    app.stepper.step(1.0, window_limit_s=0.0)
+    assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)

@@ -1,0 +1,106 @@
+"""Phase transitions driven by the flight controller: a reboot, a pilot's mode change, our own late HOLD."""
+from __future__ import annotations
+
+import math
+
+from companion.app import State
+from companion.io.mavlink_link import mavlink
+from companion.io.sensors.base import SampleKind
+from companion.process.mode_commands import MODE_CONFIRM_S
+from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _sent
+
+
+def test_flight_controller_reboot_restarts_the_mission(rig):
+    app, fc = rig
+    _run_step(app, GOOD)
+    for ms in range(2_000, 30_001, 4_000):                                       # the clock ticks on to 30 s
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # one frame 28 s back: no reboot
+    assert app.state == State.RUNNING and app.link.clock.far_past == 1
+    for ms in (2_100, 2_200, 2_300):                                               # the new base ticks on ...
+        app.handle(_msg("ATTITUDE", time_boot_ms=ms, roll=0, pitch=0, yaw=0, rollspeed=0, pitchspeed=0,
+                        yawspeed=0))
+    app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))                                 # ... with the FC's heartbeat
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_400))          # and its SYSTEM_TIME: a reboot
+    assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
+    assert "rebooted" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+
+
+def test_operator_mode_change_is_respected(rig):
+    """A mode change the companion did not command pauses the mission; it does not fight back."""
+    app, fc = rig
+    app.params.set_value("COMP_ARM_ENABLE", 1)
+    _run_step(app, GOOD)
+    app.next_tick = -math.inf
+    app.tick()
+    _sent(fc)
+    app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "custom_mode": 0}))        # the pilot selects MANUAL
+    app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+    app.next_tick = -math.inf
+    app.tick()
+    sent = _sent(fc)
+    assert "FC left GUIDED (now MANUAL)" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert not [m for m in sent if m.get_type() == "COMMAND_LONG"]               # no GUIDED, no arm
+    assert math.isfinite(app.paused_since)                                       # mission clock stopped
+
+
+# --- issue 10 item 5: the companion's own mode commands are told from a pilot's --------------------
+GUIDED, HOLD = 15, 4          # ArduPilot Rover custom_mode
+
+
+def _at(app, t_s: float, custom_mode: int = GUIDED, mag_fresh: bool = True) -> None:
+    """The FC at message time ``t_s`` in ``custom_mode``, then one control tick."""
+    app.next_tick = math.inf                                          # the tick below, not one on receipt
+    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t_s * 1000)))
+    app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "custom_mode": custom_mode}))
+    app.intake.last_valid[SampleKind.ATTITUDE] = app.now
+    if mag_fresh:
+        app.intake.last_valid[SampleKind.MAG] = app.now
+    app.next_tick = -math.inf
+    app.tick()
+
+
+def _mode_commands(sent: list) -> list[int]:
+    return [int(m.param2) for m in sent if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+
+
+def _failsafe_then_recovered(app, fc) -> None:
+    """A magnetometer failsafe (HOLD sent, the FC stays in GUIDED: the HOLD is still on its way),
+    then healthy again: the mission resumes in GUIDED."""
+    app.params.set_value("COMP_ARM_ENABLE", 1)
+    _run_step(app, GOOD)
+    _at(app, 2.0)
+    _at(app, 5.0, mag_fresh=False)                                    # mag 3 s old > COMP_MAG_TMO_S
+    assert app.failsafe_active and _mode_commands(_sent(fc)) == [HOLD]
+    _at(app, 6.0)
+    _at(app, 7.5)                                                     # healthy for 1.5 s
+    assert not app.failsafe_active and not math.isfinite(app.paused_since)
+    assert "healthy again" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+
+
+def test_a_late_hold_of_ours_is_taken_back_not_read_as_a_pilots(rig):
+    """The probe's stall: the failsafe's HOLD reaches the FC after the companion resumed."""
+    app, fc = rig
+    _failsafe_then_recovered(app, fc)
+    _at(app, 9.0, HOLD)                                               # the late HOLD arrives
+    sent = _sent(fc)
+    texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert "mission paused" not in texts and "FC left" not in texts
+    assert _mode_commands(sent) == [GUIDED]                           # taking it back at once
+    assert not app.modes.pending or list(app.modes.pending) == [GUIDED]
+    _at(app, 10.0, GUIDED)
+    _at(app, 11.0, GUIDED)
+    assert app.state == State.RUNNING and not math.isfinite(app.paused_since)   # flying the mission again
+    assert [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+
+
+def test_a_hold_after_our_command_expired_is_the_pilots(rig):
+    """Past the deadline our HOLD was lost; a HOLD now is somebody else's and is respected."""
+    app, fc = rig
+    _failsafe_then_recovered(app, fc)
+    _at(app, 5.0 + MODE_CONFIRM_S + 1.0)
+    _at(app, 5.0 + MODE_CONFIRM_S + 2.0, HOLD)
+    sent = _sent(fc)
+    assert "FC left GUIDED (now HOLD): mission paused" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert not _mode_commands(sent) and math.isfinite(app.paused_since)
+    assert app.modes.expired >= 1

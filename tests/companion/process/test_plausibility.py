@@ -1,0 +1,110 @@
+"""Magnetometer plausibility (issue 10, item 6): the checks on the field model, and in the control step."""
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from companion.nav.elements import ELEMENT_SETS, ElementSet
+from companion.nav.field import model_for_date
+from companion.nav.geo import geodesic_distance_m, offset_position
+from companion.nav.mission import Mission
+from companion.params import NavConfig, default_values
+from companion.process.plausibility import (
+    Judgement,
+    MagPlausibility,
+    PlausibilityLimits,
+    judge,
+)
+from tests.companion.process.rig import _sent
+
+YEAR, LAT, LON = 2020.5, 30.5, 155.0
+MODEL = model_for_date(YEAR)
+SETS = [ELEMENT_SETS[ElementSet.PAPER], ELEMENT_SETS[ElementSet.HEADING_FREE]]
+
+
+def _judge_at(elements, lat, lon, f_extra_nt=0.0, sigma_m=800.0, flown_m=5000.0, bias=(0.0, 0.0)):
+    """The field measured at (lat, lon) (plus an F offset), judged against the prediction (LAT, LON)."""
+    here = MODEL.elements(lat, lon, 0.0, YEAR)
+    return judge(MODEL, elements, YEAR, 0.0, elements.values(here) + np.asarray(bias), float(here.f_nt) + f_extra_nt,
+                 np.asarray(bias), LAT, LON, sigma_m, flown_m)
+
+
+@pytest.mark.parametrize("elements", SETS, ids=lambda e: e.label)
+def test_the_predicted_field_is_plausible_and_implies_no_jump(elements):
+    j = _judge_at(elements, LAT, LON)
+    assert j.ok and j.jump_m < 1.0 and abs(j.f_offset_nt) < 1e-6
+
+
+@pytest.mark.parametrize("elements", SETS, ids=lambda e: e.label)
+@pytest.mark.parametrize("east_km, north_km", [(30.0, 0.0), (-20.0, 25.0), (0.0, -40.0)])
+def test_a_measurement_from_far_away_is_a_fix_jump_of_about_that_distance(elements, east_km, north_km):
+    lat, lon = (float(v) for v in offset_position(LAT, LON, east_km * 1e3, north_km * 1e3))
+    true_m = geodesic_distance_m(LAT, LON, lat, lon)
+    j = _judge_at(elements, lat, lon)
+    assert not j.ok and j.kind == "fix_jump"
+    assert j.jump_m == pytest.approx(true_m, rel=0.1)                 # the linearised fix is where it was measured
+    near = offset_position(LAT, LON, east_km * 100.0, north_km * 100.0)   # a tenth of the way: within the bound
+    assert _judge_at(elements, float(near[0]), float(near[1])).ok
+
+
+@pytest.mark.parametrize("elements", SETS, ids=lambda e: e.label)
+def test_an_intensity_offset_beyond_the_band_is_flagged(elements):
+    limits = PlausibilityLimits()
+    assert _judge_at(elements, LAT, LON, f_extra_nt=0.9 * limits.f_band_nt).kind != "f_band"
+    j = _judge_at(elements, LAT, LON, f_extra_nt=3000.0)
+    assert not j.ok and j.kind == "f_band" and j.f_offset_nt == pytest.approx(3000.0)
+    assert "+3000 nT" in j.words()
+
+
+def test_the_start_up_calibration_is_taken_out_before_judging():
+    elements = ELEMENT_SETS[ElementSet.HEADING_FREE]
+    assert _judge_at(elements, LAT, LON, f_extra_nt=2500.0, bias=(0.0, 2500.0)).ok   # a calibrated 2500 nT bias
+    assert not _judge_at(elements, LAT, LON, f_extra_nt=2500.0).ok
+
+
+def test_the_bound_grows_with_the_uncertainty_and_the_distance_flown():
+    elements = SETS[0]
+    lat, lon = (float(v) for v in offset_position(LAT, LON, 30_000.0, 0.0))
+    assert not _judge_at(elements, lat, lon, sigma_m=800.0, flown_m=5000.0).ok
+    assert _judge_at(elements, lat, lon, sigma_m=5000.0, flown_m=5000.0).ok        # 3 sigma: 12 km more
+    assert _judge_at(elements, lat, lon, sigma_m=800.0, flown_m=40_000.0).ok
+
+
+def test_exclusions_in_a_row_are_a_sustained_offset_and_recovery_is_said():
+    p = MagPlausibility(PlausibilityLimits(sustained_steps=2))
+    bad, good = Judgement(False, "f_band", f_offset_nt=3000.0), Judgement(True)
+    assert p.verdict(good) is None
+    assert p.verdict(bad)[0] == "WARNING"
+    severity, text = p.verdict(bad)
+    assert severity == "CRITICAL" and "sustained" in text and "3000 nT" in text
+    assert p.verdict(bad)[0] == "WARNING"                                 # said once as sustained
+    severity, text = p.verdict(good)
+    assert severity == "NOTICE" and "after 3 excluded steps" in text and p.excluded == 3
+    assert p.verdict(good) is None
+
+
+def test_the_control_step_excludes_an_offset_measurement_and_keeps_flying(rig):
+    """A real core: after the first step, a period with F 3000 nT off is not given to it."""
+    app, fc = rig
+    config = NavConfig.from_values(default_values())
+    app.mission = Mission(config)
+    start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
+    ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
+    app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(ned))
+    app.stepper.step(1.0, window_limit_s=0.0)
+    first = app.command
+    assert first.phase == "probe1" and app.mission.k == 1
+    _sent(fc)
+    offset = ned * (1.0 + 3000.0 / float(start.f_nt))                     # |F| 3000 nT more, same direction
+    app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(offset))
+    app.stepper.step(361.0)
+    assert app.mission.k == 1 and app.command is first                   # the core never saw it
+    assert app.next_step_m == pytest.approx(361.0 + app.mission.config.period_s)
+    texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+    # the prediction flew the probe (east, 5 km): the model's F there differs by a few nT
+    assert re.search(r"implausible magnetometer step: \|F\| \+30\d\d nT off the model, excluded", texts), texts
+    assert app.plausibility.excluded == 1 and app.summary()["mag_excluded_steps"] == 1
+    assert math.isfinite(first.course_rad)
