@@ -62,6 +62,7 @@ def vehicle(tmp_path):
     download already finds component 191."""
     companion_port, gcs_port = _free_port(), _free_port()
     parm = tmp_path / "companion.parm"
+    parm.write_text("LINK_GCS_ID2 245\n", encoding="utf-8")   # MAVSDK's ground-station id (MAVProxy's is 255)
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
     companion = subprocess.Popen(
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{companion_port}", "--params", str(parm),

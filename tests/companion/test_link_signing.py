@@ -161,3 +161,13 @@ def test_keygen_command_writes_a_private_key_and_prints_the_mavproxy_line(tmp_pa
     again = subprocess.run([sys.executable, "-m", "companion.io.link.keygen", str(path)], capture_output=True,
                            text=True, env=env, timeout=120)
     assert again.returncode == 2 and "exists" in again.stderr and read_key_file(path).hex() not in again.stderr
+
+
+def test_companion_refuses_a_key_others_can_read_in_one_line(tmp_path):
+    key_file = write_key_file(tmp_path / "signing.key", KEY)
+    key_file.chmod(0o640)
+    result = subprocess.run([sys.executable, "-m", "companion.app", "--signing-key", str(key_file), "--log-dir",
+                             str(tmp_path / "log"), "--quiet"], capture_output=True, text=True, timeout=120,
+                            env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert result.returncode == 2 and "permission 0640" in result.stderr and len(result.stderr.splitlines()) == 1
+    assert KEY.hex() not in result.stderr
