@@ -119,7 +119,7 @@ def _run(argv: list[str] | None) -> int:
     except KeyError as err:
         parser.error(f"--controllers: unknown controller {err}; choose from {', '.join(CONTROLLER_KEYS)}")
     if args.cluster and args.engine == "local":
-        parser.error("--cluster needs --engine dask or ray")
+        raise UsageError("--cluster needs --engine dask or ray")
     engine = Engine(args.engine, args.workers, args.cluster)
     # a bundled name travels to the workers as text (they load it once); anything else as the object
     bundled = not Path(args.scenario).suffix and scenario == load_scenario(args.scenario)

@@ -201,3 +201,16 @@ def test_bad_sweep_from_the_console_script_is_one_line_and_exit_2(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("fcmpc-montecarlo: --sweep 'MPC_N=2;4'"), result.stderr
+
+
+def test_engine_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
+    import importlib.util
+
+    cases = [(["--cluster", "tcp://127.0.0.1:8786"], "--cluster needs --engine dask or ray")]
+    if importlib.util.find_spec("ray") is None:
+        cases.append((["--engine", "ray"], "pip install ray"))
+    for argv, names in cases:
+        code = main([*argv, "--runs", "1", "--quiet", "--out", str(tmp_path), *SHORT])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and names in lines[0], lines
+    assert not any(tmp_path.iterdir())

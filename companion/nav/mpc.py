@@ -120,40 +120,21 @@ class _OsqpBackend:
         self.solver.setup(p0, np.zeros(n), a0, -np.ones(2 * n), np.ones(2 * n), verbose=False,
                           warm_starting=True, polishing=False, eps_abs=eps, eps_rel=eps,
                           max_iter=20000, scaling=10)
-        # the compiled solver behind osqp.OSQP (osqp 1.x): updated and solved without the
-        # wrapper's per-call bookkeeping; the public calls are the fallback
-        core = getattr(self.solver, "_solver", None)
-        needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
-        self._core = core if core is not None and all(hasattr(core, a) for a in needed) else None
 
     def solve(self, hess, grad, a_full, lower, upper):
-        px, ax = hess[self.p_rows, self.p_cols], a_full[self.a_rows, self.a_cols]
-        if self._core is None:
-            self.solver.update(Px=px, Ax=ax, q=grad, l=lower, u=upper)
-        else:
-            # the same two calls osqp.OSQP.update makes (our bounds are inside +-OSQP_INFTY already)
-            self._core.update_data_vec(q=grad, l=lower, u=upper)
-            self._core.update_data_mat(P_x=px, P_i=None, A_x=ax, A_i=None)
-        x, status, run_time, iterations = self._solve()
+        self.solver.update(Px=hess[self.p_rows, self.p_cols], Ax=a_full[self.a_rows, self.a_cols],
+                           q=grad, l=lower, u=upper)
+        result = self.solver.solve(raise_error=False)
+        status = str(result.info.status)
+        run_time, iterations = float(result.info.run_time), int(result.info.iter)
         if status != "solved":
             # a warm start from a very different previous problem can stall ("solved inaccurate"
             # after 0 iterations): retry once from zero before calling it a failure
             self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(2 * self.n))
-            x, status, more_time, more_iterations = self._solve()
-            run_time, iterations = run_time + more_time, iterations + more_iterations
-        return x, status == "solved", status, run_time, iterations
-
-    def _solve(self) -> tuple[np.ndarray, str, float, int]:
-        """(x, status, solver run time in s, iterations) of one OSQP solve."""
-        if self._core is None:
             result = self.solver.solve(raise_error=False)
-            info, x = result.info, result.x
-        else:
-            # osqp.OSQP.solve copies all 30 info fields into a namespace per call, a third of
-            # an update+solve at N = 2; the extension object answers the four we read
-            self._core.solve()
-            info, x = self._core.info, self._core.solution.x
-        return x, str(info.status), float(info.run_time), int(info.iter)
+            status = str(result.info.status)
+            run_time, iterations = run_time + float(result.info.run_time), iterations + int(result.info.iter)
+        return result.x, status == "solved", status, run_time, iterations
 
 
 class _DaqpBackend:
