@@ -21,6 +21,7 @@ the age is judged on the clock the vehicle kept running while the companion was 
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import pickle
@@ -80,14 +81,14 @@ class NavStateStore:
                 os.fsync(f.fileno())
             os.replace(tmp, self.path)
         except BaseException:
-            with _quiet():
+            with contextlib.suppress(OSError):
                 os.unlink(tmp)
             raise
 
     def load(self) -> tuple[NavSnapshot | None, str]:
         """(snapshot, "") / (None, "") when there is none / (None, why it is unusable)."""
         for stale in self.path.parent.glob(f".{self.path.name}.*.tmp"):   # a kill during a save
-            with _quiet():
+            with contextlib.suppress(OSError):
                 stale.unlink()
         try:
             data = self.path.read_bytes()
@@ -102,14 +103,6 @@ class NavStateStore:
         if not isinstance(snapshot, NavSnapshot) or snapshot.version != SNAPSHOT_VERSION:
             return None, f"{self.path} is not a navigator state of version {SNAPSHOT_VERSION}"
         return snapshot, ""
-
-
-class _quiet:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> bool:
-        return exc[0] is not None and issubclass(exc[0], OSError)
 
 
 class Resume:

@@ -1,0 +1,87 @@
+"""Resume after a crash, closed loop: SIGKILL the companion in mid-route, start it again, and the
+mission goes on from where it was (issue 10, item 7). Real processes on loopback: the stand-in in
+lockstep (it waits ``--lockstep-timeout`` for a companion that is gone, then goes on; the vehicle
+holds once the setpoints stop) and two companion processes one after the other, sharing the
+parameter file and so the saved state beside it.
+"""
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from companion.io.records import read_steps_csv
+from companion.nav.geo import geodesic_distance_m
+from companion.params import write_parm_file
+from fcmpc_fly import FlyOptions
+from fcmpc_fly.results import read_truth_track
+from fcmpc_fly.runner import (
+    REPO,
+    _commands,
+    _env,
+    _free_udp_port,
+    _stop,
+    prepare,
+    write_short_scenario,
+)
+from tests.processes import wait_for_file
+
+HANG_S = 800.0          # a hung-run guard, not a pace
+FLOOR_M = 1500.0        # the closed-loop floor of tests/companion/test_closed_loop.py
+KILL_AFTER_STEPS = 4    # start-up step, two probes, a cruise step: the kill is in mid-route
+pytestmark = pytest.mark.timeout(HANG_S + 100.0)
+
+
+def _steps(path: Path) -> list[dict]:
+    try:
+        return [r for r in read_steps_csv(path) if r["event"] == "step"]
+    except (OSError, ValueError, KeyError):   # being written: read again at the next poll
+        return []
+
+
+def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
+    options = FlyOptions(short=True, short_km=40.0, tlog=False, quiet=True, timeout_s=HANG_S)
+    scenario, dest, values = prepare(options)
+    scenario_arg = str(write_short_scenario(scenario, dest, tmp_path / "short.toml"))
+    parm = tmp_path / "fly.parm"
+    write_parm_file(parm, values)
+    companion_cmd, sitl_cmd = _commands(options, scenario, tmp_path, parm, scenario_arg, _free_udp_port())
+    env = _env()
+    first = subprocess.Popen(companion_cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    second = sitl = None
+    try:
+        wait_for_file(tmp_path / "companion" / "steps.csv", [first], 60.0)
+        sitl = subprocess.Popen(sitl_cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + HANG_S
+        while len(_steps(tmp_path / "companion" / "steps.csv")) < KILL_AFTER_STEPS:
+            assert first.poll() is None and sitl.poll() is None, "a process ended before the kill"
+            assert time.monotonic() < deadline, "no mid-route step within the hang guard"
+            time.sleep(0.05)   # the polling interval, not a guess at how long a step takes
+        first.send_signal(signal.SIGKILL)
+        assert first.wait(timeout=30) == -signal.SIGKILL
+        before = _steps(tmp_path / "companion" / "steps.csv")
+        assert (tmp_path / "fly.navstate").is_file()
+        log2 = str(tmp_path / "companion2")
+        cmd2 = [log2 if a == str(tmp_path / "companion") else a for a in companion_cmd]
+        second = subprocess.Popen(cmd2, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        assert second.wait(timeout=HANG_S) == 0, "the resumed mission did not arrive"
+    finally:
+        for proc in (first, second, sitl):
+            _stop(proc)
+    summary = json.loads((tmp_path / "companion2" / "summary.json").read_text())
+    last = before[-1]
+    assert summary["missions"] == 1 and summary["restarts"] == 0 and summary["arrived"]
+    assert summary["resumed_from"].startswith("mission 1 step ")
+    assert any("resuming mission 1" in e for e in summary["events"])
+    assert not any("NAV_START" in e or "start-up average" in e for e in summary["events"]), "started afresh"
+    after = _steps(tmp_path / "companion2" / "steps.csv")
+    assert after and after[0]["mission"] == 1 and after[0]["step"] == last["step"] + 1   # the next step, not probe1
+    assert after[0]["phase"] != "probe1" and after[0]["remaining_m"] < last["remaining_m"]
+    truth = read_truth_track(tmp_path / "sitl" / "truth.csv")
+    miss = geodesic_distance_m(float(truth.lat_deg[-1]), float(truth.lon_deg[-1]), dest[0], dest[1])
+    assert math.isfinite(miss) and miss <= FLOOR_M
