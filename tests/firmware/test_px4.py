@@ -174,7 +174,8 @@ def test_mavsdk_lists_and_sets_companion_parameters_through_px4(px4_factory):
     from pymavlink.dialects.v20 import common
 
     rig = px4_factory("mavsdk", monitor=False)
-    log_dir = rig.start_companion(NAV_DEST_LAT=32.9, NAV_DEST_LON=152.1, NAV_PERIOD_S=60.0)
+    # MAVSDK's ground station is system 245: allowed as the second ground station (LINK_GCS_ID2)
+    log_dir = rig.start_companion(NAV_DEST_LAT=32.9, NAV_DEST_LON=152.1, NAV_PERIOD_S=60.0, LINK_GCS_ID2=245)
     mav = common.MAVLink(None, srcSystem=255, srcComponent=190)
     hello = common.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3).pack(mav)    # MAV_TYPE_GCS, no autopilot
     relay = _GcsRelay(rig.sitl.ports_for(rig.sitl.instance)[1], hello)
