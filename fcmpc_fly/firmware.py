@@ -41,7 +41,8 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     from sitl.firmware.px4_flight import fly_px4
 
     px4_root()
-    return _fly_on(options, "px4", fly_px4, 10.0, {"NAV_SPEED_KMH": PX4_ROVER_CRUISE_KMH, "COMP_HB_TMO_S": 10.0})
+    return _fly_on(options, "px4", fly_px4, 10.0, {"NAV_SPEED_KMH": PX4_ROVER_CRUISE_KMH, "COMP_HB_TMO_S": 10.0,
+                                                       "SAFE_TMO_S": 10.0})
 
 
 def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:

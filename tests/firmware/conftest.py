@@ -185,8 +185,9 @@ class Px4TestRig(Rig):
     def start_companion(self, **values) -> Path:
         # COMP_HB_TMO_S: the companion also judges a silent flight controller in wall time, and SIH
         # on a shared 2-core machine was starved for over 3 s of wall time (a companion failsafe
-        # 80 s into a GPS-lost run); PX4's own offboard timeout is the one these tests judge
-        return super().start_companion(**{"NAV_SPEED_KMH": PX4_CRUISE_KMH, "COMP_HB_TMO_S": 10.0, **values})
+        # 80 s into a GPS-lost run; SAFE_TMO_S is its ceiling); PX4's offboard timeout is the one judged here
+        return super().start_companion(**{"NAV_SPEED_KMH": PX4_CRUISE_KMH, "COMP_HB_TMO_S": 10.0, "SAFE_TMO_S": 10.0,
+                                         **values})
 
 
 _PX4_TAKEN: set[int] = set()
