@@ -1,7 +1,8 @@
-"""``fcmpc-fly --fc ardupilot``: the main job against real ArduPilot Rover SITL.
+"""``fcmpc-fly --fc ardupilot`` / ``--fc px4``: the main job against real flight-controller firmware.
 
 The flight itself is :func:`sitl.firmware.flight.fly_ardupilot` (ArduPilot's own boat, field,
-compass-derived yaw and EKF; GPS denied the moment the vehicle arms; SIMSTATE as the truth).
+compass-derived yaw and EKF; GPS denied the moment the vehicle arms; SIMSTATE as the truth) or
+:func:`sitl.firmware.px4_flight.fly_px4` (PX4 SIH's Ackermann rover; HIL_STATE_QUATERNION as the truth).
 This module turns the scenario and the user's options into that flight, and its records into the
 same result, plot and summary as a flight against our stand-in (:func:`fcmpc_fly.runner.finish`).
 """
@@ -16,8 +17,9 @@ import numpy as np
 from fcmpc_fly.results import STATUS_EXIT, FlyResult, TruthTrack
 from fcmpc_fly.runner import REPO, FlyOptions, finish, prepare
 
-__all__ = ["fly_on_ardupilot"]
+__all__ = ["fly_on_ardupilot", "fly_on_px4"]
 
+PX4_ROVER_CRUISE_KMH = 10.8     # 3 m/s: SIH's Ackermann rover with params/px4-rover.params (RO_SPEED_LIM)
 _MISSION = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON", "COMP_ARM_ENABLE", "COMP_SP_RATE_HZ")
 
 
@@ -25,19 +27,38 @@ def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
     """Fly the scenario's mission (or its ``--short`` leg) against ArduPilot SITL; FirmwareMissing
     (before anything is written) when the binary is absent."""
     from sitl.firmware.ardupilot import ardupilot_binary
-    from sitl.firmware.flight import FirmwareFlight, fly_ardupilot
+    from sitl.firmware.flight import fly_ardupilot
 
     ardupilot_binary()
+    return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {})
+
+
+def fly_on_px4(options: FlyOptions) -> FlyResult:
+    """The same against PX4 SITL with SIH (``$FCMPC_PX4`` or ``../shared/px4``): its Ackermann rover at
+    :data:`PX4_ROVER_CRUISE_KMH` unless ``--param NAV_SPEED_KMH`` says otherwise; PX4's pacing is its
+    speed factor (``--speedup``, default 10)."""
+    from sitl.firmware.px4 import px4_root
+    from sitl.firmware.px4_flight import fly_px4
+
+    px4_root()
+    return _fly_on(options, "px4", fly_px4, 10.0, {"NAV_SPEED_KMH": PX4_ROVER_CRUISE_KMH, "COMP_HB_TMO_S": 10.0,
+                                                       "SAFE_TMO_S": 10.0})
+
+
+def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:
+    from sitl.firmware.flight import FirmwareFlight
+
     scenario, dest, values = prepare(options)
     wall0 = time.monotonic()
     out = Path(options.out_dir) if options.out_dir else \
-        REPO / "out" / "fly" / f"{scenario.name}-ardupilot-{datetime.now():%Y%m%d-%H%M%S}"
+        REPO / "out" / "fly" / f"{scenario.name}-{name}-{datetime.now():%Y%m%d-%H%M%S}"
     companion_values = {k: v for k, v in values.items() if k not in _MISSION and k in {**scenario.nav_overrides(),
                                                                                     **options.extra_params}}
-    run = fly_ardupilot(FirmwareFlight(
+    run = fly_firmware(FirmwareFlight(
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
-        values=companion_values, speedup=options.speedup or 50.0, instance=options.fc_instance,
-        start_unix_s=scenario.start_posix, timeout_s=options.timeout_s, quiet=options.progress_s is None))
+        values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
+        instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
+        quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \
         if t["time_s"] else None

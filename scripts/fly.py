@@ -5,6 +5,7 @@
     fcmpc-fly --scenario long_storm --seed 3 --compare
     fcmpc-fly --autopilot px4 --speedup 500    # PX4 OFFBOARD, paced instead of lockstep
     fcmpc-fly --fc ardupilot --short           # against real ArduPilot Rover SITL (README: Flying with ArduPilot)
+    fcmpc-fly --fc px4 --short --short-km 30   # against real PX4 SITL with SIH (README: Flying with PX4)
 
 The run itself is :func:`fcmpc_fly.runner.fly`; this file is the command line. While it flies
 it prints a progress line on stderr about every 10 s of wall time (step, simulated time,
@@ -55,11 +56,13 @@ def build_parser() -> ArgumentParser:
                    help=f"distance of the --short destination; default {SHORT_KM:g}")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
                    help="flight-controller conventions our simulator speaks (--fc sim); default ardupilot")
-    p.add_argument("--fc", choices=("sim", "ardupilot"), default="sim",
-                   help="flight controller: our stand-in (fcmpc-sitl), or real ArduPilot Rover SITL "
-                        "($FCMPC_ARDUPILOT or ../shared/ardupilot/ardurover; GPS denied from take-off); default sim")
+    p.add_argument("--fc", choices=("sim", "ardupilot", "px4"), default="sim",
+                   help="flight controller: our stand-in (fcmpc-sitl), real ArduPilot Rover SITL "
+                        "($FCMPC_ARDUPILOT or ../shared/ardupilot/ardurover), or real PX4 SITL with SIH "
+                        "($FCMPC_PX4 or ../shared/px4); GPS denied from take-off on both; default sim")
     p.add_argument("--fc-instance", type=int, default=0, metavar="I",
-                   help="ArduPilot SITL instance (-I): its TCP ports are 5760 + 10 I; default 0")
+                   help="ArduPilot SITL instance (-I): its TCP ports are 5760 + 10 I; PX4 instance (0-9): the "
+                        "companion listens on UDP 14540 + I; default 0")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -94,12 +97,14 @@ def _run(argv: list[str] | None) -> int:
         prepare(options)          # nothing is written before this passes
     except ValueError as err:     # ScenarioError, ParamError and the option checks
         raise UsageError(str(err)) from None
-    if options.fc == "ardupilot":
-        from fcmpc_fly.firmware import fly_on_ardupilot
+    if options.fc in ("ardupilot", "px4"):
+        from fcmpc_fly.firmware import fly_on_ardupilot, fly_on_px4
         from sitl.firmware import FirmwareMissing
 
+        if options.fc == "px4" and not 0 <= options.fc_instance <= 9:
+            raise UsageError(f"--fc-instance {options.fc_instance}: PX4 instances are 0..9")
         try:
-            result = fly_on_ardupilot(options)
+            result = (fly_on_px4 if options.fc == "px4" else fly_on_ardupilot)(options)
         except FirmwareMissing as err:
             raise UsageError(str(err)) from None
     else:

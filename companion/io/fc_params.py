@@ -24,7 +24,7 @@ __all__ = ["FcParamReader", "HeadingVerdict", "judge_heading", "HEADING_PARAMS",
            "PX4_HEADING_PARAMS"]
 
 ARDUPILOT_HEADING_PARAMS = ("EK3_SRC1_YAW", "COMPASS_USE", "AHRS_EKF_TYPE")
-PX4_HEADING_PARAMS = ("EKF2_MAG_TYPE", "EKF2_GPS_CTRL")
+PX4_HEADING_PARAMS = ("EKF2_MAG_TYPE", "EKF2_GPS_CTRL", "EKF2_EV_CTRL")
 HEADING_PARAMS = {"ardupilot": ARDUPILOT_HEADING_PARAMS, "px4": PX4_HEADING_PARAMS}
 
 _PX4_INT_PARAMS = frozenset(PX4_HEADING_PARAMS)
@@ -53,10 +53,15 @@ def judge_heading(autopilot: str, values: dict[str, float]) -> HeadingVerdict:
         if mag_type is None:
             return HeadingVerdict(None, "EKF2_MAG_TYPE not answered")
         gps_ctrl = int(values.get("EKF2_GPS_CTRL", 0))
+        ev_ctrl = int(values.get("EKF2_EV_CTRL", 0))
         if int(mag_type) == 5 and gps_ctrl & 8:
             return HeadingVerdict(False, "EKF2_MAG_TYPE 5 (none) with GNSS dual-antenna heading")
+        if int(mag_type) == 5 and ev_ctrl & 8:
+            return HeadingVerdict(False, "EKF2_MAG_TYPE 5 (none) with external-vision yaw (EKF2_EV_CTRL bit 3)")
         if int(mag_type) == 5:
             return HeadingVerdict(False, "EKF2_MAG_TYPE 5: no magnetometer in the yaw")
+        # 0 automatic and 1 heading fuse it throughout; 6 "init" takes the initial yaw from it and
+        # then integrates the gyro: that yaw still carries the compass and the declination table
         return HeadingVerdict(True, f"EKF2_MAG_TYPE {int(mag_type)}: yaw from the magnetometer")
     src = values.get("EK3_SRC1_YAW")
     use = values.get("COMPASS_USE")

@@ -20,6 +20,18 @@ moved by the velocity, plus the correction applied so far, which grows by at mos
 controller's last GPS-aided position, so there is no step at the switch-over, and blends
 towards the companion's estimate from there.
 
+How the feed reaches each flight controller (:func:`send_feed`, measured on the real firmware):
+
+* ArduPilot: GPS_INPUT (``GPS2_TYPE 14``), :meth:`companion.io.mavlink_link.MavlinkLink.send_gps_input`.
+* PX4 (SITL with SIH, v1.17 main of 2026-05): GPS_INPUT was ignored (no second receiver appeared
+  in GPS2_RAW, with or without ``MAV_USEHILGPS``, from the FC's or a ground station's system id);
+  ExternalNav (ODOMETRY with ``EKF2_EV_CTRL 1``) did not take over position after GPS loss (EKF2
+  flags without a position within 20 s). HIL_GPS with ``MAV_USEHILGPS 1``, sent with the
+  flight controller's own system id (``mavlink_receiver.cpp`` accepts HIL_GPS outside HIL mode
+  only then), appears as its second receiver (GPS2_RAW) and EKF2 kept its position solution
+  when SIH's receiver lost its fix. ``eph``/``epv`` carry the claimed accuracy in cm, which
+  must pass ``EKF2_REQ_EPH``/``EKF2_REQ_EPV`` (``params/px4-rover.params``).
+
 Everything is in message time; positions in degrees, offsets in metres east/north.
 """
 from __future__ import annotations
@@ -29,7 +41,8 @@ from dataclasses import dataclass
 
 from companion.nav.geo import enu_offset, offset_position
 
-__all__ = ["FeedSample", "PositionFeed", "gps_week_time", "GPS_EPOCH_UNIX_S", "GPS_LEAP_S"]
+__all__ = ["GPS_EPOCH_UNIX_S", "GPS_LEAP_S", "FeedSample", "PositionFeed", "feed_message_name", "gps_week_time",
+           "send_feed", "send_hil_gps"]
 
 GPS_EPOCH_UNIX_S = 315964800.0   # 1980-01-06T00:00:00Z
 GPS_LEAP_S = 18.0                # GPS - UTC since 2017-01-01
@@ -133,3 +146,59 @@ class PositionFeed:
     @property
     def pending_m(self) -> float:
         return math.hypot(*self.pending_en)
+
+
+def feed_message_name(family: str) -> str:
+    """The message that carries the feed to an autopilot family ("ardupilot", "px4")."""
+    return "HIL_GPS" if family == "px4" else "GPS_INPUT"
+
+
+def send_hil_gps(link, lat_deg: float, lon_deg: float, sigma_m: float, vn_mps: float = 0.0, ve_mps: float = 0.0,
+                 satellites: int = 10, alt_m: float = 0.0) -> bool:
+    """HIL_GPS for PX4 (``MAV_USEHILGPS 1``), from the link's system id, which is the flight
+    controller's once it is detected. ``sigma_m`` goes out as ``eph`` and ``epv`` (cm), the
+    velocity (m/s, north/east) as ``vn``/``ve`` (cm/s); time is the flight controller's UTC
+    (SYSTEM_TIME), as on a real receiver."""
+    if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
+        return False
+    clock = link.clock
+    if clock.unix_minus_boot_s is None or not clock.started:
+        return False
+    accuracy_cm = round(min(float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else 100.0, 600.0) * 100)
+    vn = vn_mps if math.isfinite(vn_mps) else 0.0
+    ve = ve_mps if math.isfinite(ve_mps) else 0.0
+    speed = math.hypot(vn, ve)
+    cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100) % 36000 if speed > 0.1 else 65535
+    lon = ((lon_deg + 180.0) % 360.0) - 180.0
+    link.mav.hil_gps_send(int((clock.now_s + clock.unix_minus_boot_s) * 1e6), 3, round(lat_deg * 1e7),
+                          round(lon * 1e7), round(alt_m * 1000.0), accuracy_cm, accuracy_cm,
+                          round(speed * 100), round(vn * 100), round(ve * 100), 0, cog, satellites, 1, 0)
+    link.stats.positions_fed += 1
+    return True
+
+
+def send_feed(link, family: str, lat_deg: float, lon_deg: float, sigma_m: float, satellites: int,
+              vn_mps: float = 0.0, ve_mps: float = 0.0) -> bool:
+    """One feed sample to the flight controller in the message its family accepts (see above)."""
+    if family == "px4":
+        return send_hil_gps(link, lat_deg, lon_deg, sigma_m, vn_mps, ve_mps, satellites)
+    return link.send_gps_input(lat_deg, lon_deg, sigma_m, satellites=satellites)
+
+
+def send_echo(link, family: str, pos, now_s: float, sigma_m: float, satellites: int) -> bool:
+    """The echo of the flight controller's own GPS-aided position (``pos``: GLOBAL_POSITION_INT as
+    :class:`~companion.io.sensors.mavlink_source.FcPosition`) while its GPS has a fix.
+
+    PX4 blends its receivers' positions *and velocities* (``SENS_GPS_MASK``) and feeds the blend to
+    its yaw estimator: an echo standing still at the last 1 Hz position while the rover drives made
+    EKF2 reset its yaw to the GPS-velocity estimate and stop using the magnetometer ("Compass needs
+    calibration"), and after GPS loss that was a failsafe. So on PX4 the echo carries the velocity
+    and is flown on from its time stamp; ArduPilot's GPS_INPUT echo stays the position as reported.
+    """
+    if family != "px4":
+        return link.send_gps_input(pos.lat_deg, pos.lon_deg, sigma_m, satellites=satellites)
+    vn = pos.vn_mps if math.isfinite(pos.vn_mps) else 0.0
+    ve = pos.ve_mps if math.isfinite(pos.ve_mps) else 0.0
+    dt = min(max(now_s - pos.time_s, 0.0), 2.0)
+    lat, lon = offset_position(pos.lat_deg, pos.lon_deg, ve * dt, vn * dt)
+    return send_hil_gps(link, float(lat), float(lon), sigma_m, vn, ve, satellites)

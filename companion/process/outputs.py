@@ -1,4 +1,5 @@
-"""What the companion sends: STATUSTEXT, its heartbeat, setpoints, the estimate and the GPS_INPUT feed.
+"""What the companion sends: STATUSTEXT, its heartbeat, setpoints, the estimate and the position feed
+(GPS_INPUT to ArduPilot, HIL_GPS to PX4: :mod:`companion.io.position_feed`).
 
 No setpoint leaves without :func:`~companion.io.mavlink_link.guard_setpoint` (inside
 :meth:`~companion.io.mavlink_link.MavlinkLink.send_setpoint`). Times are message time unless
@@ -12,6 +13,8 @@ import time
 
 from companion import wrap_2pi
 from companion.io.mavlink_link import mavlink
+from companion.io.position_feed import feed_message_name, send_echo, send_feed
+from companion.io.px4 import unused_streams
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
 from companion.process.machine import State
@@ -67,6 +70,8 @@ class Outputs:
         link, app = self.link, self.app
         mag_msg = app.opts.mag_message or ("HIGHRES_IMU" if link.fc.conventions.param_bytewise else "RAW_IMU")
         link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{mag_msg}"), MAG_STREAM_HZ)
+        for name in unused_streams(link.fc.conventions.family):   # before LOCAL_POSITION_NED may be asked for
+            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), -1.0)
         for name, hz in STREAMS_HZ.items():
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), hz)
         if app.comp_cfg.position_publish == 1:
@@ -144,8 +149,7 @@ class Outputs:
                 if view.feeding_own:
                     self.say("FcMPC: FC has GPS again: position feed echoes it", mavlink.MAV_SEVERITY_NOTICE)
                 view.feeding_own = False
-                self.link.send_gps_input(pos.lat_deg, pos.lon_deg, app.comp_cfg.feed_accuracy_m,
-                                         satellites=ECHO_SATELLITES)
+                send_echo(self.link, view.family, pos, now, app.comp_cfg.feed_accuracy_m, ECHO_SATELLITES)
             return
         if not view.gps_seen and app.now - app.fc_detected_at < STARTUP_GRACE_S:
             return   # no GPS_RAW_INT yet: do not take a slow stream for a lost GPS
@@ -158,7 +162,8 @@ class Outputs:
             view.feeding_own = True
             if estimate is not None:
                 feed.correct_to(now, estimate[0], estimate[1], self.feed_sigma())
-            self.say("FcMPC: FC has no GPS: feeding our position (GPS_INPUT)", mavlink.MAV_SEVERITY_NOTICE)
+            self.say(f"FcMPC: FC has no GPS: feeding our position ({feed_message_name(view.family)})",
+                     mavlink.MAV_SEVERITY_NOTICE)
         following = app.state == State.RUNNING and not app.failsafe_active and not app.clock.paused
         cmd = app.command if following else None
         vn, ve = (cmd.speed_mps * math.cos(cmd.course_rad), cmd.speed_mps * math.sin(cmd.course_rad)) \
@@ -167,8 +172,8 @@ class Outputs:
             feed.set_velocity(now, vn, ve)
         sample = feed.sample(now)
         if sample is not None:
-            self.link.send_gps_input(sample.lat_deg, sample.lon_deg, app.comp_cfg.feed_accuracy_m,
-                                     satellites=FEED_SATELLITES)
+            send_feed(self.link, view.family, sample.lat_deg, sample.lon_deg, app.comp_cfg.feed_accuracy_m,
+                      FEED_SATELLITES, sample.vn_mps, sample.ve_mps)
 
     def current_estimate(self) -> tuple[float, float] | None:
         """The navigator's latest position: the mission's estimate, else the start it would use."""

@@ -23,7 +23,7 @@ from companion.params import write_parm_file
 from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
 from sitl.firmware.monitor import FirmwareMonitor
 
-__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "BOAT_CRUISE_KMH"]
+__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH"]
 
 BOAT_CRUISE_KMH = 28.8      # 8 m/s: ArduPilot's SITL motorboat makes 10 m/s at full throttle
 REST_SPEED_MPS = 0.3
@@ -61,42 +61,71 @@ def _say(flight: FirmwareFlight, text: str) -> None:
         print(f"fcmpc-fly: {text}", file=sys.stderr, flush=True)
 
 
+class _ArduPilotRig:
+    """ArduPilot's side of a flight: SITL, the monitor on SERIAL0, the companion on SERIAL1."""
+
+    name = "ArduPilot SITL"
+
+    def __init__(self, flight: FirmwareFlight, out: Path) -> None:
+        self.sitl = ArduPilotSitl(workdir=out / "ardupilot", instance=flight.instance, home=flight.start,
+                                  speedup=flight.speedup, start_unix_s=flight.start_unix_s, binary=ardupilot_binary())
+
+    def start(self) -> FirmwareMonitor:
+        self.sitl.start()
+        self.sitl.wait_listening()
+        monitor = FirmwareMonitor(self.sitl.serial0, rates_hz={"SIMSTATE": 1.0, "VFR_HUD": 1.0, "GPS_RAW_INT": 1.0})
+        monitor.start()
+        return monitor
+
+    @property
+    def companion_url(self) -> str:
+        return self.sitl.serial1
+
+    def deny_gps(self, monitor: FirmwareMonitor) -> None:
+        monitor.set_param("SIM_GPS1_ENABLE", 0)
+
+    def stop(self) -> None:
+        self.sitl.stop()
+
+
 def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
     """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
-    binary = ardupilot_binary()        # FirmwareMissing before anything is written
+    ardupilot_binary()                 # FirmwareMissing before anything is written
+    return fly_firmware(flight, _ArduPilotRig)
+
+
+def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
+    """Fly one mission against the firmware ``rig_class(flight, out)`` starts (ArduPilot or PX4):
+    the companion as a process on its port, the monitor recording the truth, GPS denied at arming."""
     out = Path(flight.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     parm = out / "fly.parm"
     write_parm_file(parm, {"NAV_START_LAT": flight.start[0], "NAV_START_LON": flight.start[1],
                            "NAV_DEST_LAT": flight.destination[0], "NAV_DEST_LON": flight.destination[1],
                            "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH, **flight.values},
-                    header="fcmpc-fly --fc ardupilot")
-    sitl = ArduPilotSitl(workdir=out / "ardupilot", instance=flight.instance, home=flight.start,
-                         speedup=flight.speedup, start_unix_s=flight.start_unix_s, binary=binary)
+                    header=f"fcmpc-fly against {rig_class.name}")
+    rig = rig_class(flight, out)
     wall0 = time.monotonic()
     companion = None
     monitor = None
     denied_at = math.nan
     status, message = "error", ""
-    sitl.start()
     try:
-        sitl.wait_listening()
-        monitor = FirmwareMonitor(sitl.serial0, rates_hz={"SIMSTATE": 1.0, "VFR_HUD": 1.0, "GPS_RAW_INT": 1.0})
-        monitor.start()
+        monitor = rig.start()
         companion = subprocess.Popen(
-            [sys.executable, "-m", "companion.app", "--connect", sitl.serial1, "--params", str(parm), "--log-dir",
+            [sys.executable, "-m", "companion.app", "--connect", rig.companion_url, "--params", str(parm), "--log-dir",
              str(out / "companion"), "--exit-when-done", "--quiet"],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=open(out / "companion.log", "wb"))
-        _say(flight, f"ArduPilot SITL instance {flight.instance} at {flight.speedup:g}x, companion on "
-                     f"{sitl.serial1}; records in {out}")
+        _say(flight, f"{rig.name} instance {flight.instance} at {flight.speedup:g}x, companion on "
+                     f"{rig.companion_url}; records in {out}")
         deadline = wall0 + flight.timeout_s
         last_report = 0.0
 
         def tick(m: FirmwareMonitor) -> bool:
             nonlocal denied_at, last_report
             if flight.deny_gps_at_arming and m.armed and not math.isfinite(denied_at):
-                m.set_param("SIM_GPS1_ENABLE", 0)
+                rig.deny_gps(m)
                 denied_at = m.time_s
                 _say(flight, f"armed at {m.time_s:.0f} s: GPS denied from take-off")
             if time.monotonic() - last_report > 30.0 and m.truth:
@@ -111,7 +140,7 @@ def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
         monitor.pump(tick, max(deadline - time.monotonic(), 1.0), "the end of the mission")
         code = companion.returncode
         status, message = ("arrived", "") if code == 0 else ("failed", f"companion exited with {code}")
-        # the boat coasts after the last step: wait until it is at rest (at most 120 s of firmware time)
+        # the vehicle coasts after the last step: wait until it is at rest (at most 120 s of firmware time)
         t_done = monitor.time_s
         monitor.pump(lambda m: m.time_s > t_done + 120.0 or _at_rest(m), 120.0, "the vehicle at rest")
     except TimeoutError as err:
@@ -129,7 +158,7 @@ def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
                 companion.kill()
         if monitor is not None:
             monitor.close()
-        sitl.stop()
+        rig.stop()
     truth = _write_truth(out / "truth.csv", monitor.truth if monitor is not None else [])
     return FirmwareRun(status, message, truth, time.monotonic() - wall0,
                        companion.returncode if companion is not None else None, denied_at)

@@ -5,6 +5,11 @@ Connects to a spare port of the firmware (ArduPilot's SERIAL0 or SERIAL1) as a g
 and GPS_RAW_INT, and records what the tests and ``fcmpc-fly --fc ardupilot`` judge: the true
 track, the flight mode and arming state, and every STATUSTEXT (the flight controller's and the
 companion's, which ArduPilot routes to all its links). Time is the firmware's boot time.
+
+PX4 SIH has no SIMSTATE: its ground truth is HIL_STATE_QUATERNION (SIH's own state, with
+``time_usec`` 0), requested on PX4's ground-station link (``udpout:`` to 18570+N; PX4 answers
+whoever sent last, so the monitor speaks first and sends a heartbeat every wall second); time
+then comes from SYSTEM_TIME and GLOBAL_POSITION_INT. A rate of 0 turns a stream off.
 """
 from __future__ import annotations
 
@@ -56,6 +61,7 @@ class FirmwareMonitor:
         self._gps_fix = 0
         self._groundspeed = math.nan
         self._chunks: dict[tuple[int, int], str] = {}
+        self._hello_wall_s = -math.inf
 
     def _statustext(self, msg) -> None:
         """One text per STATUSTEXT, or per id across its 50-character chunks (MAVLink 2)."""
@@ -70,17 +76,26 @@ class FirmwareMonitor:
             self.texts.append((self.time_s, comp, self._chunks.pop(key)))
 
     def start(self, timeout_s: float = 60.0) -> None:
-        """Wait for the autopilot's heartbeat, then ask for the streams."""
+        """Wait for the autopilot's heartbeat (saying hello first on a ``udpout:`` link), then ask
+        for the streams."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
+            self._hello()
             msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
-            if msg is not None and msg.get_srcComponent() == 1:
+            if msg is not None and msg.get_srcComponent() == 1 and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID:
+                self.target_system = msg.get_srcSystem()
                 break
         else:
             raise TimeoutError(f"no heartbeat on {self.connect} within {timeout_s:g} s")
         for name, hz in self.rates_hz.items():
             self.send_command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"),
-                              1e6 / hz)
+                              1e6 / hz if hz > 0 else -1)
+
+    def _hello(self) -> None:
+        """A ground-station heartbeat, at most once per wall second, on links where we speak first."""
+        if self.connect.startswith("udpout:") and time.monotonic() - self._hello_wall_s >= 1.0:
+            self._hello_wall_s = time.monotonic()
+            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
     def send_command(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
@@ -90,6 +105,13 @@ class FirmwareMonitor:
         self.conn.mav.param_set_send(self.target_system, 1, name.encode("ascii"), float(value),
                                      mavlink.MAV_PARAM_TYPE_REAL32)
 
+    def set_param_int32_bytewise(self, name: str, value: int) -> None:
+        """PARAM_SET of a PX4 INT32 parameter: the integer's bytes in the float (PX4's encoding)."""
+        import struct
+
+        raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+        self.conn.mav.param_set_send(self.target_system, 1, name.encode("ascii"), raw, mavlink.MAV_PARAM_TYPE_INT32)
+
     def pump(self, until, timeout_wall_s: float, what: str = "condition") -> None:
         """Read messages until ``until(self)`` is true; TimeoutError after ``timeout_wall_s``."""
         deadline = time.monotonic() + timeout_wall_s
@@ -98,6 +120,7 @@ class FirmwareMonitor:
                 raise TimeoutError(f"{what} not reached within {timeout_wall_s:g} s of wall time "
                                    f"(firmware time {self.time_s:.1f} s, mode {self.mode}, armed {self.armed}); "
                                    f"last texts: {self.texts[-5:]}")
+            self._hello()
             msg = self.conn.recv_match(blocking=True, timeout=0.5)
             if msg is not None:
                 self.handle(msg)
@@ -105,9 +128,9 @@ class FirmwareMonitor:
     def handle(self, msg) -> None:
         mtype = msg.get_type()
         boot_ms = getattr(msg, "time_boot_ms", None)
-        if boot_ms is not None and msg.get_srcComponent() == 1:
+        if boot_ms is not None and msg.get_srcComponent() == 1 and msg.get_srcSystem() == self.target_system:
             self.time_s = boot_ms * 1e-3
-        if mtype == "HEARTBEAT" and msg.get_srcComponent() == 1:
+        if mtype == "HEARTBEAT" and msg.get_srcComponent() == 1 and msg.get_srcSystem() == self.target_system:
             self.mode, self.armed = msg.custom_mode, bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         elif mtype == "STATUSTEXT":
             self._statustext(msg)
@@ -119,6 +142,11 @@ class FirmwareMonitor:
             self.truth.append(TruthSample(self.time_s, msg.lat * 1e-7, msg.lng * 1e-7,
                                           math.degrees(msg.yaw) % 360.0, self.mode, self.armed,
                                           self._groundspeed, self._gps_fix))
+        elif mtype == "HIL_STATE_QUATERNION" and math.isfinite(self.time_s):
+            w, x, y, z = msg.attitude_quaternion
+            yaw = math.degrees(math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))) % 360.0
+            self.truth.append(TruthSample(self.time_s, msg.lat * 1e-7, msg.lon * 1e-7, yaw, self.mode, self.armed,
+                                          math.hypot(msg.vx, msg.vy) * 0.01, self._gps_fix))
 
     def texts_matching(self, needle: str, component: int | None = None) -> list:
         return [t for t in self.texts if needle in t[2] and (component is None or t[1] == component)]

@@ -1,4 +1,4 @@
-"""Real ArduPilot Rover SITL for the tests: one instance number and one work folder per test.
+"""Real ArduPilot Rover SITL and PX4 SITL (SIH) for the tests: one instance number and one work folder per test.
 
 Skips with the reason when the binary is absent (``FCMPC_ARDUPILOT`` or ``../shared/ardupilot``);
 CI has it. The monitor (a ground station on SERIAL0, where SITL waits for its first client)
@@ -40,6 +40,8 @@ def _binary_or_skip() -> Path:
 class Rig:
     """ArduPilot + monitor + (later) the companion process of one test."""
 
+    quiet = True      # the companion's own lines on stderr (companion.err) or not
+
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
         instance = free_instance(first=11 + (os.getpid() % 8) * 10, taken=_TAKEN)
@@ -52,14 +54,18 @@ class Rig:
         self.monitor.start()
         self.companion: subprocess.Popen | None = None
 
+    @property
+    def companion_url(self) -> str:
+        return self.sitl.serial1
+
     def start_companion(self, **values) -> Path:
         parm = self.tmp / "companion.parm"
         base = {"NAV_START_LAT": 33.0, "NAV_START_LON": 152.0, "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": CRUISE_KMH}
         write_parm_file(parm, {**base, **values})
         log_dir = self.tmp / "companion"
         self.companion = subprocess.Popen(
-            [sys.executable, "-m", "companion.app", "--connect", self.sitl.serial1, "--params", str(parm),
-             "--log-dir", str(log_dir), "--quiet"],
+            [sys.executable, "-m", "companion.app", "--connect", self.companion_url, "--params", str(parm),
+             "--log-dir", str(log_dir), *(["--quiet"] if self.quiet else [])],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "companion.err", "wb"))
         return log_dir
 
@@ -74,7 +80,8 @@ class Rig:
                 self.companion.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 self.companion.kill()
-        self.monitor.close()
+        if self.monitor is not None:
+            self.monitor.close()
         self.sitl.stop()
 
 
@@ -101,3 +108,100 @@ def bearing_deg(a, b) -> float:
 
 def angle_diff_deg(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def moving_pairs(truth, t0: float, t1: float, min_speed_mps: float = 3.0):
+    """Pairs of truth samples 10 s apart inside [t0, t1] while the vehicle moves."""
+    from companion.nav.geo import geodesic_distance_m
+
+    samples = [s for s in truth if t0 <= s.time_s <= t1]
+    pairs = []
+    for a in samples:
+        b = next((s for s in samples if s.time_s >= a.time_s + 10.0), None)
+        if b is None:
+            break
+        if geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg) / (b.time_s - a.time_s) >= min_speed_mps:
+            pairs.append((a, b))
+    return pairs
+
+
+def assert_forward_on(truth, t0: float, t1: float, course_deg: float, min_speed_mps: float = 3.0) -> None:
+    """The true track between t0 and t1 follows ``course_deg`` within 15 deg, heading first."""
+    pairs = moving_pairs(truth, t0, t1, min_speed_mps)
+    assert len(pairs) >= 5, f"vehicle did not move on course {course_deg} between {t0:.0f} and {t1:.0f} s"
+    for a, b in pairs:
+        track = bearing_deg(a, b)
+        assert angle_diff_deg(track, course_deg) < 15.0, f"track {track:.0f} deg, commanded {course_deg:.0f} deg"
+        assert angle_diff_deg(a.yaw_deg, track) < 30.0, f"heading {a.yaw_deg:.0f} deg against track {track:.0f}: reversing"
+
+
+# --- PX4 SITL with SIH ---------------------------------------------------------------------------
+# PX4's speed factor: simulated seconds per wall second. The companion must keep PX4's offboard
+# link fed in wall time (COM_OF_LOSS_T of simulated time), so the tests set that timeout to
+# PX4_LOSS_WALL_S of wall time at this factor, as PX4's own rcS does (factor x 1 s) but with more
+# margin for a loaded 2-core machine.
+PX4_SPEED = 12.0
+PX4_LOSS_WALL_S = 2.0
+PX4_CRUISE_KMH = 10.8      # 3 m/s: the SIH Ackermann rover's speed limit in params/px4-rover.params
+
+
+def _px4_root_or_skip() -> Path:
+    from sitl.firmware.px4 import px4_root
+
+    try:
+        return px4_root()
+    except FirmwareMissing as err:
+        pytest.skip(str(err))
+
+
+class Px4TestRig(Rig):
+    """PX4 SIH + a monitor on its ground-station link + (later) the companion on its onboard link."""
+
+    quiet = False     # PX4 forwards the companion's texts to the monitor, but a failing test wants them all
+
+    def __init__(self, tmp_path: Path, params: dict | None = None, speed: float = PX4_SPEED,
+                 monitor: bool = True) -> None:
+        from sitl.firmware.px4 import Px4Sitl, free_px4_instance
+        from sitl.firmware.px4_flight import MONITOR_RATES_HZ
+
+        self.tmp = tmp_path
+        root = _px4_root_or_skip()
+        instance = free_px4_instance(first=1 + os.getpid() % 9, taken=_PX4_TAKEN)
+        _PX4_TAKEN.add(instance)
+        self.loss_timeout_s = PX4_LOSS_WALL_S * speed
+        self.sitl = Px4Sitl(workdir=tmp_path / "px4", instance=instance, speed_factor=speed, root=root,
+                            params={"SDLOG_MODE": -1, "COM_OF_LOSS_T": self.loss_timeout_s, **(params or {})})
+        self.sitl.start()
+        self.monitor = None
+        if monitor:   # PX4's GCS link answers its first client only: a test may want another one there
+            self.monitor = FirmwareMonitor(self.sitl.gcs_url, rates_hz=MONITOR_RATES_HZ)
+            self.monitor.start()
+        self.companion: subprocess.Popen | None = None
+
+    @property
+    def companion_url(self) -> str:
+        return self.sitl.companion_url
+
+    def start_companion(self, **values) -> Path:
+        # COMP_HB_TMO_S: the companion also judges a silent flight controller in wall time, and SIH
+        # on a shared 2-core machine was starved for over 3 s of wall time (a companion failsafe
+        # 80 s into a GPS-lost run; SAFE_TMO_S is its ceiling); PX4's offboard timeout is the one judged here
+        return super().start_companion(**{"NAV_SPEED_KMH": PX4_CRUISE_KMH, "COMP_HB_TMO_S": 10.0, "SAFE_TMO_S": 10.0,
+                                         **values})
+
+
+_PX4_TAKEN: set[int] = set()
+
+
+@pytest.fixture
+def px4_factory(tmp_path):
+    rigs = []
+
+    def make(name: str, params: dict | None = None, speed: float = PX4_SPEED, monitor: bool = True) -> Px4TestRig:
+        rig = Px4TestRig(tmp_path / name, params, speed, monitor)
+        rigs.append(rig)
+        return rig
+
+    yield make
+    for rig in rigs:
+        rig.close()

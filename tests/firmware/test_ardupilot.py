@@ -12,34 +12,11 @@ import signal
 import pytest
 
 from companion.io.records import read_steps_csv
-from tests.firmware.conftest import angle_diff_deg, bearing_deg
+from tests.firmware.conftest import assert_forward_on as _assert_forward_on
+from tests.firmware.conftest import moving_pairs as _moving
 
 GUIDED, HOLD = 15, 4
 WALL_S = 300.0          # generous: a loaded 2-core machine runs SITL far below its nominal speed-up
-
-
-def _moving(truth, t0: float, t1: float, min_speed_mps: float = 3.0):
-    """Pairs of truth samples 10 s apart inside [t0, t1] while the vehicle moves."""
-    samples = [s for s in truth if t0 <= s.time_s <= t1]
-    pairs = []
-    for a in samples:
-        b = next((s for s in samples if s.time_s >= a.time_s + 10.0), None)
-        if b is None:
-            break
-        from companion.nav.geo import geodesic_distance_m
-
-        if geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg) / (b.time_s - a.time_s) >= min_speed_mps:
-            pairs.append((a, b))
-    return pairs
-
-
-def _assert_forward_on(truth, t0: float, t1: float, course_deg: float) -> None:
-    pairs = _moving(truth, t0, t1)
-    assert len(pairs) >= 5, f"vehicle did not move on course {course_deg} between {t0:.0f} and {t1:.0f} s"
-    for a, b in pairs:
-        track = bearing_deg(a, b)
-        assert angle_diff_deg(track, course_deg) < 15.0, f"track {track:.0f} deg, commanded {course_deg:.0f} deg"
-        assert angle_diff_deg(a.yaw_deg, track) < 30.0, f"heading {a.yaw_deg:.0f} deg against track {track:.0f}: reversing"
 
 
 @pytest.mark.parametrize("probes", [(45.0, 315.0), (225.0, 135.0)], ids=["NE-SE", "SW-NW"])

@@ -1,0 +1,203 @@
+"""PX4 SITL with its built-in SIH simulator as a process: start, wait for its heartbeat, stop by PID.
+
+The firmware is ``$FCMPC_PX4`` (the ``px4`` binary, or the folder holding ``run_sih.sh``) or
+``<project>/../shared/px4/``: ``bin/px4`` beside ``etc/`` (PX4's start-up scripts). PX4 SITL
+writes its parameters, dataman and logs into its working folder (``-w``), so each instance gets
+its own temporary one; ``-i N`` shifts its UDP ports (``px4-rc.mavlink``):
+
+* onboard/offboard link: PX4 sends from 14580+N to 14540+N, where the companion listens
+  (``udpin:127.0.0.1:14540+N``); only N <= 9 have their own port (PX4 sends every higher
+  instance to 14549), so instances are 0..9;
+* ground-station link: PX4 on 18570+N answers whoever talked to it last (and forwards the
+  companion's messages there);
+* SIH display link: PX4 on 19450+N streams HIL_STATE_QUATERNION, SIH's ground truth, to 19410+N.
+
+Parameters are applied at start through PX4's own ``PX4_PARAM_<NAME>=<value>`` environment
+variables (``rcS`` sets them after the airframe's defaults), from ``params/px4-rover.params``
+(QGroundControl's format) and ``params``. Home is ``SIH_LOC_LAT0/LON0`` (``PX4_HOME_LAT/LON``).
+
+The shipped ``bin/`` holds PX4's module aliases (``px4-param`` ...) as text files naming
+``px4`` where a checkout lost its symbolic links; the start-up script runs them through
+``PATH``, so each instance gets a ``bin/`` of real links in its working folder first on ``PATH``.
+
+>>> Px4Sitl.ports_for(3)
+(14543, 18573, 19413)
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sitl.firmware.ardupilot import FirmwareMissing, project_parm
+
+__all__ = ["MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
+
+MAX_INSTANCE = 9          # px4-rc.mavlink: instances above 9 share the offboard port 14549
+PX4_MODEL = "sihsim_rover_ackermann"
+PARAM_TYPE_INT32, PARAM_TYPE_REAL32 = 6, 9    # MAV_PARAM_TYPE in QGroundControl's .params
+
+
+def px4_root() -> Path:
+    """The folder with ``bin/px4`` and ``etc/``: ``$FCMPC_PX4`` (the binary or its folder's parent)
+    or ``<project>/../shared/px4``; FirmwareMissing if absent."""
+    env = os.environ.get("FCMPC_PX4")
+    path = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "px4"
+    root = path.parent.parent if path.is_file() else path
+    binary = root / "bin" / "px4"
+    if not (binary.is_file() and os.access(binary, os.X_OK) and (root / "etc" / "init.d-posix").is_dir()):
+        raise FirmwareMissing(f"PX4 SITL not found or not executable: {binary} (with etc/ beside bin/; "
+                              f"set FCMPC_PX4 to a px4 built with make px4_sitl_sih)")
+    return root
+
+
+def read_qgc_params(path: Path) -> dict[str, float]:
+    """QGroundControl's ``.params``: ``vehicle component NAME value type`` per line (tabs), ``#`` comments.
+
+    Raises ValueError naming the file and line for a malformed line.
+    """
+    values: dict[str, float] = {}
+    for number, raw in enumerate(Path(path).read_text().splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        if len(parts) != 5 or int(parts[4]) not in (PARAM_TYPE_INT32, PARAM_TYPE_REAL32):
+            raise ValueError(f"{path}:{number}: expected 'SYSID COMPID NAME VALUE TYPE' with type 6 or 9, "
+                             f"got {raw.strip()!r}")
+        value = float(parts[3])
+        values[parts[2]] = float(int(value)) if int(parts[4]) == PARAM_TYPE_INT32 else value
+    return values
+
+
+def _format(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
+@dataclass
+class Px4Sitl:
+    """One PX4 SIH instance; a context manager that stops it on exit.
+
+    ``home``: (lat, lon) degrees, altitude 0 m (the field is the route's, at sea level).
+    ``speed_factor``: PX4_SIM_SPEED_FACTOR (simulated seconds per wall second). ``params``:
+    parameters after ``params/px4-rover.params`` (when ``project_params``).
+    """
+
+    workdir: Path
+    instance: int = 1
+    home: tuple[float, float] = (33.0, 152.0)
+    speed_factor: float = 5.0
+    model: str = PX4_MODEL
+    params: dict[str, float] = field(default_factory=dict)
+    project_params: bool = True
+    root: Path | None = None
+    process: subprocess.Popen | None = None
+
+    @staticmethod
+    def ports_for(instance: int) -> tuple[int, int, int]:
+        """(companion's listening port, PX4's ground-station port, SIH truth listening port)."""
+        return 14540 + instance, 18570 + instance, 19410 + instance
+
+    @property
+    def companion_url(self) -> str:
+        return f"udpin:127.0.0.1:{self.ports_for(self.instance)[0]}"
+
+    @property
+    def gcs_url(self) -> str:
+        return f"udpout:127.0.0.1:{self.ports_for(self.instance)[1]}"
+
+    @property
+    def truth_url(self) -> str:
+        return f"udpin:127.0.0.1:{self.ports_for(self.instance)[2]}"
+
+    @property
+    def system_id(self) -> int:
+        return self.instance + 1          # rcS: MAV_SYS_ID = instance + 1
+
+    @property
+    def log_path(self) -> Path:
+        return Path(self.workdir) / "px4.log"
+
+    def all_params(self) -> dict[str, float]:
+        values = read_qgc_params(project_parm("px4-rover.params")) if self.project_params else {}
+        return {**values, **self.params}
+
+    def environment(self, root: Path) -> dict[str, str]:
+        bin_dir = Path(self.workdir) / "bin"
+        bin_dir.mkdir(parents=True, exist_ok=True)
+        real = (root / "bin" / "px4").resolve()
+        for alias in (root / "bin").glob("px4-*"):
+            link = bin_dir / alias.name
+            if alias.suffix != ".sh" and not link.exists():
+                link.symlink_to(real)
+        env = {k: v for k, v in os.environ.items() if not k.startswith("PX4_")}
+        env.update({"PATH": f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", "PX4_WORKDIR": str(self.workdir),
+                    "PX4_INSTANCE": str(self.instance), "PX4_SIM_MODEL": self.model, "PX4_CLEAN": "1",
+                    "PX4_SIM_SPEED_FACTOR": f"{self.speed_factor:g}", "PX4_HOME_LAT": repr(float(self.home[0])),
+                    "PX4_HOME_LON": repr(float(self.home[1])), "PX4_HOME_ALT": "0"})
+        env.update({f"PX4_PARAM_{name}": _format(value) for name, value in self.all_params().items()})
+        return env
+
+    def start(self) -> Px4Sitl:
+        if not 0 <= self.instance <= MAX_INSTANCE:
+            raise ValueError(f"PX4 instance must be 0..{MAX_INSTANCE}, got {self.instance}")
+        root = self.root or px4_root()
+        self.workdir = Path(self.workdir).resolve()   # PX4 changes into it; PATH and -w must not be relative
+        Path(self.workdir).mkdir(parents=True, exist_ok=True)
+        log = open(self.log_path, "wb")
+        try:
+            self.process = subprocess.Popen(["/bin/sh", str(root / "run_sih.sh")], cwd=self.workdir,
+                                            env=self.environment(root), stdout=log, stderr=subprocess.STDOUT,
+                                            stdin=subprocess.DEVNULL, start_new_session=True)
+        finally:
+            log.close()
+        return self
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, timeout_s: float = 10.0) -> int | None:
+        """SIGTERM by PID (run_sih.sh execs px4, so the PID is PX4's), SIGKILL if it does not exit."""
+        proc = self.process
+        if proc is None or proc.poll() is not None:
+            return None if proc is None else proc.returncode
+        proc.send_signal(signal.SIGTERM)
+        try:
+            return proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            return proc.wait(timeout=timeout_s)
+
+    def __enter__(self) -> Px4Sitl:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def _bound_udp_ports() -> set[int]:
+    ports: set[int] = set()
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as handle:
+                rows = handle.read().splitlines()[1:]
+        except OSError:
+            continue
+        ports.update(int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows)
+    return ports
+
+
+def free_px4_instance(first: int = 1, taken: set[int] | None = None) -> int:
+    """An instance number (``first``..9, wrapping to 1) whose lock file (``/tmp/px4_lock-N``) is absent
+    and whose UDP ports nobody has bound, so tests in two checkouts at once do not collide;
+    ``taken``: numbers handed out already in this process."""
+    busy = _bound_udp_ports()
+    order = [*range(max(first, 1), MAX_INSTANCE + 1), *range(1, max(first, 1))]
+    for instance in order:
+        ports = {14540 + instance, 14580 + instance, 18570 + instance, 19410 + instance, 19450 + instance}
+        if (taken is None or instance not in taken) and not busy & ports \
+                and not Path(f"/tmp/px4_lock-{instance}").exists():
+            return instance
+    raise RuntimeError(f"no free PX4 SITL instance in 1..{MAX_INSTANCE}")

@@ -1,0 +1,67 @@
+"""One mission flown by the companion against real PX4 SITL with SIH (``fcmpc-fly --fc px4``).
+
+The world is PX4's own: SIH's Ackermann rover, its magnetic field (PX4's WMM tables), EKF2 with
+its magnetometer-derived yaw. PX4 starts at the mission's start (``SIH_LOC_LAT0/LON0``) with
+``params/px4-rover.params``; the companion listens on PX4's onboard link (``udpin`` on
+14540+N); a ground station on PX4's GCS link (:class:`~sitl.firmware.monitor.FirmwareMonitor`)
+records SIH's ground truth (HIL_STATE_QUATERNION) and denies GPS when the vehicle arms
+(``SIM_GPS_USED 0``: the simulated receiver reports no fix, as a jammed one does). The run is
+:func:`sitl.firmware.flight.fly_firmware`, shared with ArduPilot.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from sitl.firmware.flight import FirmwareFlight, FirmwareRun, fly_firmware
+from sitl.firmware.monitor import FirmwareMonitor
+from sitl.firmware.px4 import Px4Sitl, px4_root
+
+__all__ = ["MONITOR_RATES_HZ", "Px4Rig", "deny_gps", "fly_px4"]
+
+# The GCS link streams attitude and positions at 50 Hz: the monitor needs none of them but the
+# time (GLOBAL_POSITION_INT, SYSTEM_TIME) and the truth, so the rest is turned off (rate 0).
+MONITOR_RATES_HZ = {"HIL_STATE_QUATERNION": 1.0, "GPS_RAW_INT": 1.0, "SYSTEM_TIME": 1.0, "GLOBAL_POSITION_INT": 2.0,
+                    "ATTITUDE": 0.0, "ATTITUDE_QUATERNION": 0.0, "ATTITUDE_TARGET": 0.0,
+                    "POSITION_TARGET_LOCAL_NED": 0.0, "LOCAL_POSITION_NED": 0.0, "SERVO_OUTPUT_RAW": 0.0,
+                    "RC_CHANNELS": 0.0}
+
+
+def deny_gps(monitor: FirmwareMonitor) -> None:
+    """SIH's receiver reports no fix from now on (``SIM_GPS_USED`` below 4 satellites)."""
+    monitor.set_param_int32_bytewise("SIM_GPS_USED", 0)
+
+
+class Px4Rig:
+    """PX4's side of a flight: SIH, the monitor on the GCS link, the companion on the onboard link."""
+
+    name = "PX4 SITL (SIH)"
+
+    def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
+        self.sitl = Px4Sitl(workdir=out / "px4", instance=flight.instance, home=flight.start,
+                            speed_factor=flight.speedup, params={"SDLOG_MODE": -1, **(params or {})}, root=px4_root())
+
+    def start(self) -> FirmwareMonitor:
+        self.sitl.start()
+        monitor = FirmwareMonitor(self.sitl.gcs_url, rates_hz=MONITOR_RATES_HZ)
+        try:
+            monitor.start()
+        except TimeoutError as err:
+            raise RuntimeError(f"{err}; PX4 {'exited' if not self.sitl.alive() else 'runs'}, "
+                               f"see {self.sitl.log_path}") from None
+        return monitor
+
+    @property
+    def companion_url(self) -> str:
+        return self.sitl.companion_url
+
+    def deny_gps(self, monitor: FirmwareMonitor) -> None:
+        deny_gps(monitor)
+
+    def stop(self) -> None:
+        self.sitl.stop()
+
+
+def fly_px4(flight: FirmwareFlight) -> FirmwareRun:
+    """Fly one mission to its end against PX4 SIH. Raises FirmwareMissing without the firmware."""
+    px4_root()                        # FirmwareMissing before anything is written
+    return fly_firmware(flight, Px4Rig)
