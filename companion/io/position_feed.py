@@ -189,11 +189,10 @@ def send_echo(link, family: str, pos, now_s: float, sigma_m: float, satellites: 
     """The echo of the flight controller's own GPS-aided position (``pos``: GLOBAL_POSITION_INT as
     :class:`~companion.io.sensors.mavlink_source.FcPosition`) while its GPS has a fix.
 
-    PX4 blends its receivers' positions *and velocities* (``SENS_GPS_MASK``) and feeds the blend to
-    its yaw estimator: an echo standing still at the last 1 Hz position while the rover drives made
-    EKF2 reset its yaw to the GPS-velocity estimate and stop using the magnetometer ("Compass needs
-    calibration"), and after GPS loss that was a failsafe. So on PX4 the echo carries the velocity
-    and is flown on from its time stamp; ArduPilot's GPS_INPUT echo stays the position as reported.
+    PX4 blends its receivers' positions *and velocities* (``SENS_GPS_MASK``), and its yaw estimator
+    uses the blended velocity: an echo standing still at the last 1 Hz position while the rover
+    drives would be blended in as a wrong velocity. So on PX4 the echo carries the velocity and is
+    flown on from its time stamp; ArduPilot's GPS_INPUT echo stays the position as reported.
     """
     if family != "px4":
         return link.send_gps_input(pos.lat_deg, pos.lon_deg, sigma_m, satellites=satellites)
