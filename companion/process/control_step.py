@@ -16,7 +16,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
-from companion.process.plausibility import judge
+from companion.process.plausibility import f_offset_nt, judge
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
@@ -119,16 +119,25 @@ class ControlStep:
         True if it is excluded (said, recorded). The first step has no prediction to judge against."""
         app = self.app
         cmd, mission = app.command, app.mission
-        if cmd is None or cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
+        config = mission.config
+        if cmd is None:   # the first step, at the start: learn the |F| level the band is judged about
+            app.plausibility.f_reference_nt = f_offset_nt(mission.model, mission.elements, config.year, config.alt_m,
+                                                          meas.f_nt, mission.bias, config.start_lat_deg,
+                                                          config.start_lon_deg)
+            return False
+        if cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
             return False
         dt = max(meas.time_s - 0.5 * meas.window_s - cmd.time_s, 0.0)   # to the centre of the window
         flown = cmd.speed_mps * dt
         lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
                                    flown * math.cos(cmd.course_rad))
         sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
-        config = mission.config
+        reference = app.plausibility.f_reference_nt
+        if reference is None or not math.isfinite(reference):   # resumed mid-route: no start to learn it at
+            reference = 0.0
         judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
-                          meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits)
+                          meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
+                          f_reference_nt=reference)
         said = app.plausibility.verdict(judgement)
         if said is not None:
             app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))

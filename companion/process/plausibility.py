@@ -4,9 +4,13 @@ Judged before the core sees the measurement, against where the vehicle should be
 estimate flown on with the last command (:meth:`Outputs.current_estimate`), uncertainty
 ``sigma_m`` (the estimate's 1-sigma). Two checks:
 
-``f_band``    ``|F_measured - bias_F - F_model(predicted)|`` over ``f_band_nt`` (1000 nT: the
-              model's own error at sea is ~100 nT, the crustal field a few hundred). A body-frame
-              offset of 3000 nT, a 20000 nT spike fail here.
+``f_band``    ``|F_measured - bias_F - F_model(predicted) - F_reference|`` over ``f_band_nt``
+              (1000 nT: the model's own error at sea is ~100 nT, the crustal field a few hundred).
+              ``F_reference`` is the same difference at the mission's first step (the start, a
+              known position): a magnetometer's scale residual or a simulator's coarser field
+              (PX4 SIH's |F| sat 7000-8000 nT below WMM's) is a constant level the vehicle could
+              never navigate out of, so the band judges a change of |F|, not its level. A
+              body-frame offset of 3000 nT, a 20000 nT spike appearing in flight fail here.
 ``fix_jump``  the position the measurement implies, linearised about the prediction
               (``d = G^-1 (S_measured - bias - S_model(predicted))``, G the element gradient per
               metre), further than ``3 sigma + slack x speed x dt + margin_m`` from the prediction.
@@ -30,7 +34,7 @@ import numpy as np
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient
 
-__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "judge"]
+__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "f_offset_nt", "judge"]
 
 MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
 
@@ -60,11 +64,20 @@ class Judgement:
         return "plausible"
 
 
+def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, f_nt: float,
+                bias: np.ndarray, lat_deg: float, lon_deg: float) -> float:
+    """``F_measured - bias_F - F_model(lat, lon)``, nT (``bias_F`` 0 when the set has no F)."""
+    f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
+    return float(f_nt - f_bias - float(model.elements(lat_deg, lon_deg, alt_m, year).f_nt))
+
+
 def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, measured: np.ndarray,
           f_nt: float, bias: np.ndarray, pred_lat_deg: float, pred_lon_deg: float, sigma_m: float,
-          flown_m: float, limits: PlausibilityLimits = PlausibilityLimits()) -> Judgement:
+          flown_m: float, limits: PlausibilityLimits = PlausibilityLimits(),
+          f_reference_nt: float = 0.0) -> Judgement:
     """Judge one averaged measurement (``measured``: the element set's two values, bias not yet
-    removed; ``bias``: the start-up calibration of those two) against the predicted position.
+    removed; ``bias``: the start-up calibration of those two) against the predicted position;
+    ``f_reference_nt``: :func:`f_offset_nt` at the mission's first step.
 
     >>> from companion.nav.elements import ELEMENT_SETS
     >>> from companion.nav.field import model_for_date
@@ -77,8 +90,7 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     'f_band'
     """
     field = model.elements(pred_lat_deg, pred_lon_deg, alt_m, year)
-    f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
-    f_offset = f_nt - f_bias - float(field.f_nt)
+    f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg) - f_reference_nt
     if not abs(f_offset) <= limits.f_band_nt:
         return Judgement(False, "f_band", f_offset_nt=f_offset)
     residual = elements.difference(np.asarray(measured, dtype=float) - bias, elements.values(field))
@@ -99,6 +111,7 @@ class MagPlausibility:
         self.limits = limits
         self.in_a_row = 0
         self.excluded = 0
+        self.f_reference_nt: float | None = None   # |F| level at the mission's first step (f_offset_nt)
 
     def verdict(self, judgement: Judgement) -> tuple[str, str] | None:
         """(severity name, text) to say for this judgement, or None to say nothing."""

@@ -108,3 +108,25 @@ def test_the_control_step_excludes_an_offset_measurement_and_keeps_flying(rig):
     assert re.search(r"implausible magnetometer step: \|F\| \+30\d\d nT off the model, excluded", texts), texts
     assert app.plausibility.excluded == 1 and app.summary()["mag_excluded_steps"] == 1
     assert math.isfinite(first.course_rad)
+
+
+def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
+    """PX4 SIH's |F| sat ~7000 nT below WMM's from power-on: a level present at the start (a scale
+    residual, a coarser simulator field) is judged about, so the mission flies; a change still is not."""
+    app, fc = rig
+    config = NavConfig.from_values(default_values())
+    app.mission = Mission(config)
+    start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
+    ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
+    low = ned * (1.0 - 7000.0 / float(start.f_nt))                        # the level from the start on
+    app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(low))
+    app.stepper.step(1.0, window_limit_s=0.0)
+    assert app.plausibility.f_reference_nt == pytest.approx(-7000.0, abs=1.0)
+    app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(low))
+    app.stepper.step(361.0)
+    assert app.mission.k == 2 and app.plausibility.excluded == 0          # the core flew on the level
+    jumped = ned * (1.0 - 4000.0 / float(start.f_nt))                     # 3000 nT off the level: excluded
+    app.mag.averager.add(400.0, float(start.decl_deg), float(start.incl_deg), tuple(jumped))
+    app.stepper.step(722.0)
+    assert app.mission.k == 2 and app.plausibility.excluded == 1
+    _sent(fc)
