@@ -334,7 +334,7 @@ class CompanionApp:
         if self.state == State.RUNNING:
             self.resume.maybe_save(now)
         if self.link.fc.detected:
-            self.modes.observe(self.link.fc.custom_mode, now)   # after the phase saw the change
+            self.modes.observe(self.link.fc.custom_mode, self.link.fc.last_heartbeat_time_s)   # after the phase saw it
         if not sent:
             self.out.stream_since = math.nan
             if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going

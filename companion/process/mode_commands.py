@@ -9,8 +9,12 @@ a pilot's and paused the mission for good (issue 10, item 1 of the probe).
 
 So each mode command is remembered with the mode it asks for and a deadline (message time
 ``MODE_CONFIRM_S`` after it was last sent, retries refresh it). It leaves the table only when the
-flight controller's HEARTBEAT reports that mode (:meth:`confirm`, :meth:`observe`) or when the
-deadline passes (the command was lost; a later change to that mode is somebody else's).
+flight controller's HEARTBEAT reports that mode (:meth:`confirm`, :meth:`observe`) or when a
+heartbeat received after the deadline still shows another mode (the command was lost; a later
+change to that mode is somebody else's). Expiry runs on the message time of the newest
+*heartbeat*, not of any message: while heartbeats are lost (the FC streams on, or the link drops
+them), the mode the FC is in cannot be seen, and a HOLD it took meanwhile must still be ours when
+its heartbeat comes back.
 
 >>> cmds = ModeCommands()
 >>> cmds.sent(4, 100.0, "HOLD")
@@ -54,9 +58,11 @@ class ModeCommands:
         self.pending[custom_mode] = PendingMode(custom_mode, name, now_s, now_s + self.confirm_s)
 
     def confirm(self, custom_mode: int, now_s: float) -> bool:
-        """The FC reports ``custom_mode``: True if it is a pending command of ours (then it is done)."""
-        self._expire(now_s)
-        if self.pending.pop(custom_mode, None) is None:
+        """The FC reports ``custom_mode`` in a heartbeat received at message time ``now_s``: True if it
+        is a pending command of ours (then it is done)."""
+        shown = self.pending.pop(custom_mode, None)   # before expiring: the first heartbeat after a
+        self._expire(now_s)                           # silence may be the one that shows it
+        if shown is None:
             return False
         self.confirmed += 1
         return True

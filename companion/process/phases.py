@@ -185,7 +185,7 @@ class Phases:
         app = self.app
         fc = app.link.fc
         following = fc.armed and fc.guided
-        if self.was_following and not following and not fc.guided and app.modes.confirm(fc.custom_mode, now):
+        if self.was_following and not following and not fc.guided and app.modes.confirm(fc.custom_mode, fc.last_heartbeat_time_s):
             self.our_hold = True   # the FC shows a mode we commanded (however late): ours to take back
         elif self.was_following and not following:
             # a mode change we did not ask for: the autopilot's own failsafe is waited out and the

@@ -104,3 +104,24 @@ def test_a_hold_after_our_command_expired_is_the_pilots(rig):
     assert "FC left GUIDED (now HOLD): mission paused" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
     assert not _mode_commands(sent) and math.isfinite(app.paused_since)
     assert app.modes.expired >= 1
+
+
+def test_our_hold_seen_only_when_heartbeats_return_is_still_ours(rig):
+    """heartbeat_off: the FC streams on without heartbeats while it takes our HOLD; its mode shows
+    only when heartbeats return, long after MODE_CONFIRM_S of message time."""
+    app, fc = rig
+    app.params.set_value("COMP_ARM_ENABLE", 1)
+    _run_step(app, GOOD)
+    _at(app, 2.0)
+    for t in (3.0, 6.0, 6.0 + MODE_CONFIRM_S, 8.0 + 2 * MODE_CONFIRM_S):   # no heartbeat: message time runs on
+        app.next_tick = math.inf
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t * 1000)))
+        app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+        app.next_tick = -math.inf
+        app.tick()
+    assert app.failsafe_active and HOLD in _mode_commands(_sent(fc))
+    _at(app, 9.0 + 2 * MODE_CONFIRM_S, HOLD)                         # heartbeats back: the FC is in HOLD
+    _at(app, 10.5 + 2 * MODE_CONFIRM_S, HOLD)
+    sent = _sent(fc)
+    assert "mission paused" not in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert GUIDED in _mode_commands(sent)                              # taken back once healthy
