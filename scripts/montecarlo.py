@@ -44,7 +44,7 @@ from companion.cli import ArgumentParser, UsageError, param_items, run_main
 from companion.nav.metrics import cep50, cep_paper, mean_terminal_location, track_metrics
 from companion.nav.geo import geodesic_distance_m
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
-from sitl.inprocess import fly_in_process
+from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from scripts.montecarlo_plots import outlier_fence_km, plot_results  # noqa: E402, F401
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
@@ -100,6 +100,10 @@ class RunRow:
     final_lon: float
     snr_db: float
     wall_s: float
+    process_model: str = ""      # the position estimator: ins, dead_reckoning or table3
+    nees_mean: float = math.nan  # mean over the steps of the filter's NEES (2 when consistent)
+    in_ellipse95: float = math.nan   # 1 when the final position lies inside the filter's 95 % ellipse
+    sigma_end_km: float = math.nan   # the filter's own 1-sigma (per axis) at the end
 
 
 # --- worker side -------------------------------------------------------------------------------
@@ -138,10 +142,15 @@ def run_one(task: tuple[int, int, bool]) -> tuple[RunRow, np.ndarray, np.ndarray
     wall = time.perf_counter() - started
     start, dest = (nav.start_lat_deg, nav.start_lon_deg), (nav.dest_lat_deg, nav.dest_lon_deg)
     m = track_metrics(result.true_lat_deg, result.true_lon_deg, start, dest, result.iterations)
+    nees = nees_per_step(result)
+    end = result.est_cov_en_m2[-1] if len(result.est_cov_en_m2) else (math.nan,) * 3
     row = RunRow(result.controller, seed, storm, result.phase, result.reason, m.iterations, m.remaining_m / 1e3,
                  m.length_m / 1e3, m.step_variance_m2 / 1e6, m.mean_deviation_m / 1e3, m.max_deviation_m / 1e3,
                  m.path_matching_rate_pct, m.final_lat_deg, m.final_lon_deg,
-                 _snr_db(truth, result.true_lat_deg, result.true_lon_deg, nav.period_s, nav.alt_m), wall)
+                 _snr_db(truth, result.true_lat_deg, result.true_lon_deg, nav.period_s, nav.alt_m), wall,
+                 result.process_model, float(np.nanmean(nees)) if np.any(np.isfinite(nees)) else math.nan,
+                 float(nees[-1] <= CHI2_95_2DOF) if len(nees) and math.isfinite(nees[-1]) else math.nan,
+                 math.sqrt(0.5 * (end[0] + end[2])) / 1e3)
     return row, result.true_lat_deg, result.true_lon_deg
 
 
@@ -164,6 +173,12 @@ def summarise(rows: list[RunRow], dest: tuple[float, float]) -> dict:
         }
         for key in ("mean_dev_km", "max_dev_km", "pmr_pct", "iterations", "step_var_km2", "length_km", "snr_db"):
             entry[key] = float(np.mean([getattr(r, key) for r in main]))
+        # the filter's honesty: mean NEES over runs and steps, share of runs ending inside its 95 % ellipse
+        nees = [r.nees_mean for r in main if math.isfinite(r.nees_mean)]
+        inside = [r.in_ellipse95 for r in main if math.isfinite(r.in_ellipse95)]
+        entry["nees_mean"] = float(np.mean(nees)) if nees else math.nan
+        entry["ellipse95_pct"] = 100.0 * float(np.mean(inside)) if inside else math.nan
+        entry["sigma_end_km"] = float(np.nanmedian([r.sigma_end_km for r in main])) if nees else math.nan
         if storm_flown:
             quiet = np.array([r.remaining_km for r in rows if r.controller == name and not r.storm])
             entry["median_remaining_quiet_km"] = float(np.median(quiet)) if len(quiet) else math.nan
@@ -189,6 +204,10 @@ ROWS_QUIET = [
     ("Variability, step var (km^2)", "step_var_km2", "{:.3f}"),
     ("Trajectory length (km)", "length_km", "{:.1f}"),
     ("Arrived (runs)", "arrived", "{:.0f}"),
+    ("Honest uncertainty (issue 14)", None, None),
+    ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
+    ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
+    ("Own 1-sigma at the end, median (km)", "sigma_end_km", "{:.2f}"),
 ]
 ROWS_STORM = [
     ("Signal-to-noise ratio (dB)", "snr_db", "{:.2f}"),
@@ -201,6 +220,8 @@ ROWS_STORM = [
     ("Remaining distance, median (km)", "median_remaining_km", "{:.2f}"),
     ("  same seeds, storm off, median (km)", "median_remaining_quiet_km", "{:.2f}"),
     ("Arrived (runs)", "arrived", "{:.0f}"),
+    ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
+    ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
 ]
 
 
@@ -352,6 +373,8 @@ def build_parser() -> ArgumentParser:
                              "separated: heading, main_field, crustal, calibration, noise, storm, ins; 'none', 'all'")
     parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
                         help="override the scenario's [attitude] heading_source")
+    parser.add_argument("--process-model", choices=("ins", "dead_reckoning"), default=None,
+                        help="the error-state filter's process model (FUS_MODEL 2 or 3); default auto (the INS here)")
     parser.add_argument("--budget", action="store_true",
                         help="error budget: Fc-MPC with each error source alone, none and all (--runs per row)")
     return parser
@@ -385,6 +408,8 @@ def _run(argv: list[str] | None) -> int:
             parser.error(str(err))
     overrides = read_parm_file(args.params) if args.params else {}
     overrides.update(param_items(args.param))
+    if args.process_model:
+        overrides["FUS_MODEL"] = {"ins": 2, "dead_reckoning": 3}[args.process_model]
     values = validate_all({**scenario.nav_overrides(), **overrides})
     keys = args.controllers.split(",") if args.controllers else (["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
     try:

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.nav.geo import geodesic_distance_m
+from companion.nav.geo import enu_offset, geodesic_distance_m
 from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
@@ -46,7 +46,10 @@ from sitl.world.magnetic import TruthField
 from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
 from sitl.world.vehicle import VehicleState, step_vehicle
 
-__all__ = ["RunResult", "fly_in_process"]
+__all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
+
+
+CHI2_95_2DOF = 5.991464547107979   # chi-square 95 % quantile, 2 degrees of freedom: the 95 % ellipse
 
 
 @dataclass(frozen=True)
@@ -182,3 +185,22 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         est_cov_en_m2=np.array(covs, dtype=float),
         process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
     )
+
+
+def nees_per_step(result: RunResult) -> np.ndarray:
+    """Normalised estimation error squared ``e^T P^-1 e`` of the horizontal position at each step
+    (e = true minus estimated, east/north metres; P the navigator's own covariance); NaN where
+    the navigator gives no covariance. A consistent filter has mean 2 (two degrees of freedom)
+    and puts the truth inside its 95 % ellipse (NEES <= CHI2_95_2DOF) 95 % of the time."""
+    out = np.full(len(result.est_cov_en_m2), np.nan)
+    for k, (ee, en, nn) in enumerate(result.est_cov_en_m2):
+        if not all(math.isfinite(v) for v in (ee, en, nn, result.est_lat_deg[k], result.est_lon_deg[k])):
+            continue
+        e = np.array(enu_offset(result.est_lat_deg[k], result.est_lon_deg[k], result.true_lat_deg[k],
+                                result.true_lon_deg[k]))
+        cov = np.array([[ee, en], [en, nn]])
+        try:
+            out[k] = float(e @ np.linalg.solve(cov, e))
+        except np.linalg.LinAlgError:
+            continue
+    return out
