@@ -101,7 +101,7 @@ from companion.io.sensors.base import SampleKind, SensorError, SensorSource, Str
 from companion.io.sensors.factory import make_source  # noqa: E402
 from companion.io.sensors.mavlink_source import MAG_MESSAGES, MavlinkDecoder  # noqa: E402
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position  # noqa: E402
-from companion.nav.elements import ELEMENT_SETS, ElementSet  # noqa: E402
+from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet  # noqa: E402
 from companion.nav.magnetometer import AttitudeState, MagCalibration, MagProcessor  # noqa: E402
 from companion.nav.field import model_for_date  # noqa: E402
 from companion.nav.mission import FROZEN_IN_FLIGHT, WMM_NAMES, Command, Measurement, Mission, Phase  # noqa: E402
@@ -846,6 +846,8 @@ class CompanionApp:
         self.bias, calibration = self._calibration(config, startup, source)
         self.mission = self._prepared if self._prepared_fits(config) else Mission(config)
         self.mission.set_bias(self.bias)
+        # the error-state filter starts from the GPS fix and observes the biases there itself
+        self.mission.set_start_fix(config.gps_sigma_m if source == "GPS" else None)
         self._prepared = None
         self.mission_no += 1
         self.hold_commanded = False
@@ -857,6 +859,9 @@ class CompanionApp:
         if calibration:
             self._say(f"FcMPC: {calibration}"[:200])
         self._step(self.m0, window_limit_s=0.0, avg=startup)
+        estimator = getattr(self.mission, "estimator", None)
+        if estimator is not None and estimator.reason:
+            self._say(f"FcMPC: position filter: {estimator.reason}"[:200])
 
     def _prepare_mission(self, now: float) -> None:
         """Build the mission (QP set-up, field model) while waiting to be armed, so the moment of
@@ -887,9 +892,11 @@ class CompanionApp:
         requested = self.nav_cfg.elements
         if verdict is None or verdict.compass_derived:
             reason = verdict.reason if verdict is not None else "heading source unknown"
-            if requested == ElementSet.PAPER:
-                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS 1 asks for D, but the FC yaw is compass-derived "
-                                                 f"({reason}): D is no measurement")
+            if requested in (ElementSet.PAPER, ElementSet.WEIGHTED):
+                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS {requested} asks for D, but the FC yaw is "
+                                                 f"compass-derived ({reason}): D is no measurement")
+            if requested == ElementSet.HORIZONTAL_VERTICAL:
+                return requested, f"NAV_ELEMENTS 3, FC yaw compass-derived ({reason})"
             return ElementSet.HEADING_FREE, f"FC yaw is compass-derived ({reason})"
         if requested == 0:
             return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
@@ -898,7 +905,8 @@ class CompanionApp:
     def _inclination(self, avg) -> float:
         """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
         elements, so neither a heading nor the FC's attitude estimate enters; else tilt-compensated."""
-        if self.elements_code == ElementSet.HEADING_FREE and math.isfinite(avg.incl_grav_deg):
+        heading_free = self.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
+        if heading_free and math.isfinite(avg.incl_grav_deg):
             return avg.incl_grav_deg
         return avg.incl_deg
 
@@ -912,9 +920,9 @@ class CompanionApp:
         measured = elements.values(replace(startup, incl_deg=self._inclination(startup)))
         bias = elements.difference(measured, expected)
         units = ["nT" if n == "f_nt" else "deg" for n in elements.names]
-        words = ", ".join(f"{n[0].upper()} {b:+.3f} {u}" if u == "deg" else f"F {b:+.0f} {u}"
+        words = ", ".join(f"{ELEMENT_NAMES[n]} {b:+.3f} {u}" if u == "deg" else f"{ELEMENT_NAMES[n]} {b:+.0f} {u}"
                           for n, b, u in zip(elements.names, bias, units))
-        return (float(bias[0]), float(bias[1])), f"calibrated at the GPS start: measured - model = {words}"
+        return tuple(float(b) for b in bias), f"calibrated at the GPS start: measured - model = {words}"
 
     def _running(self, now: float, reasons: list[str], dt: float) -> bool:
         fc = self.link.fc
@@ -1005,7 +1013,10 @@ class CompanionApp:
             return
         window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
         ins_lat, ins_lon, ins_source = self._ins_position(now)
-        meas = Measurement(t_k - self.m0, avg.decl_deg, self._inclination(avg), ins_lat, ins_lon, window, avg.f_nt)
+        incl = self._inclination(avg)
+        # H and Z from F and the (gravity-referenced) I: no heading enters either
+        h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
+        meas = Measurement(t_k - self.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt)
         core0 = time.perf_counter()
         cmd = mission.step(meas)
         core_latency = time.perf_counter() - core0

@@ -3,7 +3,7 @@
 Chooses the process model at the first step (``FUS_MODEL``: 0 auto takes the INS model when the
 measurement carries an INS position independent of this navigator, else dead reckoning), starts
 the filter at the mission's start (a GPS-known start is a position measurement with
-``FLT_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
+``FUS_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
 there, which observes the bias states against the model: the start-up calibration, carried
 into the denied leg *with its uncertainty* as the bias states' covariance), then on every step
 predicts over the move flown and updates with the averaged elements.

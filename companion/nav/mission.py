@@ -141,6 +141,29 @@ def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(b, -xi, rcond=None)[0]
 
 
+def state_bounds(c: NavConfig, elements: ElementSet, s_start: np.ndarray,
+                 s_dest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """S_min, S_max in element units: from the start and destination field +- MPC_S_MARGIN
+    (MPC_S_AUTO = 1), or the MPC_S_MIN_*/MAX_* values (Table 4), which must hold the
+    destination's field."""
+    margins = np.array([c.s_margin_deg * (F_NT_PER_DEG if n.endswith("_nt") else 1.0) for n in elements.names])
+    if c.s_auto == 1:
+        ends = np.stack([s_start, s_dest])
+        return ends.min(axis=0) - margins, ends.max(axis=0) + margins
+    table = {"decl_deg": (c.s_min_d, c.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
+             "incl_deg": (c.s_min_i, c.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I"),
+             "f_nt": (c.s_min_f, c.s_max_f, "MPC_S_MIN_F/MPC_S_MAX_F")}
+    for value, name in zip(s_dest, elements.names):
+        if name not in table:
+            raise ValueError(f"{elements.label} has no MPC_S_MIN/MAX parameters: set MPC_S_AUTO 1")
+        low, high, names = table[name]
+        if not low <= value <= high:
+            # Table 4's bounds suit the paper's northern mid-latitude mission only
+            raise ValueError(f"the destination's field ({value:.2f}) lies outside the state bounds "
+                             f"[{low:g}, {high:g}] of {names}: widen them, or set MPC_S_AUTO 1")
+    return (np.array([table[n][0] for n in elements.names]), np.array([table[n][1] for n in elements.names]))
+
+
 @dataclass
 class _Last:
     time_s: float
@@ -175,7 +198,8 @@ class Mission:
         self.set_bias(bias)
         field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
-        self.s_lower, self.s_upper = self._state_bounds(field_at(config.start_lat_deg, config.start_lon_deg))
+        self.s_lower, self.s_upper = state_bounds(config, self.elements, field_at(config.start_lat_deg,
+                                                                                 config.start_lon_deg), self.s_dest)
         self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in self.elements.names])
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(self._mpc_settings())
@@ -223,29 +247,6 @@ class Mission:
             self.config = merged
             self.mpc = MpcController(self._mpc_settings())
         return deferred
-
-    def _state_bounds(self, s_start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """S_min, S_max in element units: from the start and destination field +- MPC_S_MARGIN
-        (MPC_S_AUTO = 1), or the MPC_S_MIN_*/MAX_* values (Table 4), which must hold the
-        destination's field."""
-        c = self.config
-        margins = np.array([c.s_margin_deg * (F_NT_PER_DEG if n.endswith("_nt") else 1.0) for n in self.elements.names])
-        if c.s_auto == 1:
-            ends = np.stack([s_start, self.s_dest])
-            return ends.min(axis=0) - margins, ends.max(axis=0) + margins
-        table = {"decl_deg": (c.s_min_d, c.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
-                 "incl_deg": (c.s_min_i, c.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I"),
-                 "f_nt": (c.s_min_f, c.s_max_f, "MPC_S_MIN_F/MPC_S_MAX_F")}
-        for value, name in zip(self.s_dest, self.elements.names):
-            if name not in table:
-                raise ValueError(f"{self.elements.label} has no MPC_S_MIN/MAX parameters: set MPC_S_AUTO 1")
-            low, high, names = table[name]
-            if not low <= value <= high:
-                # Table 4's bounds suit the paper's northern mid-latitude mission only
-                raise ValueError(f"the destination's field ({value:.2f}) lies outside the state bounds "
-                                 f"[{low:g}, {high:g}] of {names}: widen them, or set MPC_S_AUTO 1")
-        return (np.array([table[n][0] for n in self.elements.names]),
-                np.array([table[n][1] for n in self.elements.names]))
 
     # --- units of the QP -------------------------------------------------------------------
     def _units(self) -> tuple[np.ndarray, float]:

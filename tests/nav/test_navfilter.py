@@ -104,7 +104,7 @@ def test_disturbance_needs_a_sustained_rise_of_the_innovations():
     NIS 1.5 of 2) switch the bias noise up in under 10 % of 165-step missions (measured 8 %);
     innovations twice the declared size switch it up after ONSET_STEPS steps. Known limit,
     stated in the README: at exactly the declared variance 58 % of missions would switch it up,
-    so FLT_R_DEG/FLT_R_NT must be declared conservatively."""
+    so FUS_R_DEG/FUS_R_NT must be declared conservatively."""
     rng = np.random.default_rng(0)
     false_alarms = 0
     for _ in range(200):
