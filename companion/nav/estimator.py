@@ -21,7 +21,7 @@ import numpy as np
 
 from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
-from companion.nav.geo import geodesic_inverse
+from companion.nav.geo import geodesic_inverse, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.navfilter import (
     ONSET_STEPS,
@@ -166,8 +166,6 @@ class PositionEstimator:
     def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray):
         """The bias-corrected geomagnetic fix on the steering pair from the prior, referred to the
         end of the step like the estimate (None when it fails)."""
-        from companion.nav.geo import offset_position
-
         n = len(self.steering.names)
         target = measured[:n] - self.filter.bias[:n]
         start = offset_position(prior[0], prior[1], -float(lag_en_m[0]), -float(lag_en_m[1]))

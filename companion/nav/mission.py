@@ -17,8 +17,9 @@ Controllers (``NAV_CONTROLLER``):
 * LTI-MPC: B = G(2) T for the whole mission.
 * LTV-MPC: B(k) = G(k) T, updated every step.
 * Fc-MPC: LTV-MPC plus flexible correction (eq. 39-45). The geomagnetic position fix
-  (lambda_c, phi_c) of eq. 49, fused with the INS where the gradient is weak (eq. 46-58),
-  tells where the destination lies; the part of ``S_d - S`` that the linear model cannot
+  (lambda_c, phi_c) of eq. 49, fused with the INS where the gradient is weak (eq. 46-58;
+  FUS_MODEL 1), or by default the error-state filter's position (:mod:`companion.nav.estimator`,
+  run on every step, the probes included), tells where the destination lies; the part of ``S_d - S`` that the linear model cannot
   explain by that displacement is the interference xi(k), and the uniform compensation
   ``B U_a = -xi`` (eq. 43) is applied by shifting the MPC's target (same optimum, see
   :func:`compensation`).
