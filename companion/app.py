@@ -846,8 +846,10 @@ class CompanionApp:
         self.bias, calibration = self._calibration(config, startup, source)
         self.mission = self._prepared if self._prepared_fits(config) else Mission(config)
         self.mission.set_bias(self.bias)
-        # the error-state filter starts from the GPS fix and observes the biases there itself
-        self.mission.set_start_fix(config.gps_sigma_m if source == "GPS" else None)
+        # the error-state filter starts from the known start (a GPS fix, or the declared NAV_START
+        # the mission is planned from) and observes the biases itself only at a GPS-known start
+        self.mission.set_start_fix(config.gps_sigma_m if source in ("GPS", "NAV_START") else None,
+                                   calibrate=source == "GPS")
         self._prepared = None
         self.mission_no += 1
         self.hold_commanded = False

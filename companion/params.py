@@ -134,7 +134,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
     _p("FUS_FEEDBACK", int, 0, 0, 1, "", "0 INS corrected by the estimated error, 1 eq. 58 as printed"),
     # --- estimation filter (issue 14: companion/nav/navfilter.py) ---
-    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter, INS process model with an independent INS position, else dead reckoning), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
+    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else Table 3), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
     _p("FUS_R_DEG", float, 0.002, 1e-6, 10.0, "deg", "declared 1-sigma noise of an averaged D or I"),
     _p("FUS_R_NT", float, 2.0, 1e-3, 10000.0, "nT", "declared 1-sigma noise of an averaged F, H or Z"),
     _p("FUS_B0_DEG", float, 0.5, 1e-6, 90.0, "deg", "prior 1-sigma of the D/I bias states (measured minus model)"),

@@ -1,7 +1,8 @@
 """The mission's position estimator: the navigation filter run once per control step.
 
-Chooses the process model at the first step (``FUS_MODEL``: 0 auto takes the INS model when the
-measurement carries an INS position independent of this navigator, else dead reckoning), starts
+Chooses the process model at the first step (``FUS_MODEL`` 2 INS, 3 dead reckoning; 0 auto takes
+the INS model when the measurement carries an INS position independent of this navigator, and the
+mission falls back to Table 3's path without one), starts
 the filter at the mission's start (a GPS-known start is a position measurement with
 ``FUS_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
 there, which observes the bias states against the model: the start-up calibration, carried
@@ -88,6 +89,7 @@ class PositionEstimator:
         self.reason = ""
         self.rejected = 0
         self.rewinds = 0
+        self.calibrate_start = True
         self._ins = (math.nan, math.nan)
         self._history: list = []
 
@@ -114,7 +116,7 @@ class PositionEstimator:
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         if start_sigma_m is not None:
             self.filter.update_position(c.start_lat_deg, c.start_lon_deg, start_sigma_m, *self._ins)
-            if c.calibrate:
+            if c.calibrate and self.calibrate_start:
                 self.filter.calibrate(measured, *self._ins)
         return self._estimate(updated=start_sigma_m is not None)
 

@@ -228,11 +228,15 @@ class Mission:
         value = np.zeros(n) if bias is None else np.asarray(bias, dtype=float)
         if value.shape != (n,) or not np.all(np.isfinite(value)):
             raise ValueError(f"the element bias must be {n} finite numbers, got {bias!r}")
+        self._given_bias = value
         self.bias = value if self.estimator is None else np.zeros(n)
 
-    def set_start_fix(self, sigma_m: float | None) -> None:
-        """The start position is a GPS fix with this 1-sigma (None: it is not), before the first step."""
+    def set_start_fix(self, sigma_m: float | None, calibrate: bool = True) -> None:
+        """The start position is known to this 1-sigma (None: it is not), before the first step;
+        ``calibrate``: the start-up average there may observe the biases (a GPS-known start)."""
         self.start_sigma_m = sigma_m
+        if self.estimator is not None:
+            self.estimator.calibrate_start = calibrate
 
     def reconfigure(self, new: NavConfig) -> list[str]:
         """Take a changed configuration at the next step; returns the registry names of changes
@@ -283,6 +287,13 @@ class Mission:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
+            have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not have_ins:
+                # auto without an independent INS: Table 3's path (the fix alone here) until the
+                # dead-reckoning model (FUS_MODEL 3) is validated closed-loop (README, issue 14)
+                self.estimator, self.bias = None, self._given_bias
+                measured = self.measured.values(meas) - self.bias
+                s = measured[:2]
             if self.estimator is not None:
                 self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)

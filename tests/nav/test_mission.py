@@ -447,11 +447,11 @@ def test_a_fix_far_from_the_dead_reckoning_is_rejected(model):
 
 @pytest.mark.parametrize("elements", [1, 2, 3, 4])
 def test_filter_calibrates_at_a_gps_start(model, elements):
-    """The error-state filter (FUS_MODEL 0) started on a GPS fix observes a constant element bias
-    against the model there (NAV_CALIBRATE 1) and carries it as a state: the biased world ends
-    within twice the arrival threshold, on every element set, and the estimated bias is the
-    true one to within its own 3-sigma."""
-    nav = nav_config(None, NAV_ELEMENTS=elements)
+    """The error-state filter (dead reckoning, FUS_MODEL 3: this world has no INS) started on a
+    GPS fix observes a constant element bias against the model there (NAV_CALIBRATE 1) and
+    carries it as a state: the biased world ends within twice the arrival threshold, on every
+    element set, and the estimated bias is the true one to within its own 3-sigma."""
+    nav = nav_config(None, NAV_ELEMENTS=elements, FUS_MODEL=3)
     sizes = {"decl_deg": 0.05, "incl_deg": 0.05, "f_nt": 40.0, "h_nt": 40.0, "z_nt": -40.0}
     names = element_set(elements).names
     bias = [sizes[n] for n in names]
