@@ -105,7 +105,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
     _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
     _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
-    _p("NAV_ELEMENTS", int, 0, 0, 2, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free"),
+    _p("NAV_ELEMENTS", int, 0, 0, 4, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free, 3 (H, Z) heading-free, 4 (D, I, F) weighted"),
     _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),
@@ -139,6 +139,21 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_RC_KM2", float, 2.0, 1e-9, 1e6, "km^2", "measurement noise R_c of INS minus geomagnetic fix (Table 3)"),
     _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
     _p("FUS_FEEDBACK", int, 0, 0, 1, "", "0 INS corrected by the estimated error, 1 eq. 58 as printed"),
+    # --- estimation filter (issue 14: companion/nav/navfilter.py) ---
+    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else Table 3), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
+    _p("FUS_R_DEG", float, 0.002, 1e-6, 10.0, "deg", "declared 1-sigma noise of an averaged D or I"),
+    _p("FUS_R_NT", float, 2.0, 1e-3, 10000.0, "nT", "declared 1-sigma noise of an averaged F, H or Z"),
+    _p("FUS_B0_DEG", float, 0.5, 1e-6, 90.0, "deg", "prior 1-sigma of the D/I bias states (measured minus model)"),
+    _p("FUS_B0_NT", float, 500.0, 1e-3, 1e5, "nT", "prior 1-sigma of the F/H/Z bias states"),
+    _p("FUS_BQ_DEG", float, 0.0002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
+    _p("FUS_BQ_NT", float, 0.2, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while quiet"),
+    _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
+    _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
+    _p("FUS_DR_POS_M", float, 150.0, 0.0, 1e5, "m", "dead reckoning: position error added per step (turns, speed changes)"),
+    _p("FUS_CUR_MPS", float, 0.3, 0.0, 10.0, "m/s", "dead reckoning: prior 1-sigma of the current (drift) per axis"),
+    _p("FUS_CUR_Q", float, 0.05, 0.0, 10.0, "m/s/rt(h)", "dead reckoning: random walk of the current"),
+    _p("FUS_GPS_M", float, 5.0, 0.1, 1e4, "m", "1-sigma of a GPS start position the filter starts from"),
+    _p("GRAD_INIT", int, 1, 0, 1, "", "G after the probing moves: 0 from the probes (eq. 5-9), 1 the model's gradient at the estimated position"),
     # --- companion process (link, outputs, failsafes) ---
     _p("COMP_SP_RATE_HZ", float, 5.0, 2.5, 50.0, "Hz", "setpoint stream rate (PX4 offboard needs > 2 Hz)"),
     _p("COMP_ARM_ENABLE", int, 0, 0, 1, "", "1 lets the companion switch to GUIDED/OFFBOARD and arm"),
@@ -344,6 +359,20 @@ class NavConfig(_FromRegistry):
     fusion_rc_m2: float = _from("FUS_RC_KM2", _KM2_TO_M2)
     fusion_p0_m2: float = _from("FUS_P0_KM2", _KM2_TO_M2)
     fusion_feedback: int = _from("FUS_FEEDBACK")
+    fusion_model: int = _from("FUS_MODEL")
+    filter_r_deg: float = _from("FUS_R_DEG")
+    filter_r_nt: float = _from("FUS_R_NT")
+    bias_sigma0_deg: float = _from("FUS_B0_DEG")
+    bias_sigma0_nt: float = _from("FUS_B0_NT")
+    bias_q_deg: float = _from("FUS_BQ_DEG")
+    bias_q_nt: float = _from("FUS_BQ_NT")
+    bias_qa_deg: float = _from("FUS_BQA_DEG")
+    bias_qa_nt: float = _from("FUS_BQA_NT")
+    dr_pos_sigma_m: float = _from("FUS_DR_POS_M")
+    current_sigma_mps: float = _from("FUS_CUR_MPS")
+    current_q_mps: float = _from("FUS_CUR_Q")
+    gps_sigma_m: float = _from("FUS_GPS_M")
+    grad_init: int = _from("GRAD_INIT")
 
     def replace(self, **changes) -> "NavConfig":
         """A copy with some fields changed (for scripts and tests)."""

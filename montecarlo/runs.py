@@ -28,7 +28,7 @@ import numpy as np
 
 from companion.nav.metrics import track_metrics
 from companion.params import NavConfig
-from sitl.inprocess import fly_in_process
+from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import TruthField, decl_incl_from_ned
@@ -64,6 +64,10 @@ class RunRow:
     final_lon: float
     snr_db: float
     wall_s: float
+    process_model: str = ""          # the position estimator: ins, dead_reckoning or table3
+    nees_mean: float = math.nan      # mean over the steps of the filter's NEES (2 when consistent)
+    in_ellipse95: float = math.nan   # 1 when the final position lies inside the filter's 95 % ellipse
+    sigma_end_km: float = math.nan   # the filter's own 1-sigma (per axis) at the end
 
 
 @dataclass(frozen=True)
@@ -169,10 +173,15 @@ def run_spec(spec: RunSpec) -> RunOutput:
     wall = time.perf_counter() - started
     start, dest = (nav.start_lat_deg, nav.start_lon_deg), (nav.dest_lat_deg, nav.dest_lon_deg)
     m = track_metrics(result.true_lat_deg, result.true_lon_deg, start, dest, result.iterations)
+    nees = nees_per_step(result)
+    end = result.est_cov_en_m2[-1] if len(result.est_cov_en_m2) else (math.nan,) * 3
     row = RunRow(result.controller, spec.seed, spec.storm, result.phase, result.reason, m.iterations,
                  m.remaining_m / 1e3, m.length_m / 1e3, m.step_variance_m2 / 1e6, m.mean_deviation_m / 1e3,
                  m.max_deviation_m / 1e3, m.path_matching_rate_pct, m.final_lat_deg, m.final_lon_deg,
-                 _snr_db(truth, result.true_lat_deg, result.true_lon_deg, nav.period_s, nav.alt_m), wall)
+                 _snr_db(truth, result.true_lat_deg, result.true_lon_deg, nav.period_s, nav.alt_m), wall,
+                 result.process_model, float(np.nanmean(nees)) if np.any(np.isfinite(nees)) else math.nan,
+                 float(nees[-1] <= CHI2_95_2DOF) if len(nees) and math.isfinite(nees[-1]) else math.nan,
+                 math.sqrt(0.5 * (end[0] + end[2])) / 1e3)
     return RunOutput(row, result.true_lat_deg, result.true_lon_deg)
 
 

@@ -62,6 +62,12 @@ def summarise(rows: list[RunRow], dest: tuple[float, float]) -> dict:
         }
         for key in ("mean_dev_km", "max_dev_km", "pmr_pct", "iterations", "step_var_km2", "length_km", "snr_db"):
             entry[key] = float(np.mean([getattr(r, key) for r in main]))
+        # the filter's honesty: mean NEES over runs and steps, share of runs ending inside its 95 % ellipse
+        nees = [r.nees_mean for r in main if math.isfinite(r.nees_mean)]
+        inside = [r.in_ellipse95 for r in main if math.isfinite(r.in_ellipse95)]
+        entry["nees_mean"] = float(np.mean(nees)) if nees else math.nan
+        entry["ellipse95_pct"] = 100.0 * float(np.mean(inside)) if inside else math.nan
+        entry["sigma_end_km"] = float(np.nanmedian([r.sigma_end_km for r in main])) if nees else math.nan
         if storm_flown:
             quiet = np.array([r.remaining_km for r in rows if r.controller == name and not r.storm])
             entry["median_remaining_quiet_km"] = float(np.median(quiet)) if len(quiet) else math.nan
@@ -87,6 +93,10 @@ ROWS_QUIET = [
     ("Variability, step var (km^2)", "step_var_km2", "{:.3f}"),
     ("Trajectory length (km)", "length_km", "{:.1f}"),
     ("Arrived (runs)", "arrived", "{:.0f}"),
+    ("Honest uncertainty (issue 14)", None, None),
+    ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
+    ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
+    ("Own 1-sigma at the end, median (km)", "sigma_end_km", "{:.2f}"),
 ]
 ROWS_STORM = [
     ("Signal-to-noise ratio (dB)", "snr_db", "{:.2f}"),
@@ -99,6 +109,8 @@ ROWS_STORM = [
     ("Remaining distance, median (km)", "median_remaining_km", "{:.2f}"),
     ("  same seeds, storm off, median (km)", "median_remaining_quiet_km", "{:.2f}"),
     ("Arrived (runs)", "arrived", "{:.0f}"),
+    ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
+    ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
 ]
 
 

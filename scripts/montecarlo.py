@@ -77,6 +77,8 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--errors", default=None, metavar="SPEC",
                         help="switch error sources of the realistic world on (+name) or off (-name), comma "
                              "separated: heading, main_field, crustal, calibration, noise, storm, ins; 'none', 'all'")
+    parser.add_argument("--process-model", choices=("ins", "dead_reckoning"), default=None,
+                        help="the error-state filter's process model (FUS_MODEL 2 or 3); default auto (the INS here)")
     parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
                         help="override the scenario's [attitude] heading_source")
     parser.add_argument("--budget", action="store_true",
@@ -112,6 +114,8 @@ def _run(argv: list[str] | None) -> int:
             parser.error(str(err))
     overrides = read_parm_file(args.params) if args.params else {}
     overrides.update(param_items(args.param))
+    if args.process_model:
+        overrides["FUS_MODEL"] = {"ins": 2, "dead_reckoning": 3}[args.process_model]
     values = validate_all({**scenario.nav_overrides(), **overrides})
     keys = args.controllers.split(",") if args.controllers else (["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
     try:

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.nav.geo import geodesic_distance_m
+from companion.nav.geo import enu_offset, geodesic_distance_m
 from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
@@ -46,7 +46,10 @@ from sitl.world.magnetic import TruthField
 from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
 from sitl.world.vehicle import VehicleState, step_vehicle
 
-__all__ = ["RunResult", "fly_in_process"]
+__all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
+
+
+CHI2_95_2DOF = 5.991464547107979   # chi-square 95 % quantile, 2 degrees of freedom: the 95 % ellipse
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,10 @@ class RunResult:
     ins_error_m: np.ndarray     # INS position error magnitude at each step
     commands: tuple[Command, ...] = field(default=(), repr=False)
     elements: tuple[AveragedElements, ...] = field(default=(), repr=False)  # measured, per step
+    # the estimate's covariance (east-east, east-north, north-north, m^2) at each step, NaN
+    # where the navigator has none (LTI/LTV-MPC, Table 3's path between fusions)
+    est_cov_en_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    process_model: str = ""
 
     @property
     def arrived(self) -> bool:
@@ -90,6 +97,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     if nav_model is None and scenario.field_model.main == "wmm":
         nav_model = truth.model
     mission = Mission(nav, nav_model)
+    # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)
+    mission.set_start_fix(nav.gps_sigma_m)
     state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
     sensors = scenario.sensors
     sampled = sensors.inprocess_samples
@@ -127,7 +136,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
             avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng)
-            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt), avg
+            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
+                               avg.h_nt, avg.z_nt), avg
         # analytic path: the path's points after the start knot (the start alone at step 0)
         path = slice(1, None) if len(knots) > 1 else slice(0, 1)
         ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
@@ -137,14 +147,15 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         incl = float(np.mean(np.degrees(np.arctan2(d, h)))) + noise_rng.normal(0.0, sigma_i)
         fn, hn, zn = (float(np.mean(v)) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
         avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)))
-        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn), avg
+        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn), avg
 
     time_s = 0.0
     lats, lons = [state.lat_deg], [state.lon_deg]
-    est_lats, est_lons, ins_err = [state.lat_deg], [state.lon_deg], [math.hypot(*ins.position_error_m(state.lat_deg))]
+    ins_err = [math.hypot(*ins.position_error_m(state.lat_deg))]
     measurement, avg = measure(time_s, [(0.0, state, *slow_errors(0.0, state))], 0.0)
     command = mission.step(measurement)
     commands, elements = [command], [avg]
+    est_lats, est_lons, covs = [command.est_lat_deg], [command.est_lon_deg], [command.est_cov_en_m2]
     while not command.done:
         knots = [(time_s, state, *slow_errors(time_s, state))]
         for index in range(substeps):
@@ -162,6 +173,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         lons.append(state.lon_deg)
         est_lats.append(command.est_lat_deg)
         est_lons.append(command.est_lon_deg)
+        covs.append(command.est_cov_en_m2)
         ins_err.append(math.hypot(*ins.position_error_m(state.lat_deg)))
     return RunResult(
         controller=Controller.NAMES[nav.controller], seed=seed, phase=command.phase, reason=command.reason,
@@ -170,4 +182,25 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         remaining_m=geodesic_distance_m(state.lat_deg, state.lon_deg, nav.dest_lat_deg, nav.dest_lon_deg),
         length_m=state.distance_m, duration_s=time_s, ins_error_m=np.array(ins_err),
         commands=tuple(commands) if keep_commands else (), elements=tuple(elements),
+        est_cov_en_m2=np.array(covs, dtype=float),
+        process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
     )
+
+
+def nees_per_step(result: RunResult) -> np.ndarray:
+    """Normalised estimation error squared ``e^T P^-1 e`` of the horizontal position at each step
+    (e = true minus estimated, east/north metres; P the navigator's own covariance); NaN where
+    the navigator gives no covariance. A consistent filter has mean 2 (two degrees of freedom)
+    and puts the truth inside its 95 % ellipse (NEES <= CHI2_95_2DOF) 95 % of the time."""
+    out = np.full(len(result.est_cov_en_m2), np.nan)
+    for k, (ee, en, nn) in enumerate(result.est_cov_en_m2):
+        if not all(math.isfinite(v) for v in (ee, en, nn, result.est_lat_deg[k], result.est_lon_deg[k])):
+            continue
+        e = np.array(enu_offset(result.est_lat_deg[k], result.est_lon_deg[k], result.true_lat_deg[k],
+                                result.true_lon_deg[k]))
+        cov = np.array([[ee, en], [en, nn]])
+        try:
+            out[k] = float(e @ np.linalg.solve(cov, e))
+        except np.linalg.LinAlgError:
+            continue
+    return out

@@ -6,7 +6,14 @@ flight controller's yaw comes from this same compass and a declination table eva
 flight controller's own position, so D measured against it is that table value plus the yaw
 error: no position information at all. The heading-free pair ``(I, F)``, inclination and total
 intensity, needs only the magnetometer (F) and the gravity-referenced tilt (I); it carries the
-same information as ``(H, Z)`` (a change of coordinates), so one heading-free pair suffices.
+same information as ``(H, Z)`` (a change of coordinates); both are offered, because their noise
+and their biases differ (a hard-iron residual moves Z and H unlike I and F).
+
+Sets (NAV_ELEMENTS): 1 ``(D, I)`` (the paper), 2 ``(I, F)``, 3 ``(H, Z)`` (heading-free), 4
+``(D, I, F)``: all three measured and weighted by each element's declared noise in the
+navigation filter (:mod:`companion.nav.navfilter`), the MPC steering on its first two,
+``(D, I)`` (:meth:`ElementSet.steering`), whose geomagnetic fix (eq. 49) is also the one
+reported beside the filter's estimate.
 
 Each :class:`ElementSet` says which two elements form S, in which unit each enters the state
 (degrees for angles, nanotesla for intensities), how a difference is formed (declination wraps
@@ -42,7 +49,7 @@ QP_UNITS_PER_NT = 10.0
 # degree of I and 100 nT of F (each about 100 km of travel here) count alike.
 PAPER_UNITS_PER_NT = 0.01
 
-ELEMENT_NAMES = {"decl_deg": "D", "incl_deg": "I", "f_nt": "F"}
+ELEMENT_NAMES = {"decl_deg": "D", "incl_deg": "I", "f_nt": "F", "h_nt": "H", "z_nt": "Z"}
 
 
 @dataclass(frozen=True)
@@ -50,14 +57,17 @@ class ElementSet:
     """Two magnetic elements forming the navigation state S.
 
     ``names``: attribute names of :class:`companion.nav.field.FieldElements` (and of
-    :class:`companion.nav.mission.Measurement`), in state order. ``code``: the NAV_ELEMENTS value.
+    :class:`companion.nav.mission.Measurement`), in state order (two, or three for a weighted
+    set). ``code``: the NAV_ELEMENTS value.
     """
 
     code: int
-    names: tuple[str, str]
+    names: tuple[str, ...]
 
     PAPER = 1          # (D, I): needs an independent heading
     HEADING_FREE = 2   # (I, F): magnetometer and tilt only
+    HORIZONTAL_VERTICAL = 3   # (H, Z): magnetometer and tilt only
+    WEIGHTED = 4       # (D, I, F): all three, weighted by declared noise; steers on (D, I)
 
     @property
     def label(self) -> str:
@@ -67,6 +77,14 @@ class ElementSet:
     @property
     def uses_declination(self) -> bool:
         return "decl_deg" in self.names
+
+    @property
+    def heading_free(self) -> bool:
+        return not self.uses_declination
+
+    def steering(self) -> "ElementSet":
+        """The two elements the MPC steers on: the set itself, or the first two of a weighted set."""
+        return self if len(self.names) == 2 else ElementSet(self.code, self.names[:2])
 
     def values(self, source) -> np.ndarray:
         """The two elements of ``source`` (FieldElements, Measurement or any object with the names)."""
@@ -85,7 +103,7 @@ class ElementSet:
         or degrees and hundreds of nT (MPC_UNITS = 1, the paper's degrees)."""
         per_deg = 1.0 if mpc_units == 1 else ARCSEC_PER_DEG
         per_nt = PAPER_UNITS_PER_NT if mpc_units == 1 else QP_UNITS_PER_NT
-        return np.array([per_nt if name == "f_nt" else per_deg for name in self.names])
+        return np.array([per_nt if name.endswith("_nt") else per_deg for name in self.names])
 
     def finite(self, source) -> bool:
         return all(math.isfinite(getattr(source, name)) for name in self.names)
@@ -94,13 +112,16 @@ class ElementSet:
 ELEMENT_SETS: dict[int, ElementSet] = {
     ElementSet.PAPER: ElementSet(ElementSet.PAPER, ("decl_deg", "incl_deg")),
     ElementSet.HEADING_FREE: ElementSet(ElementSet.HEADING_FREE, ("incl_deg", "f_nt")),
+    ElementSet.HORIZONTAL_VERTICAL: ElementSet(ElementSet.HORIZONTAL_VERTICAL, ("h_nt", "z_nt")),
+    ElementSet.WEIGHTED: ElementSet(ElementSet.WEIGHTED, ("decl_deg", "incl_deg", "f_nt")),
 }
 
 
 def element_set(code: int) -> ElementSet:
-    """The element set of a NAV_ELEMENTS value (1 or 2); ValueError otherwise (0, auto, is
+    """The element set of a NAV_ELEMENTS value (1-4); ValueError otherwise (0, auto, is
     resolved by the caller, who knows the heading source)."""
     try:
         return ELEMENT_SETS[int(code)]
     except (KeyError, ValueError, TypeError):
-        raise ValueError(f"NAV_ELEMENTS {code!r} is not a concrete element set (1 (D, I), 2 (I, F))") from None
+        raise ValueError(f"NAV_ELEMENTS {code!r} is not a concrete element set "
+                         "(1 (D, I), 2 (I, F), 3 (H, Z), 4 (D, I, F))") from None

@@ -1,5 +1,8 @@
 """INS / geomagnetic fusion: the paper's 15-state error Kalman filter (eq. 46-58, Table 3).
 
+Selected with ``FUS_MODEL 1``; the default is the error-state filter of
+:mod:`companion.nav.navfilter` (INS error dynamics or dead reckoning, element bias states).
+
 State ``dX`` (eq. 47): attitude errors (3), position errors (3: east, north, up), velocity
 errors (3), constant gyro drift (3), random gyro drift (3). We keep the paper's order for the
 position block at indices 3-4 so ``H_B = [0_2x3 I_2 0_2x10]`` (eq. 51) as printed, and hold

@@ -19,6 +19,11 @@ Updates while cruising (selectable, ``GRAD_UPDATE``):
   zero velocity component divides by zero (we then skip that column). Kept for comparison.
 * ``TWO_MOVES``: a fresh estimate from the last two displacements (eq. 6-9 generalised),
   when they are far enough from parallel; otherwise the Broyden update.
+
+Start (``GRAD_INIT``): 0 keeps G(2) from the probes; 1 (default) replaces it by the field
+model's gradient at the estimated position (:meth:`GradientEstimator.start_from`). The model is
+already used for every fix, so this costs no independence; two probe moves alone gave G poor
+enough for LTI-MPC's fixed B to diverge in 3 of 50 runs.
 """
 from __future__ import annotations
 
@@ -84,6 +89,15 @@ class GradientEstimator:
     @property
     def ready(self) -> bool:
         return self.g is not None
+
+    def start_from(self, g: np.ndarray) -> np.ndarray:
+        """Replace G by a given one (GRAD_INIT 1: the field model's gradient at the estimated
+        position after the probes) and keep updating from there; returns it."""
+        g = np.asarray(g, dtype=float)
+        if g.shape != (2, 2) or not np.all(np.isfinite(g)):
+            raise ValueError(f"a starting gradient must be a finite 2 x 2 matrix, got {g!r}")
+        self.g = g.copy()
+        return self.g
 
     def observe(self, ds: np.ndarray, dp: np.ndarray, theta_rad: float, v_x: float, v_y: float,
                 period_s: float, frozen: bool = False) -> np.ndarray | None:

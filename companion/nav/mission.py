@@ -17,8 +17,9 @@ Controllers (``NAV_CONTROLLER``):
 * LTI-MPC: B = G(2) T for the whole mission.
 * LTV-MPC: B(k) = G(k) T, updated every step.
 * Fc-MPC: LTV-MPC plus flexible correction (eq. 39-45). The geomagnetic position fix
-  (lambda_c, phi_c) of eq. 49, fused with the INS where the gradient is weak (eq. 46-58),
-  tells where the destination lies; the part of ``S_d - S`` that the linear model cannot
+  (lambda_c, phi_c) of eq. 49, fused with the INS where the gradient is weak (eq. 46-58;
+  FUS_MODEL 1), or by default the error-state filter's position (:mod:`companion.nav.estimator`,
+  run on every step, the probes included), tells where the destination lies; the part of ``S_d - S`` that the linear model cannot
   explain by that displacement is the interference xi(k), and the uniform compensation
   ``B U_a = -xi`` (eq. 43) is applied by shifting the MPC's target (same optimum, see
   :func:`compensation`).
@@ -41,7 +42,8 @@ import numpy as np
 
 from companion import course_from_theta
 from companion.nav.elements import ElementSet, element_set
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, model_for_date
+from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, element_gradient, model_for_date
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.gradient import GradientEstimator
@@ -61,7 +63,10 @@ WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
 FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
                     "elements", "calibrate", "s_auto", "s_margin_deg",
                     "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
-                    "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback")
+                    "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
+                    "filter_r_deg", "filter_r_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
+                    "bias_qa_deg", "bias_qa_nt", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
+                    "grad_init")
 
 
 class Phase:
@@ -92,6 +97,8 @@ class Measurement:
     ins_lon_deg: float = math.nan
     window_s: float = 0.0
     f_nt: float = math.nan
+    h_nt: float = math.nan
+    z_nt: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -117,6 +124,10 @@ class Command:
     solver_ok: bool = True
     solver_time_s: float = 0.0
     reason: str = ""
+    est_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)   # ee, en, nn
+    nis: float = math.nan           # the filter's normalised innovation squared this step
+    disturbed: bool = False         # the filter judges a disturbance active (bias noise raised)
+    bias: tuple[float, ...] = ()    # estimated element biases, measured minus model
 
 
 def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -129,6 +140,29 @@ def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
         return np.linalg.solve(b, -xi)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(b, -xi, rcond=None)[0]
+
+
+def state_bounds(c: NavConfig, elements: ElementSet, s_start: np.ndarray,
+                 s_dest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """S_min, S_max in element units: from the start and destination field +- MPC_S_MARGIN
+    (MPC_S_AUTO = 1), or the MPC_S_MIN_*/MAX_* values (Table 4), which must hold the
+    destination's field."""
+    margins = np.array([c.s_margin_deg * (F_NT_PER_DEG if n.endswith("_nt") else 1.0) for n in elements.names])
+    if c.s_auto == 1:
+        ends = np.stack([s_start, s_dest])
+        return ends.min(axis=0) - margins, ends.max(axis=0) + margins
+    table = {"decl_deg": (c.s_min_d, c.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
+             "incl_deg": (c.s_min_i, c.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I"),
+             "f_nt": (c.s_min_f, c.s_max_f, "MPC_S_MIN_F/MPC_S_MAX_F")}
+    for value, name in zip(s_dest, elements.names):
+        if name not in table:
+            raise ValueError(f"{elements.label} has no MPC_S_MIN/MAX parameters: set MPC_S_AUTO 1")
+        low, high, names = table[name]
+        if not low <= value <= high:
+            # Table 4's bounds suit the paper's northern mid-latitude mission only
+            raise ValueError(f"the destination's field ({value:.2f}) lies outside the state bounds "
+                             f"[{low:g}, {high:g}] of {names}: widen them, or set MPC_S_AUTO 1")
+    return (np.array([table[n][0] for n in elements.names]), np.array([table[n][1] for n in elements.names]))
 
 
 @dataclass
@@ -155,12 +189,19 @@ class Mission:
         if model is None:
             model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
         self.model = model
-        self.elements: ElementSet = element_set(config.elements or ElementSet.PAPER)
+        self.measured: ElementSet = element_set(config.elements or ElementSet.PAPER)
+        self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see
+        # the error-state filter (issue 14) estimates position for Fc-MPC unless Table 3 is chosen
+        use_filter = config.controller == Controller.FC and config.fusion_model != FusionModel.TABLE3
+        self.estimator = PositionEstimator(config, model, self.measured) if use_filter else None
+        self.estimate: Estimate | None = None
+        self.start_sigma_m: float | None = None
         self.set_bias(bias)
         field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
-        self.s_lower, self.s_upper = self._state_bounds(field_at(config.start_lat_deg, config.start_lon_deg))
-        self._degree_equivalent = np.array([F_NT_PER_DEG if n == "f_nt" else 1.0 for n in self.elements.names])
+        self.s_lower, self.s_upper = state_bounds(config, self.elements, field_at(config.start_lat_deg,
+                                                                                 config.start_lon_deg), self.s_dest)
+        self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in self.elements.names])
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(self._mpc_settings())
         self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
@@ -178,12 +219,24 @@ class Mission:
         self.finished: Command | None = None
         self.rejected_fixes = 0
 
-    def set_bias(self, bias: tuple[float, float] | None) -> None:
-        """The start-up calibration to subtract from every measurement (None: none), before the first step."""
-        value = np.zeros(2) if bias is None else np.asarray(bias, dtype=float)
-        if value.shape != (2,) or not np.all(np.isfinite(value)):
-            raise ValueError(f"the element bias must be two finite numbers, got {bias!r}")
-        self.bias = value
+    def set_bias(self, bias: tuple[float, ...] | None) -> None:
+        """The start-up calibration to subtract from every measurement (None: none), before the
+        first step. Only Table 3's path subtracts it as a constant; the error-state filter
+        observes the biases itself at a GPS-known start (:meth:`set_start_fix`) and carries them
+        as uncertain states."""
+        n = len(self.measured.names)
+        value = np.zeros(n) if bias is None else np.asarray(bias, dtype=float)
+        if value.shape != (n,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"the element bias must be {n} finite numbers, got {bias!r}")
+        self._given_bias = value
+        self.bias = value if self.estimator is None else np.zeros(n)
+
+    def set_start_fix(self, sigma_m: float | None, calibrate: bool = True) -> None:
+        """The start position is known to this 1-sigma (None: it is not), before the first step;
+        ``calibrate``: the start-up average there may observe the biases (a GPS-known start)."""
+        self.start_sigma_m = sigma_m
+        if self.estimator is not None:
+            self.estimator.calibrate_start = calibrate
 
     def reconfigure(self, new: NavConfig) -> list[str]:
         """Take a changed configuration at the next step; returns the registry names of changes
@@ -199,27 +252,6 @@ class Mission:
             self.config = merged
             self.mpc = MpcController(self._mpc_settings())
         return deferred
-
-    def _state_bounds(self, s_start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """S_min, S_max in element units: from the start and destination field +- MPC_S_MARGIN
-        (MPC_S_AUTO = 1), or the MPC_S_MIN_*/MAX_* values (Table 4), which must hold the
-        destination's field."""
-        c = self.config
-        margins = np.array([c.s_margin_deg * (F_NT_PER_DEG if n == "f_nt" else 1.0) for n in self.elements.names])
-        if c.s_auto == 1:
-            ends = np.stack([s_start, self.s_dest])
-            return ends.min(axis=0) - margins, ends.max(axis=0) + margins
-        table = {"decl_deg": (c.s_min_d, c.s_max_d, "MPC_S_MIN_D/MPC_S_MAX_D"),
-                 "incl_deg": (c.s_min_i, c.s_max_i, "MPC_S_MIN_I/MPC_S_MAX_I"),
-                 "f_nt": (c.s_min_f, c.s_max_f, "MPC_S_MIN_F/MPC_S_MAX_F")}
-        for value, name in zip(self.s_dest, self.elements.names):
-            low, high, names = table[name]
-            if not low <= value <= high:
-                # Table 4's bounds suit the paper's northern mid-latitude mission only
-                raise ValueError(f"the destination's field ({value:.2f}) lies outside the state bounds "
-                                 f"[{low:g}, {high:g}] of {names}: widen them, or set MPC_S_AUTO 1")
-        return (np.array([table[n][0] for n in self.elements.names]),
-                np.array([table[n][1] for n in self.elements.names]))
 
     # --- units of the QP -------------------------------------------------------------------
     def _units(self) -> tuple[np.ndarray, float]:
@@ -247,13 +279,23 @@ class Mission:
         reason and changes nothing, so the caller can retry with the next one."""
         if self.finished is not None:
             return self.finished
-        s = self.elements.values(meas) - self.bias
-        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.all(np.isfinite(s))):
+        measured = self.measured.values(meas) - self.bias
+        s = measured[:2]
+        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.all(np.isfinite(measured))):
             return self._hold(meas.time_s, "non-finite measurement")
         if self.last is not None and meas.time_s <= self.last.time_s:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
+            have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not have_ins:
+                # auto without an independent INS: Table 3's path (the fix alone here) until the
+                # dead-reckoning model (FUS_MODEL 3) is validated closed-loop (README, issue 14)
+                self.estimator, self.bias = None, self._given_bias
+                measured = self.measured.values(meas) - self.bias
+                s = measured[:2]
+            if self.estimator is not None:
+                self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
         dt = meas.time_s - self.last.time_s
         moved = self.last.velocity_en * dt
@@ -262,8 +304,15 @@ class Mission:
         # the averaged measurement describes the centre of its window, half a window back
         self.window_lag_en = self.last.velocity_en * min(max(meas.window_s, 0.0), dt) / 2.0
         sample_en = self.dead_reckoned_en - self.window_lag_en
+        if self.estimator is not None:   # the filter runs on every step, the probes included
+            self._take(self.estimator.step(meas, measured, dt, self.last.velocity_en, self.window_lag_en, self.est))
         g = self.gradient.observe(self.elements.difference(s, self.last.s), sample_en - self.last.sample_en, self.last.theta_rad,
                                   *self.last.velocity_en, dt, frozen=c.controller == Controller.LTI)
+        if self.k == 2 and g is not None and c.grad_init == 1:
+            # GRAD_INIT 1: start from the model's gradient where the vehicle is estimated to be
+            # (the model already makes the fixes); two probe moves alone can give a G poor
+            # enough for LTI-MPC's fixed B to diverge
+            g = self.gradient.start_from(element_gradient(self.model, self.elements, *self.est, c.alt_m, c.year))
         if self.k == 1:
             return self._probe(meas.time_s, s, math.radians(c.probe2_deg), Phase.PROBE_2)
         if g is None:
@@ -273,8 +322,11 @@ class Mission:
     def _cruise(self, meas: Measurement, s: np.ndarray, g: np.ndarray) -> Command:
         c = self.config
         fix, fused, sigma = (math.nan, math.nan), False, math.nan
+        s_now = s
         if c.controller == Controller.FC:
             fix, fused, sigma = self._estimate_position(meas, s, g)
+            if self.estimate is not None:   # the MPC sees S with the estimated biases removed
+                s_now = s - np.asarray(self.estimate.bias[:2])
             remaining, course_to_dest = geodesic_inverse(self.est[0], self.est[1], c.dest_lat_deg, c.dest_lon_deg)
             to_dest = remaining * np.array([math.sin(course_to_dest), math.cos(course_to_dest)])
             to_aim = to_dest
@@ -282,7 +334,7 @@ class Mission:
                 aim = self.reference.aim_point(self.est[0], self.est[1], c.lookahead_m)
                 distance, course_to_aim = geodesic_inverse(self.est[0], self.est[1], *aim)
                 to_aim = distance * np.array([math.sin(course_to_aim), math.cos(course_to_aim)])
-            xi = self.elements.difference(self.s_dest, s) - g @ to_aim   # what the linear model cannot explain
+            xi = self.elements.difference(self.s_dest, s_now) - g @ to_aim   # what the linear model cannot explain
             target = self.s_dest - xi                      # = S + G * to_aim
         else:
             try:
@@ -303,8 +355,8 @@ class Mission:
             b = b * self.quadrant                             # solve in the destination's quadrant
         target_qp = target * s_unit
         if c.mpc_units == 0:
-            target_qp = self._governed(s * s_unit, target_qp, b, c.speed_mps / u_unit)
-        solution = self.mpc.solve(b, s * s_unit, target_qp)
+            target_qp = self._governed(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
+        solution = self.mpc.solve(b, s_now * s_unit, target_qp)
         if not solution.ok:
             return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
                                 sigma, solver_ok=False)
@@ -331,11 +383,25 @@ class Mission:
         size = float(np.hypot(*needed))
         return target_qp if size <= reach_units else s_qp + (target_qp - s_qp) * (reach_units / size)
 
+    def _take(self, estimate: Estimate) -> None:
+        self.estimate = estimate
+        self.est = (estimate.lat_deg, estimate.lon_deg)
+        self.rejected_fixes = self.estimator.rejected
+
+    def _filter_fields(self) -> dict:
+        e = self.estimate   # the filter's own 1-sigma and covariance go out with every command
+        return {} if e is None else {"est_cov_en_m2": e.cov_en_m2, "nis": e.nis, "disturbed": e.disturbed,
+                                     "bias": e.bias, "est_sigma_m": e.sigma_m}
+
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
-        """Geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
+        """The error-state filter's estimate of this step (already made in :meth:`step`), or
+        Table 3's path: geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
         fix is weak (Algorithm 1's min |G| < sigma, read as the smallest singular value of the
         model's G at the fix in degrees per metre, F counted at F_NT_PER_DEG: the estimated G is
         too noisy to judge the fix by) or failed."""
+        if self.estimate is not None:
+            e = self.estimate
+            return (e.fix_lat_deg, e.fix_lon_deg), e.updated, e.sigma_m
         c = self.config
         lag_e, lag_n = self.window_lag_en
         prior = offset_position(self.est[0], self.est[1], -lag_e, -lag_n)
@@ -382,26 +448,27 @@ class Mission:
         self.k += 1
 
     def _command(self, time_s, phase, theta, speed, remaining, fix, fused, sigma, **extra) -> Command:
-        return Command(time_s=time_s, step=self.k, phase=phase, course_rad=course_from_theta(theta),
-                       speed_mps=float(speed), done=False, est_lat_deg=self.est[0], est_lon_deg=self.est[1],
-                       est_sigma_m=float(sigma), remaining_m=float(remaining), theta_rad=theta,
-                       fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
-                       u_first_mps=extra.get("u_first", (math.nan, math.nan)),
-                       compensation_mps=extra.get("u_a", (0.0, 0.0)),
-                       solver_time_s=extra.get("solver_time_s", 0.0))
+        return Command(**{**dict(time_s=time_s, step=self.k, phase=phase, course_rad=course_from_theta(theta),
+                                 speed_mps=float(speed), done=False, est_lat_deg=self.est[0],
+                                 est_lon_deg=self.est[1], est_sigma_m=float(sigma), remaining_m=float(remaining),
+                                 theta_rad=theta, fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
+                                 u_first_mps=extra.get("u_first", (math.nan, math.nan)),
+                                 compensation_mps=extra.get("u_a", (0.0, 0.0)),
+                                 solver_time_s=extra.get("solver_time_s", 0.0)), **self._filter_fields()})
 
     def _finish(self, time_s, phase, reason, remaining=math.nan, fix=(math.nan, math.nan), fused=False,
                 sigma=math.nan, solver_ok=True) -> Command:
         course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
-        self.finished = Command(time_s=time_s, step=self.k, phase=phase, course_rad=course, speed_mps=0.0,
-                                done=True, est_lat_deg=self.est[0], est_lon_deg=self.est[1],
-                                est_sigma_m=float(sigma), remaining_m=float(remaining), fix_lat_deg=fix[0],
-                                fix_lon_deg=fix[1], fused=fused, solver_ok=solver_ok, reason=reason)
+        self.finished = Command(**{**dict(time_s=time_s, step=self.k, phase=phase, course_rad=course, speed_mps=0.0,
+                                          done=True, est_lat_deg=self.est[0], est_lon_deg=self.est[1],
+                                          est_sigma_m=float(sigma), remaining_m=float(remaining),
+                                          fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
+                                          solver_ok=solver_ok, reason=reason), **self._filter_fields()})
         return self.finished
 
     def _hold(self, time_s: float, reason: str) -> Command:
         course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
-        return Command(time_s=time_s if math.isfinite(time_s) else math.nan, step=self.k,
-                       phase=Phase.HOLD, course_rad=course, speed_mps=0.0,
-                       done=False, est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
-                       remaining_m=math.nan, solver_ok=True, reason=reason)
+        return Command(**{**dict(time_s=time_s if math.isfinite(time_s) else math.nan, step=self.k,
+                                 phase=Phase.HOLD, course_rad=course, speed_mps=0.0, done=False,
+                                 est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
+                                 remaining_m=math.nan, solver_ok=True, reason=reason), **self._filter_fields()})

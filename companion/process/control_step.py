@@ -79,8 +79,10 @@ class ControlStep:
             return
         window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
         ins_lat, ins_lon, ins_source = self.ins_position(now)
-        meas = Measurement(t_k - app.m0, avg.decl_deg, app.preparation.inclination(avg), ins_lat, ins_lon, window,
-                           avg.f_nt)
+        incl = app.preparation.inclination(avg)
+        # H and Z from F and the (gravity-referenced) I: no heading enters either
+        h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
+        meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt)
         if self.excluded(t_k, meas):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later
             return

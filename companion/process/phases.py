@@ -169,6 +169,10 @@ class Phases:
         app.bias, calibration = prep.calibration(config, startup, source)
         app.mission = prep.take_mission(config)
         app.mission.set_bias(app.bias)
+        # the error-state filter starts from the known start (a GPS fix, or the declared NAV_START
+        # the mission is planned from) and observes the biases itself only at a GPS-known start
+        app.mission.set_start_fix(config.gps_sigma_m if source in ("GPS", "NAV_START") else None,
+                                  calibrate=source == "GPS")
         app.mission_no += 1
         app.resume.new_mission()
         self.was_following = True
@@ -179,6 +183,9 @@ class Phases:
         if calibration:
             app.out.say(f"FcMPC: {calibration}"[:200])
         app.stepper.step(app.m0, window_limit_s=0.0, avg=startup)
+        estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
+        if estimator is not None and estimator.reason:
+            app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
 
     # ------------------------------------------------------------------ running
     def running(self, now: float, reasons: list[str], dt: float) -> bool:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from companion.nav.elements import ELEMENT_SETS, ElementSet
+from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.nav.mission import WMM_NAMES, Mission
@@ -82,9 +82,11 @@ class MissionPreparation:
         requested = app.nav_cfg.elements
         if verdict is None or verdict.compass_derived:
             reason = verdict.reason if verdict is not None else "heading source unknown"
-            if requested == ElementSet.PAPER:
-                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS 1 asks for D, but the FC yaw is compass-derived "
-                                                 f"({reason}): D is no measurement")
+            if requested in (ElementSet.PAPER, ElementSet.WEIGHTED):
+                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS {requested} asks for D, but the FC yaw is "
+                                                 f"compass-derived ({reason}): D is no measurement")
+            if requested == ElementSet.HORIZONTAL_VERTICAL:
+                return requested, f"NAV_ELEMENTS 3, FC yaw compass-derived ({reason})"
             return ElementSet.HEADING_FREE, f"FC yaw is compass-derived ({reason})"
         if requested == 0:
             return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
@@ -93,11 +95,12 @@ class MissionPreparation:
     def inclination(self, avg) -> float:
         """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
         elements, so neither a heading nor the FC's attitude estimate enters; else tilt-compensated."""
-        if self.app.elements_code == ElementSet.HEADING_FREE and math.isfinite(avg.incl_grav_deg):
+        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
+        if heading_free and math.isfinite(avg.incl_grav_deg):
             return avg.incl_grav_deg
         return avg.incl_deg
 
-    def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, float] | None, str]:
+    def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, ...] | None, str]:
         """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""
         if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
             return None, "" if not config.calibrate else f"not calibrated (start from {source})"
@@ -107,6 +110,6 @@ class MissionPreparation:
         measured = elements.values(replace(startup, incl_deg=self.inclination(startup)))
         bias = elements.difference(measured, expected)
         units = ["nT" if n == "f_nt" else "deg" for n in elements.names]
-        words = ", ".join(f"{n[0].upper()} {b:+.3f} {u}" if u == "deg" else f"F {b:+.0f} {u}"
+        words = ", ".join(f"{ELEMENT_NAMES[n]} {b:+.3f} {u}" if u == "deg" else f"{ELEMENT_NAMES[n]} {b:+.0f} {u}"
                           for n, b, u in zip(elements.names, bias, units))
-        return (float(bias[0]), float(bias[1])), f"calibrated at the GPS start: measured - model = {words}"
+        return tuple(float(b) for b in bias), f"calibrated at the GPS start: measured - model = {words}"

@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 from geographiclib.geodesic import Geodesic
 
+from companion.nav.elements import element_set
 from companion.nav.field import decl_incl_gradient, model_for_date
 from companion.nav.mission import Measurement, Mission, Phase, compensation
 from companion.params import Controller, NavConfig, validate_all
@@ -92,7 +93,8 @@ class NoiselessWorld:
 
     def measure(self) -> Measurement:
         e = self.model.elements(self.lat, self.lon, self.nav.alt_m, self.nav.year)
-        return Measurement(self.time_s, float(e.decl_deg), float(e.incl_deg), f_nt=float(e.f_nt))
+        return Measurement(self.time_s, float(e.decl_deg), float(e.incl_deg), f_nt=float(e.f_nt),
+                           h_nt=float(e.h_nt), z_nt=float(e.z_nt))
 
     def fly(self, command) -> Measurement:
         end = WGS84.Direct(self.lat, self.lon, math.degrees(command.course_rad), command.speed_mps * self.nav.period_s)
@@ -402,8 +404,9 @@ def test_heading_free_elements_arrive(model):
 def test_start_up_bias_is_removed_from_every_measurement(model, elements):
     """A constant measurement bias (model error, calibration residual) that the caller measured at
     the start is subtracted: the biased world flown with the bias given ends where the unbiased
-    one does; without it, the mission ends kilometres away."""
-    nav = nav_config(None, NAV_ELEMENTS=elements)
+    one does; without it, the mission ends kilometres away. This is Table 3's path (FUS_MODEL 1);
+    the error-state filter carries the bias as a state (test_filter_calibrates_at_a_gps_start)."""
+    nav = nav_config(None, NAV_ELEMENTS=elements, FUS_MODEL=1)
     bias = (0.05, 0.05) if elements == 1 else (0.05, 40.0)   # deg, deg / deg, nT
     names = Mission(nav, model).elements.names
 
@@ -440,3 +443,28 @@ def test_a_fix_far_from_the_dead_reckoning_is_rejected(model):
     assert WGS84.Inverse(bad.est_lat_deg, bad.est_lon_deg, commands[blunder_at - 1].est_lat_deg,
                          commands[blunder_at - 1].est_lon_deg)["s12"] < nav.speed_mps * nav.period_s * 1.01
     assert commands[-1].phase == Phase.ARRIVED and world.miss_m() < 2.0 * nav.arrive_m
+
+
+@pytest.mark.parametrize("elements", [1, 2, 3, 4])
+def test_filter_calibrates_at_a_gps_start(model, elements):
+    """The error-state filter (dead reckoning, FUS_MODEL 3: this world has no INS) started on a
+    GPS fix observes a constant element bias against the model there (NAV_CALIBRATE 1) and
+    carries it as a state: the biased world ends within twice the arrival threshold, on every
+    element set, and the estimated bias is the true one to within its own 3-sigma."""
+    nav = nav_config(None, NAV_ELEMENTS=elements, FUS_MODEL=3)
+    sizes = {"decl_deg": 0.05, "incl_deg": 0.05, "f_nt": 40.0, "h_nt": 40.0, "z_nt": -40.0}
+    names = element_set(elements).names
+    bias = [sizes[n] for n in names]
+
+    def biased(m: Measurement) -> Measurement:
+        return dataclasses.replace(m, **{n: getattr(m, n) + b for n, b in zip(names, bias)})
+
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    mission.set_start_fix(5.0)
+    commands = [mission.step(biased(world.measure()))]
+    while not commands[-1].done and len(commands) < 300:
+        commands.append(mission.step(biased(world.fly(commands[-1]))))
+    assert commands[-1].phase == Phase.ARRIVED, commands[-1]
+    assert world.miss_m() < 2.0 * nav.arrive_m
+    sigma = mission.estimator.filter.bias_sigma
+    assert np.all(np.abs(np.array(commands[-1].bias) - bias) < 3.0 * sigma + 1e-9), (commands[-1].bias, sigma)

@@ -278,6 +278,7 @@ def _fly_before_issue_9(nav: NavConfig, scenario, seed: int, truth) -> tuple[int
     noise_rng = np.random.default_rng(noise_seed)
     ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
     mission = Mission(nav, truth.model)
+    mission.set_start_fix(nav.gps_sigma_m)   # the navigator's side as fly_in_process gives it (issue 14)
     state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
     start = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
     sigma_d, sigma_i = scenario.sensors.averaged_di_noise_deg(nav.period_s, float(start.h_nt), float(start.f_nt))

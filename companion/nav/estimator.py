@@ -1,0 +1,189 @@
+"""The mission's position estimator: the navigation filter run once per control step.
+
+Chooses the process model at the first step (``FUS_MODEL`` 2 INS, 3 dead reckoning; 0 auto takes
+the INS model when the measurement carries an INS position independent of this navigator, and the
+mission falls back to Table 3's path without one), starts
+the filter at the mission's start (a GPS-known start is a position measurement with
+``FUS_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
+there, which observes the bias states against the model: the start-up calibration, carried
+into the denied leg *with its uncertainty* as the bias states' covariance), then on every step
+predicts over the move flown and updates with the averaged elements.
+
+The geomagnetic fix (eq. 49, on the steering pair, bias-corrected) is still computed from the
+prior: it is reported, and a fix farther than ``NAV_FIX_GATE_M`` from the prior estimate marks a
+wrong contour crossing or a disturbed measurement, so that step's update is skipped.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.nav.elements import ElementSet
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
+from companion.nav.geo import geodesic_inverse, offset_position
+from companion.nav.ins_error import InsErrorSpec
+from companion.nav.navfilter import (
+    ONSET_STEPS,
+    BiasSpec,
+    FilterSettings,
+    NavigationFilter,
+)
+from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
+
+__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
+
+REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
+REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
+
+
+class FusionModel:
+    """Values of FUS_MODEL."""
+
+    AUTO = 0
+    TABLE3 = 1
+    INS = 2
+    DEAD_RECKONING = 3
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One step's estimate: position (deg), its east/north covariance (m^2: ee, en, nn), the
+    1-sigma per axis (RMS of the two), the bias estimates (element units), the NIS of the
+    update (NaN without one), whether a disturbance is active, the fix (NaN when none)."""
+
+    lat_deg: float
+    lon_deg: float
+    cov_en_m2: tuple[float, float, float]
+    sigma_m: float
+    bias: tuple[float, ...]
+    nis: float = math.nan
+    disturbed: bool = False
+    fix_lat_deg: float = math.nan
+    fix_lon_deg: float = math.nan
+    updated: bool = False
+
+
+def filter_settings(config) -> FilterSettings:
+    """The filter's settings from a :class:`companion.params.NavConfig`."""
+    return FilterSettings(
+        r_deg=config.filter_r_deg, r_nt=config.filter_r_nt,
+        bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
+                      config.bias_qa_deg, config.bias_qa_nt),
+        ins=InsErrorSpec(),
+        dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
+                                         config.current_sigma_mps, config.current_q_mps))
+
+
+class PositionEstimator:
+    """Builds the filter at the first step and runs it on every later one."""
+
+    def __init__(self, config, model: WorldMagneticModel, measured: ElementSet) -> None:
+        self.config = config
+        self.model = model
+        self.measured = measured
+        self.steering = measured.steering()
+        self.settings = filter_settings(config)
+        self.filter: NavigationFilter | None = None
+        self.reason = ""
+        self.rejected = 0
+        self.rewinds = 0
+        self.calibrate_start = True
+        self._ins = (math.nan, math.nan)
+        self._history: list = []
+
+    @property
+    def process_name(self) -> str:
+        return self.filter.process.name if self.filter is not None else ""
+
+    def start(self, meas, measured: np.ndarray, start_sigma_m: float | None) -> Estimate:
+        """The first step, at the mission's start: choose the process model, set the prior, and
+        observe the start position (GPS) and, when calibrating, the biases there."""
+        c = self.config
+        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        if c.fusion_model == FusionModel.DEAD_RECKONING or (c.fusion_model == FusionModel.AUTO and not have_ins):
+            pos_sigma = start_sigma_m if start_sigma_m is not None else self.settings.ins.pos_err_m
+            process = DeadReckoningProcess(self.settings.dead_reckoning, c.start_lat_deg, c.start_lon_deg, pos_sigma)
+            self.reason = ("dead reckoning: FUS_MODEL 3" if c.fusion_model == FusionModel.DEAD_RECKONING else
+                           "dead reckoning: no independent INS position")
+        elif have_ins:
+            process = InsProcess(self.settings.ins, meas.ins_lat_deg)
+            self.reason = "INS error model: an independent INS position is available"
+        else:
+            raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
+        self.filter = NavigationFilter(process, self.measured, self.settings, self.model, c.alt_m, c.year)
+        self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
+        if start_sigma_m is not None:
+            self.filter.update_position(c.start_lat_deg, c.start_lon_deg, start_sigma_m, *self._ins)
+            if c.calibrate and self.calibrate_start:
+                self.filter.calibrate(measured, *self._ins)
+        return self._estimate(updated=start_sigma_m is not None)
+
+    def step(self, meas, measured: np.ndarray, dt_s: float, vel_en_mps: np.ndarray, lag_en_m: np.ndarray,
+             fallback: tuple[float, float]) -> Estimate:
+        """Predict over the move just flown and update with the averaged elements.
+        ``fallback``: the dead-reckoned position, used when the INS model has no INS this step.
+
+        When this step switches the disturbance on, the filter goes back to before the loud
+        steps that switched it on and flies them again with the raised bias noise: the onset
+        needs ``ONSET_STEPS`` loud steps (one high NIS is noise), and a bias drift the filter
+        absorbed meanwhile into the INS error states (tilt, gyro drift) would be carried, and
+        extrapolated, for the rest of the mission."""
+        f = self.filter
+        inputs = (meas, measured, dt_s, vel_en_mps, lag_en_m, fallback)
+        self._history.append((f.snapshot(), self._ins, inputs))
+        del self._history[:-REWIND_STEPS]
+        was_active = f.monitor.active
+        estimate = self._step(*inputs)
+        if f.monitor.active and not was_active:
+            back = min(len(self._history), f.monitor.loud_steps + REWIND_EXTRA)
+            replay = self._history[-back:]
+            state, self._ins, _ = replay[0]
+            activations = f.monitor.activations
+            f.restore(state)
+            f.monitor.active, f.monitor.activations = True, activations
+            for _, _, again in replay:
+                estimate = self._step(*again)
+            self.rewinds += 1
+        return estimate
+
+    def _step(self, meas, measured, dt_s, vel_en_mps, lag_en_m, fallback) -> Estimate:
+        f = self.filter
+        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        lat_now = meas.ins_lat_deg if have_ins else fallback[0]
+        f.predict(dt_s, vel_en_mps, lat_now)
+        if isinstance(f.process, InsProcess):
+            if not have_ins:   # no INS this step: keep the covariance honest, steer on dead reckoning
+                return self._estimate(position=fallback)
+            self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
+        prior = f.position(*self._ins)
+        fix = self._fix(measured, prior, lag_en_m)
+        if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m:
+            self.rejected += 1   # not a fix: a wrong contour crossing or a disturbed measurement
+            return self._estimate()
+        f.update_elements(measured, lag_en_m, *self._ins)
+        return self._estimate(fix=fix, updated=True)
+
+    def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray):
+        """The bias-corrected geomagnetic fix on the steering pair from the prior, referred to the
+        end of the step like the estimate (None when it fails)."""
+        n = len(self.steering.names)
+        target = measured[:n] - self.filter.bias[:n]
+        start = offset_position(prior[0], prior[1], -float(lag_en_m[0]), -float(lag_en_m[1]))
+        try:
+            fix = element_fix(self.model, self.steering, target, float(start[0]), float(start[1]),
+                              self.config.alt_m, self.config.year)
+        except PositionFixError:
+            return None
+        moved = offset_position(fix.lat_deg, fix.lon_deg, float(lag_en_m[0]), float(lag_en_m[1]))
+        return float(moved[0]), float(moved[1])
+
+    def _estimate(self, fix=None, updated: bool = False, position=None) -> Estimate:
+        f = self.filter
+        lat, lon = position if position is not None else f.position(*self._ins)
+        cov = f.covariance_en(lat)
+        return Estimate(float(lat), float(lon), (float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])),
+                        math.sqrt(0.5 * (cov[0, 0] + cov[1, 1])), tuple(float(b) for b in f.bias),
+                        f.last_nis if updated else math.nan, f.monitor.active,
+                        fix[0] if fix else math.nan, fix[1] if fix else math.nan, updated)

@@ -1,0 +1,148 @@
+"""The navigator's INS error model: linearised strapdown error equations, discretised exactly.
+
+State (15, the order of the paper's eq. 47 and of PSINS), ENU local level:
+``phi_e, phi_n, phi_u`` misalignment (rad), ``dv_e, dv_n, dv_u`` velocity error (m/s),
+``dlat, dlon, dh`` position error (rad, rad, m), ``eps_c`` constant gyro drift (rad/s, 3),
+``eps_r`` first-order Gauss-Markov gyro drift (rad/s, 3). "Error" is indicated minus true.
+
+Continuous dynamics ``dx/dt = F x + w`` (Titterton & Weston, *Strapdown Inertial Navigation
+Technology*, 2nd ed., ch. 12.3; PSINS ``etm``):
+
+* ``dphi/dt = -w_in x phi + dw_in - eps_c - eps_r`` (Earth rate w_ie and transport rate w_en
+  at the INS-indicated latitude and velocity; dw_in from the velocity and latitude errors);
+* ``d(dv)/dt = f^n x phi - (2 w_ie + w_en) x dv`` with ``f^n = (0, 0, g)``: the Schuler loop
+  (period ``2 pi sqrt(R/g)`` = 84.4 min) and Coriolis coupling; the vertical channel is held
+  (a baro-aided INS, Table 1's zero vertical error);
+* ``dlat/dt = dv_n / M``, ``dlon/dt = dv_e / (N cos lat) + dlat v_e tan(lat) / (N cos lat)``;
+* ``d(eps_r)/dt = -eps_r / tau + w_r``, ``E[w_r w_r^T] = 2 sigma_r^2 / tau`` per axis.
+
+Discretisation over one control step (coefficients frozen over the step, re-evaluated every
+step at the INS-indicated latitude and the commanded velocity): ``Phi = expm(F T)`` and the
+process noise ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` by Van Loan's method (C. F. Van Loan,
+"Computing integrals involving the matrix exponential", IEEE TAC 23(3), 1978):
+``expm([[-F, Q_c], [0, F^T]] T) = [[., Phi^-1 Q_d], [0, Phi^T]]``.
+
+This is written from the textbook for the navigator, independently of the simulator's truth
+model (``sitl/world/ins.py``); a test checks the discretisation against a fine-step
+integration of the same continuous equations.
+
+>>> f = error_dynamics(0.0, 0.0, 0.0, 3600.0)     # at rest on the equator
+>>> round(2 * math.pi / math.sqrt(-f[4, 0] * f[0, 4]) / 60, 1)   # Schuler period, minutes
+84.3
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+from companion.nav.geo import radii_of_curvature_m
+
+__all__ = [
+    "ATT",
+    "EARTH_RATE_RADPS",
+    "GRAVITY_MPS2",
+    "LAT",
+    "LON",
+    "N_INS",
+    "VEL",
+    "InsErrorSpec",
+    "discretise",
+    "error_dynamics",
+    "initial_covariance",
+    "process_noise_density",
+]
+
+EARTH_RATE_RADPS = 7.292115e-5
+GRAVITY_MPS2 = 9.7803
+ARCSEC = math.radians(1.0 / 3600.0)
+DEG_PER_HOUR = math.radians(1.0) / 3600.0
+N_INS = 15
+ATT, VEL = slice(0, 3), slice(3, 6)
+LAT, LON = 6, 7
+_BIAS, _MARKOV = slice(9, 12), slice(12, 15)
+
+
+@dataclass(frozen=True)
+class InsErrorSpec:
+    """What the navigator assumes about its INS: Table 1 (misalignment read as arc-seconds, see
+    the README), 1-sigma per axis. ``vrw_mps_rts``: velocity random walk (accelerometer white
+    noise, m/s per sqrt(s)); Table 1 gives none, a small value keeps the filter from trusting a
+    noiseless model absolutely."""
+
+    misalign_arcsec: tuple[float, float, float] = (50.0, 50.0, 500.0)
+    vel_err_mps: float = 10.0 / math.sqrt(2.0)
+    pos_err_m: float = 5000.0
+    gyro_bias_degph: float = 0.01
+    gyro_markov_degph: float = 0.005
+    gyro_markov_tau_s: float = 3600.0
+    vrw_mps_rts: float = 1e-4
+
+
+def error_dynamics(lat_deg: float, vel_east_mps: float, vel_north_mps: float, markov_tau_s: float) -> np.ndarray:
+    """The 15 x 15 continuous error-dynamics matrix F at this latitude and velocity (ENU)."""
+    lat = math.radians(lat_deg)
+    m, n = (float(r) for r in radii_of_curvature_m(lat_deg))
+    sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
+    ve, vn = vel_east_mps, vel_north_mps
+    w_ie = np.array([0.0, EARTH_RATE_RADPS * cl, EARTH_RATE_RADPS * sl])
+    w_en = np.array([-vn / m, ve / n, ve * tl / n])
+    f = np.zeros((N_INS, N_INS))
+    f[ATT, ATT] = -_skew(w_ie + w_en)
+    # dw_in: the transport and Earth rates computed with the wrong velocity and latitude
+    f[0, 4] = -1.0 / m
+    f[1, 3] = 1.0 / n
+    f[2, 3] = tl / n
+    f[1, LAT] = -EARTH_RATE_RADPS * sl
+    f[2, LAT] = EARTH_RATE_RADPS * cl + ve / (n * cl * cl)
+    f[ATT, _BIAS] = -np.eye(3)
+    f[ATT, _MARKOV] = -np.eye(3)
+    f[VEL, ATT] = _skew(np.array([0.0, 0.0, GRAVITY_MPS2]))     # f^n x phi: the Schuler loop
+    f[VEL, VEL] = -_skew(2.0 * w_ie + w_en)
+    f[5, :] = 0.0                                                # vertical channel held
+    f[LAT, 4] = 1.0 / m
+    f[LON, 3] = 1.0 / (n * cl)
+    f[LON, LAT] = ve * tl / (n * cl)
+    f[_MARKOV, _MARKOV] = -np.eye(3) / markov_tau_s
+    return f
+
+
+def process_noise_density(spec: InsErrorSpec) -> np.ndarray:
+    """Q_c, the spectral density of w (15 x 15, diagonal): velocity random walk on the
+    horizontal velocity errors and the Markov drift's driving noise 2 sigma^2 / tau."""
+    q = np.zeros(N_INS)
+    q[3:5] = spec.vrw_mps_rts ** 2
+    q[_MARKOV] = 2.0 * (spec.gyro_markov_degph * DEG_PER_HOUR) ** 2 / spec.gyro_markov_tau_s
+    return np.diag(q)
+
+
+def discretise(f: np.ndarray, q_c: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(Phi, Q_d)`` of ``dx/dt = F x + w`` over ``dt_s`` seconds, exactly (Van Loan 1978)."""
+    n = f.shape[0]
+    block = np.zeros((2 * n, 2 * n))
+    block[:n, :n] = -f
+    block[:n, n:] = q_c
+    block[n:, n:] = f.T
+    e = expm(block * dt_s)
+    phi = e[n:, n:].T
+    q_d = phi @ e[:n, n:]
+    return phi, 0.5 * (q_d + q_d.T)
+
+
+def initial_covariance(spec: InsErrorSpec, lat_deg: float) -> np.ndarray:
+    """P_0 of the 15 INS error states from the spec (the vertical states held at zero)."""
+    m, n = (float(r) for r in radii_of_curvature_m(lat_deg))
+    sigma = np.zeros(N_INS)
+    sigma[ATT] = np.array(spec.misalign_arcsec) * ARCSEC
+    sigma[3:5] = spec.vel_err_mps
+    sigma[LAT] = spec.pos_err_m / m
+    sigma[LON] = spec.pos_err_m / (n * math.cos(math.radians(lat_deg)))
+    sigma[_BIAS] = spec.gyro_bias_degph * DEG_PER_HOUR
+    sigma[_MARKOV] = spec.gyro_markov_degph * DEG_PER_HOUR
+    return np.diag(sigma ** 2)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
