@@ -113,7 +113,9 @@ def test_our_hold_seen_only_when_heartbeats_return_is_still_ours(rig):
     app.params.set_value("COMP_ARM_ENABLE", 1)
     _run_step(app, GOOD)
     _at(app, 2.0)
-    for t in (3.0, 6.0, 6.0 + MODE_CONFIRM_S, 8.0 + 2 * MODE_CONFIRM_S):   # no heartbeat: message time runs on
+    # no heartbeat: message time runs on (in 2 s stamps: the clock takes a jump of 10 s only on evidence)
+    for t in sorted({3.0, 6.0, 6.0 + MODE_CONFIRM_S, 8.0 + 2 * MODE_CONFIRM_S,
+                     *(float(v) for v in range(4, int(8.0 + 2 * MODE_CONFIRM_S), 2))}):
         app.next_tick = math.inf
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t * 1000)))
         app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}

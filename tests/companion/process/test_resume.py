@@ -54,7 +54,8 @@ def _fly_two_steps(tmp_path):
     app.stepper.step(1.0, window_limit_s=0.0)
     app.mag.averager.add(300.0, float(start.decl_deg) + 0.01, float(start.incl_deg) - 0.01, ned)
     app.next_tick = math.inf                                            # message time on, no tick
-    app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=361_000))
+    for ms in range(6_000, 361_001, 5_000):                             # (the clock judges jumps: it ticks on)
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
     app.stepper.step(361.0)
     saved = (app.mission.k, app.command, np.copy(app.mission.fusion.kf.P) if hasattr(app.mission.fusion, "kf") else None,
              app.next_step_m, app.resume.mission_id)
