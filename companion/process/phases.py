@@ -163,7 +163,7 @@ class Phases:
             app.apply_params()
         lat, lon, source = prep.start_position()
         app.elements_code, why = prep.resolve_elements(now)
-        config = app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=app.elements_code)
+        config = prep.mission_config(lat, lon, app.elements_code)
         app.m0 = app.mission_time(now)
         startup = app.mag.take(app.m0)
         app.bias, calibration = prep.calibration(config, startup, source)
@@ -186,6 +186,9 @@ class Phases:
         estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
+        elif estimator is None and app.nav_cfg.fusion_model != config.fusion_model:
+            app.out.say("FcMPC: position filter: Table 3 (FUS_MODEL 0 on a vehicle; the error-state filter "
+                        "is opt-in as FUS_MODEL 2 or 3)")
 
     # ------------------------------------------------------------------ running
     def running(self, now: float, reasons: list[str], dt: float) -> bool:
