@@ -12,7 +12,7 @@ import math
 from dataclasses import replace
 
 from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet
-from companion.nav.estimator import FusionModel
+from companion.nav.estimator import vehicle_fusion_model
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.nav.mission import WMM_NAMES, Mission
@@ -62,14 +62,9 @@ class MissionPreparation:
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:
         """The mission's settings: NAV_* from the parameters, this start, the resolved element set.
 
-        ``FUS_MODEL 0`` (auto) flies Table 3 in the companion process: the error-state filter
-        (``FUS_MODEL 2``, chosen by auto in-process) ended the stand-in's faulted closed-loop mission
-        (tests/companion/test_closed_loop.py, seed 0) 7.1 km off where Table 3 ends 1.0 km off, so
-        it stays opt-in on a vehicle until it is validated closed-loop."""
+        ``FUS_MODEL 0`` (auto) flies Table 3 here (:func:`vehicle_fusion_model`)."""
         config = self.app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=elements)
-        if config.fusion_model == FusionModel.AUTO:
-            config = config.replace(fusion_model=FusionModel.TABLE3)
-        return config
+        return config.replace(fusion_model=vehicle_fusion_model(config.fusion_model))
 
     def fits(self, config: NavConfig) -> bool:
         """The prepared mission serves ``config``: the same settings, a start within PREPARED_START_M
