@@ -12,7 +12,6 @@ first client, for which SITL waits before it runs; SERIAL1 5762; SERIAL2 5763).
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import time
@@ -20,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from companion.params import format_value
+from sitl.firmware.processes import stop_process
 
 __all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "project_parm", "read_ardupilot_parm",
            "free_instance"]
@@ -141,15 +141,7 @@ class ArduPilotSitl:
 
     def stop(self, timeout_s: float = 10.0) -> int | None:
         """SIGTERM by PID, SIGKILL if it does not exit in time; returns the exit code."""
-        proc = self.process
-        if proc is None or proc.poll() is not None:
-            return None if proc is None else proc.returncode
-        proc.send_signal(signal.SIGTERM)
-        try:
-            return proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            return proc.wait(timeout=timeout_s)
+        return stop_process(self.process, timeout_s)
 
     def __enter__(self) -> "ArduPilotSitl":
         return self.start()

@@ -26,12 +26,12 @@ The shipped ``bin/`` holds PX4's module aliases (``px4-param`` ...) as text file
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sitl.firmware.ardupilot import FirmwareMissing, project_parm
+from sitl.firmware.processes import stop_process
 
 __all__ = ["MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
 
@@ -160,15 +160,7 @@ class Px4Sitl:
 
     def stop(self, timeout_s: float = 10.0) -> int | None:
         """SIGTERM by PID (run_sih.sh execs px4, so the PID is PX4's), SIGKILL if it does not exit."""
-        proc = self.process
-        if proc is None or proc.poll() is not None:
-            return None if proc is None else proc.returncode
-        proc.send_signal(signal.SIGTERM)
-        try:
-            return proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            return proc.wait(timeout=timeout_s)
+        return stop_process(self.process, timeout_s)
 
     def __enter__(self) -> Px4Sitl:
         return self.start()
