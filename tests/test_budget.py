@@ -95,17 +95,26 @@ def test_errors_switch_reaches_the_runs(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_main_field_alone_costs_what_the_budget_predicts():
-    """The budget's one deterministic source: IGRF-14 truth against the navigator's WMM. Measured
-    8.26 km against 8.2 km predicted over 4 runs (README); here 2 seeds within 25 %."""
+    """The budget's one deterministic source: IGRF-14 truth against the navigator's WMM.
+
+    The prediction |G^-1 e| is the error of one geomagnetic fix, which is what Table 3's fusion
+    (FUS_MODEL 1) steers on: measured 8.26 km against 8.18 km predicted (README), here within
+    25 %. The INS error-state filter (FUS_MODEL 2, what `auto` picks in this world) blends the
+    biased fix with an INS that, with this source alone, is perfect: it must miss by less
+    (measured 6.01 km), never more.
+    """
     from companion.params import NavConfig, validate_all
     from sitl.inprocess import fly_in_process
 
     real = load_scenario("pacific_real")
     scenario = only(real, "main_field")
     truth = build_truth_field(scenario)
-    nav = NavConfig.from_values({**validate_all(scenario.nav_overrides()), "NAV_CONTROLLER": 2})
     predicted = predicted_fix_error(real, "main_field", 0, expected_mission_duration_s(real), build_truth_field)
-    for seed in (0, 1):
-        result = fly_in_process(nav, scenario, seed, truth)
+    misses = {}
+    for fusion in (1, 2):
+        values = {**validate_all(scenario.nav_overrides()), "NAV_CONTROLLER": 2, "FUS_MODEL": fusion}
+        result = fly_in_process(NavConfig.from_values(values), scenario, 0, truth)
         assert result.arrived
-        assert result.remaining_m == pytest.approx(predicted.fix_error_m, rel=0.25)
+        misses[fusion] = result.remaining_m
+    assert misses[1] == pytest.approx(predicted.fix_error_m, rel=0.25)
+    assert 0.5 * predicted.fix_error_m < misses[2] < misses[1]
