@@ -113,6 +113,7 @@ class Resume:
         self.store = NavStateStore(path)
         self.saved, self.load_error = self.store.load()
         self.pending: NavSnapshot | None = None     # to resume when the vehicle is engaged
+        self.pending_mission: Mission | None = None   # ... with this core, kept in memory (an FC reboot)
         self.mission_id = ""
         self.last_save_s = -math.inf
         self.resumed_from = ""                      # for the summary
@@ -121,14 +122,19 @@ class Resume:
         self.mission_id = uuid.uuid4().hex
 
     # ------------------------------------------------------------------ saving
+    def snapshot(self, at_s: float, finished: bool = False) -> NavSnapshot:
+        """The running mission as of message time ``at_s`` (a mission and a command exist)."""
+        app = self.app
+        state = {k: v for k, v in vars(app.mission).items() if k not in _REBUILT}
+        elapsed = app.mission_time(at_s) - app.m0
+        return NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, at_s, elapsed,
+                           app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished, state)
+
     def save(self, finished: bool = False) -> None:
         app = self.app
         if app.mission is None or app.command is None:
             return
-        state = {k: v for k, v in vars(app.mission).items() if k not in _REBUILT}
-        elapsed = app.mission_time() - app.m0
-        snapshot = NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, app.now, elapsed,
-                               app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished, state)
+        snapshot = self.snapshot(app.now, finished)
         try:
             self.store.save(snapshot)
         except OSError as err:   # the mission goes on; say it once per failure kind
@@ -167,11 +173,19 @@ class Resume:
             app.out.say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "
                         f"{cmd.est_lat_deg:.4f},{cmd.est_lon_deg:.4f}"[:200], mavlink.MAV_SEVERITY_NOTICE)
 
+    def continue_after_reboot(self, last_s: float) -> None:
+        """The flight controller rebooted under the running mission: keep it (estimate, filter,
+        gradient, step clock as of ``last_s``, the last message time on the FC's old clock) to go
+        on with once the vehicle is engaged again, exactly as after a restart of our own."""
+        self.pending = self.snapshot(last_s)
+        self.pending_mission = self.app.mission
+
     def resume_mission(self, now: float) -> None:
         """READY -> RUNNING with the saved mission: no new start-up, the step clock where it stood."""
         app, snap = self.app, self.pending
         self.pending = None
-        app.mission = snap.mission()
+        live, self.pending_mission = self.pending_mission, None
+        app.mission = live if live is not None else snap.mission()
         app.command = snap.command
         app.elements_code, app.bias = snap.elements_code, snap.bias
         app.mission_no, app.restarts = snap.mission_no, snap.restarts
