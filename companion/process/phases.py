@@ -304,6 +304,9 @@ class Phases:
             app.resume.continue_after_reboot(last_old_s)
             app.out.say(f"FcMPC: {reason}: mission {app.mission_no} goes on from its last estimate at step "
                         f"{app.command.step} once re-armed"[:200], mavlink.MAV_SEVERITY_WARNING)
+        elif app.state == State.RUNNING and app.command is not None:   # no tick on the old clock to go on from
+            self.nav_failure(reason, app.command)
+            return
         elif app.state in (State.STARTUP, State.READY, State.RUNNING):
             app.out.say(f"FcMPC: {reason}", mavlink.MAV_SEVERITY_WARNING)
             app.mission = None
