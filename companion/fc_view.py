@@ -109,6 +109,16 @@ class FcView:
             elif "failsafe" in text.lower() and msg.get_srcComponent() != 191:
                 self.fc_failsafe = "" if "cleared" in text.lower() else text.strip()
 
+    def rebooted(self) -> None:
+        """The flight controller rebooted: what was timed on its old clock is void (a GPS fix at
+        old-clock time T would otherwise count as fresh until the new clock reached T + 3 s), and
+        the position feed starts again from the navigator's estimate."""
+        self.gps_fix_time_s = self.feed_ack_time_s = -math.inf
+        self.feed.stop()
+        self.feeding_own = False
+        self.prearm_text = ""
+        self.fc_failsafe = ""
+
     # --- heading ---------------------------------------------------------------------------
     def poll_requests(self, link: MavlinkLink, now_s: float) -> None:
         """Send due PARAM_REQUEST_READs to the flight controller."""

@@ -42,21 +42,26 @@ STATUS_EXIT = {"arrived": 0, "failed": 1, "error": 1, "timeout": 3, "interrupted
 
 @dataclass(frozen=True)
 class TruthTrack:
-    """The vehicle's true track (any simulator): time since boot (s), WGS84 lat/lon (deg);
-    optionally the flight controller's own solution (``fc_*``) for the plot."""
+    """The vehicle's true track (any simulator): time since the start (s), WGS84 lat/lon (deg);
+    optionally the flight controller's own solution (``fc_*``) for the plot and its boot time
+    (``boot_s``, which an FC reboot restarts at 0; absent: the same as ``time_s``)."""
 
     time_s: np.ndarray
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     fc_lat_deg: np.ndarray | None = None
     fc_lon_deg: np.ndarray | None = None
+    boot_s: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time_s)
 
     def position_at(self, time_s: float) -> tuple[float, float]:
-        """The track's point nearest in time to ``time_s``."""
-        index = int(np.argmin(np.abs(self.time_s - time_s)))
+        """The track's point nearest to the flight controller's message time ``time_s`` (its boot
+        time: after an FC reboot a message time occurs once per boot, and the latest is taken)."""
+        clock = self.time_s if self.boot_s is None else self.boot_s
+        gap = np.abs(clock - time_s)
+        index = int(np.flatnonzero(gap <= gap.min() + 1e-6)[-1])
         return float(self.lat_deg[index]), float(self.lon_deg[index])
 
 
@@ -70,8 +75,10 @@ def read_truth_track(path: str | Path) -> TruthTrack | None:
         return None
     fc_lat, fc_lon = columns.get("fc_lat_deg"), columns.get("fc_lon_deg")
     fc = fc_lat is not None and fc_lon is not None
+    boot = columns.get("boot_s")
     return TruthTrack(np.asarray(columns["time_s"]), np.asarray(columns["lat_deg"]), np.asarray(columns["lon_deg"]),
-                      np.asarray(fc_lat) if fc else None, np.asarray(fc_lon) if fc else None)
+                      np.asarray(fc_lat) if fc else None, np.asarray(fc_lon) if fc else None,
+                      np.asarray(boot) if boot is not None else None)
 
 
 def read_steps(path: str | Path) -> list[dict]:

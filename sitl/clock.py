@@ -35,6 +35,10 @@ wall time only decides how fast simulated time may advance.
     message sequence, not by how fast the two processes run, and a deterministic companion
     gives a bit-reproducible closed loop (short of a lockstep timeout, which is wall-clock by
     nature).
+
+    Stamps are compared on the autopilot's boot clock (:attr:`SimClock.boot_us`): after an
+    ``fc_reboot`` fault the boundaries' SYSTEM_TIME starts again at 0, and the companion's stamps
+    follow once it has confirmed the new boot (:meth:`LockstepGate.rebooted`).
 """
 from __future__ import annotations
 
@@ -46,20 +50,41 @@ US_PER_S = 1_000_000
 
 
 class SimClock:
-    """Simulated time since boot in integer microseconds, shared by the simulator's parts.
+    """Simulated time in integer microseconds, shared by the simulator's parts.
 
-    Only the simulation loop advances it; everyone else reads ``t_us`` or ``time_s``.
+    Only the simulation loop advances it; everyone else reads ``t_us`` or ``time_s``. ``t_us``
+    runs from the simulator's start (faults, truth log, lockstep boundaries, physics); the
+    autopilot's *boot* time that its messages carry (``time_boot_ms``, boot-based ``time_usec``)
+    is ``boot_us``, the same until an ``fc_reboot`` fault restarts it at 0 (:meth:`reboot`).
+
+    >>> c = SimClock(5_000_000); c.reboot(); c.t_us += 250_000; (c.time_s, c.boot_us, c.boot_ms)
+    (5.25, 250000, 250)
     """
 
-    __slots__ = ("t_us",)
+    __slots__ = ("boot0_us", "t_us")
 
     def __init__(self, t_us: int = 0) -> None:
         self.t_us = t_us
+        self.boot0_us = 0               # simulated time of the last boot
 
     @property
     def time_s(self) -> float:
-        """Simulated seconds since boot."""
+        """Simulated seconds since the simulator started."""
         return self.t_us / US_PER_S
+
+    @property
+    def boot_us(self) -> int:
+        """Microseconds since the autopilot last booted (the stamps of its messages)."""
+        return self.t_us - self.boot0_us
+
+    @property
+    def boot_ms(self) -> int:
+        """Milliseconds since the autopilot last booted (``time_boot_ms``)."""
+        return (self.t_us - self.boot0_us) // 1000
+
+    def reboot(self) -> None:
+        """The autopilot boots again now: its boot time restarts at 0 (simulated time goes on)."""
+        self.boot0_us = self.t_us
 
 
 class Pacer:
@@ -106,6 +131,7 @@ class LockstepGate:
         self.peer = peer
         self.peer_heard = False
         self.peer_time_ms = -1
+        self._stamped = False            # the peer has sent a stamped message: only stamps answer now
         self._untimed = False
         self.boundaries = 0
         self.timeouts = 0
@@ -118,9 +144,9 @@ class LockstepGate:
         return self.peer is None or (sysid, compid) == self.peer
 
     def observe(self, time_boot_ms: int | None, now_us: int) -> None:
-        """A message from an eligible peer was read at simulated time ``now_us``."""
+        """A message from an eligible peer was read at the autopilot's boot time ``now_us`` (us)."""
         self.peer_heard = True
-        timed_only = self.peer_time_ms > 0
+        timed_only = self._stamped
         if time_boot_ms is None or time_boot_ms <= 0:
             self._untimed = self._untimed or not timed_only
             return
@@ -128,10 +154,18 @@ class LockstepGate:
             self.future_stamps += 1
             self._untimed = self._untimed or not timed_only
             return
+        self._stamped = True
         if time_boot_ms > self.peer_time_ms:
             self.peer_time_ms = time_boot_ms
 
+    def rebooted(self) -> None:
+        """The autopilot rebooted: the peer's stamps start again with the boot clock. Its stamps of
+        the old boot now lie in the future and answer nothing; with one period of slack the first
+        boundary after the reboot is free, the next needs the peer on the new boot time."""
+        self.peer_time_ms = 0
+
     def satisfied(self, boundary_us: int) -> bool:
+        """The peer answered the boundary ``boundary_us`` (boot time, us)."""
         return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.slack_us
 
     def finish(self, waited_s: float, timed_out: bool) -> None:

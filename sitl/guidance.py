@@ -281,6 +281,16 @@ class Guidance:
             self.mode = self.dialect.ready_mode
             self._say(SEVERITY_INFO, f"SITL ready, mode {self.mode}")
 
+    def reboot(self) -> None:
+        """The autopilot boots again: disarmed, initialising (the boot mode) until :meth:`set_ready`,
+        no guided target. The home position and the parameters are kept, as on a real autopilot."""
+        self.ready = False
+        self.armed = False
+        self.mode = self.dialect.boot_mode
+        self._reset_guided()
+        self._last_velocity_s = self._last_setpoint_s = -math.inf
+        self._stopped_reason = ""
+
     @property
     def behaviour(self) -> str:
         return self.dialect.behaviour.get(self.mode, "stop")

@@ -30,7 +30,7 @@ __all__ = ["Scenario", "SensorModel", "StormConfig", "FieldConfig", "Fault", "Sc
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heartbeat_off",
-               "link_loss", "link_delay", "link_duplicate", "storm_onset")
+               "link_loss", "link_delay", "link_duplicate", "storm_onset", "fc_reboot")
 
 
 class ScenarioError(ValueError):

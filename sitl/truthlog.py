@@ -5,7 +5,7 @@ Truth CSV (``truth.csv``), one row per ``--log-rate`` period of simulated time:
 =================  ====================================================================
 column             meaning
 =================  ====================================================================
-time_s             simulated time since boot (= mission elapsed time), s
+time_s             simulated time since the simulator started (= mission elapsed time), s
 lat_deg, lon_deg   true position (WGS84)
 course_deg         true course over ground, from north clockwise (= yaw of the boat)
 speed_mps          true speed over ground
@@ -24,6 +24,8 @@ distance_m         path length flown
 remaining_m        geodesic distance from the true position to the scenario destination
 est_lat_deg, est_lon_deg  last position estimate the companion sent (MAV_CMD_EXTERNAL_POSITION_ESTIMATE), empty if none
 faults             active faults, ``kind`` or ``kind=value``, separated by ``;``
+boot_s             the autopilot's boot time (its ``time_boot_ms`` / 1000): ``time_s`` until an
+                   ``fc_reboot`` fault restarts it at 0; what the companion's message time is
 =================  ====================================================================
 
 Tlog: the pymavlink .tlog format (what ``mavlogdump.py`` and MAVProxy read): per message an
@@ -44,11 +46,11 @@ TRUTH_COLUMNS = (
     "time_s", "lat_deg", "lon_deg", "course_deg", "speed_mps", "vn_mps", "ve_mps", "roll_deg", "pitch_deg",
     "cmd_course_deg", "cmd_speed_mps", "mode", "armed", "fc_lat_deg", "fc_lon_deg", "fc_err_e_m", "fc_err_n_m",
     "gps_fix", "field_n_nt", "field_e_nt", "field_d_nt", "dist_n_nt", "dist_e_nt", "dist_d_nt",
-    "decl_deg", "incl_deg", "distance_m", "remaining_m", "est_lat_deg", "est_lon_deg", "faults",
+    "decl_deg", "incl_deg", "distance_m", "remaining_m", "est_lat_deg", "est_lon_deg", "faults", "boot_s",
 )
 
 _FORMATS = {
-    "time_s": "{:.3f}", "lat_deg": "{:.8f}", "lon_deg": "{:.8f}", "fc_lat_deg": "{:.8f}", "fc_lon_deg": "{:.8f}",
+    "time_s": "{:.3f}", "boot_s": "{:.3f}", "lat_deg": "{:.8f}", "lon_deg": "{:.8f}", "fc_lat_deg": "{:.8f}", "fc_lon_deg": "{:.8f}",
     "est_lat_deg": "{:.8f}", "est_lon_deg": "{:.8f}", "course_deg": "{:.4f}", "cmd_course_deg": "{:.4f}",
     "decl_deg": "{:.5f}", "incl_deg": "{:.5f}", "roll_deg": "{:.3f}", "pitch_deg": "{:.3f}",
 }

@@ -165,6 +165,23 @@ def state_bounds(c: NavConfig, elements: ElementSet, s_start: np.ndarray,
     return (np.array([table[n][0] for n in elements.names]), np.array([table[n][1] for n in elements.names]))
 
 
+def qp_units(c: NavConfig, elements: ElementSet) -> tuple[np.ndarray, float]:
+    """(QP state units per element unit, metres per second per QP input unit)."""
+    return elements.qp_scale(c.mpc_units), (KMH if c.mpc_units == 1 else c.speed_mps)
+
+
+def mpc_settings(c: NavConfig, elements: ElementSet, s_lower: np.ndarray, s_upper: np.ndarray) -> MpcSettings:
+    """The QP's settings for a mission: weights, horizon, U bounds and the state bounds in QP units."""
+    s_unit, u_unit = qp_units(c, elements)
+    if c.u_bounds == 1:
+        u_lower, u_upper = (0.0, 0.0), (c.u_max_mps / u_unit,) * 2
+    else:
+        u_lower, u_upper = (-c.speed_mps / u_unit,) * 2, (c.speed_mps / u_unit,) * 2
+    return MpcSettings(horizon=c.horizon, q=(c.q_d, c.q_i), f=(c.f_d, c.f_i), r=(c.r_x, c.r_y),
+                       u_lower=u_lower, u_upper=u_upper, s_lower=tuple(float(v) for v in s_lower * s_unit),
+                       s_upper=tuple(float(v) for v in s_upper * s_unit), solver=SOLVERS[c.solver])
+
+
 @dataclass
 class _Last:
     time_s: float
@@ -203,7 +220,7 @@ class Mission:
                                                                                  config.start_lon_deg), self.s_dest)
         self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in self.elements.names])
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
-        self.mpc = MpcController(self._mpc_settings())
+        self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
                                                      config.fusion_p0_m2, config.fusion_feedback))
         de, dn = enu_offset(config.start_lat_deg, config.start_lon_deg, config.dest_lat_deg, config.dest_lon_deg)
@@ -250,28 +267,24 @@ class Mission:
         merged = new.replace(**{name: getattr(old, name) for name in FROZEN_IN_FLIGHT})
         if merged != old:
             self.config = merged
-            self.mpc = MpcController(self._mpc_settings())
+            self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         return deferred
 
-    # --- units of the QP -------------------------------------------------------------------
-    def _units(self) -> tuple[np.ndarray, float]:
-        """(QP state units per element unit, metres per second per QP input unit)."""
-        scale = self.elements.qp_scale(self.config.mpc_units)
-        return scale, (KMH if self.config.mpc_units == 1 else self.config.speed_mps)
+    # --- snapshot (issue 10: resume after a restart) -------------------------------------------
+    REBUILT = frozenset({"model", "mpc"})   # rebuilt from the configuration, never in a snapshot
 
-    def _mpc_settings(self) -> MpcSettings:
-        c = self.config
-        s_unit, u_unit = self._units()
-        if c.u_bounds == 1:
-            u_lower, u_upper = (0.0, 0.0), (c.u_max_mps / u_unit,) * 2
-        else:
-            u_lower, u_upper = (-c.speed_mps / u_unit,) * 2, (c.speed_mps / u_unit,) * 2
-        return MpcSettings(
-            horizon=c.horizon, q=(c.q_d, c.q_i), f=(c.f_d, c.f_i), r=(c.r_x, c.r_y),
-            u_lower=u_lower, u_upper=u_upper,
-            s_lower=tuple(float(v) for v in self.s_lower * s_unit),
-            s_upper=tuple(float(v) for v in self.s_upper * s_unit),
-            solver=SOLVERS[c.solver])
+    def snapshot(self) -> dict:
+        """The core's state (estimate, filters, gradient, phase, step, reference, last command):
+        everything but the parts :meth:`restore` rebuilds from the configuration. Shallow: it
+        shares the mission's objects, so pickle it before the mission steps on."""
+        return {k: v for k, v in vars(self).items() if k not in self.REBUILT}
+
+    @classmethod
+    def restore(cls, state: dict) -> Mission:
+        """The mission a :meth:`snapshot` was taken of: built from its configuration, given its state."""
+        mission = cls(state["config"])
+        mission.__dict__.update(state)
+        return mission
 
     # --- the step ------------------------------------------------------------------------------
     def step(self, meas: Measurement) -> Command:
@@ -349,7 +362,7 @@ class Mission:
         if self.k >= c.max_steps:
             return self._finish(meas.time_s, Phase.FAILED, "step limit reached", remaining, fix, fused, sigma)
 
-        s_unit, u_unit = self._units()
+        s_unit, u_unit = qp_units(c, self.elements)
         b = s_unit[:, None] * g * c.period_s * u_unit         # B = G T in QP units (eq. 15)
         if c.u_bounds == 1:
             b = b * self.quadrant                             # solve in the destination's quadrant

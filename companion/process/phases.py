@@ -16,7 +16,8 @@ transitions do.
 ``done``     setpoints stop, hold mode is commanded.
 
 Navigation failures hold the vehicle and restart the mission from the last estimate after a new
-stationary start-up (at most MAX_RESTARTS restarts), as does a flight-controller reboot.
+stationary start-up (at most MAX_RESTARTS restarts). A flight-controller reboot under a running
+mission is no navigation failure: the mission goes on from where it was once re-engaged.
 """
 from __future__ import annotations
 
@@ -268,26 +269,49 @@ class Phases:
 
     # ------------------------------------------------------------------ any -> startup
     def fc_rebooted(self) -> None:
-        """The flight controller's clock went back: everything timed is void; start again."""
+        """The flight controller's clock went back (it rebooted): everything timed on its old clock is
+        void, and it comes back disarmed. A running mission goes on, from its last estimate with its
+        filter and step clock (:meth:`Resume.continue_after_reboot`): no new start-up average, no
+        probing again, and not a navigation failure (it uses none of MAX_RESTARTS). Otherwise the
+        start-up begins again (a pending resume is kept: its times are relative to the mission)."""
         app = self.app
+        last_old_s = app.last_tick_time     # no tick ran since: the new clock was only just confirmed
         app.fc_reboots = app.link.clock.reboots
         app.next_tick = -math.inf
+        app.last_tick_time = math.nan
+        app.fc_detected_at = app.now        # the streams get their start-up grace again
         app.out.last_hb_sent = -math.inf
+        app.out.next_feed_s = -math.inf
         app.intake.last_valid.clear()
         self.last_mode_cmd = self.last_arm_cmd = app.failsafe.last_hold_cmd = -math.inf
         app.modes.clear()
-        app.resume.pending = None   # its clock was the FC's old one
         self.our_hold = False
+        self.fc_failsafe_hold = ""
         app.link.fc.last_heartbeat_time_s = app.now
         app.mag.attitude = None
+        app.mag.settle_until_s = -math.inf
         app.decoder.fc_position = None
+        app.local_ned = None
         app.stepper.dr = None
-        app.fc_view.feed.stop()
-        app.fc_view.feeding_own = False
+        app.fc_view.rebooted()
+        app.resume.last_save_s = -math.inf
+        if app.opts.request_streams:
+            app.out.request_streams()       # a rebooted autopilot forgets the intervals asked for
         reason = "flight controller rebooted (its clock went back)"
-        if app.state == State.RUNNING and app.command is not None:
+        running = app.state == State.RUNNING and app.mission is not None and app.command is not None \
+            and math.isfinite(last_old_s)
+        if running:
+            app.resume.continue_after_reboot(last_old_s)
+            app.out.say(f"FcMPC: {reason}: mission {app.mission_no} goes on from its last estimate at step "
+                        f"{app.command.step} once re-armed"[:200], mavlink.MAV_SEVERITY_WARNING)
+        elif app.state == State.RUNNING and app.command is not None:   # no tick on the old clock to go on from
             self.nav_failure(reason, app.command)
+            return
         elif app.state in (State.STARTUP, State.READY, State.RUNNING):
             app.out.say(f"FcMPC: {reason}", mavlink.MAV_SEVERITY_WARNING)
             app.mission = None
-            self.enter_startup(Event.FC_REBOOTED, reason)
+        else:
+            return
+        self.enter_startup(Event.FC_REBOOTED, reason)
+        if app.resume.pending is not None:
+            app.machine.fire(Event.RESUMED)

@@ -3,9 +3,10 @@
 What is saved (``NavSnapshot``, pickled): the mission's id and number, the restarts so far, the
 last command, the element set and start-up bias, where the mission clock stood (mission time
 since the start, and the next step), and the navigation core's own state: estimate, fusion
-filter (state and covariance), gradient estimate, phase, reference path -- everything of
-:class:`companion.nav.mission.Mission` but the parts rebuilt from its configuration (the field
-model and the QP). Written at every control step, every ``SAVE_EVERY_S`` of message time while
+filter (state and covariance), gradient estimate, phase, reference path -- the core's own
+:meth:`Mission.snapshot <companion.nav.mission.Mission.snapshot>`, everything but the parts
+:meth:`~companion.nav.mission.Mission.restore` rebuilds from its configuration (the field model
+and the QP). Written at every control step, every ``SAVE_EVERY_S`` of message time while
 running (so the time flown since the step is known), and at the end: to a temporary file in the
 same folder, fsync, rename, so a kill at any instant leaves the old state or the new, never half.
 
@@ -18,6 +19,9 @@ the age is judged on the clock the vehicle kept running while the companion was 
   estimate ("last estimate"), never from NAV_START in mid-route;
 * of a mission that had ended (arrived or failed): said; the next mission starts as configured;
 * unreadable: said, and the start is the usual one (there is nothing to trust).
+
+A flight-controller reboot under a running mission goes the same way as a resume, from memory
+(:meth:`Resume.continue_after_reboot`): the mission is kept and goes on once re-engaged.
 """
 from __future__ import annotations
 
@@ -39,7 +43,6 @@ __all__ = ["RESUME_MAX_AGE_S", "SAVE_EVERY_S", "NavSnapshot", "NavStateStore", "
 RESUME_MAX_AGE_S = 300.0     # message time: the vehicle held this long at most (less than a control period)
 SAVE_EVERY_S = 30.0          # message time between saves while running (besides every step)
 SNAPSHOT_VERSION = 1
-_REBUILT = frozenset({"model", "mpc"})   # Mission attributes rebuilt from its config, not saved
 
 
 @dataclass(frozen=True)
@@ -55,13 +58,11 @@ class NavSnapshot:
     elements_code: int
     bias: tuple[float, float] | None
     finished: bool
-    mission_state: dict          # vars(Mission) without _REBUILT
+    mission_state: dict          # Mission.snapshot()
 
     def mission(self) -> Mission:
-        """The core as it was: built from the saved configuration, then given the saved state."""
-        mission = Mission(self.mission_state["config"])
-        mission.__dict__.update(self.mission_state)
-        return mission
+        """The core as it was (:meth:`Mission.restore`)."""
+        return Mission.restore(self.mission_state)
 
 
 class NavStateStore:
@@ -113,6 +114,7 @@ class Resume:
         self.store = NavStateStore(path)
         self.saved, self.load_error = self.store.load()
         self.pending: NavSnapshot | None = None     # to resume when the vehicle is engaged
+        self.pending_mission: Mission | None = None   # ... with this core, kept in memory (an FC reboot)
         self.mission_id = ""
         self.last_save_s = -math.inf
         self.resumed_from = ""                      # for the summary
@@ -121,14 +123,19 @@ class Resume:
         self.mission_id = uuid.uuid4().hex
 
     # ------------------------------------------------------------------ saving
+    def snapshot(self, at_s: float, finished: bool = False) -> NavSnapshot:
+        """The running mission as of message time ``at_s`` (a mission and a command exist)."""
+        app = self.app
+        elapsed = app.mission_time(at_s) - app.m0
+        return NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, at_s, elapsed,
+                           app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished,
+                           app.mission.snapshot())
+
     def save(self, finished: bool = False) -> None:
         app = self.app
         if app.mission is None or app.command is None:
             return
-        state = {k: v for k, v in vars(app.mission).items() if k not in _REBUILT}
-        elapsed = app.mission_time() - app.m0
-        snapshot = NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, app.now, elapsed,
-                               app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished, state)
+        snapshot = self.snapshot(app.now, finished)
         try:
             self.store.save(snapshot)
         except OSError as err:   # the mission goes on; say it once per failure kind
@@ -167,11 +174,19 @@ class Resume:
             app.out.say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "
                         f"{cmd.est_lat_deg:.4f},{cmd.est_lon_deg:.4f}"[:200], mavlink.MAV_SEVERITY_NOTICE)
 
+    def continue_after_reboot(self, last_s: float) -> None:
+        """The flight controller rebooted under the running mission: keep it (estimate, filter,
+        gradient, step clock as of ``last_s``, the last message time on the FC's old clock) to go
+        on with once the vehicle is engaged again, exactly as after a restart of our own."""
+        self.pending = self.snapshot(last_s)
+        self.pending_mission = self.app.mission
+
     def resume_mission(self, now: float) -> None:
         """READY -> RUNNING with the saved mission: no new start-up, the step clock where it stood."""
         app, snap = self.app, self.pending
         self.pending = None
-        app.mission = snap.mission()
+        live, self.pending_mission = self.pending_mission, None
+        app.mission = live if live is not None else snap.mission()
         app.command = snap.command
         app.elements_code, app.bias = snap.elements_code, snap.bias
         app.mission_no, app.restarts = snap.mission_no, snap.restarts

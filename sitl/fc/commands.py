@@ -173,8 +173,8 @@ class CommandHandler:
 
     def on_timesync(self, msg) -> None:
         if msg.tc1 == 0:
-            # tc1 = our simulated clock in ns (never 0: tc1 == 0 marks a request)
-            self.out.emit(mavlink.MAVLink_timesync_message, max(1, self.clock.t_us * 1000), msg.ts1)
+            # tc1 = our boot clock in ns (never 0: tc1 == 0 marks a request)
+            self.out.emit(mavlink.MAVLink_timesync_message, max(1, self.clock.boot_us * 1000), msg.ts1)
 
     def on_odometry(self, msg) -> None:
         """An external estimate in the FC's local NED frame (x north, y east of home) for the truth log."""

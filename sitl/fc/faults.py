@@ -7,7 +7,9 @@ read: the magnetometer (``mag_off``, ``mag_stuck``, ``mag_nan``, ``mag_spike_nt`
 (``gps_off``; the SIM_GPS1_ENABLE parameter sets it too), the heartbeat (``heartbeat_off``),
 the link (``loss`` and ``dup`` probabilities, ``delay_us``) and the storm (``storm_scale``:
 None without a ``storm_onset`` fault, else the scale of the storm part of the field, 0 before
-the onset).
+the onset). ``fc_reboot`` is an event: when one starts :attr:`FaultInjector.reboot_due` is set
+for the server (:meth:`sitl.fc.server.SitlServer` restarts the boot clock, disarms and
+initialises for the fault's duration; the vehicle's true position and the parameters are kept).
 """
 from __future__ import annotations
 
@@ -39,6 +41,7 @@ class FaultInjector:
         self._gps_fault = False
         self.gps_disabled = False       # SIM_GPS1_ENABLE = 0: denied like a gps_off fault
         self.mag_spike_nt = 0.0
+        self.reboot_due: Fault | None = None   # an fc_reboot fault that just started (the server takes it)
         self.storm_scale: float | None = None if not any(f.kind == "storm_onset" for f in self.faults) else 0.0
         self.next_us = self._next_change_us(-1)
 
@@ -60,6 +63,8 @@ class FaultInjector:
             for f in active:
                 if (f.kind, f.at_s) not in old:
                     self.counters.add(f"fault_{f.kind}")
+                    if f.kind == "fc_reboot":
+                        self.reboot_due = f
                     self.say(None, SEVERITY_WARNING, f"SITL fault {f.kind} ON" + (f" {f.value:g}" if f.value else ""))
             for f in self.active:
                 if (f.kind, f.at_s) not in new:

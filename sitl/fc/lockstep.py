@@ -84,8 +84,9 @@ class Stepper:
                     self.telemetry.send_heartbeat()
                 poll(0.1)
                 out.flush()
-        # a link_delay fault holds our frames back: the companion can only have answered older ones
-        threshold = now_us - self.faults.delay_us
+        # a link_delay fault holds our frames back: the companion can only have answered older ones;
+        # the companion stamps on our boot clock (an fc_reboot fault restarts it)
+        threshold = self.clock.boot_us - self.faults.delay_us
         deadline = time.perf_counter() + gate.timeout_s
         timed_out = False
         while not self.stop.is_set():

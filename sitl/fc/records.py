@@ -80,7 +80,7 @@ class Records:
             "decl_deg": float(decl), "incl_deg": float(incl), "distance_m": s.distance_m,
             "remaining_m": remaining,
             "est_lat_deg": est[0] if est else None, "est_lon_deg": est[1] if est else None,
-            "faults": faults.describe(),
+            "faults": faults.describe(), "boot_s": v.clock.boot_ms * 1e-3,
         })
 
     def finish(self, vehicle, guidance, faults) -> None:

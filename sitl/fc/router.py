@@ -149,7 +149,7 @@ class Router:
             self.counters.add("rx_routed")
         if self.gate is not None and self.gate.eligible(*src):
             stamp = getattr(msg, "time_boot_ms", None)
-            self.gate.observe(stamp if isinstance(stamp, int) else None, self.clock.t_us)
+            self.gate.observe(stamp if isinstance(stamp, int) else None, self.clock.boot_us)
         if name == "HEARTBEAT":
             if src not in self.peers:
                 self.out.say(None, SEVERITY_INFO, f"Peer {src[0]}/{src[1]} type {msg.type} connected")

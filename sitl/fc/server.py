@@ -60,7 +60,10 @@ class SitlServer:
         self.dialect = DIALECTS[config.autopilot]
         base = scenario if scenario is not None else load_scenario(config.scenario)
         extra_faults = tuple(parse_fault(text) for text in config.faults)
-        self.scenario = sc = replace(base, faults=tuple(base.faults) + extra_faults)
+        # an open-ended fc_reboot initialises for --init-s, as at the first boot
+        faults = tuple(replace(f, duration_s=max(config.init_s, 1e-3)) if f.kind == "fc_reboot"
+                       and not math.isfinite(f.duration_s) else f for f in tuple(base.faults) + extra_faults)
+        self.scenario = sc = replace(base, faults=faults)
         if any(f.kind == "storm_onset" for f in sc.faults) and not sc.storm.enabled:
             raise ScenarioError("storm_onset fault needs a scenario with [storm] enabled = true")
         truth_full = truth if truth is not None else build_truth_field(sc, config.data_dir, config.expected_duration_s,
@@ -182,6 +185,21 @@ class SitlServer:
     def _update_faults(self) -> None:
         if self.faults.update():
             self.vehicle.set_storm_scale(self.faults.storm_scale)
+        if self.faults.reboot_due is not None:
+            self._reboot(self.faults.reboot_due.duration_s)
+
+    def _reboot(self, init_s: float) -> None:
+        """An fc_reboot fault: the boot clock restarts at 0 and the autopilot initialises for
+        ``init_s`` simulated seconds, disarmed, then enters its ready mode; streams go back to their
+        start-up rates. The vehicle (true motion, the FC's navigation solution) and parameters go on."""
+        self.faults.reboot_due = None
+        self.clock.reboot()
+        self.guidance.reboot()
+        self.streams.reset()
+        if self.gate is not None:
+            self.gate.rebooted()
+        self.telemetry.last_system_time_us = -1
+        self._next["init"] = self.clock.t_us + round(init_s * US_PER_S)
 
     def _update_command(self) -> None:
         g, v = self.guidance, self.vehicle
@@ -212,7 +230,7 @@ class SitlServer:
         if nxt["init"] <= now:
             nxt["init"] = NEVER_US
             self.guidance.set_ready()
-            if self.config.cruise is not None:
+            if self.config.cruise is not None and self.clock.boot0_us == 0:   # at the first boot only
                 self.guidance.start_cruise(math.radians(self.config.cruise[0]), self.config.cruise[1])
             self.out.relay_events(self.guidance)
         if nxt["field"] <= now:

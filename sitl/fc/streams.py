@@ -94,6 +94,11 @@ class StreamScheduler:
         self.out = out
         self.counters = counters
 
+    def reset(self) -> None:
+        """After a reboot: every stream back to its start-up rate (requested intervals are not kept)."""
+        for name, stream in self.streams.items():
+            stream.set_rate(self.default_rates[name], self.clock.t_us)
+
     def next_due_us(self, t_us: int) -> int:
         """The earliest due time of any stream, or ``t_us`` when none is earlier."""
         for stream in self._list:

@@ -4,8 +4,10 @@ What each message means (README "Simulator"): the magnetometer fields of RAW_IMU
 (mGauss) and HIGHRES_IMU (gauss) are the true field in the body frame plus sensor errors;
 ATTITUDE the true attitude plus noise; GPS_RAW_INT the raw receiver fix (truth plus noise,
 fix_type 3; 1 when the scenario denies GPS, 0 on a ``gps_off`` fault); GLOBAL_POSITION_INT and
-LOCAL_POSITION_NED the flight controller's own solution. Every time field is simulated time;
-SYSTEM_TIME.time_unix_usec is the scenario's start plus simulated time. Sensor faults show as
+LOCAL_POSITION_NED the flight controller's own solution. Every time field is simulated time:
+``time_boot_ms`` and boot-based ``time_usec`` since the autopilot's last boot (``SimClock.boot_us``,
+restarted by an ``fc_reboot`` fault), SYSTEM_TIME.time_unix_usec the scenario's start plus
+simulated time (it runs on through a reboot). Sensor faults show as
 zeros (``mag_off``), saturation or NaN (``mag_nan``), unhealthy SYS_STATUS bits, or no
 HEARTBEAT (``heartbeat_off``).
 """
@@ -71,7 +73,8 @@ class Telemetry:
     def send_system_time(self) -> None:
         t_us = self.clock.t_us
         self.last_system_time_us = t_us
-        self.out.emit(mavlink.MAVLink_system_time_message, self.start_unix_us + t_us, t_us // 1000)
+        # UNIX time runs on through a reboot; the boot time restarts at 0
+        self.out.emit(mavlink.MAVLink_system_time_message, self.start_unix_us + t_us, self.clock.boot_ms)
 
     def send_sys_status(self) -> None:
         faults = self.faults
@@ -93,11 +96,11 @@ class Telemetry:
         return self.vehicle.mag_ints
 
     def send_raw_imu(self) -> None:
-        self.out.emit(mavlink.MAVLink_raw_imu_message, self.clock.t_us, *self.vehicle.imu_ints, *self._mag_mgauss(),
+        self.out.emit(mavlink.MAVLink_raw_imu_message, self.clock.boot_us, *self.vehicle.imu_ints, *self._mag_mgauss(),
                       0, 0)
 
     def send_scaled_imu(self) -> None:
-        self.out.emit(mavlink.MAVLink_scaled_imu_message, self.clock.t_us // 1000, *self.vehicle.imu_ints,
+        self.out.emit(mavlink.MAVLink_scaled_imu_message, self.clock.boot_ms, *self.vehicle.imu_ints,
                       *self._mag_mgauss(), 0)
 
     def send_highres_imu(self) -> None:
@@ -113,12 +116,12 @@ class Telemetry:
         else:
             mx, my, mz = (v * 1e-5 for v in sensors.mag_nt)   # nT -> gauss
             updated |= 0b111000000
-        self.out.emit(mavlink.MAVLink_highres_imu_message, self.clock.t_us, ax, ay, az, gx, gy, gz, mx, my, mz,
+        self.out.emit(mavlink.MAVLink_highres_imu_message, self.clock.boot_us, ax, ay, az, gx, gy, gz, mx, my, mz,
                       1013.25, 0.0, self.scenario.alt_m, 25.0, updated, 0)
 
     def send_attitude(self) -> None:
         a = self.vehicle.sensors.attitude_est
-        self.out.emit(mavlink.MAVLink_attitude_message, self.clock.t_us // 1000, a.roll_rad, a.pitch_rad,
+        self.out.emit(mavlink.MAVLink_attitude_message, self.clock.boot_ms, a.roll_rad, a.pitch_rad,
                       wrap_pi(a.yaw_rad), a.roll_rate_radps, a.pitch_rate_radps, a.yaw_rate_radps)
 
     def send_global_position_int(self) -> None:
@@ -128,7 +131,7 @@ class Telemetry:
         hdg = int(round(math.degrees(wrap_2pi(v.sensors.attitude_est.yaw_rad)) * 100.0)) % 36000
         alt_mm = int(round(self.scenario.alt_m * 1000.0))
         self.out.emit(mavlink.MAVLink_global_position_int_message,
-                      self.clock.t_us // 1000, int(round(lat * 1e7)), int(round(lon * 1e7)), alt_mm, 0,
+                      self.clock.boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), alt_mm, 0,
                       int16(vn * 100.0), int16(ve * 100.0), 0, hdg)
 
     def send_local_position_ned(self) -> None:
@@ -138,7 +141,7 @@ class Telemetry:
         east = ((lon - v.home[1] + 180.0) % 360.0 - 180.0) * v.home_scale[0]
         north = (lat - v.home[0]) * v.home_scale[1]
         ve, vn = v.fc_velocity()
-        self.out.emit(mavlink.MAVLink_local_position_ned_message, self.clock.t_us // 1000, float(north), float(east),
+        self.out.emit(mavlink.MAVLink_local_position_ned_message, self.clock.boot_ms, float(north), float(east),
                       0.0, vn, ve, 0.0)
 
     def send_gps_raw_int(self) -> None:
@@ -172,7 +175,7 @@ class Telemetry:
         lat, lon = self.vehicle.home
         self.out.emit(mavlink.MAVLink_home_position_message, int(round(lat * 1e7)), int(round(lon * 1e7)),
                       int(self.scenario.alt_m * 1000), 0.0, 0.0, 0.0,
-                      [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.clock.t_us)
+                      [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.clock.boot_us)
 
     def send_extended_sys_state(self) -> None:
         self.out.emit(mavlink.MAVLink_extended_sys_state_message, 0, 1)  # landed state ON_GROUND (on the water)
@@ -180,7 +183,7 @@ class Telemetry:
     def send_gps_global_origin(self) -> None:
         lat, lon = self.vehicle.home
         self.out.emit(mavlink.MAVLink_gps_global_origin_message, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                      int(self.scenario.alt_m * 1000), self.clock.t_us)
+                      int(self.scenario.alt_m * 1000), self.clock.boot_us)
 
     def send_autopilot_version(self) -> None:
         capabilities = PX4_CAPABILITIES if self.dialect.autopilot == mavlink.MAV_AUTOPILOT_PX4 else CAPABILITIES

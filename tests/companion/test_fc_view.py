@@ -68,6 +68,21 @@ def test_feed_flies_on_with_the_commanded_velocity():
     assert b.lat_deg > a.lat_deg and b.lon_deg == pytest.approx(a.lon_deg)
 
 
+def test_a_reboot_voids_the_gps_fix_timed_on_the_old_clock():
+    """A fix seen at old-clock 1300 s would count as fresh on the new clock until 1303 s: the FC's
+    position would be taken for GPS-aided for 20 minutes after a reboot, and never fused."""
+    from companion.fc_view import FcView
+
+    view = FcView(heading_source=1, position_publish=3)
+    gps = type("Gps", (), {"get_type": lambda self: "GPS_RAW_INT", "fix_type": 3})()
+    view.packet(gps, 1300.0)
+    view.feeding_own = True
+    assert view.gps_has_fix(5.0) and not view.position_independent(5.0)[0]   # what the old clock would say
+    view.rebooted()
+    assert not view.gps_has_fix(5.0) and view.position_independent(5.0) == (True, "free inertial")
+    assert not view.feeding_own
+
+
 def test_element_sets():
     di, i_f = ELEMENT_SETS[ElementSet.PAPER], ELEMENT_SETS[ElementSet.HEADING_FREE]
     assert di.uses_declination and not i_f.uses_declination

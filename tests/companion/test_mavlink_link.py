@@ -192,6 +192,19 @@ def test_decoder_flags_a_magnetometer_frozen_while_the_vehicle_turns():
     assert "stuck" in dec.last_problem["mag"]
 
 
+def test_a_frozen_magnetometer_stays_stuck_when_the_boat_rolls_back():
+    """A wave rolls the boat 4 deg and back while the reading is frozen (the stand-in's mag_stuck):
+    once judged stuck the same reading stays stuck, although the net rotation returns under 2 deg
+    (it used to count as fresh again, so the companion left its failsafe and averaged it)."""
+    dec = MavlinkDecoder(MessageClock(), stuck_count=5)
+    rates = [120] * 6 + [-120] * 6 + [0] * 4                      # 0.7 deg per sample out, then back
+    flags = [dec.decode(_raw_imu_turning((k + 1) * 100_000, (293, -21, 304), rate))[-1].flags
+             for k, rate in enumerate(rates)]
+    first = next(k for k, f in enumerate(flags) if f & SampleFlag.STUCK)
+    assert 4 <= first <= 6 and all(f & SampleFlag.STUCK for f in flags[first:])
+    assert not dec.decode(_raw_imu_turning(1_700_000, (294, -21, 304), 0))[-1].flags   # it moves again
+
+
 def test_a_quiet_magnetometer_on_a_still_vehicle_is_not_stuck():
     """ArduPilot SITL's noise-free compass repeats its reading while the vehicle holds still
     (issue: 68,855 samples rejected, start-up never ended): not a frozen sensor, however the

@@ -200,6 +200,31 @@ def test_a_finished_mission_keeps_returning_its_final_command(model):
     assert again is final
 
 
+def test_a_restored_snapshot_flies_on_exactly_like_the_mission(model):
+    """snapshot() -> pickle -> restore(): the restored core gives the same commands as the
+    original from there on (what a restarted companion resumes with), and the snapshot holds
+    neither the field model nor the QP, which restore() rebuilds (a fresh QP solver, not warm
+    started: the same solution to its tolerance, not to the bit)."""
+    import pickle
+
+    nav = nav_config(NAV_CONTROLLER=FC)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    command = mission.step(world.measure())
+    for _ in range(4):                                         # probes and cruise steps
+        command = mission.step(world.fly(command))
+    state = mission.snapshot()
+    assert not Mission.REBUILT & set(state) and state["k"] == mission.k
+    restored = Mission.restore(pickle.loads(pickle.dumps(state)))
+    assert restored.model is not None and restored.mpc is not mission.mpc
+    for _ in range(3):
+        measurement = world.fly(command)
+        command, again = mission.step(measurement), restored.step(measurement)
+        assert (again.step, again.phase) == (command.step, command.phase)
+        assert (again.course_rad, again.speed_mps, again.est_lat_deg, again.est_lon_deg, again.remaining_m) == \
+            pytest.approx((command.course_rad, command.speed_mps, command.est_lat_deg, command.est_lon_deg,
+                           command.remaining_m), rel=1e-6)
+
+
 # --- bad measurements --------------------------------------------------------------------------------
 BAD = {
     "nan_decl": lambda m, last_t: dataclasses.replace(m, decl_deg=math.nan),

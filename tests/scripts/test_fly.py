@@ -93,6 +93,19 @@ def test_distances_separate_last_step_rest_and_belief():
     assert d["believed_remaining_m"] == 320.0 and d["iterations"] == 7 and d["came_to_rest"]
 
 
+def test_the_last_step_after_an_fc_reboot_is_found_on_the_new_boot_clock():
+    """Message time is the FC's boot time: after a reboot at 1000 s the last step at message time
+    200 s happened 1200 s into the run, not 200 s in."""
+    t = np.arange(0.0, 1400.0)
+    north = 5000.0 - 5.0 * t                                       # 5 m/s towards the destination
+    lat, lon = (np.array(v) for v in zip(*(_along(n) for n in north)))
+    boot = np.where(t < 1000.0, t, t - 1000.0)
+    steps = [{"step": 9, "msg_time_s": 200.0, "remaining_m": 100.0}]
+    d = distances(TruthTrack(t, lat, lon, boot_s=boot), steps, DEST)
+    assert d["step_remaining_m"] == pytest.approx(abs(5000.0 - 5.0 * 1200.0), abs=1.0)
+    assert distances(_track(list(zip(t, lat, lon))), steps, DEST)["step_remaining_m"] == pytest.approx(4000.0, abs=1.0)
+
+
 def test_a_track_that_ends_moving_is_not_at_rest():
     points = [(float(t), *_along(1000.0 - 3.0 * REST_TOL_M * t / REST_WINDOW_S)) for t in range(0, 30)]
     d = distances(_track(points), [], DEST)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from sitl.clock import LockstepGate, Pacer
+from sitl.clock import LockstepGate, Pacer, SimClock
 
 
 def test_lockstep_gate_rules():
@@ -51,3 +51,27 @@ def test_lockstep_strict_mode_and_stamped_answers():
     assert not strict.satisfied(400_000)
     with pytest.raises(ValueError):
         LockstepGate(0.2, slack_periods=2)
+
+
+def test_lockstep_gate_after_an_fc_reboot():
+    gate = LockstepGate(0.2)
+    gate.observe(599_800, now_us=600_000_000)      # the companion on the old boot, 600 s in
+    assert gate.satisfied(600_000_000)
+    gate.finish(0.0, False)
+    gate.rebooted()                                # the boot clock restarts at 0
+    assert gate.satisfied(0) and gate.satisfied(200_000) and not gate.satisfied(400_000)   # one period of slack
+    for _ in range(20):                            # its backlog on the old clock answers nothing (it used to
+        gate.observe(600_000, now_us=400_000)      # answer one boundary per message: a backlog of 30 s)
+    assert not gate.satisfied(400_000) and gate.future_stamps == 20
+    gate.observe(None, now_us=400_000)             # nor does an untimed message, after stamps
+    assert not gate.satisfied(400_000)
+    gate.observe(200, now_us=400_000)              # once it stamps on the new boot, its stamps answer
+    assert gate.satisfied(400_000) and not gate.satisfied(600_000)
+
+
+def test_sim_clock_boot_time_restarts_at_a_reboot():
+    clock = SimClock(600_000_000)
+    assert clock.boot_us == 600_000_000 and clock.boot_ms == 600_000
+    clock.reboot()
+    clock.t_us += 1_500_000
+    assert (clock.time_s, clock.boot_us, clock.boot_ms) == (601.5, 1_500_000, 1_500)

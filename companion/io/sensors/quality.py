@@ -71,19 +71,23 @@ class FrozenDetector:
         self._repeats = 0
         self._turned = [0.0, 0.0, 0.0]
         self._time_s = math.nan
+        self._frozen = False            # judged frozen: stays so until the reading changes
 
     def check(self, raw: Hashable, time_s: float, gyro_radps: tuple[float, float, float] | None) -> SampleFlag:
         dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
         self._time_s = time_s
         if raw != self._last:
-            self._last, self._repeats, self._turned = raw, 1, [0.0, 0.0, 0.0]
+            self._last, self._repeats, self._turned, self._frozen = raw, 1, [0.0, 0.0, 0.0], False
             return SampleFlag.NONE
         self._repeats += 1
         if gyro_radps is not None and 0.0 < dt < 1.0:
             for k in range(3):
                 self._turned[k] += gyro_radps[k] * dt
         turned = math.sqrt(sum(a * a for a in self._turned))
-        if self._repeats >= self.limit and turned >= self.min_turn_rad:
+        # once frozen, the same reading stays frozen: a rocking boat turns back to where the sensor
+        # froze (the net rotation falls under min_turn_rad again), which proves nothing new
+        if self._frozen or (self._repeats >= self.limit and turned >= self.min_turn_rad):
+            self._frozen = True
             return SampleFlag.STUCK
         return SampleFlag.NONE
 

@@ -49,6 +49,9 @@ class FakeMission:
     def reconfigure(self, new):
         return []
 
+    def snapshot(self) -> dict:
+        return dict(vars(self))
+
 
 GOOD = Command(time_s=360.0, step=5, phase="cruise", course_rad=2.3, speed_mps=13.0, done=False, est_lat_deg=32.5,
                est_lon_deg=152.5, est_sigma_m=800.0, remaining_m=70_000.0, fix_lat_deg=32.5, fix_lon_deg=152.51)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from companion.app import State
 from companion.io.mavlink_link import mavlink
 from companion.io.sensors.base import SampleKind
@@ -10,20 +12,40 @@ from companion.process.mode_commands import MODE_CONFIRM_S
 from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _sent
 
 
-def test_flight_controller_reboot_restarts_the_mission(rig):
+def test_flight_controller_reboot_continues_the_mission(rig):
+    """A reboot under a running mission: said, the streams asked for again, and once the FC is armed
+    in GUIDED again the same mission goes on at its step and step clock (no start-up average, no
+    navigation restart). It used to restart the mission as a navigation failure."""
     app, fc = rig
     _run_step(app, GOOD)
+    mission, number = app.mission, app.mission_no
     for ms in range(2_000, 30_001, 4_000):                                       # the clock ticks on to 30 s
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # one frame 28 s back: no reboot
     assert app.state == State.RUNNING and app.link.clock.far_past == 1
+    to_go = app.next_step_m - app.mission_time()                                 # until the next step
+    _sent(fc)
     for ms in (2_100, 2_200, 2_300):                                               # the new base ticks on ...
         app.handle(_msg("ATTITUDE", time_boot_ms=ms, roll=0, pitch=0, yaw=0, rollspeed=0, pitchspeed=0,
                         yawspeed=0))
-    app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))                                 # ... with the FC's heartbeat
+    app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "base_mode": 1, "custom_mode": 16}))   # ... disarmed, booting
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_400))          # and its SYSTEM_TIME: a reboot
-    assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
-    assert "rebooted" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+    assert app.state == State.READY and app.restarts == 0 and app.mission is mission
+    assert app.resume.pending is not None and app.resume.pending.command.step == GOOD.step
+    sent = _sent(fc)
+    said = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
+    assert "rebooted" in said and "goes on from its last estimate" in said
+    assert [m for m in sent if m.get_type() == "COMMAND_LONG"
+            and m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL], "the streams were not asked for again"
+    # the FC is armed in GUIDED again (by us: COMP_ARM_ENABLE, or by the operator): the mission goes on
+    app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))
+    for ms in range(2_600, 4_201, 400):                                           # healthy for over 1 s
+        app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
+        app.next_tick = -math.inf
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
+    assert app.state == State.RUNNING and app.mission is mission and app.mission_no == number and app.restarts == 0
+    assert app.command.step == GOOD.step and app.resume.resumed_from == f"mission {number} step {GOOD.step}"
+    assert app.next_step_m - app.mission_time() == pytest.approx(to_go, abs=0.5)   # the step clock kept
 
 
 def test_operator_mode_change_is_respected(rig):

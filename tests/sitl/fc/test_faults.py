@@ -1,10 +1,12 @@
-"""sitl.fc.faults: a run of ``python -m sitl.server`` with every fault kind, checked from its tlog and CSV."""
+"""sitl.fc.faults: a run of ``python -m sitl.server`` with every fault kind, checked from its tlog and CSV
+(``fc_reboot`` in a run of its own, of a boat cruising armed)."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.scenario import load_scenario
 from sitl.truthlog import read_truth_csv
@@ -126,3 +128,45 @@ def test_storm_onset_fault(tmp_path, shared_data):
     t = np.array(log["time_s"])
     dist = np.abs(np.array([log["dist_n_nt"], log["dist_e_nt"], log["dist_d_nt"]])).sum(axis=0)
     assert np.all(dist[t < 20] == 0.0) and np.all(dist[t >= 20] > 10.0)
+
+
+def test_fc_reboot_restarts_the_boot_clock_disarms_and_keeps_the_position(tmp_path):
+    """An ``fc_reboot`` at 20 s (initialising for 1 s) of a boat cruising armed in GUIDED (--cruise)."""
+    summary, log_dir = run_cli(["--speedup", "0", "--duration", "30", "--init-s", "0.2", "--seed", "3",
+                                "--cruise", "90:5", "--fault", "fc_reboot:20:1", "--tlog",
+                                "--out", f"udp:127.0.0.1:{closed_udp_port()}"], tmp_path)
+    messages = read_tlog(log_dir / "sitl.tlog")
+    start = load_scenario("pacific").start_posix
+    for msg in messages:
+        msg.sim_s = msg._timestamp - start
+    assert summary["counters"]["fault_fc_reboot"] == 1
+    # time_boot_ms and boot-based time_usec restart at 0; SYSTEM_TIME's UNIX time runs on
+    for name, stamp_s in (("ATTITUDE", lambda m: m.time_boot_ms * 1e-3), ("RAW_IMU", lambda m: m.time_usec * 1e-6),
+                          ("GLOBAL_POSITION_INT", lambda m: m.time_boot_ms * 1e-3),
+                          ("SYSTEM_TIME", lambda m: m.time_boot_ms * 1e-3)):
+        sent = _of(messages, name)
+        assert [m for m in sent if m.sim_s < 20.0] and [m for m in sent if m.sim_s >= 20.0], name
+        for m in sent:
+            boot = 0.0 if m.sim_s < 20.0 else 20.0
+            assert stamp_s(m) == pytest.approx(m.sim_s - boot, abs=2e-3), (name, m.sim_s)
+    assert all(m.time_unix_usec * 1e-6 - start == pytest.approx(m.sim_s, abs=2e-3) for m in _of(messages, "SYSTEM_TIME"))
+    # armed in GUIDED before; disarmed, INITIALISING for 1 s, then its ready mode (HOLD), not armed again
+    beats = [m for m in _of(messages, "HEARTBEAT") if m.get_srcComponent() == 1]
+    armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    assert all(m.custom_mode == 15 and m.base_mode & armed for m in beats if 1.0 <= m.sim_s < 20.0)
+    booting = [m for m in beats if 20.0 <= m.sim_s < 21.0]
+    assert booting and all(m.custom_mode == 16 and not m.base_mode & armed for m in booting)
+    ready = [m for m in beats if m.sim_s >= 21.0]
+    assert ready and all(m.custom_mode == 4 and not m.base_mode & armed for m in ready)
+    texts = [m.text for m in _of(messages, "STATUSTEXT", 20.0)]
+    assert any("fc_reboot ON" in t for t in texts) and any("ready, mode HOLD" in t for t in texts)
+    # the boat itself goes on from where it was (no jump), stopping once disarmed
+    log = read_truth_csv(log_dir / "truth.csv")
+    t = np.array(log["time_s"])
+    lat, lon = np.radians(log["lat_deg"]), np.radians(log["lon_deg"])
+    step_m = 6.371e6 * np.hypot(np.diff(lat), np.diff(lon) * np.cos(lat[1:]))
+    assert np.all(step_m <= 5.0 * np.diff(t) + 0.5)
+    speed = dict(zip(log["time_s"], log["speed_mps"]))
+    assert speed[19.0] == pytest.approx(5.0, abs=0.2) and speed[29.0] <= 1.0     # 0.5 m/s² of braking
+    armed_log = dict(zip(log["time_s"], log["armed"]))
+    assert armed_log[19.0] == 1 and armed_log[21.0] == 0 and armed_log[29.0] == 0

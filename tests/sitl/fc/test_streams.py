@@ -31,3 +31,18 @@ def test_message_interval_changes_stream_rate(sitl):
     t1 = client.time_ms() + 1000
     att = [m for m in client.collect("ATTITUDE", t1 + 5000) if t1 <= m.time_boot_ms < t1 + 5000]
     assert len(att) == pytest.approx(5, abs=1)
+
+
+def test_reset_after_a_reboot_restores_the_start_up_rates():
+    from sitl.clock import SimClock
+    from sitl.fc.streams import DEFAULT_RATES_HZ, StreamScheduler
+
+    clock = SimClock(5_000_000)
+    streams = StreamScheduler({name: (lambda: None) for name in DEFAULT_RATES_HZ}, ("ATTITUDE:4",), clock, None, {})
+    assert streams.set_message_interval(27, 500_000) == mavlink.MAV_RESULT_ACCEPTED    # RAW_IMU 2 Hz
+    assert streams.set_message_interval(30, -1) == mavlink.MAV_RESULT_ACCEPTED         # ATTITUDE off
+    clock.t_us = 9_000_000
+    streams.reset()
+    assert streams.streams["RAW_IMU"].interval_us == 100_000          # the default 10 Hz again
+    assert streams.streams["ATTITUDE"].interval_us == 250_000         # the --rate given at start
+    assert streams.streams["RAW_IMU"].next_us == 9_000_000
