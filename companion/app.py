@@ -125,7 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param-encoding", choices=ENCODINGS, default="auto",
                    help="INT32 parameter values: C cast (ArduPilot), bytewise (PX4), or from the FC; default auto")
     p.add_argument("--mag-message", choices=MAG_MESSAGES, default=None,
-                   help="magnetometer message to use; default the first one the FC sends")
+                   help="magnetometer message to use; default the FC's raw one (ArduPilot RAW_IMU, PX4 SCALED_IMU: "
+                        "PX4's HIGHRES_IMU has EKF2's bias estimate subtracted), or the first one it sends "
+                        "with --no-stream-requests")
     p.add_argument("--sensors", default=None, metavar="SPEC",
                    help="read sensors from this source instead of the FC's streams (kinds it lacks still come "
                         "from the FC): i2c:/dev/i2c-1, ubx:/dev/ttyACM0:115200, dronecan:can0, "

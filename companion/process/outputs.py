@@ -14,7 +14,7 @@ import time
 from companion import wrap_2pi
 from companion.io.mavlink_link import mavlink
 from companion.io.position_feed import feed_message_name, send_echo, send_feed
-from companion.io.px4 import unused_streams
+from companion.io.px4 import mag_message, unused_streams
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
 from companion.process.machine import State
@@ -68,9 +68,11 @@ class Outputs:
 
     def request_streams(self) -> None:
         link, app = self.link, self.app
-        mag_msg = app.opts.mag_message or ("HIGHRES_IMU" if link.fc.conventions.param_bytewise else "RAW_IMU")
+        family = link.fc.conventions.family
+        mag_msg = mag_message(family, app.opts.mag_message)
+        app.decoder.mag_message = mag_msg     # PX4 streams HIGHRES_IMU until told otherwise: not that one
         link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{mag_msg}"), MAG_STREAM_HZ)
-        for name in unused_streams(link.fc.conventions.family):   # before LOCAL_POSITION_NED may be asked for
+        for name in unused_streams(family, keep=mag_msg):   # before LOCAL_POSITION_NED may be asked for
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), -1.0)
         for name, hz in STREAMS_HZ.items():
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), hz)

@@ -39,14 +39,21 @@ def _offboard_samples(truth, t0: float, t1: float):
     return [s for s in truth if t0 <= s.time_s <= t1]
 
 
-# Open (issue 15): PX4's HIGHRES_IMU |F| falls thousands of nT below its start-up level in flight
-# (-1400 nT after 5 min, -12000 nT after 45 min of SIH time, also standing still; PX4 may apply
-# EKF2's in-flight magnetometer bias estimate to the published field). The companion's plausibility
-# check rightly excludes those periods, so the vehicle never reaches the second probing move.
-PX4_MAG_DRIFT = "open: PX4 SIH's published |F| drifts thousands of nT in flight; every step is excluded"
+# Issue 15: PX4's HIGHRES_IMU has EKF2's magnetometer-bias state subtracted, which wandered by
+# thousands of nT in flight (|F| -5,500 nT after 15 min of driving); the companion reads SCALED_IMU
+# (sensor_mag) on PX4 (companion/io/px4.py), and the test below checks that no step was excluded.
+PX4_MAG_DRIFT = "HIGHRES_IMU's |F| drifted thousands of nT (EKF2's mag bias state): every step was excluded"
 
 
-@pytest.mark.skip(reason=PX4_MAG_DRIFT)
+# Open (issue 15): not reliable yet. With SCALED_IMU no step was excluded for |F| and it passed twice
+# (NE-SE, SW-NW; 212 s and 291 s wall), but the first probe's step may be excluded by the fix_jump check
+# again and again: a third run (NE-SE) sat in the first probe for 16 periods (30-183 km jumps) and
+# timed out waiting for the second probe. README "Flying with PX4" has the measurements.
+PX4_FIX_NOISE = ("open (issue 15): SIH's noisy magnetometer and shaking accelerometer make implied fixes jump "
+                 "30-183 km, so the plausibility check can postpone the second probe past the test's wait")
+
+
+@pytest.mark.skip(reason=PX4_FIX_NOISE)
 @pytest.mark.parametrize("probes", [(45.0, 315.0), (225.0, 135.0)], ids=["NE-SE", "SW-NW"])
 def test_offboard_engaged_held_and_every_quadrant_driven_forward(px4_factory, probes):
     """OFFBOARD after setpoints stream, held through both probing moves (courses NE, SE or SW, NW),
@@ -67,6 +74,11 @@ def test_offboard_engaged_held_and_every_quadrant_driven_forward(px4_factory, pr
     assert_forward_on(mon.truth, t2 + 10.0, t2 + PROBE_S - 2.0, courses[1], ROVER_MIN_SPEED)
     assert not mon.texts_matching("mission failed", 191), mon.texts_matching("FcMPC", 191)
     assert not mon.texts_matching("stuck", 191), "SIH's magnetometer was judged stuck"
+    # no period excluded for |F| (the f_band check): what HIGHRES_IMU's drifting field did. The fix_jump
+    # check may exclude some (36-90 km implied fixes, measured: SIH's rover shakes its accelerometer
+    # while driving: 30 s means of the gravity-referenced I scatter +-0.8 deg, biased -0.4 deg); that
+    # postpones a step. "nT off the model" is the f_band words, single or sustained
+    assert not mon.texts_matching("nT off the model", 191), PX4_MAG_DRIFT
     # home is the mission's start, and the yaw is known to be the magnetometer's: (I, F), not D
     start = mon.truth[0]
     assert abs(start.lat_deg - 33.0) < 1e-4 and abs(start.lon_deg - 152.0) < 1e-4, (start.lat_deg, start.lon_deg)
@@ -201,8 +213,11 @@ def test_mavsdk_lists_and_sets_companion_parameters_through_px4(px4_factory):
     assert log_dir.exists()
 
 
-@pytest.mark.skip(reason="open (issue 15): never passed here; PX4 declared its compass faulty after take-off and "
-                         "landed after GPS loss, and " + PX4_MAG_DRIFT)
+@pytest.mark.skip(reason="open (issue 15): with SCALED_IMU, PX4 held OFFBOARD and HIL_GPS kept EKF2's position for the "
+                         "30 min without GPS (one run, 8x), but the companion excluded every cruise step (fix would jump "
+                         "45-147 km, bound 24-26 km), so 2 steps were flown, not 9: SIH's magnetometer noise (0.02-0.03 "
+                         "gauss per axis) and its shaking accelerometer bias the gravity-referenced I by -0.4 deg while "
+                         "driving (measured against SIH's truth attitude)")
 @pytest.mark.slow
 def test_gps_lost_after_start_up_offboard_kept_and_on_course(px4_factory):
     """SIH's receiver loses its fix 30 s after arming (SIM_GPS_USED 0): the companion feeds HIL_GPS,
@@ -221,8 +236,9 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course(px4_factory):
     deny_gps(mon)
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
-    mon.pump(lambda m: m.time_s >= t_lost + 1800.0 or m.mode != OFFBOARD or not m.armed, 8 * WALL_S,
-             "30 minutes without GPS")
+    # on the truth's clock: HIL_STATE_QUATERNION (1 Hz) lags SYSTEM_TIME, and the last truth sample is judged
+    mon.pump(lambda m: (m.truth and m.truth[-1].time_s >= t_lost + 1800.0) or m.mode != OFFBOARD or not m.armed,
+             8 * WALL_S, "30 minutes without GPS")
     after = [s for s in mon.truth if s.time_s >= t_lost]
     said = (rig.tmp / "companion.err").read_text(errors="replace")[-1500:]
     left = next((s for s in after if s.mode != OFFBOARD or not s.armed), None)
