@@ -1,11 +1,11 @@
-"""The paper's missions closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
+"""The paper's Pacific mission closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
 
 Pass: ``remaining <= max(1.5 x in-process remaining of the same seed, 1.5 km)`` (see
 tests/companion/test_closed_loop.py for the floor), arrival, iterations within 15 %, and the
 track plot written. The in-process run uses the truth field of the same builder as the simulator
-(:func:`sitl.world.build.build_truth_field`). Storm scenarios: the simulator's storm clock is its
-time since boot, which includes the companion's stationary start-up (one control period, 0.6 % of
-the compressed window), so the storm is seen slightly earlier along the track than in-process.
+(:func:`sitl.world.build.build_truth_field`). The storm missions are in
+``test_storm_missions_slow.py``: a module of their own, so parallel test workers (pytest-xdist,
+one module per worker) fly them beside this one.
 """
 from __future__ import annotations
 
@@ -24,13 +24,3 @@ def test_full_pacific_mission(tmp_path):
                             timeout_s=HANG_S, tlog=False))
     assert_close_to_monte_carlo(result)
     assert result.iterations > 150
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("scenario", ["long_storm", "short_storm"])
-def test_storm_missions(tmp_path, shared_data, scenario):
-    if not (shared_data / "storms").is_dir():
-        pytest.skip(f"storm data not found under {shared_data}")
-    result = fly(FlyOptions(scenario=scenario, seed=0, compare=True, out_dir=str(tmp_path / "run"),
-                            timeout_s=HANG_S, tlog=False, data_dir=str(shared_data)))
-    assert_close_to_monte_carlo(result)

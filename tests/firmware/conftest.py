@@ -21,6 +21,9 @@ from sitl.firmware.monitor import FirmwareMonitor
 
 REPO = Path(__file__).resolve().parents[2]
 _TAKEN: set[int] = set()     # instances this test session handed out (free_instance skips busy ports too)
+# pytest-xdist runs test modules in parallel workers (gw0, gw1, ...): each worker starts its search
+# for a free instance in its own range, so two workers do not race for the same ports
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
 # Wall-time pacing: the companion must answer in wall time (a setpoint at least every 3 s and
 # GPS_INPUT every 0.1 s of firmware time, or ArduPilot stops / calls the GPS unhealthy), so a loaded
 # 2-core machine needs margin: at 10x a stall of the companion must stay under 300 ms of wall time
@@ -44,7 +47,7 @@ class Rig:
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
-        instance = free_instance(first=11 + (os.getpid() % 8) * 10, taken=_TAKEN)
+        instance = free_instance(first=11 + (_WORKER % 4) * 20 + (os.getpid() % 2) * 10, taken=_TAKEN)
         _TAKEN.add(instance)
         self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, speedup=speedup,
                                   params=params or {}, binary=_binary_or_skip())
@@ -166,7 +169,7 @@ class Px4TestRig(Rig):
 
         self.tmp = tmp_path
         root = _px4_root_or_skip()
-        instance = free_px4_instance(first=1 + os.getpid() % 9, taken=_PX4_TAKEN)
+        instance = free_px4_instance(first=1 + ((_WORKER % 4) * 2 + os.getpid() % 2) % 9, taken=_PX4_TAKEN)
         _PX4_TAKEN.add(instance)
         self.loss_timeout_s = PX4_LOSS_WALL_S * speed
         self.sitl = Px4Sitl(workdir=tmp_path / "px4", instance=instance, speed_factor=speed, root=root,
