@@ -8,6 +8,7 @@ can produce (rotation changes the components, not the magnitude).
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Hashable
 from dataclasses import dataclass
 
@@ -48,12 +49,16 @@ class FrozenDetector:
     attitude. A *frozen* one repeats it although the body turned: a rotation of ``min_turn_rad``
     changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT),
     many LSB. So the judgement needs ``limit`` identical readings in a row *and* a net rotation of
-    at least ``min_turn_rad`` since the repetition began, measured by integrating the gyro
-    vector (``|sum omega dt|``, the raw rate sensor: an attitude *estimate* can wander while the
-    vehicle is still, e.g. an EKF without GPS, and would flag a good sensor). The *net* rotation,
-    not the path: a boat rocking in waves returns to the attitude, and the field to the reading,
-    it had, and summing ``|omega| dt`` also sums the gyro's noise (a stationary ArduPilot SITL
-    boat was called stuck after hours). Without any gyro nothing is flagged.
+    at least ``min_turn_rad`` within the last ``window_s`` of the repetition, measured by
+    integrating the gyro vector (``|sum omega dt|``, the raw rate sensor: an attitude *estimate*
+    can wander while the vehicle is still, e.g. an EKF without GPS, and would flag a good sensor).
+    The *net* rotation, not the path: a boat rocking in waves returns to the attitude, and the
+    field to the reading, it had, and summing ``|omega| dt`` also sums the gyro's noise (a
+    stationary ArduPilot SITL boat was called stuck after hours). Within a *window*, not since
+    the repetition began: the gyro's bias integrates without bound (ArduPilot SITL's boat, still
+    on a noise-free compass, reached 2 deg in 93 s and, judged frozen for good, never armed);
+    over 10 s a bias of 0.05 deg/s is 0.5 deg, while a real turn of 2 deg in 10 s changes the
+    field by many LSB. Without any gyro nothing is flagged.
 
     >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
     >>> [d.check((1, 2, 3), k * 0.1, (0.0, 0.0, 0.0)) for k in range(5)][-1] == SampleFlag.NONE   # still
@@ -62,14 +67,17 @@ class FrozenDetector:
     True
     """
 
-    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0)) -> None:
+    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0), window_s: float = 10.0) -> None:
         if limit < 2:
             raise ValueError(f"stuck limit must be >= 2 repeats, got {limit}")
+        if not window_s > 0.0:
+            raise ValueError(f"frozen-compass window must be > 0 s, got {window_s}")
         self.limit = limit
         self.min_turn_rad = min_turn_rad
+        self.window_s = window_s
         self._last: Hashable | None = None
         self._repeats = 0
-        self._turned = [0.0, 0.0, 0.0]
+        self._turns: deque[tuple[float, float, float, float]] = deque()   # (time_s, rotation vector, rad)
         self._time_s = math.nan
         self._frozen = False            # judged frozen: stays so until the reading changes
 
@@ -77,13 +85,16 @@ class FrozenDetector:
         dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
         self._time_s = time_s
         if raw != self._last:
-            self._last, self._repeats, self._turned, self._frozen = raw, 1, [0.0, 0.0, 0.0], False
+            self._last, self._repeats, self._frozen = raw, 1, False
+            self._turns.clear()
             return SampleFlag.NONE
         self._repeats += 1
+        turns = self._turns
         if gyro_radps is not None and 0.0 < dt < 1.0:
-            for k in range(3):
-                self._turned[k] += gyro_radps[k] * dt
-        turned = math.sqrt(sum(a * a for a in self._turned))
+            turns.append((time_s, gyro_radps[0] * dt, gyro_radps[1] * dt, gyro_radps[2] * dt))
+        while turns and turns[0][0] <= time_s - self.window_s:
+            turns.popleft()
+        turned = math.sqrt(sum(sum(t[k] for t in turns) ** 2 for k in (1, 2, 3)))
         # once frozen, the same reading stays frozen: a rocking boat turns back to where the sensor
         # froze (the net rotation falls under min_turn_rad again), which proves nothing new
         if self._frozen or (self._repeats >= self.limit and turned >= self.min_turn_rad):
