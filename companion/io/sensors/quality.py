@@ -41,6 +41,9 @@ class RepeatDetector:
         return SampleFlag.STUCK if self._repeats >= self.limit else SampleFlag.NONE
 
 
+STILL_RADPS = math.radians(0.5)   # a gyro reading below this may be bias (uncalibrated MEMS), not a turn
+
+
 class FrozenDetector:
     """Flags STUCK when the raw reading stays identical while the vehicle turned.
 
@@ -58,7 +61,10 @@ class FrozenDetector:
     the repetition began: the gyro's bias integrates without bound (ArduPilot SITL's boat, still
     on a noise-free compass, reached 2 deg in 93 s and, judged frozen for good, never armed);
     over 10 s a bias of 0.05 deg/s is 0.5 deg, while a real turn of 2 deg in 10 s changes the
-    field by many LSB. Without any gyro nothing is flagged.
+    field by many LSB. The rate is the gyro's minus its slowly learned bias (an exponential mean
+    over ``bias_tau_s``, 120 s): ArduPilot SITL's still boat reported 2 mrad/s on every axis (0.2
+    deg/s, 2 deg in 10 s) while its noise-free compass repeated its reading; waves average out of
+    that mean, a turn of a few tens of seconds barely moves it. Without any gyro nothing is flagged.
 
     >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
     >>> [d.check((1, 2, 3), k * 0.1, (0.0, 0.0, 0.0)) for k in range(5)][-1] == SampleFlag.NONE   # still
@@ -67,7 +73,8 @@ class FrozenDetector:
     True
     """
 
-    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0), window_s: float = 10.0) -> None:
+    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0), window_s: float = 10.0,
+                 bias_tau_s: float = 120.0) -> None:
         if limit < 2:
             raise ValueError(f"stuck limit must be >= 2 repeats, got {limit}")
         if not window_s > 0.0:
@@ -75,6 +82,8 @@ class FrozenDetector:
         self.limit = limit
         self.min_turn_rad = min_turn_rad
         self.window_s = window_s
+        self.bias_tau_s = bias_tau_s
+        self._bias: list[float] | None = None      # rad/s, the gyro's slowly learned bias
         self._last: Hashable | None = None
         self._repeats = 0
         self._turns: deque[tuple[float, float, float, float]] = deque()   # (time_s, rotation vector, rad)
@@ -84,14 +93,23 @@ class FrozenDetector:
     def check(self, raw: Hashable, time_s: float, gyro_radps: tuple[float, float, float] | None) -> SampleFlag:
         dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
         self._time_s = time_s
+        rate = None
+        if gyro_radps is not None and all(math.isfinite(g) for g in gyro_radps):
+            if self._bias is None:   # a first reading at rest is the bias; one while turning is not
+                still = math.sqrt(sum(g * g for g in gyro_radps)) <= STILL_RADPS
+                self._bias = list(gyro_radps) if still else [0.0, 0.0, 0.0]
+            elif 0.0 < dt < 1.0:
+                gain = dt / self.bias_tau_s
+                self._bias = [b + gain * (g - b) for b, g in zip(self._bias, gyro_radps)]
+            rate = [g - b for g, b in zip(gyro_radps, self._bias)]
         if raw != self._last:
             self._last, self._repeats, self._frozen = raw, 1, False
             self._turns.clear()
             return SampleFlag.NONE
         self._repeats += 1
         turns = self._turns
-        if gyro_radps is not None and 0.0 < dt < 1.0:
-            turns.append((time_s, gyro_radps[0] * dt, gyro_radps[1] * dt, gyro_radps[2] * dt))
+        if rate is not None and 0.0 < dt < 1.0:
+            turns.append((time_s, rate[0] * dt, rate[1] * dt, rate[2] * dt))
         while turns and turns[0][0] <= time_s - self.window_s:
             turns.popleft()
         turned = math.sqrt(sum(sum(t[k] for t in turns) ** 2 for k in (1, 2, 3)))
