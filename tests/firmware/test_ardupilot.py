@@ -71,9 +71,6 @@ def test_arming_refusal_reaches_the_operator_with_backoff(rig_factory):
     assert not mon.armed
 
 
-@pytest.mark.skip(reason="open regression (2026-11-30 merge of the split, link, filter and PX4 branches): one run "
-                         "flew a true track of 2 deg while 180 deg was commanded after GPS loss; passed before "
-                         "the merge (442f6ef); to be found first, issue 16")
 @pytest.mark.slow
 def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
     """GPS lost 30 s after arming: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
