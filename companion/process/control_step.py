@@ -146,7 +146,9 @@ class ControlStep:
             app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))
         if judgement.ok:
             return False
-        app.reporting.record_event("excluded", judgement.words())
+        app.reporting.record_event("excluded", judgement.words(), decl_deg=meas.decl_deg, incl_deg=meas.incl_deg,
+                                   f_nt=meas.f_nt, window_s=meas.window_s, est_lat_deg=float(lat),
+                                   est_lon_deg=float(lon), est_sigma_m=sigma)
         return True
 
     def fault(self, cmd) -> str:

@@ -72,14 +72,16 @@ class Reporting:
         return {"gps_fix": gps.fix_type, "gps_lat_deg": gps.lat_deg if gps.fix_type >= 2 else math.nan,
                 "gps_lon_deg": gps.lon_deg if gps.fix_type >= 2 else math.nan}
 
-    def record_event(self, event: str, reason: str) -> None:
+    def record_event(self, event: str, reason: str, **columns: float) -> None:
+        """One row of ``steps.csv`` for an event; ``columns``: more of its columns (e.g. the
+        measurement of an excluded step, so a reader can tell why it jumped)."""
         app = self.app
         if self.recorder is None:
             return
         self.recorder.write({"wall_time_s": time.time(), "msg_time_s": app.now,
                              "mission_time_s": app.mission_time() - app.m0 if math.isfinite(app.m0) else math.nan,
                              "mission": app.mission_no, "step": app.mission.k if app.mission else 0,
-                             "phase": app.state, "event": event, "reason": reason})
+                             "phase": app.state, "event": event, "reason": reason, **columns})
 
     def summary(self) -> dict:
         app = self.app

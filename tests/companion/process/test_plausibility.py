@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 
+from companion.io.records import read_steps_csv
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
@@ -108,6 +109,10 @@ def test_the_control_step_excludes_an_offset_measurement_and_keeps_flying(rig):
     assert re.search(r"implausible magnetometer step: \|F\| \+30\d\d nT off the model, excluded", texts), texts
     assert app.plausibility.excluded == 1 and app.summary()["mag_excluded_steps"] == 1
     assert math.isfinite(first.course_rad)
+    # the record says what was measured, so a reader can tell why it was excluded
+    [row] = [r for r in read_steps_csv(app.log_dir / "steps.csv") if r["event"] == "excluded"]
+    assert row["f_nt"] == pytest.approx(float(start.f_nt) + 3000.0, abs=1.0)
+    assert row["incl_deg"] == pytest.approx(float(start.incl_deg)) and math.isfinite(row["est_lat_deg"])
 
 
 def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
