@@ -16,7 +16,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
-from companion.process.plausibility import element_noise, f_offset_nt, judge
+from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
@@ -31,6 +31,7 @@ class ControlStep:
         self.dr: tuple[float, float, float] | None = None          # (time, lat, lon) dead reckoning
         self.step_latency_s: list[float] = []
         self.core_latency_s: list[float] = []
+        self.judgement: Judgement | None = None                     # the last step's plausibility verdict
 
     # ------------------------------------------------------------------ INS position
     def advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
@@ -84,6 +85,7 @@ class ControlStep:
         h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": app.preparation.inclination_se(avg), "f_nt": avg.f_se_nt}
+        self.judgement = None
         if self.excluded(t_k, meas, se):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later
             return
@@ -144,6 +146,7 @@ class ControlStep:
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
                           f_reference_nt=reference,
                           noise=element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}))
+        self.judgement = judgement
         said = app.plausibility.verdict(judgement)
         if said is not None:
             app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))

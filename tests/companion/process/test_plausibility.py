@@ -176,6 +176,8 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(low))
     app.stepper.step(361.0)
     assert app.mission.k == 2 and app.plausibility.excluded == 0          # the core flew on the level
+    judged = app.stepper.judgement                                        # kept for steps.csv
+    assert judged.ok and judged.noise_m == 0.0 and judged.jump_m < judged.bound_m   # one sample: no scatter known
     jumped = ned * (1.0 - 4000.0 / float(start.f_nt))                     # 3000 nT off the level: excluded
     app.mag.averager.add(400.0, float(start.decl_deg), float(start.incl_deg), tuple(jumped))
     app.stepper.step(722.0)
