@@ -21,10 +21,10 @@ estimate flown on with the last command (:meth:`Outputs.current_estimate`), unce
               the period's averaged elements (:func:`element_noise`, from the period's own scatter,
               :mod:`companion.nav.inclination`) through ``G^-1``, ``sqrt(trace(G^-1 R G^-T))``. A
               magnetometer that is noisy but unbiased (PX4 SIH: 2000-3000 nT per sample and a
-              shaking accelerometer, I_g good to ~0.2 deg over a 160 s period, tens of km) widens
-              the bound by what its fix can scatter; a spike's few samples do not (the errors are
-              robust, MAD-based) and a sustained offset adds no scatter at all. Noise-free or
-              ideal-world (150 nT at 10 Hz over 360 s): about 1 km.
+              shaking accelerometer, I_g good to 0.21-0.29 deg over a 160 s period: 130-210 km)
+              widens the bound by what its fix can scatter; a spike's few samples do not (the
+              errors are robust, MAD-based) and a sustained offset adds no scatter at all. The
+              lockstep Pacific mission (150 nT at 10 Hz over 360 s): 2.0-2.4 km.
 
 An implausible measurement is excluded: the step is postponed one period and the vehicle flies
 its last command (the core's dead reckoning uses the actual time between steps). Each exclusion
