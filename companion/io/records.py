@@ -41,6 +41,7 @@ STEP_COLUMNS = (
     "window_s", "spikes", "invalid", "ins_lat_deg", "ins_lon_deg", "ins_source", "est_lat_deg", "est_lon_deg",
     "est_sigma_m", "fix_lat_deg", "fix_lon_deg", "fused", "remaining_m", "course_deg", "speed_mps", "solver_ok",
     "solver_time_s", "step_latency_s", "event", "reason", "gps_fix", "gps_lat_deg", "gps_lon_deg",
+    "incl_se_deg", "jump_m", "bound_m", "noise_m",
 )
 
 

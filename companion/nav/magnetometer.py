@@ -17,11 +17,10 @@ Per sample:
    counted. Rejected samples still enter the median window, so a real, lasting change of the
    field (a level step, not a spike) is accepted after half a window.
 5. **Gravity-referenced inclination** (for the heading-free element set): with the
-   accelerometer's specific force ``f`` of the same instant, ``I_g = asin(m . d / |m|)`` with
-   ``d = -f/|f|`` the down direction in the body frame: the angle between the field and the
-   horizontal plane, from the two sensors alone, rotation-invariant, so it needs neither the
-   flight controller's attitude estimate nor a heading. On a vehicle holding course and speed
-   the mean specific force is gravity (waves and heave average out); samples while turning
+   accelerometer's specific force ``f`` of the same instant, ``I_g = asin(-m . f / (|m| |f|))``:
+   the angle between the field and the horizontal plane, from the two sensors alone,
+   rotation-invariant, so it needs no heading. On a vehicle holding course and speed the mean
+   specific force is gravity (waves and heave average out); samples while turning
    (``|gyro z| > max_turn_radps``: centripetal acceleration tilts ``f``) and until
    ``settle_until_s`` after a new command (the speed change after a turn tilts ``f`` along the
    track: 1 m/s^2 is 6 degrees) are left out of it.
@@ -30,6 +29,9 @@ Per sample:
    along the period's path" (:mod:`sitl.inprocess`). The result also carries the mean sample
    time, so the caller can tell the core how far back the average refers
    (``window_s = 2 * (t_end - mean_time)``).
+
+The period's I_g is a ratio of averages, not an average of per-sample angles, and every average
+carries its standard error from the period's own scatter: :mod:`companion.nav.inclination`.
 
 >>> d, i = decl_incl_deg(20000.0, 5000.0, 40000.0)
 >>> round(d, 4), round(i, 4)
@@ -42,6 +44,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from companion.frames import Matrix3, Vector3, body_to_ned
+from companion.nav.inclination import ratio_inclination_deg, robust_standard_error
 
 __all__ = [
     "MILLIGAUSS_TO_NT",
@@ -224,7 +227,10 @@ class SpikeFilter:
 @dataclass(frozen=True)
 class AveragedDI:
     """D, I and the total intensity ``f_nt`` (nT) averaged over ``count`` samples; NaN when there
-    were none. F is the mean of the per-sample magnitudes, so it needs no attitude at all."""
+    were none. F is the mean of the per-sample magnitudes, so it needs no attitude at all.
+    ``incl_grav_deg``: the gravity-referenced I of the ``grav_count`` gravity samples (a ratio of
+    averages); ``*_se_*``: the standard errors of the averages from the period's own scatter
+    (robust: a few spikes do not widen them; :mod:`companion.nav.inclination`)."""
 
     decl_deg: float
     incl_deg: float
@@ -236,6 +242,10 @@ class AveragedDI:
     f_nt: float = math.nan
     incl_grav_deg: float = math.nan
     grav_count: int = 0
+    decl_se_deg: float = math.nan
+    incl_se_deg: float = math.nan
+    f_se_nt: float = math.nan
+    incl_grav_se_deg: float = math.nan
 
     @property
     def valid(self) -> bool:
@@ -256,19 +266,22 @@ class PeriodAverager:
     """
 
     def __init__(self) -> None:
-        self._samples: list[tuple[float, float, float, float, float, float, float]] = []
+        self._samples: list[tuple[float, ...]] = []
         self._ref_d: float | None = None
 
     def __len__(self) -> int:
         return len(self._samples)
 
     def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0),
-            incl_grav_deg: float = math.nan) -> None:
+            mag_dot_force: float = math.nan, force_ned: Vector3 = (math.nan, math.nan, math.nan)) -> None:
+        """One sample; ``mag_dot_force`` (``m . f`` in the body frame, nT m/s^2) and ``force_ned`` (the
+        specific force in NED) make it a gravity sample for I_g (module docstring), NaN: not one."""
         if self._ref_d is None:
             self._ref_d = decl_deg
         d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
         self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2], math.sqrt(
-            ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2]), incl_grav_deg))
+            ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2]), mag_dot_force,
+            force_ned[0], force_ned[1], force_ned[2]))
 
     def take(self, end_time_s: float) -> AveragedDI:
         """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
@@ -280,10 +293,13 @@ class PeriodAverager:
         n = len(used)
         sums = [math.fsum(s[k] for s in used) for k in range(7)]
         d = (sums[1] / n + 180.0) % 360.0 - 180.0
-        grav = [s[7] for s in used if math.isfinite(s[7])]
+        grav = [s for s in used if math.isfinite(s[7]) and math.isfinite(s[8] + s[9] + s[10])]
+        incl_grav, incl_grav_se = ratio_inclination_deg([s[7] for s in grav], [s[3:6] for s in grav],
+                                                        [s[8:11] for s in grav])
         return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
-                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n,
-                          math.fsum(grav) / len(grav) if grav else math.nan, len(grav))
+                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n, incl_grav, len(grav),
+                          robust_standard_error([s[1] for s in used]), robust_standard_error([s[2] for s in used]),
+                          robust_standard_error([s[6] for s in used]), incl_grav_se)
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]
@@ -402,7 +418,8 @@ class MagProcessor:
             st.last_reject = "no attitude near the sample time"
             return False
         calibrated = self.calibration.apply(mag_body_nt)
-        d, i, ned = tilt_compensated_di(calibrated, *att.at(time_s, self.max_attitude_age_s))
+        rpy = att.at(time_s, self.max_attitude_age_s)
+        d, i, ned = tilt_compensated_di(calibrated, *rpy)
         if not self.spikes.accept(ned):
             st.spikes += 1
             st.last_reject = "spike"
@@ -411,10 +428,12 @@ class MagProcessor:
         if self.paused:
             st.paused += 1
             return False
-        incl_grav = math.nan
+        dot, force_ned = math.nan, (math.nan, math.nan, math.nan)
         if imu is not None and abs(imu[2][2]) <= self.max_turn_radps and time_s >= self.settle_until_s:
-            incl_grav = gravity_inclination_deg(calibrated, imu[1])
-        self.averager.add(time_s - self.mission_offset_s, d, i, ned, incl_grav)
+            f = imu[1]
+            dot = calibrated[0] * f[0] + calibrated[1] * f[1] + calibrated[2] * f[2]
+            force_ned = body_to_ned(f, *rpy)
+        self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned)
         st.accepted += 1
         return True
 

@@ -16,7 +16,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
-from companion.process.plausibility import f_offset_nt, judge
+from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
@@ -31,6 +31,7 @@ class ControlStep:
         self.dr: tuple[float, float, float] | None = None          # (time, lat, lon) dead reckoning
         self.step_latency_s: list[float] = []
         self.core_latency_s: list[float] = []
+        self.judgement: Judgement | None = None                     # the last step's plausibility verdict
 
     # ------------------------------------------------------------------ INS position
     def advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
@@ -83,7 +84,9 @@ class ControlStep:
         # H and Z from F and the (gravity-referenced) I: no heading enters either
         h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt)
-        if self.excluded(t_k, meas):
+        se = {"decl_deg": avg.decl_se_deg, "incl_deg": app.preparation.inclination_se(avg), "f_nt": avg.f_se_nt}
+        self.judgement = None
+        if self.excluded(t_k, meas, se):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later
             return
         core0 = time.perf_counter()
@@ -116,9 +119,10 @@ class ControlStep:
         app.next_step_m = t_k + mission.config.period_s
         app.resume.save()
 
-    def excluded(self, t_k: float, meas: Measurement) -> bool:
+    def excluded(self, t_k: float, meas: Measurement, se: dict[str, float] | None = None) -> bool:
         """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);
-        True if it is excluded (said, recorded). The first step has no prediction to judge against."""
+        True if it is excluded (said, recorded). The first step has no prediction to judge against.
+        ``se``: standard errors of the period's averages (``decl_deg``, ``incl_deg``, ``f_nt``)."""
         app = self.app
         cmd, mission = app.command, app.mission
         config = mission.config
@@ -140,7 +144,9 @@ class ControlStep:
             reference = 0.0
         judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
-                          f_reference_nt=reference)
+                          f_reference_nt=reference,
+                          noise=element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}))
+        self.judgement = judgement
         said = app.plausibility.verdict(judgement)
         if said is not None:
             app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))

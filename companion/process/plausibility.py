@@ -13,10 +13,18 @@ estimate flown on with the last command (:meth:`Outputs.current_estimate`), unce
               body-frame offset of 3000 nT, a 20000 nT spike appearing in flight fail here.
 ``fix_jump``  the position the measurement implies, linearised about the prediction
               (``d = G^-1 (S_measured - bias - S_model(predicted))``, G the element gradient per
-              metre), further than ``3 sigma + slack x speed x dt + margin_m`` from the prediction.
-              Measured on the clean lockstep Pacific mission: at most 2.2 km (median 0.6 km);
-              the bound there is ~27 km. Skipped where G is ill-conditioned (the fix is weak
-              anyway and the core does not steer on it, FUS_SIGMA).
+              metre), further than ``3 sigma + 3 sigma_noise + slack x speed x dt + margin_m``
+              from the prediction. Measured on the clean lockstep Pacific mission: at most 2.2 km
+              (median 0.6 km); the bound there is ~27 km. Skipped where G is ill-conditioned (the
+              fix is weak anyway and the core does not steer on it, FUS_SIGMA).
+              ``sigma_noise`` is the measurement's own noise as a distance: the standard errors of
+              the period's averaged elements (:func:`element_noise`, from the period's own scatter,
+              :mod:`companion.nav.inclination`) through ``G^-1``, ``sqrt(trace(G^-1 R G^-T))``. A
+              magnetometer that is noisy but unbiased (PX4 SIH: 2000-3000 nT per sample and a
+              shaking accelerometer, I_g good to 0.21-0.29 deg over a 160 s period: 130-210 km)
+              widens the bound by what its fix can scatter; a spike's few samples do not (the
+              errors are robust, MAD-based) and a sustained offset adds no scatter at all. The
+              lockstep Pacific mission (150 nT at 10 Hz over 360 s): 2.0-2.4 km.
 
 An implausible measurement is excluded: the step is postponed one period and the vehicle flies
 its last command (the core's dead reckoning uses the actual time between steps). Each exclusion
@@ -34,7 +42,7 @@ import numpy as np
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient
 
-__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "f_offset_nt", "judge"]
+__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge"]
 
 MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
 
@@ -55,12 +63,14 @@ class Judgement:
     f_offset_nt: float = math.nan
     jump_m: float = math.nan
     bound_m: float = math.nan
+    noise_m: float = 0.0              # the bound's term for the measurement's own noise (3 sigma_noise)
 
     def words(self) -> str:
         if self.kind == "f_band":
             return f"|F| {self.f_offset_nt:+.0f} nT off the model"
         if self.kind == "fix_jump":
-            return f"fix would jump {self.jump_m / 1000.0:.1f} km (bound {self.bound_m / 1000.0:.1f} km)"
+            return (f"fix would jump {self.jump_m / 1000.0:.1f} km (bound {self.bound_m / 1000.0:.1f} km, "
+                    f"noise {self.noise_m / 1000.0:.1f} km)")
         return "plausible"
 
 
@@ -71,13 +81,34 @@ def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, al
     return float(f_nt - f_bias - float(model.elements(lat_deg, lon_deg, alt_m, year).f_nt))
 
 
+def element_noise(elements: ElementSet, incl_deg: float, f_nt: float, se: dict[str, float]) -> np.ndarray:
+    """1-sigma noise of the set's averaged elements from the standard errors ``se`` of the averages
+    (``decl_deg``, ``incl_deg``, ``f_nt``); H and Z (``F cos I``, ``F sin I``) from those of F and I.
+    A missing or non-finite error is 0 (nothing known: no widening).
+
+    >>> from companion.nav.elements import ELEMENT_SETS
+    >>> element_noise(ELEMENT_SETS[ElementSet.HORIZONTAL_VERTICAL], 0.0, 50000.0,
+    ...               {"incl_deg": math.degrees(0.001), "f_nt": 30.0}).round(6).tolist()
+    [30.0, 50.0]
+    """
+    def known(name: str) -> float:
+        value = se.get(name, math.nan)
+        return value if math.isfinite(value) else 0.0
+    s_i, s_f = math.radians(known("incl_deg")), known("f_nt")
+    c, s = math.cos(math.radians(incl_deg)), math.sin(math.radians(incl_deg))
+    derived = {"h_nt": math.hypot(c * s_f, f_nt * s * s_i), "z_nt": math.hypot(s * s_f, f_nt * c * s_i)}
+    values = [derived[n] if n in derived else known(n) for n in elements.names]
+    return np.array([v if math.isfinite(v) else 0.0 for v in values])
+
+
 def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, measured: np.ndarray,
           f_nt: float, bias: np.ndarray, pred_lat_deg: float, pred_lon_deg: float, sigma_m: float,
           flown_m: float, limits: PlausibilityLimits = PlausibilityLimits(),
-          f_reference_nt: float = 0.0) -> Judgement:
+          f_reference_nt: float = 0.0, noise: np.ndarray | None = None) -> Judgement:
     """Judge one averaged measurement (``measured``: the element set's two values, bias not yet
     removed; ``bias``: the start-up calibration of those two) against the predicted position;
-    ``f_reference_nt``: :func:`f_offset_nt` at the mission's first step.
+    ``f_reference_nt``: :func:`f_offset_nt` at the mission's first step; ``noise``: the 1-sigma
+    noise of the two measured values (:func:`element_noise`; None: none).
 
     >>> from companion.nav.elements import ELEMENT_SETS
     >>> from companion.nav.field import model_for_date
@@ -98,10 +129,16 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
     if np.linalg.svd(gradient, compute_uv=False)[-1] < MIN_GRADIENT_SV:
         return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
-    jump = float(np.hypot(*np.linalg.solve(gradient, residual)))
+    inverse = np.linalg.inv(gradient)
+    noise_m = 0.0
+    if noise is not None:
+        spread = inverse * np.asarray(noise, dtype=float)             # G^-1 diag(sigma): its Frobenius norm
+        noise_m = limits.sigma_k * float(np.sqrt(np.sum(spread * spread)))   # is sqrt(trace(G^-1 R G^-T))
+        bound += noise_m
+    jump = float(np.hypot(*(inverse @ residual)))
     if not jump <= bound:
-        return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound)
-    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound)
+        return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m)
+    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m)
 
 
 class MagPlausibility:

@@ -100,13 +100,18 @@ class MissionPreparation:
             return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
         return requested, f"NAV_ELEMENTS {requested} ({verdict.reason})"
 
+    def _gravity_referenced(self, avg) -> bool:
+        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
+        return heading_free and math.isfinite(avg.incl_grav_deg)
+
     def inclination(self, avg) -> float:
         """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
-        elements, so neither a heading nor the FC's attitude estimate enters; else tilt-compensated."""
-        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
-        if heading_free and math.isfinite(avg.incl_grav_deg):
-            return avg.incl_grav_deg
-        return avg.incl_deg
+        elements, so no heading enters; else tilt-compensated."""
+        return avg.incl_grav_deg if self._gravity_referenced(avg) else avg.incl_deg
+
+    def inclination_se(self, avg) -> float:
+        """The standard error of :meth:`inclination`'s I (NaN: not known)."""
+        return avg.incl_grav_se_deg if self._gravity_referenced(avg) else avg.incl_se_deg
 
     def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, ...] | None, str]:
         """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""

@@ -13,10 +13,12 @@ from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
+from companion.nav.magnetometer import decl_incl_deg
 from companion.process.plausibility import (
     Judgement,
     MagPlausibility,
     PlausibilityLimits,
+    element_noise,
     judge,
 )
 from tests.companion.process.rig import _sent
@@ -58,6 +60,55 @@ def test_an_intensity_offset_beyond_the_band_is_flagged(elements):
     j = _judge_at(elements, LAT, LON, f_extra_nt=3000.0)
     assert not j.ok and j.kind == "f_band" and j.f_offset_nt == pytest.approx(3000.0)
     assert "+3000 nT" in j.words()
+
+
+# the standard errors of a 160 s period on PX4 SIH (1000 samples of I_g at ~7 deg each, tilt I and D
+# alike, F at 2500 nT / sqrt(1600)): what the averager says there (companion.nav.inclination)
+SIH_SE = {"decl_deg": 0.2, "incl_deg": 0.2, "f_nt": 60.0}
+ALL_SETS = SETS + [ELEMENT_SETS[ElementSet.HORIZONTAL_VERTICAL]]
+
+
+@pytest.mark.parametrize("elements", ALL_SETS, ids=lambda e: e.label)
+def test_a_noisy_but_unbiased_measurement_is_judged_with_its_noise(elements):
+    """A 1.5-sigma draw of the first element at SIH's noise implies a 55-90 km jump: excluded when
+    the noise is not known, plausible with the period's standard errors in the bound."""
+    here = MODEL.elements(LAT, LON, 0.0, YEAR)
+    noise = element_noise(elements, float(here.incl_deg), float(here.f_nt), SIH_SE)
+    measured = elements.values(here) + 1.5 * noise * np.array([1.0, 0.0])
+    args = (MODEL, elements, YEAR, 0.0, measured, float(here.f_nt), np.zeros(2), LAT, LON, 800.0, 5000.0)
+    blind, judged = judge(*args), judge(*args, noise=noise)
+    assert not blind.ok and blind.kind == "fix_jump" and blind.jump_m > 50_000.0
+    assert judged.ok and judged.jump_m == blind.jump_m
+    assert judged.bound_m == pytest.approx(blind.bound_m + judged.noise_m)
+    # 3 sigma of the fix: at least the first element's share (its 1-sigma jump is blind.jump_m / 1.5)
+    assert judged.noise_m >= 3.0 * blind.jump_m / 1.5 * (1.0 - 1e-9)
+
+
+@pytest.mark.parametrize("elements", ALL_SETS, ids=lambda e: e.label)
+def test_the_noise_term_does_not_hide_a_sustained_3000_nt_offset(elements):
+    """3000 nT across the field (|F| +112 nT: inside the F band; I 4.3 deg): still a fix jump, 450-840 km
+    against a bound of 170-215 km at SIH's noise."""
+    here = MODEL.elements(LAT, LON, 0.0, YEAR)
+    ned = np.array([float(here.x_nt), float(here.y_nt), float(here.z_nt)])
+    across = np.cross(ned, (0.0, 1.0, 0.0))
+    off = ned + 3000.0 * across / np.linalg.norm(across)
+    d, i = decl_incl_deg(*off)
+    values = {"decl_deg": d, "incl_deg": i, "f_nt": float(np.linalg.norm(off)), "h_nt": math.hypot(off[0], off[1]),
+              "z_nt": float(off[2])}
+    noise = element_noise(elements, float(here.incl_deg), float(here.f_nt), SIH_SE)
+    j = judge(MODEL, elements, YEAR, 0.0, np.array([values[n] for n in elements.names]), values["f_nt"],
+              np.zeros(2), LAT, LON, 800.0, 5000.0, noise=noise)
+    assert not j.ok and j.kind == "fix_jump" and j.jump_m > 2.0 * j.bound_m and j.noise_m > 100_000.0
+    assert "noise" in j.words()
+
+
+def test_element_noise_maps_f_and_i_into_h_and_z_and_knows_nothing_as_zero():
+    hz = ELEMENT_SETS[ElementSet.HORIZONTAL_VERTICAL]
+    f, incl, s_i = 50000.0, 60.0, math.radians(0.1)
+    h, z = element_noise(hz, incl, f, {"incl_deg": 0.1, "f_nt": 30.0})
+    assert h == pytest.approx(math.hypot(30.0 * math.cos(math.radians(incl)), f * math.sin(math.radians(incl)) * s_i))
+    assert z == pytest.approx(math.hypot(30.0 * math.sin(math.radians(incl)), f * math.cos(math.radians(incl)) * s_i))
+    assert element_noise(SETS[0], incl, f, {"decl_deg": math.nan}).tolist() == [0.0, 0.0]
 
 
 def test_the_start_up_calibration_is_taken_out_before_judging():
@@ -130,6 +181,8 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(low))
     app.stepper.step(361.0)
     assert app.mission.k == 2 and app.plausibility.excluded == 0          # the core flew on the level
+    judged = app.stepper.judgement                                        # kept for steps.csv
+    assert judged.ok and judged.noise_m == 0.0 and judged.jump_m < judged.bound_m   # one sample: no scatter known
     jumped = ned * (1.0 - 4000.0 / float(start.f_nt))                     # 3000 nT off the level: excluded
     app.mag.averager.add(400.0, float(start.decl_deg), float(start.incl_deg), tuple(jumped))
     app.stepper.step(722.0)
