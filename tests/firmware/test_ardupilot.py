@@ -71,10 +71,6 @@ def test_arming_refusal_reaches_the_operator_with_backoff(rig_factory):
     assert not mon.armed
 
 
-@pytest.mark.skip(reason="open (issue 16): GUIDED is kept 30 min without GPS, but every cruise step is excluded "
-                         "by the companion's fix-jump plausibility check (35-330 km jumps against a 25-30 km bound, "
-                         "elements (I, F) on a compass-derived yaw): the bound has no term for the fix's own noise, "
-                         "which (I, F)'s poor conditioning makes tens of km; measured 2026-11-30, 0 steps flown")
 @pytest.mark.slow
 def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
     """GPS lost 30 s after arming: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
