@@ -20,7 +20,24 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--run-slow", action="store_true", help="also run tests marked slow")
 
 
+# The longest modules (measured in CI: the whole missions, 150-640 s each under load) go first, then
+# the other slow ones: parallel workers (pytest-xdist, one module at a time) take modules in this
+# order, so the long ones start at once instead of last on a worker while the other one idles.
+LONGEST_MODULES = ("test_missions_slow.py", "test_storm_missions_slow.py", "test_short_storm_mission_slow.py")
+
+
+def _start_order(item: pytest.Item) -> int:
+    if item.path.name in LONGEST_MODULES:
+        return 0
+    return 1 if "slow" in item.keywords else 2
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    # whole modules move (a module fixture is set up once), in collection order within each class
+    module_order: dict = {}
+    for item in items:
+        module_order[item.path] = min(module_order.get(item.path, 2), _start_order(item))
+    items.sort(key=lambda item: module_order[item.path])
     # CI runs the same command as a developer; CI=true switches the slow cases on.
     if config.getoption("--run-slow") or os.environ.get("CI", "").lower() == "true":
         return

@@ -157,9 +157,11 @@ def test_dronecan_magnetometer_replaces_the_fcs(rig: Rig) -> None:
     assert rig.named("FC_D")[0] == pytest.approx(CAN_D_DEG, abs=0.2)      # the telemetry the GCS sees
     assert rig.named("FC_I")[0] == pytest.approx(CAN_I_DEG, abs=0.2)
     # the FC's RAW_IMU magnetometer (D = -63 deg) never reached the pipeline: every sample
-    # processed came from CAN, and all were accepted (attitude from the FC's ATTITUDE matched)
+    # processed came from CAN, none was a spike or non-finite; on a loaded machine (parallel CI
+    # workers) some wait longer than the attitude's age limit and are left out (44 of 79 once)
     st = app.mag.stats
-    assert 10 < st.samples <= rig.can_sent - 3 and st.accepted >= st.samples - 2 and st.spikes == 0
+    assert 10 < st.samples <= rig.can_sent - 3 and st.accepted >= 10 and st.spikes == 0 and st.non_finite == 0
+    assert st.accepted + st.no_attitude + st.paused >= st.samples - 2
     assert app.invalid_mag == 0
     # the mapped CAN sample times sit on message time
     assert abs(app.now - app.last_valid[SampleKind.MAG]) < 0.5
