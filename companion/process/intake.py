@@ -135,6 +135,10 @@ class SampleIntake:
         if kind is _MAG:
             if sample.flags:
                 self.invalid_mag += 1
+                if sample.stale_since_s < self.last_valid.get(_MAG, -math.inf):
+                    # judged frozen: its repeats since it froze were not fresh either, so the
+                    # failsafe's age counts from the freeze (HOLD at the judgement, not 2 s later)
+                    self.last_valid[_MAG] = sample.stale_since_s
             else:
                 self.last_valid[_MAG] = t
                 mag.add_mag(t, sample.mag_body_nt)

@@ -312,8 +312,30 @@ def test_tcp_client():
 
 def test_a_quiet_magnetometer_on_a_rocking_boat_is_not_stuck():
     """Waves rock the boat back and forth: the net rotation stays small, and so does the reading's
-    change; the gyro's path length (2 deg in 2 s here) is no evidence of a frozen sensor."""
+    change; the gyro's path length (11 deg in 2 s here, the net rotation never over 0.6 deg) is no
+    evidence of a frozen sensor."""
     dec = MavlinkDecoder(MessageClock(), stuck_count=5)
     for k in range(200):
-        rate = 300 if k % 2 else -300                              # +-17 deg/s, alternating every sample
+        rate = 100 if k % 2 else -100                              # +-5.7 deg/s, alternating every sample
         assert not dec.decode(_raw_imu_turning((k + 1) * 100_000, (302, -21, 294), rate))[-1].flags
+
+
+@pytest.mark.parametrize("phase_s", [0.0, 1.0, 2.0, 3.0])
+def test_a_magnetometer_frozen_on_the_wave_roll_is_judged_within_three_seconds(phase_s):
+    """The stand-in's seaway (roll 3 deg, 8 s period) at 10 Hz, the reading frozen at any phase of
+    the roll: judged stuck 2-3 s after it froze (20 identical readings, and 1 deg of net rotation
+    within 5 s), and each stuck sample says since when the reading has not changed, so the
+    failsafe's age counts from the freeze."""
+    dec = MavlinkDecoder(MessageClock(), stuck_count=20)
+    omega = 2.0 * math.pi / 8.0
+    first = None
+    for k in range(80):
+        t = phase_s + k * 0.1
+        roll_rate_mrad_s = round(1000.0 * math.radians(3.0) * omega * math.cos(omega * t))
+        [_, mag] = dec.decode(_msg("RAW_IMU", time_usec=round(t * 1e6) + 1, xacc=0, yacc=0, zacc=-1000,
+                                   xgyro=roll_rate_mrad_s, ygyro=0, zgyro=0, xmag=293, ymag=-21, zmag=304, id=0,
+                                   temperature=0))
+        if mag.flags & SampleFlag.STUCK and first is None:
+            first = mag
+    assert first is not None and first.time_s - phase_s <= 3.0, first
+    assert first.stale_since_s == pytest.approx(phase_s, abs=1e-3)

@@ -10,7 +10,8 @@ fault (stand-in ``--fault``)       expected outcome                             
 mag_off                            failsafe: HOLD within COMP_MAG_TMO_S, "mag: ... zero";      tests/companion/test_closed_loop.py
                                    resumes when it clears; arrives                             (faulted_run)
 mag_stuck                          failsafe once stuck is judged (20 identical readings while  here
-                                   the boat turned 2 deg): HOLD, "mag: ... stuck", ONE
+                                   the boat turned 1 deg), within COMP_MAG_TMO_S + 1 s of the
+                                   freeze: HOLD, "mag: ... stuck", ONE
                                    failsafe for the whole fault; resumes; arrives
 mag_nan                            failsafe: HOLD, "mag: ... saturated"; resumes; arrives      tests/companion/test_closed_loop.py
 mag_spike 20000 nT, 5 s            no failsafe; the period it spoils is excluded by the        here
@@ -39,11 +40,12 @@ companion SIGKILL and restart      the saved state resumes the mission at its ne
 The mission: the first 40 km of the Pacific route with GPS until the ``gps_off`` fault (the
 bundled scenario denies it from take-off, so losing it would change nothing), the faults
 staggered so each meets a running mission, seed 0, lockstep (bit-reproducible: two runs gave the
-same metre). Measured: HOLD 6.0 s after the magnetometer froze (one failsafe, "magnetometer
-stuck"), GUIDED again 4 s after it thawed; the spike's period excluded (its fix would have jumped
+same metre). Measured: failsafe said 3.0 s and HOLD seen 4.0 s (one lockstep period later) after
+the magnetometer froze (one failsafe, "magnetometer stuck"; 6.0 s when stuck needed a 2 deg turn
+and the age counted from the judgement), GUIDED again 4 s after it thawed; the spike's period excluded (its fix would have jumped
 81 km); GPS_INPUT switched to our estimate 2 s after the GPS went; the reboot said 2 s after it,
 re-armed in GUIDED 7 s after it, mission 1 resumed at its step 4 with 17.5 km to go; the last step
-0.96 km and the resting point 0.97 km from the destination (the issue asks for 1 km; a single
+0.84 km and the resting point 0.84 km from the destination (the issue asks for 1 km; a single
 draw whose last geomagnetic fixes were 0.6-1.0 km off: the in-process worst of 40 seeds is
 1.04 km, see tests/companion/test_closed_loop.py). Wall time 20-47 s on this 2-core machine,
 depending on the other jobs' load.
@@ -73,7 +75,6 @@ FLOOR_M = 1500.0         # the closed-loop floor of tests/companion/test_closed_
 ISSUE_MISS_M = 1000.0    # the issue's 1 km: measured well under it, so it is what is asserted
 SHORT_KM = 40.0
 MAG_TMO_S = 2.0          # COMP_MAG_TMO_S
-STUCK_JUDGED_S = 2.0 + 4.0   # 20 identical readings at 10 Hz, and a net turn of 2 deg: half a wave roll (8 s)
 LOCKSTEP_S = LOCKSTEP_PERIOD_S["ardupilot"]   # 1 s
 LATENCY_S = LOCKSTEP_S + 0.4 + 0.1  # one lockstep period + one setpoint tick (2.5 Hz) + margin
 OFF_ROUTE_DEG = 45.0
@@ -164,10 +165,12 @@ def run(tmp_path_factory) -> Run:
     return Run(out / "run", result)
 
 
-def test_mag_stuck_holds_once_says_why_and_resumes(run):
+def test_mag_stuck_holds_within_the_timeout_once_says_why_and_resumes(run):
+    [(said, text)] = run.failsafes_said(STUCK_AT, STUCK_AT + STUCK_S)   # one failsafe: it never looked fresh again
+    # judged in 2-3 s; the age counts from the freeze, so the failsafe is due within the timeout + 1 s
+    assert said - STUCK_AT <= MAG_TMO_S + 1.0, f"failsafe said {said - STUCK_AT:.1f} s after the freeze"
     hold = run.first_mode(HOLD, STUCK_AT)
-    assert hold - STUCK_AT <= STUCK_JUDGED_S + MAG_TMO_S + 1.0, f"HOLD {hold - STUCK_AT:.1f} s after the freeze"
-    [(_, text)] = run.failsafes_said(STUCK_AT, STUCK_AT + STUCK_S)      # one failsafe: it never looked fresh again
+    assert hold - STUCK_AT <= MAG_TMO_S + 1.0 + LATENCY_S, f"HOLD {hold - STUCK_AT:.1f} s after the freeze"
     assert "mag:" in text and "stuck" in text
     assert all(m == HOLD for t, m, _ in run.modes if hold <= t < STUCK_AT + STUCK_S)
     assert not [t for t in run.setpoints if hold + LATENCY_S <= t < STUCK_AT + STUCK_S], "steered while stuck"
@@ -230,7 +233,7 @@ def test_no_step_steers_off_the_route_and_the_mission_arrives(run):
     off = [abs((r["course_deg"] - math.degrees(route) + 180.0) % 360.0 - 180.0) for r in cruise]
     assert len(cruise) >= 5 and max(off) <= OFF_ROUTE_DEG, [round(o) for o in off]
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
-    # measured 0.96 km at the last step, 0.97 km at rest: under the issue's 1 km, so 1 km is asserted
+    # measured 0.84 km at the last step and at rest: under the issue's 1 km, so 1 km is asserted
     # (tighter than the closed-loop floor FLOOR_M of 1.5 km; see the module docstring for the margin)
     miss = (result.step_remaining_m, result.rest_remaining_m)
     assert max(miss) <= min(FLOOR_M, ISSUE_MISS_M), f"missed by {miss[0]:.0f} m (last step), {miss[1]:.0f} m (at rest)"

@@ -100,6 +100,9 @@ class MagSample:
     instance: int = 0
     """Which magnetometer of the source (DataFlash MAG2 -> 1, DroneCAN sensor_id)."""
     flags: SampleFlag = SampleFlag.NONE
+    stale_since_s: float = math.nan
+    """For a STUCK sample: since when (same clock as ``time_s``) the reading has not changed, so
+    the samples since then were not fresh either; NaN when not known."""
     kind: ClassVar[SampleKind] = SampleKind.MAG
 
     @property

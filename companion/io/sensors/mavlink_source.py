@@ -113,6 +113,10 @@ class MavlinkDecoder:
             flags |= SampleFlag.STUCK
         return flags
 
+    def _stale_since(self, instance: int, flags: SampleFlag) -> float:
+        """For a frozen reading, the time of the first of its repeats (else NaN)."""
+        return self._stuck[instance].repeating_since_s if flags & SampleFlag.STUCK else math.nan
+
     def _time(self, msg) -> float | None:
         ms = getattr(msg, "time_boot_ms", None)
         if ms is not None:
@@ -146,8 +150,9 @@ class MavlinkDecoder:
             if self._owns_mag(instance, mtype):
                 raw = (msg.xmag, msg.ymag, msg.zmag)
                 self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
+                flags = self._mag_flags(instance, raw, True, t)
                 out.append(MagSample(t, (raw[0] * MILLIGAUSS_TO_NT, raw[1] * MILLIGAUSS_TO_NT,
-                                         raw[2] * MILLIGAUSS_TO_NT), instance, self._mag_flags(instance, raw, True, t)))
+                                         raw[2] * MILLIGAUSS_TO_NT), instance, flags, self._stale_since(instance, flags)))
             return out
         if mtype == "HIGHRES_IMU":
             t = self._time(msg)
@@ -163,7 +168,8 @@ class MavlinkDecoder:
                 if msg.fields_updated & 0x38:
                     self._gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
                 mag = (raw[0] * GAUSS_TO_NT, raw[1] * GAUSS_TO_NT, raw[2] * GAUSS_TO_NT)
-                out.append(MagSample(t, mag, instance, self._mag_flags(instance, raw, False, t)))
+                flags = self._mag_flags(instance, raw, False, t)
+                out.append(MagSample(t, mag, instance, flags, self._stale_since(instance, flags)))
             return out
         if mtype == "GPS_RAW_INT":
             t = self._time(msg)

@@ -50,21 +50,28 @@ class FrozenDetector:
     A quiet magnetometer (ArduPilot SITL's is noise-free; a real one at 10 Hz with a coarse LSB
     can repeat its value) may repeat its reading for as long as the vehicle holds its
     attitude. A *frozen* one repeats it although the body turned: a rotation of ``min_turn_rad``
-    changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT),
-    many LSB. So the judgement needs ``limit`` identical readings in a row *and* a net rotation of
-    at least ``min_turn_rad`` within the last ``window_s`` of the repetition, measured by
-    integrating the gyro vector (``|sum omega dt|``, the raw rate sensor: an attitude *estimate*
-    can wander while the vehicle is still, e.g. an EKF without GPS, and would flag a good sensor).
-    The *net* rotation, not the path: a boat rocking in waves returns to the attitude, and the
-    field to the reading, it had, and summing ``|omega| dt`` also sums the gyro's noise (a
-    stationary ArduPilot SITL boat was called stuck after hours). Within a *window*, not since
-    the repetition began: the gyro's bias integrates without bound (ArduPilot SITL's boat, still
-    on a noise-free compass, reached 2 deg in 93 s and, judged frozen for good, never armed);
-    over 10 s a bias of 0.05 deg/s is 0.5 deg, while a real turn of 2 deg in 10 s changes the
-    field by many LSB. The rate is the gyro's minus its slowly learned bias (an exponential mean
-    over ``bias_tau_s``, 120 s): ArduPilot SITL's still boat reported 2 mrad/s on every axis (0.2
-    deg/s, 2 deg in 10 s) while its noise-free compass repeated its reading; waves average out of
-    that mean, a turn of a few tens of seconds barely moves it. Without any gyro nothing is flagged.
+    changes the body-frame field by ``|B| min_turn_rad`` (about 7 mG per degree at 42 000 nT, seven
+    LSB of a MAVLink SCALED_IMU reading), so the judgement needs ``limit`` identical readings in a
+    row *and* a net rotation of at least ``min_turn_rad`` (1 deg) within the last ``window_s`` (5 s)
+    of the repetition, measured by integrating the gyro vector (``|sum omega dt|``, the raw rate
+    sensor: an attitude *estimate* can wander while the vehicle is still, e.g. an EKF without GPS,
+    and would flag a good sensor). The *net* rotation, not the path: a boat rocking in waves
+    returns to the attitude, and the field to the reading, it had, and summing ``|omega| dt`` also
+    sums the gyro's noise (a stationary ArduPilot SITL boat was called stuck after hours). Within a
+    *window*, not since the repetition began: the gyro's bias integrates without bound (ArduPilot
+    SITL's boat, still on a noise-free compass, reached 2 deg in 93 s and, judged frozen for good,
+    never armed). The rate is the gyro's minus its slowly learned bias (an exponential mean over
+    ``bias_tau_s``, 120 s, started from the first reading when it is below ``STILL_RADPS``):
+    ArduPilot SITL's still boat reported 2 mrad/s on every axis (0.11 deg/s) while its noise-free
+    compass repeated its reading; waves average out of that mean, a turn of a few tens of seconds
+    barely moves it, and a bias it has not yet learned integrates to 0.55 deg in the 5 s window,
+    under the 1 deg. A wave roll of the stand-in's 3 deg (8 s period) turns the boat 1 deg within
+    about 2 s, so with 20 readings at 10 Hz a frozen sensor is judged 2-3 s after it froze
+    (it took 6 s with 2 deg in 10 s). Without any gyro nothing is flagged.
+
+    :attr:`repeating_since_s` is the time of the first of the identical readings: once the sensor
+    is judged frozen, the readings since then were not fresh either (the failsafe's age counts
+    from there, so the HOLD follows the judgement at once).
 
     >>> d = FrozenDetector(limit=3, min_turn_rad=0.02)
     >>> [d.check((1, 2, 3), k * 0.1, (0.0, 0.0, 0.0)) for k in range(5)][-1] == SampleFlag.NONE   # still
@@ -73,7 +80,7 @@ class FrozenDetector:
     True
     """
 
-    def __init__(self, limit: int, min_turn_rad: float = math.radians(2.0), window_s: float = 10.0,
+    def __init__(self, limit: int, min_turn_rad: float = math.radians(1.0), window_s: float = 5.0,
                  bias_tau_s: float = 120.0) -> None:
         if limit < 2:
             raise ValueError(f"stuck limit must be >= 2 repeats, got {limit}")
@@ -88,6 +95,7 @@ class FrozenDetector:
         self._repeats = 0
         self._turns: deque[tuple[float, float, float, float]] = deque()   # (time_s, rotation vector, rad)
         self._time_s = math.nan
+        self.repeating_since_s = math.nan   # time of the first of the identical readings
         self._frozen = False            # judged frozen: stays so until the reading changes
 
     def check(self, raw: Hashable, time_s: float, gyro_radps: tuple[float, float, float] | None) -> SampleFlag:
@@ -104,6 +112,7 @@ class FrozenDetector:
             rate = [g - b for g, b in zip(gyro_radps, self._bias)]
         if raw != self._last:
             self._last, self._repeats, self._frozen = raw, 1, False
+            self.repeating_since_s = time_s
             self._turns.clear()
             return SampleFlag.NONE
         self._repeats += 1

@@ -18,6 +18,7 @@ import pytest
 from companion.io.records import read_steps_csv
 from companion.nav.geo import geodesic_distance_m
 from companion.params import write_parm_file
+from companion.process.resume import NavStateStore
 from fcmpc_fly import FlyOptions
 from fcmpc_fly.results import read_truth_track
 from fcmpc_fly.runner import (
@@ -65,7 +66,10 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
         first.send_signal(signal.SIGKILL)
         assert first.wait(timeout=30) == -signal.SIGKILL
         before = _steps(tmp_path / "companion" / "steps.csv")
-        assert (tmp_path / "fly.navstate").is_file()
+        # the state is saved just after the step's row is written: a kill between the two (one CI run
+        # under load) leaves the state of the step before, which is then the one to go on from
+        saved, problem = NavStateStore(tmp_path / "fly.navstate").load()
+        assert saved is not None, problem
         log2 = str(tmp_path / "companion2")
         cmd2 = [log2 if a == str(tmp_path / "companion") else a for a in companion_cmd]
         second = subprocess.Popen(cmd2, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -75,13 +79,15 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
             _stop(proc)
     summary = json.loads((tmp_path / "companion2" / "summary.json").read_text())
     last = before[-1]
+    assert last["step"] - 1 <= saved.command.step <= last["step"]
+    resumed_from = next(r for r in before if r["mission"] == 1 and r["step"] == saved.command.step)
     assert summary["missions"] == 1 and summary["restarts"] == 0 and summary["arrived"]
     assert summary["resumed_from"].startswith("mission 1 step ")
     assert any("resuming mission 1" in e for e in summary["events"])
     assert not any("NAV_START" in e or "start-up average" in e for e in summary["events"]), "started afresh"
     after = _steps(tmp_path / "companion2" / "steps.csv")
-    assert after and after[0]["mission"] == 1 and after[0]["step"] == last["step"] + 1   # the next step, not probe1
-    assert after[0]["phase"] != "probe1" and after[0]["remaining_m"] < last["remaining_m"]
+    assert after and after[0]["mission"] == 1 and after[0]["step"] == saved.command.step + 1   # next, not probe1
+    assert after[0]["phase"] != "probe1" and after[0]["remaining_m"] < resumed_from["remaining_m"]
     truth = read_truth_track(tmp_path / "sitl" / "truth.csv")
     miss = geodesic_distance_m(float(truth.lat_deg[-1]), float(truth.lon_deg[-1]), dest[0], dest[1])
     assert math.isfinite(miss) and miss <= FLOOR_M
