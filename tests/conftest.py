@@ -20,10 +20,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--run-slow", action="store_true", help="also run tests marked slow")
 
 
-# The longest modules (measured in CI: the whole missions, 150-640 s each under load) go first, then
-# the other slow ones: parallel workers (pytest-xdist, one module at a time) take modules in this
-# order, so the long ones start at once instead of last on a worker while the other one idles.
-LONGEST_MODULES = ("test_missions_slow.py", "test_storm_missions_slow.py", "test_short_storm_mission_slow.py")
+# The longest modules (measured in CI: the whole missions, 150-640 s each under load, and PX4's
+# module with its 30-minute GPS-lost flight, ~400 s) go first, then the other slow ones: parallel
+# workers (pytest-xdist, one module at a time) take modules in this order, so the long ones start at
+# once instead of last on a worker while the others idle. xdist's loadscope would reorder modules by
+# their number of tests (most first, so these single-test modules last): setup.cfg turns that off
+# with --no-loadscope-reorder.
+LONGEST_MODULES = ("test_missions_slow.py", "test_storm_missions_slow.py", "test_short_storm_mission_slow.py",
+                   "test_px4.py")
 
 
 def _start_order(item: pytest.Item) -> int:
