@@ -11,7 +11,22 @@ Inputs in degrees and metres, output (X, Y, Z) in nT. Pure numpy; no files.
 * :meth:`~HarmonicSums.ned`: 1-D arrays of points, with per-point altitudes and epochs or one
   of each for all (the few-point stencil of the geomagnetic fix: the coefficients are then
   adjusted once, with the same numbers per point, bit for bit);
-* :meth:`~HarmonicSums.ned_scalar`: one point with ``math`` for the geometry.
+* :meth:`~HarmonicSums.ned_scalar`: one point with ``math`` for the geometry;
+* :meth:`~HarmonicSums.ned_and_slopes`: one point, with the exact derivatives of (X, Y, Z)
+  along geodetic latitude and longitude from the same sums (the fix's and the filter's
+  gradient G in one evaluation instead of a 5-point stencil).
+
+The derivatives differentiate each term analytically: with ``P = c**m Q(s)`` (``s = sin(phi')``,
+``c = cos(phi')``), ``dP/dphi' = c**(m+1) Q' - m s c**(m-1) Q`` and
+
+    d2P/dphi'2 = c**(m+2) Q'' - (2m+1) s c**m Q' - m c**m Q + m (m-1) s**2 c**(m-2) Q,
+    d(m P / c)/dphi' = m c**m Q' - m (m-1) s c**(m-2) Q,
+
+``d(a/r)**(n+2)/dr = -(n+2)/r (a/r)**(n+2)``, and ``d/dlon`` turns the in-phase sum into
+``-m`` times the quadrature sum and the quadrature into ``m`` times the in-phase. The geodetic
+latitude moves the geocentric point by ``dr/dphi = (M + h) sin(psi)`` and
+``dphi'/dphi = (M + h) cos(psi) / r`` (M the meridian radius, ``psi = phi' - phi``), and the
+rotation back to the geodetic frame turns with ``dpsi/dphi = dphi'/dphi - 1``.
 """
 from __future__ import annotations
 
@@ -57,9 +72,14 @@ def schmidt_polynomials(degree: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
             q[n, m] /= math.sqrt(n * n - m * m)
     n_idx, m_idx = np.array([(n, m) for n in range(1, size) for m in range(n + 1)]).T
     coefficients = q[n_idx, m_idx]
+    return n_idx, m_idx, coefficients, _polynomial_derivative(coefficients)
+
+
+def _polynomial_derivative(coefficients: np.ndarray) -> np.ndarray:
+    """Coefficients (powers s**0, s**1, ...) of the derivative of each row's polynomial."""
     derivative = np.zeros_like(coefficients)
-    derivative[:, :-1] = coefficients[:, 1:] * np.arange(1, size)
-    return n_idx, m_idx, coefficients, derivative
+    derivative[:, :-1] = coefficients[:, 1:] * np.arange(1, coefficients.shape[1])
+    return derivative
 
 
 class HarmonicSums:
@@ -82,8 +102,19 @@ class HarmonicSums:
         self._c_powers = np.arange(WMM_DEGREE + 2)
         self._orders = np.arange(WMM_DEGREE + 1)
         self._q_dq_poly_t = np.ascontiguousarray(np.hstack([self._q_poly_t, self._dq_poly_t]))
-        for array in (self._coeffs, self._q_poly_t, self._dq_poly_t, self._q_dq_poly_t):
+        # for ned_and_slopes: Q, Q', Q'' in one product; the columns of c**(m-2) .. c**(m+2)
+        # (clamped at 0 where a factor m or m (m-1) makes the term vanish)
+        ddq_poly = _polynomial_derivative(dq_poly)
+        self._q_dq_ddq_poly_t = np.ascontiguousarray(np.vstack([q_poly, dq_poly, ddq_poly]).T)
+        self._c_columns = np.stack([np.maximum(m_idx - 2, 0), np.maximum(m_idx - 1, 0), m_idx, m_idx + 1,
+                                    m_idx + 2])
+        n_float = n_idx.astype(float)
+        self._slope_factors = (self._m_float, self._m_float * (self._m_float - 1.0), 2.0 * self._m_float + 1.0,
+                               n_float + 1.0, n_float + 2.0, (n_float + 1.0) * (n_float + 2.0))
+        for array in (self._coeffs, self._q_poly_t, self._dq_poly_t, self._q_dq_poly_t, self._q_dq_ddq_poly_t):
             array.setflags(write=False)
+        self._last_dt: float | None = None
+        self._g_h = (self._coeffs[0], self._coeffs[1])
 
     def ned_scalar(self, lat_deg: float, lon_deg: float, alt_m: float, dt_years: float) -> tuple[float, float, float]:
         """(X, Y, Z) in nT at one point: :meth:`ned` with math for the geometry and one numpy
@@ -115,6 +146,71 @@ class HarmonicSums:
         cos_psi = c * cos_phi + s * sin_phi
         sin_psi = s * cos_phi - c * sin_phi
         return x_prime * cos_psi - z_prime * sin_psi, y_prime, x_prime * sin_psi + z_prime * cos_psi
+
+    def _coefficients_at(self, dt_years: float) -> tuple[np.ndarray, np.ndarray]:
+        """(g, h) at ``dt_years`` after the epoch; the last pair is kept (a mission asks at one date)."""
+        if dt_years != self._last_dt:
+            g, h = self._coeffs[:2] + dt_years * self._coeffs[2:]
+            self._g_h, self._last_dt = (g, h), dt_years
+        return self._g_h
+
+    def ned_and_slopes(self, lat_deg: float, lon_deg: float, alt_m: float,
+                       dt_years: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, Y, Z) in nT at one point and its derivatives along geodetic latitude and longitude
+        in nT per radian: three arrays of 3, from one evaluation of the sums (module docstring).
+        The field agrees with :meth:`ned_scalar` to rounding; the slopes with central differences
+        of it to the differences' own truncation error (tests)."""
+        phi = math.radians(lat_deg)
+        sin_phi, cos_phi = math.sin(phi), math.cos(phi)
+        w2 = 1.0 - _WGS84_E2 * sin_phi * sin_phi
+        prime_vertical = _WGS84_A_M / math.sqrt(w2)
+        meridian_plus_h = prime_vertical * (1.0 - _WGS84_E2) / w2 + alt_m
+        p = (prime_vertical + alt_m) * cos_phi
+        z = (prime_vertical * (1.0 - _WGS84_E2) + alt_m) * sin_phi
+        r = math.hypot(p, z)
+        s, c = z / r, p / r
+        cos_psi = c * cos_phi + s * sin_phi
+        sin_psi = s * cos_phi - c * sin_phi
+
+        g, h = self._coefficients_at(dt_years)
+        size = self._m.size
+        q_all = np.power(s, self._powers) @ self._q_dq_ddq_poly_t
+        q, dq, ddq = q_all[:size], q_all[size:2 * size], q_all[2 * size:]
+        c_m2, c_m1, c_m, c_p1, c_p2 = np.power(c, self._c_columns)
+        m, mm1, two_m1, n1, n2, n12 = self._slope_factors
+        m_q = m * q
+        mm1_q_cm2 = mm1 * q * c_m2
+        p_nm = c_m * q
+        m_p_over_c = c_m1 * m_q
+        dp_nm = c_p1 * dq - s * m_p_over_c
+        d2p_nm = c_p2 * ddq - c_m * (two_m1 * s * dq + m_q) + (s * s) * mm1_q_cm2
+        dm_p_over_c = c_m * (m * dq) - s * mm1_q_cm2
+
+        radial = np.power(REFERENCE_RADIUS_M / r, self._radial_power)
+        angles = math.radians(lon_deg) * self._m_float
+        cos_ml, sin_ml = np.cos(angles), np.sin(angles)
+        in_phase = radial * (g * cos_ml + h * sin_ml)
+        quadrature = radial * (g * sin_ml - h * cos_ml)
+        # the sums over in-phase and quadrature terms (rows: X', Z', dX'/dphi', dZ'/dphi',
+        # r dX'/dr, r dZ'/dr, dY'/dlon; Y', dY'/dphi', r dY'/dr, dX'/dlon, dZ'/dlon)
+        n1_p = n1 * p_nm
+        a_sums = np.stack([dp_nm, n1_p, d2p_nm, n1 * dp_nm, n2 * dp_nm, n12 * p_nm, m * m_p_over_c]) @ in_phase
+        b_sums = np.stack([m_p_over_c, dm_p_over_c, n2 * m_p_over_c, m * dp_nm, m * n1_p]) @ quadrature
+        x_p, z_p = -a_sums[0], -a_sums[1]
+        y_p = b_sums[0]
+        dphi_prime = meridian_plus_h * cos_psi / r       # dphi'/dphi
+        dr = meridian_plus_h * sin_psi                   # dr/dphi
+        dx_p = -a_sums[2] * dphi_prime + a_sums[4] * dr / r
+        dz_p = -a_sums[3] * dphi_prime + a_sums[5] * dr / r
+        dy_p = b_sums[1] * dphi_prime - b_sums[2] * dr / r
+        x = x_p * cos_psi - z_p * sin_psi
+        z_down = x_p * sin_psi + z_p * cos_psi
+        dpsi = dphi_prime - 1.0
+        d_lat = np.array([dx_p * cos_psi - dz_p * sin_psi - z_down * dpsi, dy_p,
+                          dx_p * sin_psi + dz_p * cos_psi + x * dpsi])
+        lx, ly, lz = b_sums[3], a_sums[6], b_sums[4]
+        d_lon = np.array([lx * cos_psi - lz * sin_psi, ly, lx * sin_psi + lz * cos_psi])
+        return np.array([x, y_p, z_down]), d_lat, d_lon
 
     def ned(self, lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray | float,
             dt_years: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

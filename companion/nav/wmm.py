@@ -167,6 +167,15 @@ class WorldMagneticModel:
             f"got {bad}. Use model_for_date() to pick the model, or allow_extrapolation=True."
         )
 
+    def ned_and_slopes(self, lat_deg: float, lon_deg: float, alt_m: float,
+                       year: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, Y, Z) in nT at one point and its exact derivatives along geodetic latitude and
+        longitude, nT per radian (:meth:`HarmonicSums.ned_and_slopes`)."""
+        if abs(lat_deg) > 90.0:
+            raise ValueError(f"latitude {lat_deg} deg outside [-90, 90]")
+        self._check_year(float(year))
+        return self._sums.ned_and_slopes(float(lat_deg), float(lon_deg), float(alt_m), float(year) - self.epoch)
+
     def elements(
         self, lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike, year: ArrayLike
     ) -> FieldElements:
