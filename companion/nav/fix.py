@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from companion.nav.elements import ELEMENT_SETS, ElementSet
-from companion.nav.geo import _A, _E2, offset_position
+from companion.nav.geo import offset_position, radii_of_curvature_m
 from companion.nav.wmm import WorldMagneticModel
 
 __all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient",
@@ -77,10 +77,7 @@ def _elements_and_gradient(
     """
     if step_m is None:
         ned, d_lat, d_lon = model.ned_and_slopes(lat_deg, lon_deg, alt_m, year)
-        sin_lat = math.sin(math.radians(lat_deg))
-        w2 = 1.0 - _E2 * sin_lat * sin_lat
-        prime_vertical = _A / math.sqrt(w2)                 # the radii of geo.radii_of_curvature_m
-        meridian = prime_vertical * (1.0 - _E2) / w2
+        meridian, prime_vertical = radii_of_curvature_m(float(lat_deg))
         per_metre = np.stack([d_lon / (prime_vertical * math.cos(math.radians(lat_deg))), d_lat / meridian], axis=1)
         return _element_values_and_slopes(elements.names, ned, per_metre)
     east = np.array([0.0, step_m, -step_m, 0.0, 0.0])

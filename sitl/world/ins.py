@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from companion.nav.geo import _A, _E2, radii_of_curvature_m
+from companion.nav.geo import radii_of_curvature_m
 
 __all__ = ["InsErrorConfig", "InsErrorModel", "expm_times"]
 
@@ -103,9 +103,7 @@ class InsErrorModel:
         lat = math.radians(lat_deg)
         sl, cl = math.sin(lat), math.cos(lat)
         tl = sl / cl
-        w = math.sqrt(1.0 - _E2 * sl * sl)                 # the radii of radii_of_curvature_m
-        n = _A / w
-        m = n * (1.0 - _E2) / (w * w)
+        m, n = radii_of_curvature_m(float(lat_deg))
         ve, vn = vel_east_mps, vel_north_mps
         w_ie_n, w_ie_u = EARTH_RATE_RADPS * cl, EARTH_RATE_RADPS * sl   # Earth rate (0, w cl, w sl)
         w_en_e, w_en_n, w_en_u = -vn / m, ve / n, ve * tl / n          # transport rate
