@@ -200,8 +200,13 @@ class NavigationFilter:
             return
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         q = self._bias_qa if self.monitor.active else self._bias_q
-        q_bias = np.diag(q ** 2 * dt_s / HOUR_S)
-        self.kf.predict(F=block_diag(phi, np.eye(self.nb)), Q=block_diag(q_d, q_bias))
+        k = self.process.n
+        size = k + self.nb
+        transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
+        transition[:k, :k], noise[:k, :k] = phi, q_d
+        transition[k:, k:] = np.eye(self.nb)
+        noise[k:, k:] = np.diag(q ** 2 * dt_s / HOUR_S)
+        self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
     # --- updates ------------------------------------------------------------------------------
