@@ -20,7 +20,7 @@ from companion.nav.geo import offset_position, radii_of_curvature_m
 from companion.nav.wmm import WorldMagneticModel
 
 __all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient",
-           "geomagnetic_fix"]
+           "element_values_and_gradient", "geomagnetic_fix"]
 
 
 def _element_values_and_slopes(names: tuple[str, ...], ned: np.ndarray,
@@ -88,6 +88,13 @@ def _elements_and_gradient(
     gradient = np.stack([elements.difference(values[:, 1], values[:, 2]),
                          elements.difference(values[:, 3], values[:, 4])], axis=1) / span
     return values[:, 0].copy(), gradient
+
+
+def element_values_and_gradient(model: WorldMagneticModel, elements: ElementSet, lat_deg: float, lon_deg: float,
+                                alt_m: float, year: float) -> tuple[np.ndarray, np.ndarray]:
+    """The elements S at a point and their exact Jacobian ``G = dS/d(east, north)`` per metre,
+    from one evaluation of the harmonic sums (S as ``model.elements`` gives it, to rounding)."""
+    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, None, elements)
 
 
 def element_gradient(
