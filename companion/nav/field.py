@@ -20,6 +20,7 @@ from companion.nav.fix import (
     decl_incl_gradient,
     element_fix,
     element_gradient,
+    element_values_and_gradient,
     geomagnetic_fix,
 )
 from companion.nav.harmonics import WMM_DEGREE, schmidt_polynomials
@@ -41,6 +42,7 @@ __all__ = [
     "decl_incl_gradient",
     "element_fix",
     "element_gradient",
+    "element_values_and_gradient",
     "geomagnetic_fix",
     "load_wmm",
     "model_for_date",

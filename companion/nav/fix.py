@@ -1,7 +1,9 @@
 """Element gradients and the geomagnetic position fix (the paper's eq. 49) on a field model.
 
 * :func:`element_gradient` / :func:`decl_incl_gradient`: the Jacobian ``G = dS/d(east, north)``
-  of an element set's S in element units per metre, by central differences in the local plane.
+  of an element set's S in element units per metre: exact, from the derivatives of the harmonic
+  sums at the point (one evaluation; :mod:`companion.nav.harmonics`), or by central differences
+  in the local plane when a step is given.
 * :func:`element_fix` / :func:`geomagnetic_fix`: the position (lambda_c, phi_c) whose model
   elements equal measured ones, by Newton iteration from a prior.
 """
@@ -14,23 +16,70 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from companion.nav.elements import ELEMENT_SETS, ElementSet
-from companion.nav.geo import offset_position
+from companion.nav.geo import offset_position, radii_of_curvature_m
 from companion.nav.wmm import WorldMagneticModel
 
 __all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient",
-           "geomagnetic_fix"]
+           "element_values_and_gradient", "geomagnetic_fix"]
+
+
+def _element_values_and_slopes(names: tuple[str, ...], ned: np.ndarray,
+                               slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elements ``names`` from (X, Y, Z) in nT and their derivatives from those of (X, Y, Z)
+    (``slopes``: 3 x 2, columns east, north), by the chain rule of eq. 1-2:
+    ``dD = (X dY - Y dX) / H^2``, ``dI = (H dZ - Z dH) / F^2``, ``dH = (X dX + Y dY) / H``,
+    ``dF = (X dX + Y dY + Z dZ) / F``; angles in degrees."""
+    x, y, z = ned.tolist()
+    (dxe, dxn), (dye, dyn), (dze, dzn) = slopes.tolist()
+    h = math.hypot(x, y)
+    f = math.hypot(h, z)
+    dhe, dhn = (x * dxe + y * dye) / h, (x * dxn + y * dyn) / h
+    values, rows = [], []
+    for name in names:
+        if name == "decl_deg":
+            k = _DEG / (h * h)
+            values.append(math.degrees(math.atan2(y, x)))
+            rows.append(((x * dye - y * dxe) * k, (x * dyn - y * dxn) * k))
+        elif name == "incl_deg":
+            k = _DEG / (f * f)
+            values.append(math.degrees(math.atan2(z, h)))
+            rows.append(((h * dze - z * dhe) * k, (h * dzn - z * dhn) * k))
+        elif name == "f_nt":
+            values.append(f)
+            rows.append(((x * dxe + y * dye + z * dze) / f, (x * dxn + y * dyn + z * dzn) / f))
+        elif name == "h_nt":
+            values.append(h)
+            rows.append((dhe, dhn))
+        elif name == "z_nt":
+            values.append(z)
+            rows.append((dze, dzn))
+        else:
+            raise ValueError(f"no slope for element {name!r}")
+    return np.array(values), np.array(rows)
+
+
+_DEG = math.degrees(1.0)
 
 
 def _elements_and_gradient(
-    model: WorldMagneticModel, lat_deg: float, lon_deg: float, alt_m: float, year: float, step_m: float,
-    elements: ElementSet = ELEMENT_SETS[ElementSet.PAPER],
+    model: WorldMagneticModel, lat_deg: float, lon_deg: float, alt_m: float, year: float,
+    step_m: float | None = None, elements: ElementSet = ELEMENT_SETS[ElementSet.PAPER],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The two elements S at the point and G = dS/d(east, north) per metre, from one model call.
+    """The elements S at the point and G = dS/d(east, north) per metre.
 
-    Central differences over +-step_m east and north in the local tangent plane; the error is
-    O(step^2) times the third derivative, negligible for the smooth degree-12 field at 500 m.
-    Declination differences are wrapped, so G stays right where D crosses +-180 degrees.
+    ``step_m`` None (default): exact, from the derivatives of the harmonic sums at the point
+    (:meth:`WorldMagneticModel.ned_and_slopes`), per metre of the local plane of
+    :func:`companion.nav.geo.offset_position` (east ``N cos(lat)``, north ``M`` metres per
+    radian). A number: central differences over +-step_m east and north in that plane, one
+    5-point model call; the error is O(step^2) times the third derivative, ~1e-6 relative at
+    500 m. Declination differences are wrapped, so G stays right where D crosses +-180 degrees
+    (the exact slopes never wrap).
     """
+    if step_m is None:
+        ned, d_lat, d_lon = model.ned_and_slopes(lat_deg, lon_deg, alt_m, year)
+        meridian, prime_vertical = radii_of_curvature_m(float(lat_deg))
+        per_metre = np.stack([d_lon / (prime_vertical * math.cos(math.radians(lat_deg))), d_lat / meridian], axis=1)
+        return _element_values_and_slopes(elements.names, ned, per_metre)
     east = np.array([0.0, step_m, -step_m, 0.0, 0.0])
     north = np.array([0.0, 0.0, 0.0, step_m, -step_m])
     lats, lons = offset_position(lat_deg, lon_deg, east, north)
@@ -41,6 +90,13 @@ def _elements_and_gradient(
     return values[:, 0].copy(), gradient
 
 
+def element_values_and_gradient(model: WorldMagneticModel, elements: ElementSet, lat_deg: float, lon_deg: float,
+                                alt_m: float, year: float) -> tuple[np.ndarray, np.ndarray]:
+    """The elements S at a point and their exact Jacobian ``G = dS/d(east, north)`` per metre,
+    from one evaluation of the harmonic sums (S as ``model.elements`` gives it, to rounding)."""
+    return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, None, elements)
+
+
 def element_gradient(
     model: WorldMagneticModel,
     elements: ElementSet,
@@ -48,10 +104,11 @@ def element_gradient(
     lon_deg: float,
     alt_m: float,
     year: float,
-    step_m: float = 500.0,
+    step_m: float | None = None,
 ) -> np.ndarray:
-    """Jacobian ``G = dS/d(east, north)`` of an element set's S, per metre (rows in the set's order)."""
-    if not (math.isfinite(step_m) and step_m > 0.0):
+    """Jacobian ``G = dS/d(east, north)`` of an element set's S, per metre (rows in the set's
+    order): exact by default, central differences of +-``step_m`` metres when given."""
+    if step_m is not None and not (math.isfinite(step_m) and step_m > 0.0):
         raise ValueError(f"step_m must be a positive number of metres, got {step_m}")
     return _elements_and_gradient(model, lat_deg, lon_deg, alt_m, year, step_m, elements)[1]
 
@@ -62,14 +119,14 @@ def decl_incl_gradient(
     lon_deg: float,
     alt_m: float,
     year: float,
-    step_m: float = 500.0,
+    step_m: float | None = None,
 ) -> np.ndarray:
     """Jacobian ``G = d(D, I)/d(east, north)`` at a position, in degrees per metre.
 
-    Rows (D, I), columns (east, north) of the MPC's local plane (x east, y north, metres), by
-    central differences of +-``step_m`` metres (:func:`companion.nav.geo.offset_position`), all
-    four points in one vectorised model call. Declination differences are wrapped, so G stays
-    right where D crosses +-180 degrees. :func:`element_gradient` on the paper's element set.
+    Rows (D, I), columns (east, north) of the MPC's local plane (x east, y north, metres,
+    :func:`companion.nav.geo.offset_position`): exact from the harmonic sums' derivatives, or
+    by central differences of +-``step_m`` metres when given (declination differences
+    wrapped). :func:`element_gradient` on the paper's element set.
     """
     return element_gradient(model, ELEMENT_SETS[ElementSet.PAPER], lat_deg, lon_deg, alt_m, year, step_m)
 
@@ -145,13 +202,14 @@ def element_fix(
     tol_m: float = 1.0,
     max_step_m: float = 200e3,
     max_condition: float = 1e6,
-    step_m: float = 500.0,
+    step_m: float | None = None,
 ) -> PositionFix:
     """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
 
     Newton iteration on the square system ``S(p) = target`` in the local east/north plane,
     starting at the prior position: at each iterate p solve ``G dp = -r`` with the residual
-    ``r = S(p) - target`` (declination wrapped) and G from :func:`element_gradient`, shorten dp
+    ``r = S(p) - target`` (declination wrapped) and G from :func:`element_gradient` (exact, or
+    central differences of +-``step_m`` when given), shorten dp
     to at most ``max_step_m`` metres, and move with :func:`companion.nav.geo.offset_position`.
     It has converged once a step is shorter than ``tol_m`` metres; the fix is the position after
     that step, with its residual and condition.
@@ -171,7 +229,7 @@ def element_fix(
     bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
     if bad:
         raise PositionFixError(f"geomagnetic fix needs finite inputs, got {bad}")
-    if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and step_m > 0.0):
+    if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and (step_m is None or step_m > 0.0)):
         raise ValueError(
             f"need max_iter >= 1 and positive tol_m, max_step_m, step_m; got {max_iter}, {tol_m}, "
             f"{max_step_m}, {step_m}"

@@ -11,7 +11,22 @@ Inputs in degrees and metres, output (X, Y, Z) in nT. Pure numpy; no files.
 * :meth:`~HarmonicSums.ned`: 1-D arrays of points, with per-point altitudes and epochs or one
   of each for all (the few-point stencil of the geomagnetic fix: the coefficients are then
   adjusted once, with the same numbers per point, bit for bit);
-* :meth:`~HarmonicSums.ned_scalar`: one point with ``math`` for the geometry.
+* :meth:`~HarmonicSums.ned_scalar`: one point with ``math`` for the geometry;
+* :meth:`~HarmonicSums.ned_and_slopes`: one point, with the exact derivatives of (X, Y, Z)
+  along geodetic latitude and longitude from the same sums (the fix's and the filter's
+  gradient G in one evaluation instead of a 5-point stencil).
+
+The derivatives differentiate each term analytically: with ``P = c**m Q(s)`` (``s = sin(phi')``,
+``c = cos(phi')``), ``dP/dphi' = c**(m+1) Q' - m s c**(m-1) Q`` and
+
+    d2P/dphi'2 = c**(m+2) Q'' - (2m+1) s c**m Q' - m c**m Q + m (m-1) s**2 c**(m-2) Q,
+    d(m P / c)/dphi' = m c**m Q' - m (m-1) s c**(m-2) Q,
+
+``d(a/r)**(n+2)/dr = -(n+2)/r (a/r)**(n+2)``, and ``d/dlon`` turns the in-phase sum into
+``-m`` times the quadrature sum and the quadrature into ``m`` times the in-phase. The geodetic
+latitude moves the geocentric point by ``dr/dphi = (M + h) sin(psi)`` and
+``dphi'/dphi = (M + h) cos(psi) / r`` (M the meridian radius, ``psi = phi' - phi``), and the
+rotation back to the geodetic frame turns with ``dpsi/dphi = dphi'/dphi - 1``.
 """
 from __future__ import annotations
 
@@ -57,9 +72,42 @@ def schmidt_polynomials(degree: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
             q[n, m] /= math.sqrt(n * n - m * m)
     n_idx, m_idx = np.array([(n, m) for n in range(1, size) for m in range(n + 1)]).T
     coefficients = q[n_idx, m_idx]
+    return n_idx, m_idx, coefficients, _polynomial_derivative(coefficients)
+
+
+def _polynomial_derivative(coefficients: np.ndarray) -> np.ndarray:
+    """Coefficients (powers s**0, s**1, ...) of the derivative of each row's polynomial."""
     derivative = np.zeros_like(coefficients)
-    derivative[:, :-1] = coefficients[:, 1:] * np.arange(1, size)
-    return n_idx, m_idx, coefficients, derivative
+    derivative[:, :-1] = coefficients[:, 1:] * np.arange(1, coefficients.shape[1])
+    return derivative
+
+
+def _slope_matrices(m: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The constants of :meth:`HarmonicSums.ned_and_slopes`: for the in-phase sums (dP, (n+1) P,
+    d2P, (n+1) dP, (n+2) dP, (n+1)(n+2) P, m (m P / c)) and the quadrature sums (m P / c,
+    d(m P / c), (n+2) m P / c, m dP, m (n+1) P), the coefficient of each basis row U_j of each
+    term, per power of s (0, 1, 2), as (3 * sums) x (6 * terms) matrices. With the basis rows
+    U = (c^m Q, c^(m+1) Q', c^(m+2) Q'', c^(m-1) Q, c^(m-2) Q, c^m Q'):
+    P = U0, m P / c = m U3, dP = U1 - s m U3, d2P = U2 - s (2m+1) U5 - m U0 + s^2 m (m-1) U4,
+    d(m P / c) = m U5 - s m (m-1) U4 (the formulas of the module docstring)."""
+    one, mm1 = np.ones_like(m), m * (m - 1.0)
+    functions = {   # name: {(basis row, power of s): coefficient per term}
+        "P": {(0, 0): one}, "mPc": {(3, 0): m}, "dP": {(1, 0): one, (3, 1): -m},
+        "d2P": {(2, 0): one, (5, 1): -(2.0 * m + 1.0), (0, 0): -m, (4, 2): mm1},
+        "dmPc": {(5, 0): m, (4, 1): -mm1},
+    }
+
+    def matrix(sums: list[tuple[str, np.ndarray]]) -> np.ndarray:
+        out = np.zeros((3, len(sums), 6, m.size))
+        for row, (name, factor) in enumerate(sums):
+            for (basis, power), coefficient in functions[name].items():
+                out[power, row, basis] += factor * coefficient
+        return np.ascontiguousarray(out.reshape(3 * len(sums), 6 * m.size))
+
+    in_phase = matrix([("dP", one), ("P", n + 1.0), ("d2P", one), ("dP", n + 1.0), ("dP", n + 2.0),
+                       ("P", (n + 1.0) * (n + 2.0)), ("mPc", m)])
+    quadrature = matrix([("mPc", one), ("dmPc", one), ("mPc", n + 2.0), ("dP", m), ("P", m * (n + 1.0))])
+    return in_phase, quadrature
 
 
 class HarmonicSums:
@@ -82,8 +130,21 @@ class HarmonicSums:
         self._c_powers = np.arange(WMM_DEGREE + 2)
         self._orders = np.arange(WMM_DEGREE + 1)
         self._q_dq_poly_t = np.ascontiguousarray(np.hstack([self._q_poly_t, self._dq_poly_t]))
-        for array in (self._coeffs, self._q_poly_t, self._dq_poly_t, self._q_dq_poly_t):
+        # for ned_and_slopes: Q, Q', Q'' in one product, the six basis rows U_j (below), and the
+        # sums over them as matrices (one per power of s) of the term constants
+        ddq_poly = _polynomial_derivative(dq_poly)
+        self._q_dq_ddq_poly_t = np.ascontiguousarray(np.vstack([q_poly, dq_poly, ddq_poly]).T)
+        self._u_c_columns = np.stack([m_idx, m_idx + 1, m_idx + 2, np.maximum(m_idx - 1, 0),
+                                      np.maximum(m_idx - 2, 0), m_idx])
+        self._u_q_rows = np.array([0, 1, 2, 0, 0, 1])
+        self._slope_in_phase, self._slope_quadrature = _slope_matrices(m_idx.astype(float), n_idx.astype(float))
+        self._trig_orders = np.stack([self._m_float, self._m_float])
+        self._trig_phase = np.array([[0.0], [0.5 * math.pi]])
+        for array in (self._coeffs, self._q_poly_t, self._dq_poly_t, self._q_dq_poly_t, self._q_dq_ddq_poly_t,
+                      self._slope_in_phase, self._slope_quadrature):
             array.setflags(write=False)
+        self._gh_dt: float | None = None
+        self._gh = np.zeros((2, 2, m_idx.size))
 
     def ned_scalar(self, lat_deg: float, lon_deg: float, alt_m: float, dt_years: float) -> tuple[float, float, float]:
         """(X, Y, Z) in nT at one point: :meth:`ned` with math for the geometry and one numpy
@@ -115,6 +176,68 @@ class HarmonicSums:
         cos_psi = c * cos_phi + s * sin_phi
         sin_psi = s * cos_phi - c * sin_phi
         return x_prime * cos_psi - z_prime * sin_psi, y_prime, x_prime * sin_psi + z_prime * cos_psi
+
+    def _gh_matrix(self, dt_years: float) -> np.ndarray:
+        """``[[g, h], [-h, g]]`` at ``dt_years`` after the epoch (2 x 2 x 90): times (cos, sin)
+        of m lon it gives the in-phase and quadrature factors. The last one is kept: a mission
+        asks at one date."""
+        if dt_years != self._gh_dt:
+            g, h = self._coeffs[:2] + dt_years * self._coeffs[2:]
+            gh = np.array([[g, h], [-h, g]])
+            gh.setflags(write=False)
+            self._gh, self._gh_dt = gh, dt_years
+        return self._gh
+
+    def ned_and_slopes(self, lat_deg: float, lon_deg: float, alt_m: float,
+                       dt_years: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, Y, Z) in nT at one point and its derivatives along geodetic latitude and longitude
+        in nT per radian: three arrays of 3, from one evaluation of the sums (module docstring).
+
+        Every function the sums need (P, m P / c, their phi' derivatives, dP and d2P) is a
+        combination of six basis rows ``U = (c^m Q, c^(m+1) Q', c^(m+2) Q'', c^(m-1) Q,
+        c^(m-2) Q, c^m Q')`` with coefficients in n, m and powers of s, so the twelve sums are
+        two matrix products with constant matrices (:func:`_slope_matrices`) and a polynomial
+        in s. The field agrees with :meth:`ned_scalar` to rounding; the slopes with central
+        differences of it to the differences' own error (tests)."""
+        phi = math.radians(lat_deg)
+        sin_phi, cos_phi = math.sin(phi), math.cos(phi)
+        w2 = 1.0 - _WGS84_E2 * sin_phi * sin_phi
+        prime_vertical = _WGS84_A_M / math.sqrt(w2)
+        meridian_plus_h = prime_vertical * (1.0 - _WGS84_E2) / w2 + alt_m
+        p = (prime_vertical + alt_m) * cos_phi
+        z = (prime_vertical * (1.0 - _WGS84_E2) + alt_m) * sin_phi
+        r = math.hypot(p, z)
+        s, c = z / r, p / r
+        cos_psi = c * cos_phi + s * sin_phi
+        sin_psi = s * cos_phi - c * sin_phi
+
+        q_all = (np.power(s, self._powers) @ self._q_dq_ddq_poly_t).reshape(3, self._m.size)   # Q, Q', Q''
+        u = np.power(c, self._u_c_columns) * q_all[self._u_q_rows]                 # (6, 90)
+        trig = np.cos(math.radians(lon_deg) * self._trig_orders - self._trig_phase)   # cos, sin of m lon
+        # in-phase (a/r)^(n+2) (g cos + h sin) and quadrature (a/r)^(n+2) (g sin - h cos)
+        factors = np.einsum("ijk,jk->ik", self._gh_matrix(dt_years), trig) * np.power(REFERENCE_RADIUS_M / r,
+                                                                                      self._radial_power)
+        a = (self._slope_in_phase @ (u * factors[0]).ravel()).reshape(3, -1)
+        b = (self._slope_quadrature @ (u * factors[1]).ravel()).reshape(3, -1)
+        ss = s * s
+        # in-phase sums: X', Z', dX'/dphi', dZ'/dphi', r dX'/dr, r dZ'/dr, dY'/dlon (signs below);
+        # quadrature sums: Y', dY'/dphi', r dY'/dr, dX'/dlon, dZ'/dlon
+        a_sums = (a[0] + s * a[1] + ss * a[2]).tolist()
+        b_sums = (b[0] + s * b[1] + ss * b[2]).tolist()
+        x_p, z_p, y_p = -a_sums[0], -a_sums[1], b_sums[0]
+        dphi_prime = meridian_plus_h * cos_psi / r       # dphi'/dphi
+        dr_over_r = meridian_plus_h * sin_psi / r        # (dr/dphi) / r
+        dx_p = -a_sums[2] * dphi_prime + a_sums[4] * dr_over_r
+        dz_p = -a_sums[3] * dphi_prime + a_sums[5] * dr_over_r
+        dy_p = b_sums[1] * dphi_prime - b_sums[2] * dr_over_r
+        x = x_p * cos_psi - z_p * sin_psi
+        z_down = x_p * sin_psi + z_p * cos_psi
+        dpsi = dphi_prime - 1.0
+        lx, ly, lz = b_sums[3], a_sums[6], b_sums[4]
+        return (np.array([x, y_p, z_down]),
+                np.array([dx_p * cos_psi - dz_p * sin_psi - z_down * dpsi, dy_p,
+                          dx_p * sin_psi + dz_p * cos_psi + x * dpsi]),
+                np.array([lx * cos_psi - lz * sin_psi, ly, lx * sin_psi + lz * cos_psi]))
 
     def ned(self, lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray | float,
             dt_years: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -86,8 +86,8 @@ def ratio_inclination_deg(dots: Sequence[float], mag_ned: Sequence[Sequence[floa
     if n == 0:
         return math.nan, math.nan
     dot = math.fsum(dots) / n
-    m = tuple(math.fsum(v[k] for v in mag_ned) / n for k in range(3))
-    f = tuple(math.fsum(v[k] for v in force_ned) / n for k in range(3))
+    m = tuple(math.fsum(column) / n for column in zip(*mag_ned))
+    f = tuple(math.fsum(column) / n for column in zip(*force_ned))
     m_norm, f_norm = math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2), math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
     if not (m_norm > 0.0 and f_norm > 0.0 and math.isfinite(m_norm * f_norm)):
         return math.nan, math.nan

@@ -291,15 +291,16 @@ class PeriodAverager:
         if not used:
             return AveragedDI(math.nan, math.nan, 0, math.nan, math.nan, math.nan)
         n = len(used)
-        sums = [math.fsum(s[k] for s in used) for k in range(7)]
+        columns = list(zip(*used))                 # one pass; the sums and spreads read columns
+        sums = [math.fsum(columns[k]) for k in range(7)]
         d = (sums[1] / n + 180.0) % 360.0 - 180.0
         grav = [s for s in used if math.isfinite(s[7]) and math.isfinite(s[8] + s[9] + s[10])]
         incl_grav, incl_grav_se = ratio_inclination_deg([s[7] for s in grav], [s[3:6] for s in grav],
                                                         [s[8:11] for s in grav])
         return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
                           (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n, incl_grav, len(grav),
-                          robust_standard_error([s[1] for s in used]), robust_standard_error([s[2] for s in used]),
-                          robust_standard_error([s[6] for s in used]), incl_grav_se)
+                          robust_standard_error(columns[1]), robust_standard_error(columns[2]),
+                          robust_standard_error(columns[6]), incl_grav_se)
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]

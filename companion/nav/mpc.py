@@ -120,21 +120,41 @@ class _OsqpBackend:
         self.solver.setup(p0, np.zeros(n), a0, -np.ones(2 * n), np.ones(2 * n), verbose=False,
                           warm_starting=True, polishing=False, eps_abs=eps, eps_rel=eps,
                           max_iter=20000, scaling=10)
+        # The compiled solver object behind osqp's Python wrapper (osqp >= 1.0). The wrapper's
+        # update() and solve() cost ~5x OSQP's own time for this 4-variable problem (its bound
+        # clipping, a derivative cache, an info namespace built per call); nothing of that is
+        # needed here (our bounds are within OSQP's infinity, no derivatives), so the same
+        # calls go straight to the compiled object when it has them, else through the wrapper.
+        ext = getattr(self.solver, "_solver", None)
+        needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
+        self._ext = ext if ext is not None and all(hasattr(ext, name) for name in needed) else None
+        self._infinity = float(osqp.constant("OSQP_INFTY")) if self._ext is not None else math.inf
+
+    def _solve_once(self) -> tuple[np.ndarray, str, float, int]:
+        if self._ext is None:
+            result = self.solver.solve(raise_error=False)
+            return result.x, str(result.info.status), float(result.info.run_time), int(result.info.iter)
+        self._ext.solve()
+        info = self._ext.info
+        return self._ext.solution.x, str(info.status), float(info.run_time), int(info.iter)
 
     def solve(self, hess, grad, a_full, lower, upper):
-        self.solver.update(Px=hess[self.p_rows, self.p_cols], Ax=a_full[self.a_rows, self.a_cols],
-                           q=grad, l=lower, u=upper)
-        result = self.solver.solve(raise_error=False)
-        status = str(result.info.status)
-        run_time, iterations = float(result.info.run_time), int(result.info.iter)
+        px, ax = hess[self.p_rows, self.p_cols], a_full[self.a_rows, self.a_cols]
+        if self._ext is None:
+            self.solver.update(Px=px, Ax=ax, q=grad, l=lower, u=upper)
+        else:
+            # the wrapper's clipping to OSQP's infinity, kept
+            self._ext.update_data_vec(q=grad, l=np.maximum(lower, -self._infinity),
+                                      u=np.minimum(upper, self._infinity))
+            self._ext.update_data_mat(P_x=px, P_i=None, A_x=ax, A_i=None)
+        x, status, run_time, iterations = self._solve_once()
         if status != "solved":
             # a warm start from a very different previous problem can stall ("solved inaccurate"
             # after 0 iterations): retry once from zero before calling it a failure
             self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(2 * self.n))
-            result = self.solver.solve(raise_error=False)
-            status = str(result.info.status)
-            run_time, iterations = run_time + float(result.info.run_time), iterations + int(result.info.iter)
-        return result.x, status == "solved", status, run_time, iterations
+            x, status, more_time, more_iterations = self._solve_once()
+            run_time, iterations = run_time + more_time, iterations + more_iterations
+        return x, status == "solved", status, run_time, iterations
 
 
 class _DaqpBackend:
@@ -183,8 +203,10 @@ class MpcController:
         self._fallback = _DaqpBackend(n, settings.eps) if settings.solver == "osqp" else None
         # A = I (eq. 14): M stacks identities and C(k) repeats B(k) in its lower block triangle;
         # everything but B is fixed, so the arrays are built once and filled in place per step.
-        self._blocks = [(row, col) for row in range(settings.horizon) for col in range(row + 1)]
+        self._block_rows, self._block_cols = np.tril_indices(settings.horizon)
         self._c = np.zeros((n, n))
+        # (block row, block column, 2, 2) view of C
+        self._c_blocks = self._c.reshape(settings.horizon, 2, settings.horizon, 2).transpose(0, 2, 1, 3)
         self._q_bar = np.concatenate([np.tile(self.q, settings.horizon - 1), self.f])
         self._r_bar2 = 2.0 * np.tile(self.r, settings.horizon)
         self._diag = np.diag_indices(n)
@@ -205,12 +227,11 @@ class MpcController:
         b = np.asarray(b, dtype=float)
         s = np.asarray(s, dtype=float)
         s_target = np.asarray(s_target, dtype=float)
-        if not math.isfinite(float(b.sum() + s.sum() + s_target.sum())):
+        if not math.isfinite(sum(b.ravel().tolist()) + sum(s.tolist()) + sum(s_target.tolist())):
             return self._failed("non-finite model or state")
         n = self.n
         c = self._c
-        for row, col in self._blocks:
-            c[2 * row:2 * row + 2, 2 * col:2 * col + 2] = b
+        self._c_blocks[self._block_rows, self._block_cols] = b   # every lower block, one assignment
         weighted_c = self._q_bar[:, None] * c
         hess = 2.0 * (c.T @ weighted_c)                        # eq. 37
         hess[self._diag] += self._r_bar2

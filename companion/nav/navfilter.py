@@ -45,7 +45,7 @@ from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
 from companion.nav.elements import ElementSet
-from companion.nav.field import WorldMagneticModel, element_gradient
+from companion.nav.field import WorldMagneticModel, element_gradient, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.process import DeadReckoningSpec, ProcessModel
@@ -200,8 +200,13 @@ class NavigationFilter:
             return
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         q = self._bias_qa if self.monitor.active else self._bias_q
-        q_bias = np.diag(q ** 2 * dt_s / HOUR_S)
-        self.kf.predict(F=block_diag(phi, np.eye(self.nb)), Q=block_diag(q_d, q_bias))
+        k = self.process.n
+        size = k + self.nb
+        transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
+        transition[:k, :k], noise[:k, :k] = phi, q_d
+        transition[k:, k:] = np.eye(self.nb)
+        noise[k:, k:] = np.diag(q ** 2 * dt_s / HOUR_S)
+        self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
     # --- updates ------------------------------------------------------------------------------
@@ -220,8 +225,8 @@ class NavigationFilter:
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         centre = offset_position(lat, lon, -float(lag[0]), -float(lag[1]))
         c_lat, c_lon = float(centre[0]), float(centre[1])
-        expected = self.elements.values(self.model.elements(c_lat, c_lon, self.alt_m, self.year)) + self.bias
-        g = element_gradient(self.model, self.elements, c_lat, c_lon, self.alt_m, self.year)
+        values, g = element_values_and_gradient(self.model, self.elements, c_lat, c_lon, self.alt_m, self.year)
+        expected = values + self.bias
         h = np.hstack([g @ self.process.jacobian(lat), np.eye(self.nb)])
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         nis, whitened = self._update(y, h, self._r)

@@ -134,6 +134,7 @@ class WorldMagneticModel:
         if not seen[n_idx, m_idx].all():
             raise ValueError(f"{name}: coefficient file lacks some of the {n_idx.size} (n, m) pairs")
         self._sums = HarmonicSums(table[:, n_idx, m_idx])
+        self._last_slopes: tuple | None = None
 
     @classmethod
     def from_cof(cls, path: str | os.PathLike[str], allow_extrapolation: bool = False) -> WorldMagneticModel:
@@ -166,6 +167,25 @@ class WorldMagneticModel:
             f"{self.name} is valid for decimal years [{self.valid_from:.3f}, {self.valid_until:.1f}); "
             f"got {bad}. Use model_for_date() to pick the model, or allow_extrapolation=True."
         )
+
+    def ned_and_slopes(self, lat_deg: float, lon_deg: float, alt_m: float,
+                       year: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, Y, Z) in nT at one point and its exact derivatives along geodetic latitude and
+        longitude, nT per radian (:meth:`HarmonicSums.ned_and_slopes`), as read-only arrays.
+        The last answer is kept: the filter's update asks at the point where the geomagnetic fix
+        of the same step started."""
+        key = (float(lat_deg), float(lon_deg), float(alt_m), float(year))
+        last = self._last_slopes
+        if last is not None and last[0] == key:
+            return last[1]
+        if abs(lat_deg) > 90.0:
+            raise ValueError(f"latitude {lat_deg} deg outside [-90, 90]")
+        self._check_year(key[3])
+        answer = self._sums.ned_and_slopes(key[0], key[1], key[2], key[3] - self.epoch)
+        for array in answer:
+            array.setflags(write=False)
+        self._last_slopes = (key, answer)
+        return answer
 
     def elements(
         self, lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike, year: ArrayLike

@@ -7,7 +7,7 @@ geodesic of the current course. Pure: the caller owns time.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from companion import wrap_2pi, wrap_pi
 from companion.nav.geo import metres_per_degree
@@ -65,5 +65,4 @@ def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_sp
     east_per_deg, north_per_deg = metres_per_degree(state.lat_deg + 0.5 * step_m * math.cos(mid_course) / 111e3)
     lat = state.lat_deg + step_m * math.cos(mid_course) / float(north_per_deg)
     lon = state.lon_deg + step_m * math.sin(mid_course) / float(east_per_deg)
-    return replace(state, lat_deg=lat, lon_deg=(lon + 180.0) % 360.0 - 180.0, course_rad=course,
-                   speed_mps=speed, distance_m=state.distance_m + step_m)
+    return VehicleState(lat, (lon + 180.0) % 360.0 - 180.0, course, speed, state.distance_m + step_m)

@@ -82,6 +82,40 @@ def test_schuler_oscillation_of_the_north_velocity_error():
     assert np.max(np.abs(vn)) == pytest.approx(G_MPS2 * ARCMIN / (2 * math.pi / expected), rel=0.15)
 
 
+def test_ins_propagation_is_the_exact_exponential_to_rounding():
+    """expm(F dt) x by the 8-term Taylor series on 30 s pieces, against a 60-term series of the
+    same F in extended precision (long double): within 1e-14 of |Phi| |x| per component
+    (measured 4e-16) over latitudes, velocities and steps of 1 s to 6 min. scipy's Pade expm of
+    this badly scaled F (what propagated the INS before) is itself off by up to 1.1e-6 of the same
+    scale (measured, on the Markov drift states), so as a second, independent reference it is
+    checked to 1e-5."""
+    from scipy.linalg import expm
+
+    from sitl.world.ins import expm_times
+
+    rng = np.random.default_rng(5)
+
+    def series(a: np.ndarray, x: np.ndarray, terms: int) -> np.ndarray:
+        y = x
+        for k in range(terms, 0, -1):
+            y = x + (a @ y) / k
+        return y
+
+    for _ in range(40):
+        ins = InsErrorModel(InsErrorConfig(), rng, 33.0)
+        f = ins._dynamics(float(rng.uniform(-85.0, 85.0)), *(float(v) for v in rng.uniform(-100.0, 100.0, 2)))
+        for dt in (1.0, 30.0, 45.0, 120.0, 360.0):
+            got = expm_times(f, dt, ins.state)
+            a, x = (f * dt).astype(np.longdouble), ins.state.astype(np.longdouble)
+            exact = series(a, x, 60)
+            scale = np.abs(series(np.abs(a), np.abs(x), 60))
+            assert np.all(np.abs(got - exact) <= 1e-14 * scale), dt
+            moving = scale > 0.0       # scipy leaves ~1e-20 in the held vertical channel
+            pade = expm(f * dt) @ ins.state
+            assert np.all(np.abs(got - pade)[moving] <= 1e-5 * scale.astype(float)[moving]), dt
+            assert np.all(got[~moving] == 0.0)
+
+
 # --- vehicle kinematics -----------------------------------------------------------------------------
 LIMITS = VehicleLimits(max_speed_mps=20.0, accel_mps2=0.5, turn_rate_radps=math.radians(6.0))
 
