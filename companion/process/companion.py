@@ -254,17 +254,20 @@ class CompanionApp:
         return self.exit_code if self.exit_code is not None else 0
 
     def spin(self, wait_s: float = 0.02) -> None:
-        """One pass of the loop: what the link has (waiting up to ``wait_s``), the source, the idle hook."""
+        """One pass of the loop: what the link has (waiting up to ``wait_s``), the source, the idle hook.
+        What the pass sends leaves together at its end (:meth:`MavlinkLink.batched`)."""
         if self.link.wait_readable(wait_s):
             for _ in range(256):
-                msgs = self.link.read()
+                with self.link.batched():
+                    msgs = self.link.read()
+                    for msg in msgs:
+                        self.handle(msg)
                 if not msgs:
                     break
-                for msg in msgs:
-                    self.handle(msg)
-        if self.sensors is not None:
-            self.intake.poll()
-        self.idle()
+        with self.link.batched():
+            if self.sensors is not None:
+                self.intake.poll()
+            self.idle()
         self.notifier.watchdog()   # a stalled loop is restarted by systemd
 
     def handle(self, msg) -> None:

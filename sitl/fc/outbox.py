@@ -5,7 +5,12 @@ repeated STATUSTEXT warnings (one per kind per 5 s of *simulated* time), and at 
 each instant applies the link faults of :class:`sitl.fc.faults.FaultInjector` (loss and
 duplication drawn from the seeded link generator; a delay is a FIFO, so no frame overtakes a
 delayed one), writes the tlog, and packs the frames into datagrams of at most
-``MAX_DATAGRAM_BYTES`` (``batch``) before sending them to every link.
+``MAX_DATAGRAM_BYTES`` (``batch``) before sending them to every link. With ``hold`` (lockstep)
+the frames of each instant, faults applied and tlog written at that instant, are held and sent
+at the next lockstep boundary (:meth:`Outbox.flush` with ``release``): the companion's answers are
+only read at the boundaries anyway, so it sees the same frames in the same order, in one burst
+of datagrams per boundary instead of one per 0.1 s instant (each a wake-up of the companion; a
+third of the lockstep mission's system time went to them).
 :class:`Counters` is the run's tally of events, reported in the summary.
 """
 from __future__ import annotations
@@ -35,7 +40,7 @@ class Outbox:
     """Queue of encoded frames for the current simulated instant, and their delivery."""
 
     def __init__(self, encoder: FrameEncoder, clock: SimClock, counters: Counters, faults, link_rng,
-                 start_unix_us: int, batch: bool = True, quiet: bool = False) -> None:
+                 start_unix_us: int, batch: bool = True, quiet: bool = False, hold: bool = False) -> None:
         self.encoder = encoder
         self.clock = clock
         self.counters = counters
@@ -44,6 +49,8 @@ class Outbox:
         self.start_unix_us = start_unix_us
         self.batch = batch
         self.quiet = quiet
+        self.hold = hold                # lockstep: send only when a boundary releases
+        self._held: list[bytes] = []
         self.links: list[Link] = []
         self.tlog = None
         self.tx_by_type: dict[str, int] = {}
@@ -108,23 +115,30 @@ class Outbox:
         del self.delayed[:k]
         return frames
 
-    def flush(self) -> None:
-        """Send what this instant queued (after the link faults) to every link."""
+    def flush(self, release: bool = True) -> None:
+        """Send what this instant queued (after the link faults) to every link; with ``hold``, only
+        when ``release`` (a lockstep boundary), together with what earlier instants held back."""
         frames, self._out = self._out, []
         faults = self.faults
         if faults.loss or faults.dup:
             frames = self._impair(frames)
         if faults.delay_us or self.delayed:
             frames = self._delay(frames)
+        if frames:
+            self.counters.add("tx_messages", len(frames))
+            if self.tlog is not None:
+                stamp = self.start_unix_us + self.clock.t_us
+                for frame in frames:
+                    self.tlog.write(stamp, frame)
+        if self.hold:
+            self._held += frames
+            if not release:
+                return
+            frames, self._held = self._held, []
         if not frames:
             for link in self.links:
                 link.flush()
             return
-        self.counters.add("tx_messages", len(frames))
-        if self.tlog is not None:
-            stamp = self.start_unix_us + self.clock.t_us
-            for frame in frames:
-                self.tlog.write(stamp, frame)
         if self.batch:
             chunks, current, size = [], [], 0
             for frame in frames:

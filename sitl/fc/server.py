@@ -81,7 +81,7 @@ class SitlServer:
         self.guidance = Guidance(self.dialect, sc.vehicle, cruise, config.setpoint_timeout_s)
         self.start_unix_us = int(round(sc.start_posix * US_PER_S))
         self.out = Outbox(FrameEncoder(self.sysid, self.compid), self.clock, self.counters, None, rng_link,
-                          self.start_unix_us, batch=config.batch, quiet=config.quiet)
+                          self.start_unix_us, batch=config.batch, quiet=config.quiet, hold=config.lockstep)
         self.faults = FaultInjector(sc.faults, self.clock, self.counters, self.out.say)
         self.out.faults = self.faults
         self.vehicle = VehicleSim(sc, truth_full, self.clock, self.faults, rng_sensors, rng_nav, rng_gps,
@@ -269,7 +269,7 @@ class SitlServer:
                 self.vehicle.advance(t_next)
                 clock.t_us = t_next
                 self._run_due()
-                out.flush()
+                out.flush(release=False)    # sent now, or in lockstep at the boundary (below)
                 if stepper.next_us <= clock.t_us:
                     stepper.wait_at_boundary()
         finally:

@@ -12,10 +12,11 @@ signatures when given a key (:mod:`companion.io.link.signing`), records both dir
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import select
 import time
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -142,6 +143,19 @@ class MavlinkLink(LinkOutputs):
         if self.conn is not None:
             self.conn.close()
             self.conn = None
+
+    @contextlib.contextmanager
+    def batched(self) -> Iterator[None]:
+        """Frames sent inside go out together at the end (packed into datagrams on UDP)."""
+        conn = self.conn
+        if conn is None:
+            yield
+            return
+        conn.begin_batch()
+        try:
+            yield
+        finally:
+            conn.end_batch()
 
     def __enter__(self) -> MavlinkLink:
         self.open()

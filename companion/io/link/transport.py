@@ -1,7 +1,13 @@
 """Byte transports of the link: UDP with sender addresses, or one pymavlink stream (serial, TCP).
 
 A transport answers three questions: what can be read now, *from whom* (an address per chunk),
-and where does a written frame go. :class:`UdpTransport` owns its socket instead of pymavlink's
+and where does a written frame go. Between :meth:`UdpTransport.begin_batch` and
+:meth:`~UdpTransport.end_batch` the frames written are packed, whole and in order, into datagrams
+of up to ``BATCH_DATAGRAM_BYTES``: the companion answers one pass of its loop (a setpoint, the
+10 Hz GPS_INPUT, a heartbeat) in one datagram instead of one each, as ArduPilot and PX4 do with
+their own streams. Every MAVLink receiver parses a datagram as a byte stream (ArduPilot's UDP
+port, PX4's mavlink receiver, MAVSDK, pymavlink), so this changes no frame; one ``sendto`` per
+frame was a sixth of the companion's time in a lockstep mission. :class:`UdpTransport` owns its socket instead of pymavlink's
 ``udpin``/``udpout`` connections, whose listener sends every output to every sender it ever
 heard; here ``write`` goes to the addresses the link's peer table names (the flight controller
 and allowed ground stations), or, for ``udpout:``, to the one address given. Serial and TCP links
@@ -19,6 +25,7 @@ __all__ = ["STREAM", "StreamTransport", "UdpTransport", "open_transport", "parse
 STREAM = "stream"           # the one address of a serial or TCP link
 MAX_DATAGRAMS = 64          # per receive(): bounded work per call, the rest stays in the socket
 RCVBUF_BYTES = 4 << 20
+BATCH_DATAGRAM_BYTES = 1400  # frames packed into one datagram while batching: under a 1500-byte MTU
 
 
 def parse_connection(text: str) -> tuple[str, int]:
@@ -55,6 +62,7 @@ class UdpTransport:
         self.destinations = destinations or (list)
         self.send_errors = 0
         self.mav = None    # the link's encoder (companion.benchmark parses through it)
+        self._batch: list[bytes] | None = None   # frames written since begin_batch(), not yet sent
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -75,6 +83,31 @@ class UdpTransport:
         return out
 
     def write(self, buf: bytes) -> None:
+        """One frame: sent now, or kept for :meth:`end_batch` while a batch is open."""
+        if self._batch is not None:
+            self._batch.append(bytes(buf))
+            return
+        self._send(buf)
+
+    def begin_batch(self) -> None:
+        """Keep the frames written from now on until :meth:`end_batch`."""
+        if self._batch is None:
+            self._batch = []
+
+    def end_batch(self) -> None:
+        """Send the frames kept since :meth:`begin_batch`, whole and in order, packed into datagrams."""
+        frames, self._batch = self._batch, None
+        if not frames:
+            return
+        datagram = bytearray()
+        for frame in frames:
+            if datagram and len(datagram) + len(frame) > BATCH_DATAGRAM_BYTES:
+                self._send(bytes(datagram))
+                datagram.clear()
+            datagram += frame
+        self._send(bytes(datagram))
+
+    def _send(self, buf: bytes) -> None:
         targets = self.destinations() if self.listen else [self.remote]
         for address in targets:
             try:
@@ -83,6 +116,7 @@ class UdpTransport:
                 self.send_errors += 1
 
     def close(self) -> None:
+        self.end_batch()
         self.sock.close()
 
 
@@ -111,6 +145,12 @@ class StreamTransport:
             self.conn.write(buf)
         except OSError:  # pragma: no cover - a dropped TCP peer reconnects
             pass
+
+    def begin_batch(self) -> None:
+        """A byte stream has no datagrams to pack: frames go out as written."""
+
+    def end_batch(self) -> None:
+        """See :meth:`begin_batch`."""
 
     def close(self) -> None:
         try:

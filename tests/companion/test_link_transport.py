@@ -1,0 +1,97 @@
+"""The UDP transport's batching, over real loopback sockets: the frames of one pass of the
+companion's loop leave packed, whole and in order, into datagrams a MAVLink receiver parses as a
+byte stream; outside a batch each frame is its own datagram."""
+from __future__ import annotations
+
+import os
+import socket
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.io.link.transport import BATCH_DATAGRAM_BYTES, UdpTransport
+
+
+def _receiver() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(5.0)
+    return sock
+
+
+def _datagrams(sock: socket.socket) -> list[bytes]:
+    """Every datagram queued on ``sock`` (it waits for the first, then takes what is there)."""
+    out = [sock.recv(65535)]
+    sock.setblocking(False)
+    try:
+        while True:
+            out.append(sock.recv(65535))
+    except BlockingIOError:
+        pass
+    finally:
+        sock.settimeout(5.0)
+    return out
+
+
+def _frames(count: int) -> list[bytes]:
+    mav = mavlink.MAVLink(None, 1, 191)
+    return [mavlink.MAVLink_named_value_float_message(k, b"FC_STATE", float(k)).pack(mav) for k in range(count)]
+
+
+def test_a_batch_leaves_as_one_datagram_of_whole_frames_in_order():
+    rx = _receiver()
+    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
+    try:
+        frames = _frames(5)
+        tx.begin_batch()
+        for frame in frames:
+            tx.write(frame)
+        rx.setblocking(False)
+        try:
+            assert rx.recv(65535) is None, "sent before the batch ended"
+        except BlockingIOError:
+            pass
+        rx.settimeout(5.0)
+        tx.end_batch()
+        [datagram] = _datagrams(rx)
+        assert datagram == b"".join(frames)
+        parsed = mavlink.MAVLink(None).parse_buffer(datagram)
+        assert [m.time_boot_ms for m in parsed] == list(range(5))
+    finally:
+        tx.close()
+        rx.close()
+
+
+def test_a_large_batch_is_split_at_frame_boundaries_under_the_datagram_limit():
+    rx = _receiver()
+    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
+    try:
+        frames = _frames(200)        # 200 x 30 bytes: more than four datagrams' worth
+        tx.begin_batch()
+        for frame in frames:
+            tx.write(frame)
+        tx.end_batch()
+        datagrams = _datagrams(rx)
+        assert len(datagrams) > 1 and all(len(d) <= BATCH_DATAGRAM_BYTES for d in datagrams)
+        parser = mavlink.MAVLink(None)
+        parsed = [m for d in datagrams for m in parser.parse_buffer(d) or []]
+        assert [m.time_boot_ms for m in parsed] == list(range(200))   # no frame split, lost or reordered
+    finally:
+        tx.close()
+        rx.close()
+
+
+def test_outside_a_batch_each_frame_is_its_own_datagram():
+    rx = _receiver()
+    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
+    try:
+        frames = _frames(3)
+        for frame in frames:
+            tx.write(frame)
+        got = []
+        while len(got) < 3:
+            got += _datagrams(rx)
+        assert got == frames
+    finally:
+        tx.close()
+        rx.close()
