@@ -22,6 +22,14 @@ gradient at the predicted position (:func:`companion.nav.field.element_gradient`
 the centre of the averaging window. The field is linear to well below the noise over the few
 kilometres of prior uncertainty, so one linearisation per step suffices.
 
+Measurement noise (``r_source`` 1, FUS_R_SRC, the default): each period's averaged elements
+carry their standard errors measured from the period's own scatter (the companion's robust
+``1.4826 MAD / sqrt(n)``, :mod:`companion.nav.inclination`), and ``R = diag(se^2 + r_min^2)``:
+the vehicle measures its own noise, so a noisier magnetometer (or a shaking accelerometer) is
+described as it is instead of as declared; ``r_min`` (FUS_RMIN_DEG, FUS_RMIN_NT) stands for
+what the scatter cannot show. The declared ``r_deg``, ``r_nt`` (FUS_R_DEG, FUS_R_NT) are used
+where no standard error is measured, and always with ``r_source`` 0.
+
 Disturbance-gated bias noise: the biases' random walk is ``q`` per sqrt(hour) while the
 innovations are consistent with their covariance, and ``q_a`` while a disturbance is
 active: an exponential average (weight ``NIS_ALPHA``) of the normalised innovation squared
@@ -96,6 +104,9 @@ class FilterSettings:
 
     r_deg: float = 0.002
     r_nt: float = 2.0
+    r_source: int = 1            # 1: measured standard errors (floored), 0: the declared r_deg / r_nt
+    r_min_deg: float = 0.0005    # added in quadrature to a measured standard error
+    r_min_nt: float = 0.5
     bias: BiasSpec = field(default_factory=BiasSpec)
     ins: InsErrorSpec = field(default_factory=InsErrorSpec)
     dead_reckoning: DeadReckoningSpec = field(default_factory=DeadReckoningSpec)
@@ -147,7 +158,9 @@ class NavigationFilter:
         self._bias_sigma0 = b.per_element(names, b.sigma0_deg, b.sigma0_nt)
         self._bias_q = b.per_element(names, b.q_deg_rth, b.q_nt_rth)
         self._bias_qa = b.per_element(names, b.qa_deg_rth, b.qa_nt_rth)
-        self._r = np.diag(b.per_element(names, settings.r_deg, settings.r_nt) ** 2)
+        self._r_declared = b.per_element(names, settings.r_deg, settings.r_nt)
+        self._r_min = b.per_element(names, settings.r_min_deg, settings.r_min_nt)
+        self._r = np.diag(self._r_declared ** 2)
         n = process.n + self.nb
         kf = KalmanFilter(dim_x=n, dim_z=self.nb)
         kf.x = np.zeros((n, 1))
@@ -205,6 +218,18 @@ class NavigationFilter:
         self.process.advance(self.x, dt_s, vel_en_mps)
 
     # --- updates ------------------------------------------------------------------------------
+    def measurement_noise(self, standard_errors: np.ndarray | None = None) -> np.ndarray:
+        """R of one element measurement: with ``r_source`` 1 the period's measured standard
+        errors with the floor ``r_min`` added in quadrature, ``R = diag(se^2 + r_min^2)``, and the
+        declared noise for an element without a finite measured one; with ``r_source`` 0 (or no
+        standard errors) the declared ``diag(r^2)``."""
+        if self.settings.r_source != 1 or standard_errors is None:
+            return self._r
+        se = np.asarray(standard_errors, dtype=float)
+        measured = np.isfinite(se) & (se >= 0.0)
+        sigma2 = np.where(measured, np.where(measured, se, 0.0) ** 2 + self._r_min ** 2, self._r_declared ** 2)
+        return np.diag(sigma2)
+
     def update_position(self, lat_deg: float, lon_deg: float, sigma_m: float,
                         ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> None:
         """A position fix (a GPS start), 1-sigma ``sigma_m`` per axis."""
@@ -213,9 +238,11 @@ class NavigationFilter:
         self._update(y, self._j(here[0]), np.eye(2) * sigma_m ** 2)
 
     def update_elements(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
-                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> float:
+                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
+                        standard_errors: np.ndarray | None = None) -> float:
         """The averaged elements, referred to the window centre ``lag_en_m`` behind the current
-        position; returns the normalised innovation squared (NIS)."""
+        position, with their measured standard errors (:meth:`measurement_noise`); returns the
+        normalised innovation squared (NIS)."""
         lag = np.zeros(2) if lag_en_m is None else np.asarray(lag_en_m, dtype=float)
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         centre = offset_position(lat, lon, -float(lag[0]), -float(lag[1]))
@@ -224,12 +251,13 @@ class NavigationFilter:
         g = element_gradient(self.model, self.elements, c_lat, c_lon, self.alt_m, self.year)
         h = np.hstack([g @ self.process.jacobian(lat), np.eye(self.nb)])
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
-        nis, whitened = self._update(y, h, self._r)
+        nis, whitened = self._update(y, h, self.measurement_noise(standard_errors))
         self.last_nis = nis
         self.monitor.observe(whitened)
         return nis
 
-    def calibrate(self, measured: np.ndarray, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> float:
+    def calibrate(self, measured: np.ndarray, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
+                  standard_errors: np.ndarray | None = None) -> float:
         """Start-up calibration at a known position: the start-up average observes the biases.
 
         The bias prior is set from the calibration innovation itself, per element
@@ -242,19 +270,20 @@ class NavigationFilter:
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
-        r2 = np.diag(self._r)
+        r2 = np.diag(self.measurement_noise(standard_errors))
         var = np.clip(y ** 2 - r2, r2 / 100.0, self._bias_sigma0 ** 2)
         k = self.process.n
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
         self.kf.P[k:, k:] = np.diag(var)
-        return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg)
+        return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
 
-    def innovation_covariance(self, lat_deg: float, lon_deg: float) -> np.ndarray:
+    def innovation_covariance(self, lat_deg: float, lon_deg: float,
+                              standard_errors: np.ndarray | None = None) -> np.ndarray:
         """S = H P H^T + R of an element measurement at this position (for tests and gates)."""
         g = element_gradient(self.model, self.elements, lat_deg, lon_deg, self.alt_m, self.year)
         h = np.hstack([g @ self.process.jacobian(lat_deg), np.eye(self.nb)])
-        return h @ self.kf.P @ h.T + self._r
+        return h @ self.kf.P @ h.T + self.measurement_noise(standard_errors)
 
     def _update(self, y: np.ndarray, h: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
         z = (y + h @ self.x).reshape(-1, 1)
