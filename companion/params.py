@@ -143,6 +143,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else Table 3), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
     _p("FUS_R_DEG", float, 0.002, 1e-6, 10.0, "deg", "declared 1-sigma noise of an averaged D or I"),
     _p("FUS_R_NT", float, 2.0, 1e-3, 10000.0, "nT", "declared 1-sigma noise of an averaged F, H or Z"),
+    _p("FUS_R_SRC", int, 1, 0, 1, "", "measurement noise of the error-state filter: 1 each period's measured standard errors with FUS_RMIN_* added in quadrature (FUS_R_DEG/FUS_R_NT where none is measured), 0 the declared FUS_R_DEG/FUS_R_NT"),
+    _p("FUS_RMIN_DEG", float, 0.0005, 0.0, 10.0, "deg", "floor added in quadrature to a measured D or I standard error (errors the period's scatter cannot show)"),
+    _p("FUS_RMIN_NT", float, 0.5, 0.0, 10000.0, "nT", "floor added in quadrature to a measured F, H or Z standard error"),
     _p("FUS_B0_DEG", float, 0.5, 1e-6, 90.0, "deg", "prior 1-sigma of the D/I bias states (measured minus model)"),
     _p("FUS_B0_NT", float, 500.0, 1e-3, 1e5, "nT", "prior 1-sigma of the F/H/Z bias states"),
     _p("FUS_BQ_DEG", float, 0.0002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
@@ -362,6 +365,9 @@ class NavConfig(_FromRegistry):
     fusion_model: int = _from("FUS_MODEL")
     filter_r_deg: float = _from("FUS_R_DEG")
     filter_r_nt: float = _from("FUS_R_NT")
+    filter_r_source: int = _from("FUS_R_SRC")
+    filter_rmin_deg: float = _from("FUS_RMIN_DEG")
+    filter_rmin_nt: float = _from("FUS_RMIN_NT")
     bias_sigma0_deg: float = _from("FUS_B0_DEG")
     bias_sigma0_nt: float = _from("FUS_B0_NT")
     bias_q_deg: float = _from("FUS_BQ_DEG")

@@ -23,9 +23,16 @@ field (``truth``) may be a different model plus crust and storm. The flight cont
 position, which the ``magnetic`` heading source evaluates its declination table at, is the
 INS-indicated position (GPS is denied from the start).
 
+Each step's measurement carries the standard error of every average, as the companion measures
+it from the period's scatter: on the samples path computed from the samples
+(:func:`sitl.world.sampling.elements_from_ned`); on the analytic path, which draws the average's
+error directly, the scatter estimate is drawn from its own sampling distribution, ``sigma (1 +
+1.166 z / sqrt(n))`` with ``n`` the period's samples (the MAD-based estimate's asymptotic
+relative standard deviation, ``sqrt(1.36 / n)``: 2 % at 3600 samples).
+
 Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams: [0] INS errors,
 [1] measurement noise (analytic D, I or the samples), [2] attitude errors, [3] calibration
-residuals, [4] the analytic F/H/Z noise; the crustal field is drawn from ``seed`` by
+residuals, [4] the analytic F/H/Z noise, [5] the analytic standard errors' scatter; the crustal field is drawn from ``seed`` by
 :meth:`TruthField.for_seed`. LTI-, LTV- and Fc-MPC meet the same draws for the same seed, and
 the ideal world's streams [0] and [1] are drawn exactly as before the others existed.
 """
@@ -50,6 +57,12 @@ __all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
 
 
 CHI2_95_2DOF = 5.991464547107979   # chi-square 95 % quantile, 2 degrees of freedom: the 95 % ellipse
+MAD_SE_RELATIVE_SD = 1.1664        # sqrt(1.3605): asymptotic relative sd of 1.4826 MAD for normal samples
+
+
+def avg_se(avg: AveragedElements) -> tuple[float, float, float, float, float]:
+    """The standard errors of an average, in :class:`Measurement`'s order (D, I, F, H, Z)."""
+    return avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt, avg.z_se_nt
 
 
 @dataclass(frozen=True)
@@ -89,9 +102,10 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     ``nav_model`` is the navigator's field model; by default ``truth.model`` when the truth's
     main field is the navigator's WMM (the ideal world), else the model ``NavConfig`` names.
     """
-    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed = np.random.SeedSequence(seed).spawn(5)
+    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed = np.random.SeedSequence(seed).spawn(6)
     noise_rng = np.random.default_rng(noise_seed)
     fhz_rng = np.random.default_rng(fhz_seed)
+    se_rng = np.random.default_rng(se_seed)
     ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
     truth = truth.for_seed(seed)
     if nav_model is None and scenario.field_model.main == "wmm":
@@ -109,7 +123,9 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
         sigma_d, sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
                                                          float(start_field.f_nt))
-        sigma_f = sensors.mag_noise_nt / math.sqrt(max(1.0, sensors.mag_rate_hz * nav.period_s))
+        samples = max(1.0, sensors.mag_rate_hz * nav.period_s)
+        sigma_f = sensors.mag_noise_nt / math.sqrt(samples)
+        se_spread = MAD_SE_RELATIVE_SD / math.sqrt(samples)
     settings = SampleSettings(sensors.mag_rate_hz, sensors.mag_noise_nt, sensors.mag_lsb_nt, sensors.mag_bias_nt,
                               sensors.attitude_noise_deg, scenario.heading_source)
     wave = WaveMotion()
@@ -137,7 +153,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
             avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng)
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
-                               avg.h_nt, avg.z_nt), avg
+                               avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
+                               avg.z_se_nt), avg
         # analytic path: the path's points after the start knot (the start alone at step 0)
         path = slice(1, None) if len(knots) > 1 else slice(0, 1)
         ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
@@ -146,8 +163,12 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         decl = float(np.mean(np.degrees(np.arctan2(e, n)))) + noise_rng.normal(0.0, sigma_d)
         incl = float(np.mean(np.degrees(np.arctan2(d, h)))) + noise_rng.normal(0.0, sigma_i)
         fn, hn, zn = (float(np.mean(v)) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
-        avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)))
-        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn), avg
+        # the standard errors as the period's scatter would measure them (D, I, F, H, Z)
+        se = np.array([sigma_d, sigma_i, sigma_f, sigma_f, sigma_f]) * np.maximum(
+            0.0, 1.0 + se_spread * se_rng.standard_normal(5))
+        avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)),
+                               *(float(v) for v in se))
+        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg)), avg
 
     time_s = 0.0
     lats, lons = [state.lat_deg], [state.lon_deg]

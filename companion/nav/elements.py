@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["ElementSet", "ELEMENT_SETS", "element_set", "ELEMENT_NAMES"]
+__all__ = ["ElementSet", "ELEMENT_SETS", "element_set", "ELEMENT_NAMES", "STANDARD_ERROR_NAMES", "hz_standard_errors"]
 
 ARCSEC_PER_DEG = 3600.0
 # One QP unit per 0.1 nT: a cruise step (5 km) on the Pacific route changes F by 10-25 nT,
@@ -50,6 +50,9 @@ QP_UNITS_PER_NT = 10.0
 PAPER_UNITS_PER_NT = 0.01
 
 ELEMENT_NAMES = {"decl_deg": "D", "incl_deg": "I", "f_nt": "F", "h_nt": "H", "z_nt": "Z"}
+# the attribute holding each element's measured standard error (Measurement, AveragedElements)
+STANDARD_ERROR_NAMES = {"decl_deg": "decl_se_deg", "incl_deg": "incl_se_deg", "f_nt": "f_se_nt",
+                        "h_nt": "h_se_nt", "z_nt": "z_se_nt"}
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,10 @@ class ElementSet:
         """The two elements of ``source`` (FieldElements, Measurement or any object with the names)."""
         return np.array([getattr(source, name) for name in self.names], dtype=float)
 
+    def standard_errors(self, source) -> np.ndarray:
+        """The measured standard errors of the set's elements in ``source`` (NaN where it has none)."""
+        return np.array([getattr(source, STANDARD_ERROR_NAMES[name], math.nan) for name in self.names], dtype=float)
+
     def difference(self, a: ArrayLike, b: ArrayLike) -> np.ndarray:
         """``a - b`` element-wise, declination wrapped into [-180, 180) degrees."""
         diff = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
@@ -115,6 +122,18 @@ ELEMENT_SETS: dict[int, ElementSet] = {
     ElementSet.HORIZONTAL_VERTICAL: ElementSet(ElementSet.HORIZONTAL_VERTICAL, ("h_nt", "z_nt")),
     ElementSet.WEIGHTED: ElementSet(ElementSet.WEIGHTED, ("decl_deg", "incl_deg", "f_nt")),
 }
+
+
+def hz_standard_errors(f_nt: float, incl_deg: float, f_se_nt: float, incl_se_deg: float) -> tuple[float, float]:
+    """Standard errors of ``H = F cos I`` and ``Z = F sin I`` from those of F and I, to first
+    order, the errors of F and I taken as independent (NaN where either is unknown).
+
+    >>> [round(v, 6) for v in hz_standard_errors(50000.0, 0.0, 3.0, math.degrees(4.0 / 50000.0))]
+    [3.0, 4.0]
+    """
+    c, s = math.cos(math.radians(incl_deg)), math.sin(math.radians(incl_deg))
+    se_i = math.radians(incl_se_deg) * f_nt
+    return math.hypot(c * f_se_nt, s * se_i), math.hypot(s * f_se_nt, c * se_i)
 
 
 def element_set(code: int) -> ElementSet:

@@ -76,7 +76,8 @@ class Estimate:
 def filter_settings(config) -> FilterSettings:
     """The filter's settings from a :class:`companion.params.NavConfig`."""
     return FilterSettings(
-        r_deg=config.filter_r_deg, r_nt=config.filter_r_nt,
+        r_deg=config.filter_r_deg, r_nt=config.filter_r_nt, r_source=config.filter_r_source,
+        r_min_deg=config.filter_rmin_deg, r_min_nt=config.filter_rmin_nt,
         bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
                       config.bias_qa_deg, config.bias_qa_nt),
         ins=InsErrorSpec(),
@@ -125,7 +126,7 @@ class PositionEstimator:
         if start_sigma_m is not None:
             self.filter.update_position(c.start_lat_deg, c.start_lon_deg, start_sigma_m, *self._ins)
             if c.calibrate and self.calibrate_start:
-                self.filter.calibrate(measured, *self._ins)
+                self.filter.calibrate(measured, *self._ins, self.measured.standard_errors(meas))
         return self._estimate(updated=start_sigma_m is not None)
 
     def step(self, meas, measured: np.ndarray, dt_s: float, vel_en_mps: np.ndarray, lag_en_m: np.ndarray,
@@ -170,7 +171,7 @@ class PositionEstimator:
         if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m:
             self.rejected += 1   # not a fix: a wrong contour crossing or a disturbed measurement
             return self._estimate()
-        f.update_elements(measured, lag_en_m, *self._ins)
+        f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas))
         return self._estimate(fix=fix, updated=True)
 
     def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray):

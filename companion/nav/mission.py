@@ -64,7 +64,7 @@ FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_
                     "elements", "calibrate", "s_auto", "s_margin_deg",
                     "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
                     "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
-                    "filter_r_deg", "filter_r_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
+                    "filter_r_deg", "filter_r_nt", "filter_r_source", "filter_rmin_deg", "filter_rmin_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
                     "bias_qa_deg", "bias_qa_nt", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
                     "grad_init")
 
@@ -88,6 +88,10 @@ class Measurement:
     centre of that window, half a window back along the move. INS position in degrees, NaN when
     the source has none (or when it is not independent of this navigator: GPS-aided, or our
     own estimate fed back).
+
+    ``decl_se_deg`` ... ``z_se_nt``: the standard error of each period average, measured from the
+    period's own scatter (NaN when not measured); the error-state filter takes its measurement
+    noise from them (``FUS_R_SRC`` 1, :meth:`ElementSet.standard_errors`).
     """
 
     time_s: float
@@ -99,6 +103,11 @@ class Measurement:
     f_nt: float = math.nan
     h_nt: float = math.nan
     z_nt: float = math.nan
+    decl_se_deg: float = math.nan
+    incl_se_deg: float = math.nan
+    f_se_nt: float = math.nan
+    h_se_nt: float = math.nan
+    z_se_nt: float = math.nan
 
 
 @dataclass(frozen=True)

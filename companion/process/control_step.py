@@ -13,6 +13,7 @@ import time
 
 from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
+from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
@@ -83,8 +84,12 @@ class ControlStep:
         incl = app.preparation.inclination(avg)
         # H and Z from F and the (gravity-referenced) I: no heading enters either
         h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
-        meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt)
-        se = {"decl_deg": avg.decl_se_deg, "incl_deg": app.preparation.inclination_se(avg), "f_nt": avg.f_se_nt}
+        incl_se = app.preparation.inclination_se(avg)
+        # measured standard errors: the filter's measurement noise (FUS_R_SRC 1) and the plausibility bound
+        h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
+        meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
+                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se)
+        se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
         self.judgement = None
         if self.excluded(t_k, meas, se):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later

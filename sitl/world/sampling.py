@@ -18,7 +18,9 @@ sample at a time), sample by sample rather than as an analytic averaged draw:
    (:func:`sitl.world.attitude.compass_yaw_rad`);
 4. the companion's processing (:mod:`companion.nav.magnetometer`): the measured body field
    rotated into NED with the reported attitude, D, I, H, Z and F per sample, averaged over the
-   period (D unwrapped around the first sample): :class:`AveragedElements`.
+   period (D unwrapped around the first sample): :class:`AveragedElements`, with each average's
+   standard error from the period's own scatter, ``1.4826 MAD / sqrt(n)`` as the companion
+   measures it (:func:`companion.nav.inclination.robust_standard_error`).
 
 Pure: arrays and a seeded generator in, averages out.
 """
@@ -32,8 +34,8 @@ import numpy as np
 
 from sitl.world.attitude import compass_yaw_rad
 
-__all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "sample_period",
-           "rotation_nb"]
+__all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "robust_standard_errors",
+           "sample_period", "rotation_nb"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,11 @@ class AveragedElements:
     h_nt: float
     z_nt: float
     samples: int
+    decl_se_deg: float = math.nan
+    incl_se_deg: float = math.nan
+    f_se_nt: float = math.nan
+    h_se_nt: float = math.nan
+    z_se_nt: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -90,14 +97,28 @@ def rotation_nb(roll, pitch, yaw) -> np.ndarray:
                      np.stack([-sp, sr * cp, cr * cp], -1)], -2)
 
 
+MAD_TO_SIGMA = 1.482602218505602
+
+
+def robust_standard_errors(values: np.ndarray) -> np.ndarray:
+    """``1.4826 MAD / sqrt(n)`` of each column of ``values`` (N, k); NaN below two samples."""
+    if len(values) < 2:
+        return np.full(values.shape[1], np.nan)
+    centre = np.median(values, axis=0)
+    return MAD_TO_SIGMA * np.median(np.abs(values - centre), axis=0) / math.sqrt(len(values))
+
+
 def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:
-    """Average per-sample D, I, F, H, Z of NED vectors (N, 3), D unwrapped around the first."""
+    """Average per-sample D, I, F, H, Z of NED vectors (N, 3), D unwrapped around the first,
+    with the standard error of each average from the samples' scatter."""
     n, e, d = ned[:, 0], ned[:, 1], ned[:, 2]
     h = np.hypot(n, e)
     decl = np.degrees(np.arctan2(e, n))
     decl = decl[0] + (decl - decl[0] + 180.0) % 360.0 - 180.0
-    return AveragedElements(time_s, float(decl.mean()), float(np.degrees(np.arctan2(d, h)).mean()),
-                            float(np.sqrt(n * n + e * e + d * d).mean()), float(h.mean()), float(d.mean()), len(n))
+    per_sample = np.stack([decl, np.degrees(np.arctan2(d, h)), np.sqrt(n * n + e * e + d * d), h, d], -1)
+    means = per_sample.mean(axis=0)
+    se = robust_standard_errors(per_sample)
+    return AveragedElements(time_s, *(float(v) for v in means), len(n), *(float(v) for v in se))
 
 
 def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callable[[np.ndarray], tuple],
