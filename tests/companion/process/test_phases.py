@@ -149,3 +149,23 @@ def test_our_hold_seen_only_when_heartbeats_return_is_still_ours(rig):
     sent = _sent(fc)
     assert "mission paused" not in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
     assert GUIDED in _mode_commands(sent)                              # taken back once healthy
+
+
+@pytest.mark.parametrize("fus_model", [2, 3])
+def test_filter_calibrates_at_a_nav_start_start(rig, monkeypatch, fus_model):
+    """Without GPS the mission starts from NAV_START, which the error-state filter takes as a position
+    measurement (FUS_GPS_M); it observes its bias states there too (NAV_CALIBRATE 1). Before, it did so
+    only at a GPS start, and closed loop against the stand-in (no GPS) its bias states were first pinned
+    a step later against a 2.5 km INS prior: 0.9 km off at the end of the short mission, 0.3 km in-process."""
+    app, _ = rig
+    app.machine.state = State.READY
+    app.params.set_value("FUS_MODEL", fus_model)
+    app.apply_params()
+    monkeypatch.setattr(app.stepper, "step", lambda *a, **k: None)   # the mission's set-up, not its first step
+    for t in range(10):
+        app.mag.averager.add(0.1 * t, -3.9, 44.3)
+    assert app.preparation.start_position()[2] == "NAV_START"
+    app.phases.start_mission(app.now)
+    mission = app.mission
+    assert mission.estimator is not None and mission.estimator.calibrate_start
+    assert mission.start_sigma_m == app.nav_cfg.gps_sigma_m
