@@ -400,6 +400,7 @@ def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float
 
 def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[float, float],
                         result: FlyResult) -> FlyResult:
+    from companion.nav.estimator import vehicle_fusion_model
     from companion.params import NavConfig
     from sitl.inprocess import fly_in_process
     from sitl.world.build import build_truth_field
@@ -407,5 +408,6 @@ def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[floa
     scenario = load_scenario(scenario_arg)
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], **options.extra_params}
     nav = NavConfig.from_values(validate_all(values))
+    nav = nav.replace(fusion_model=vehicle_fusion_model(nav.fusion_model))   # what the companion flies
     run = fly_in_process(nav, scenario, options.seed, build_truth_field(scenario, options.data_dir))
     return replace(result, mc_remaining_m=run.remaining_m, mc_iterations=run.iterations)

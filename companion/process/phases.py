@@ -26,9 +26,7 @@ import time
 
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import ELEMENT_SETS
-from companion.nav.estimator import FusionModel
 from companion.nav.mission import Command, Phase
-from companion.params import Controller
 from companion.process.machine import Event, State
 from companion.process.options import MAX_RESTARTS
 
@@ -196,10 +194,9 @@ class Phases:
         estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
-        elif estimator is None and config.controller == Controller.FC:
-            why = ("FUS_MODEL 1" if config.fusion_model == FusionModel.TABLE3 else
-                   "auto: the FC's position is no independent INS (GPS-aided, or our own feed)")
-            app.out.say(f"FcMPC: position filter: Table 3 ({why})")
+        elif estimator is None and app.nav_cfg.fusion_model != config.fusion_model:
+            app.out.say("FcMPC: position filter: Table 3 (FUS_MODEL 0 on a vehicle; the error-state filter "
+                        "is opt-in as FUS_MODEL 2 or 3)")
 
     # ------------------------------------------------------------------ running
     def running(self, now: float, reasons: list[str], dt: float) -> bool:
