@@ -42,7 +42,7 @@ __all__ = ["RESUME_MAX_AGE_S", "SAVE_EVERY_S", "NavSnapshot", "NavStateStore", "
 
 RESUME_MAX_AGE_S = 300.0     # message time: the vehicle held this long at most (less than a control period)
 SAVE_EVERY_S = 30.0          # message time between saves while running (besides every step)
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2          # 2: the filter measures its noise (FUS_R_SRC); a version-1 state is not resumed
 
 
 @dataclass(frozen=True)
