@@ -255,16 +255,21 @@ class CompanionApp:
 
     def spin(self, wait_s: float = 0.02) -> None:
         """One pass of the loop: what the link has (waiting up to ``wait_s``), the source, the idle hook.
-        What the pass sends leaves together at its end (:meth:`MavlinkLink.batched`)."""
+        Against a lockstep simulator what the pass sends leaves together at its end
+        (:meth:`MavlinkLink.batched`); to a flight controller each frame goes out as sent: PX4
+        forwards what it receives to its other links, and a burst of frames in one datagram lost the
+        companion's STATUSTEXT on its way to PX4's ground-station link (one CI run), and PX4 on
+        NuttX reads UDP into a 1000-byte buffer."""
+        batched = self.link.batched if self.opts.lockstep else contextlib.nullcontext
         if self.link.wait_readable(wait_s):
             for _ in range(256):
-                with self.link.batched():
+                with batched():
                     msgs = self.link.read()
                     for msg in msgs:
                         self.handle(msg)
                 if not msgs:
                     break
-        with self.link.batched():
+        with batched():
             if self.sensors is not None:
                 self.intake.poll()
             self.idle()

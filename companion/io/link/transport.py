@@ -3,11 +3,11 @@
 A transport answers three questions: what can be read now, *from whom* (an address per chunk),
 and where does a written frame go. Between :meth:`UdpTransport.begin_batch` and
 :meth:`~UdpTransport.end_batch` the frames written are packed, whole and in order, into datagrams
-of up to ``BATCH_DATAGRAM_BYTES``: the companion answers one pass of its loop (a setpoint, the
-10 Hz GPS_INPUT, a heartbeat) in one datagram instead of one each, as ArduPilot and PX4 do with
-their own streams. Every MAVLink receiver parses a datagram as a byte stream (ArduPilot's UDP
-port, PX4's mavlink receiver, MAVSDK, pymavlink), so this changes no frame; one ``sendto`` per
-frame was a sixth of the companion's time in a lockstep mission. :class:`UdpTransport` owns its socket instead of pymavlink's
+of up to ``BATCH_DATAGRAM_BYTES``: against a lockstep simulator the companion answers one pass
+of its loop (a setpoint, the 10 Hz GPS_INPUT, a heartbeat) in one datagram instead of one each
+(one ``sendto`` per frame was a sixth of the companion's time in a lockstep mission). MAVLink
+receivers parse a datagram as a byte stream, but the companion does not batch to a flight
+controller (see :meth:`companion.process.companion.CompanionApp.spin`). :class:`UdpTransport` owns its socket instead of pymavlink's
 ``udpin``/``udpout`` connections, whose listener sends every output to every sender it ever
 heard; here ``write`` goes to the addresses the link's peer table names (the flight controller
 and allowed ground stations), or, for ``udpout:``, to the one address given. Serial and TCP links
@@ -25,7 +25,7 @@ __all__ = ["STREAM", "StreamTransport", "UdpTransport", "open_transport", "parse
 STREAM = "stream"           # the one address of a serial or TCP link
 MAX_DATAGRAMS = 64          # per receive(): bounded work per call, the rest stays in the socket
 RCVBUF_BYTES = 4 << 20
-BATCH_DATAGRAM_BYTES = 1400  # frames packed into one datagram while batching: under a 1500-byte MTU
+BATCH_DATAGRAM_BYTES = 1000  # frames packed into one datagram while batching (PX4 on NuttX reads 1000)
 
 
 def parse_connection(text: str) -> tuple[str, int]:
