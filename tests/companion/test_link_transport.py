@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import socket
 
+import pytest
+
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -33,65 +35,60 @@ def _datagrams(sock: socket.socket) -> list[bytes]:
     return out
 
 
+@pytest.fixture
+def pair():
+    """A sending transport (``udpout``-like) and the loopback socket it sends to."""
+    rx = _receiver()
+    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
+    yield tx, rx
+    tx.close()
+    rx.close()
+
+
 def _frames(count: int) -> list[bytes]:
     mav = mavlink.MAVLink(None, 1, 191)
     return [mavlink.MAVLink_named_value_float_message(k, b"FC_STATE", float(k)).pack(mav) for k in range(count)]
 
 
-def test_a_batch_leaves_as_one_datagram_of_whole_frames_in_order():
-    rx = _receiver()
-    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
+def test_a_batch_leaves_as_one_datagram_of_whole_frames_in_order(pair):
+    tx, rx = pair
+    frames = _frames(5)
+    tx.begin_batch()
+    for frame in frames:
+        tx.write(frame)
+    rx.setblocking(False)
     try:
-        frames = _frames(5)
-        tx.begin_batch()
-        for frame in frames:
-            tx.write(frame)
-        rx.setblocking(False)
-        try:
-            assert rx.recv(65535) is None, "sent before the batch ended"
-        except BlockingIOError:
-            pass
-        rx.settimeout(5.0)
-        tx.end_batch()
-        [datagram] = _datagrams(rx)
-        assert datagram == b"".join(frames)
-        parsed = mavlink.MAVLink(None).parse_buffer(datagram)
-        assert [m.time_boot_ms for m in parsed] == list(range(5))
-    finally:
-        tx.close()
-        rx.close()
+        assert rx.recv(65535) is None, "sent before the batch ended"
+    except BlockingIOError:
+        pass
+    rx.settimeout(5.0)
+    tx.end_batch()
+    [datagram] = _datagrams(rx)
+    assert datagram == b"".join(frames)
+    parsed = mavlink.MAVLink(None).parse_buffer(datagram)
+    assert [m.time_boot_ms for m in parsed] == list(range(5))
 
 
-def test_a_large_batch_is_split_at_frame_boundaries_under_the_datagram_limit():
-    rx = _receiver()
-    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
-    try:
-        frames = _frames(200)        # 200 x 30 bytes: more than four datagrams' worth
-        tx.begin_batch()
-        for frame in frames:
-            tx.write(frame)
-        tx.end_batch()
-        datagrams = _datagrams(rx)
-        assert len(datagrams) > 1 and all(len(d) <= BATCH_DATAGRAM_BYTES for d in datagrams)
-        parser = mavlink.MAVLink(None)
-        parsed = [m for d in datagrams for m in parser.parse_buffer(d) or []]
-        assert [m.time_boot_ms for m in parsed] == list(range(200))   # no frame split, lost or reordered
-    finally:
-        tx.close()
-        rx.close()
+def test_a_large_batch_is_split_at_frame_boundaries_under_the_datagram_limit(pair):
+    tx, rx = pair
+    frames = _frames(200)        # 200 x 30 bytes: several datagrams' worth
+    tx.begin_batch()
+    for frame in frames:
+        tx.write(frame)
+    tx.end_batch()
+    datagrams = _datagrams(rx)
+    assert len(datagrams) > 1 and all(len(d) <= BATCH_DATAGRAM_BYTES for d in datagrams)
+    parser = mavlink.MAVLink(None)
+    parsed = [m for d in datagrams for m in parser.parse_buffer(d) or []]
+    assert [m.time_boot_ms for m in parsed] == list(range(200))   # no frame split, lost or reordered
 
 
-def test_outside_a_batch_each_frame_is_its_own_datagram():
-    rx = _receiver()
-    tx = UdpTransport("127.0.0.1", rx.getsockname()[1], listen=False)
-    try:
-        frames = _frames(3)
-        for frame in frames:
-            tx.write(frame)
-        got = []
-        while len(got) < 3:
-            got += _datagrams(rx)
-        assert got == frames
-    finally:
-        tx.close()
-        rx.close()
+def test_outside_a_batch_each_frame_is_its_own_datagram(pair):
+    tx, rx = pair
+    frames = _frames(3)
+    for frame in frames:
+        tx.write(frame)
+    got = []
+    while len(got) < 3:
+        got += _datagrams(rx)
+    assert got == frames
