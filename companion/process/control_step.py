@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 import time
 
+import numpy as np
+
 from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
@@ -147,10 +149,15 @@ class ControlStep:
         reference = app.plausibility.f_reference_nt
         if reference is None or not math.isfinite(reference):   # resumed mid-route: no start to learn it at
             reference = 0.0
+        # judged as the navigator will see it: with the error-state filter, its bias states (which
+        # follow a storm it has recognised) are removed and their uncertainty widens the bound;
+        # judged against the start-up calibration alone, a storm the filter was tracking drove the
+        # implied jump past the bound and every later step was excluded (short storm, seed 0)
+        bias, bias_sigma = mission.measurement_bias()
+        noise = np.hypot(element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}), bias_sigma)
         judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
-                          f_reference_nt=reference,
-                          noise=element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}))
+                          f_reference_nt=reference, noise=noise, fix_bias=bias)
         self.judgement = judgement
         said = app.plausibility.verdict(judgement)
         if said is not None:

@@ -117,6 +117,42 @@ def test_the_start_up_calibration_is_taken_out_before_judging():
     assert not _judge_at(elements, LAT, LON, f_extra_nt=2500.0).ok
 
 
+def test_the_filters_bias_states_are_taken_out_before_the_fix_but_not_before_the_band():
+    """With the error-state filter the fix is judged as the filter will see it: a storm it is
+    tracking in its bias states (here 0.3 deg of I, 40-60 km of fix on this route) is no jump. The
+    |F| band still judges the sensor against its own start, so an F offset the bias states have
+    absorbed is caught there all the same."""
+    elements = ELEMENT_SETS[ElementSet.PAPER]
+    here = MODEL.elements(LAT, LON, 0.0, YEAR)
+    storm = np.array([0.0, 0.3])
+    measured = elements.values(here) + storm
+    calibration_only = judge(MODEL, elements, YEAR, 0.0, measured, float(here.f_nt), np.zeros(2), LAT, LON,
+                             800.0, 5000.0)
+    assert calibration_only.kind == "fix_jump"
+    tracked = judge(MODEL, elements, YEAR, 0.0, measured, float(here.f_nt), np.zeros(2), LAT, LON, 800.0, 5000.0,
+                    fix_bias=storm)
+    assert tracked.ok and tracked.jump_m < 100.0
+    heading_free = ELEMENT_SETS[ElementSet.HEADING_FREE]
+    absorbed = np.array([0.0, 3000.0])
+    offset = judge(MODEL, heading_free, YEAR, 0.0, heading_free.values(here) + absorbed, float(here.f_nt) + 3000.0,
+                   np.zeros(2), LAT, LON, 800.0, 5000.0, fix_bias=absorbed)
+    assert offset.kind == "f_band"
+
+
+@pytest.mark.parametrize("fus_model", [1, 2])
+def test_the_mission_says_which_bias_a_measurement_carries(fus_model):
+    """Table 3's path: the start-up calibration, exact. The filter: its bias states and their 1-sigma
+    (before its first step, its prior: nothing known)."""
+    config = NavConfig.from_values({**default_values(), "FUS_MODEL": fus_model})
+    mission = Mission(config)
+    mission.set_bias((0.1, -0.2))
+    bias, sigma = mission.measurement_bias()
+    if fus_model == 1:
+        assert bias.tolist() == [0.1, -0.2] and sigma.tolist() == [0.0, 0.0]
+    else:
+        assert bias.tolist() == [0.0, 0.0] and sigma.tolist() == [config.bias_sigma0_deg] * 2
+
+
 def test_the_bound_grows_with_the_uncertainty_and_the_distance_flown():
     elements = SETS[0]
     lat, lon = (float(v) for v in offset_position(LAT, LON, 30_000.0, 0.0))
