@@ -166,7 +166,8 @@ class ControlStep:
             return False
         app.reporting.record_event("excluded", judgement.words(), decl_deg=meas.decl_deg, incl_deg=meas.incl_deg,
                                    f_nt=meas.f_nt, window_s=meas.window_s, est_lat_deg=float(lat),
-                                   est_lon_deg=float(lon), est_sigma_m=sigma)
+                                   est_lon_deg=float(lon), est_sigma_m=sigma,
+                                   **app.reporting.plausibility_record(meas))
         return True
 
     def fault(self, cmd) -> str:

@@ -61,13 +61,13 @@ class Reporting:
             "fix_lon_deg": cmd.fix_lon_deg, "fused": cmd.fused, "remaining_m": cmd.remaining_m,
             "course_deg": math.degrees(cmd.course_rad), "speed_mps": cmd.speed_mps, "solver_ok": cmd.solver_ok,
             "solver_time_s": cmd.solver_time_s, "step_latency_s": latency, "event": event, "reason": reason,
-            **self.gps_record(), **self.plausibility_record(avg)})
+            **self.gps_record(), **self.plausibility_record(meas)})
 
-    def plausibility_record(self, avg) -> dict:
-        """The inclination's standard error and the step's plausibility verdict (jump, bound, noise term)."""
-        app = self.app
-        judged = app.stepper.judgement
-        return {"incl_se_deg": app.preparation.inclination_se(avg),
+    def plausibility_record(self, meas: Measurement) -> dict:
+        """The inclination's standard error and the period's plausibility verdict (jump, bound, noise
+        term): the same columns for a step flown and for a period excluded."""
+        judged = self.app.stepper.judgement
+        return {"incl_se_deg": meas.incl_se_deg,
                 "jump_m": judged.jump_m if judged else math.nan, "bound_m": judged.bound_m if judged else math.nan,
                 "noise_m": judged.noise_m if judged else math.nan}
 

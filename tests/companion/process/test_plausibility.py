@@ -224,3 +224,27 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     app.stepper.step(722.0)
     assert app.mission.k == 2 and app.plausibility.excluded == 1
     _sent(fc)
+
+
+def test_an_excluded_period_is_recorded_with_its_verdict(rig):
+    """A period whose field belongs 150 km away is excluded as a fix jump, and its row in steps.csv
+    carries the verdict (jump, bound, noise term) in the same columns as a step flown."""
+    app, fc = rig
+    config = NavConfig.from_values(default_values())
+    app.mission = Mission(config)
+    model = model_for_date(config.year)
+    start = model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
+    app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg),
+                         (float(start.x_nt), float(start.y_nt), float(start.z_nt)))
+    app.stepper.step(1.0, window_limit_s=0.0)
+    far = model.elements(*(float(v) for v in offset_position(config.start_lat_deg, config.start_lon_deg,
+                                                              0.0, -150_000.0)), config.alt_m, config.year)
+    scale = float(start.f_nt) / float(far.f_nt)       # |F| as at the start: the band passes, the fix jumps
+    app.mag.averager.add(200.0, float(far.decl_deg), float(far.incl_deg),
+                         (float(far.x_nt) * scale, float(far.y_nt) * scale, float(far.z_nt) * scale))
+    app.stepper.step(361.0)
+    assert app.mission.k == 1 and app.stepper.judgement.kind == "fix_jump"
+    [row] = [r for r in read_steps_csv(app.log_dir / "steps.csv") if r["event"] == "excluded"]
+    assert row["jump_m"] == pytest.approx(app.stepper.judgement.jump_m) and row["jump_m"] > 100_000.0
+    assert row["bound_m"] == pytest.approx(app.stepper.judgement.bound_m) and row["jump_m"] > row["bound_m"]
+    assert row["noise_m"] == pytest.approx(app.stepper.judgement.noise_m)
