@@ -96,9 +96,8 @@ class Rig:
         self.tmp.mkdir(parents=True, exist_ok=True)
         with open(self.tmp / "truth.csv", "w") as handle:
             handle.write("time_s,lat_deg,lon_deg,yaw_deg,mode,armed,groundspeed_mps,gps_fix\n")
-            for s in self.monitor.truth:
-                handle.write(f"{s.time_s:.3f},{s.lat_deg:.8f},{s.lon_deg:.8f},{s.yaw_deg:.2f},{s.mode},"
-                             f"{int(s.armed)},{s.groundspeed_mps:.2f},{s.gps_fix}\n")
+            handle.writelines(f"{s.time_s:.3f},{s.lat_deg:.8f},{s.lon_deg:.8f},{s.yaw_deg:.2f},{s.mode},"
+                              f"{int(s.armed)},{s.groundspeed_mps:.2f},{s.gps_fix}\n" for s in self.monitor.truth)
         with open(self.tmp / "texts.txt", "w") as handle:
             handle.writelines(f"{t:.3f}\t{comp}\t{text}\n" for t, comp, text in self.monitor.texts)
 
