@@ -77,6 +77,7 @@ class Rig:
         return lambda m: bool(m.texts_matching(needle, component=191))
 
     def close(self) -> None:
+        self.write_records()
         if self.companion is not None and self.companion.poll() is None:
             self.companion.terminate()
             try:
@@ -86,6 +87,19 @@ class Rig:
         if self.monitor is not None:
             self.monitor.close()
         self.sitl.stop()
+
+    def write_records(self) -> None:
+        """The monitor's truth (truth.csv) and texts (texts.txt) into the test's folder: what a failed
+        run is diagnosed from (pytest keeps the last runs' folders)."""
+        if self.monitor is None:
+            return
+        self.tmp.mkdir(parents=True, exist_ok=True)
+        with open(self.tmp / "truth.csv", "w") as handle:
+            handle.write("time_s,lat_deg,lon_deg,yaw_deg,mode,armed,groundspeed_mps,gps_fix\n")
+            handle.writelines(f"{s.time_s:.3f},{s.lat_deg:.8f},{s.lon_deg:.8f},{s.yaw_deg:.2f},{s.mode},"
+                              f"{int(s.armed)},{s.groundspeed_mps:.2f},{s.gps_fix}\n" for s in self.monitor.truth)
+        with open(self.tmp / "texts.txt", "w") as handle:
+            handle.writelines(f"{t:.3f}\t{comp}\t{text}\n" for t, comp, text in self.monitor.texts)
 
 
 @pytest.fixture
