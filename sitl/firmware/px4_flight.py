@@ -37,8 +37,12 @@ class Px4Rig:
     name = "PX4 SITL (SIH)"
 
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
+        # COM_LOW_BAT_ACT 0: PX4's SITL rcS sets 3 (land), and SIH's simulated battery called it after
+        # ~2 simulated hours of the 30 km leg (the rover disarmed mid-route); a flight's own battery
+        # is not what this run measures (simulator only: params/px4-rover.params leaves it alone)
         self.sitl = Px4Sitl(workdir=out / "px4", instance=flight.instance, home=flight.start,
-                            speed_factor=flight.speedup, params={"SDLOG_MODE": -1, **(params or {})}, root=px4_root())
+                            speed_factor=flight.speedup,
+                            params={"SDLOG_MODE": -1, "COM_LOW_BAT_ACT": 0, **(params or {})}, root=px4_root())
 
     def start(self) -> FirmwareMonitor:
         self.sitl.start()
