@@ -257,21 +257,6 @@ class Mission:
         self._given_bias = value
         self.bias = value if self.estimator is None else np.zeros(n)
 
-    def measurement_bias(self) -> tuple[np.ndarray, np.ndarray]:
-        """What a steering-pair measurement carries besides the field, in element units: the bias
-        to subtract before comparing it with the model, and that bias's 1-sigma. Table 3's path:
-        the start-up calibration, taken as exact. The error-state filter: its bias states (the
-        calibration, the model's error, a storm it has recognised) and their uncertainty, as of
-        its last update; before its first step, nothing known (zero bias, its prior 1-sigma)."""
-        n = len(self.elements.names)
-        f = self.estimator.filter if self.estimator is not None else None
-        if f is not None:
-            return f.bias[:n], f.bias_sigma[:n]
-        if self.estimator is not None:
-            s = self.estimator.settings.bias
-            return np.zeros(n), s.per_element(self.elements.names, s.sigma0_deg, s.sigma0_nt)
-        return np.asarray(self.bias[:n], dtype=float), np.zeros(n)
-
     def set_start_fix(self, sigma_m: float | None, calibrate: bool = True) -> None:
         """The start position is known to this 1-sigma (None: it is not), before the first step;
         ``calibrate``: the start-up average there may observe the biases (a GPS-known start)."""

@@ -19,7 +19,7 @@ from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
-from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge
+from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
@@ -153,7 +153,7 @@ class ControlStep:
         # follow a storm it has recognised) are removed and their uncertainty widens the bound;
         # judged against the start-up calibration alone, a storm the filter was tracking drove the
         # implied jump past the bound and every later step was excluded (short storm, seed 0)
-        bias, bias_sigma = mission.measurement_bias()
+        bias, bias_sigma = navigator_bias(mission)
         noise = np.hypot(element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}), bias_sigma)
         judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,

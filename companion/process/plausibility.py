@@ -48,7 +48,8 @@ import numpy as np
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient
 
-__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge"]
+__all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge",
+           "navigator_bias"]
 
 MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
 
@@ -85,6 +86,24 @@ def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, al
     """``F_measured - bias_F - F_model(lat, lon)``, nT (``bias_F`` 0 when the set has no F)."""
     f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
     return float(f_nt - f_bias - float(model.elements(lat_deg, lon_deg, alt_m, year).f_nt))
+
+
+def navigator_bias(mission) -> tuple[np.ndarray, np.ndarray]:
+    """What a steering-pair measurement carries besides the field for ``mission`` (a
+    :class:`companion.nav.mission.Mission`), in element units: the bias its navigator removes before
+    the fix, and that bias's 1-sigma. Table 3's path: the start-up calibration, taken as exact. The
+    error-state filter: its bias states (the calibration, the model's error, a storm it has
+    recognised) and their uncertainty, as of its last update; before its first step, nothing known
+    (zero bias, its prior 1-sigma)."""
+    n = len(mission.elements.names)
+    estimator = getattr(mission, "estimator", None)
+    f = estimator.filter if estimator is not None else None
+    if f is not None:
+        return f.bias[:n], f.bias_sigma[:n]
+    if estimator is not None:
+        s = estimator.settings.bias
+        return np.zeros(n), s.per_element(mission.elements.names, s.sigma0_deg, s.sigma0_nt)
+    return np.asarray(mission.bias[:n], dtype=float), np.zeros(n)
 
 
 def element_noise(elements: ElementSet, incl_deg: float, f_nt: float, se: dict[str, float]) -> np.ndarray:

@@ -20,6 +20,7 @@ from companion.process.plausibility import (
     PlausibilityLimits,
     element_noise,
     judge,
+    navigator_bias,
 )
 from tests.companion.process.rig import _sent
 
@@ -146,7 +147,7 @@ def test_the_mission_says_which_bias_a_measurement_carries(fus_model):
     config = NavConfig.from_values({**default_values(), "FUS_MODEL": fus_model})
     mission = Mission(config)
     mission.set_bias((0.1, -0.2))
-    bias, sigma = mission.measurement_bias()
+    bias, sigma = navigator_bias(mission)
     if fus_model == 1:
         assert bias.tolist() == [0.1, -0.2] and sigma.tolist() == [0.0, 0.0]
     else:
