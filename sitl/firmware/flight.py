@@ -11,7 +11,6 @@ to come to rest. Records: ``truth.csv`` (firmware time, true position, mode, arm
 """
 from __future__ import annotations
 
-import csv
 import math
 import subprocess
 import sys
@@ -21,7 +20,7 @@ from pathlib import Path
 
 from companion.params import write_parm_file
 from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
-from sitl.firmware.monitor import FirmwareMonitor
+from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 __all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH"]
 
@@ -176,11 +175,6 @@ def _at_rest(monitor: FirmwareMonitor) -> bool:
 
 
 def _write_truth(path: Path, samples: list) -> dict:
-    with open(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["time_s", "lat_deg", "lon_deg", "yaw_deg", "mode", "armed", "gps_fix"])
-        for s in samples:
-            writer.writerow([f"{s.time_s:.3f}", f"{s.lat_deg:.8f}", f"{s.lon_deg:.8f}", f"{s.yaw_deg:.2f}", s.mode,
-                             int(s.armed), s.gps_fix])
+    write_truth_csv(path, samples)
     return {"time_s": [s.time_s for s in samples], "lat_deg": [s.lat_deg for s in samples],
             "lon_deg": [s.lon_deg for s in samples]}

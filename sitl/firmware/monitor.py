@@ -13,16 +13,18 @@ then comes from SYSTEM_TIME and GLOBAL_POSITION_INT. A rate of 0 turns a stream 
 """
 from __future__ import annotations
 
+import csv
 import math
 import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
 
-__all__ = ["TruthSample", "FirmwareMonitor"]
+__all__ = ["TruthSample", "FirmwareMonitor", "write_truth_csv"]
 
 mavlink = mavutil.mavlink
 GCS_SYSID = 255
@@ -153,3 +155,15 @@ class FirmwareMonitor:
 
     def close(self) -> None:
         self.conn.close()
+
+
+def write_truth_csv(path: Path, samples: list[TruthSample]) -> None:
+    """The monitor's truth samples as ``truth.csv``: firmware time (s), true position (deg), yaw (deg),
+    mode, armed, the FC's ground speed (m/s) and GPS fix."""
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["time_s", "lat_deg", "lon_deg", "yaw_deg", "mode", "armed", "groundspeed_mps", "gps_fix"])
+        for sample in samples:
+            writer.writerow([f"{sample.time_s:.3f}", f"{sample.lat_deg:.8f}", f"{sample.lon_deg:.8f}",
+                             f"{sample.yaw_deg:.2f}", sample.mode, int(sample.armed), f"{sample.groundspeed_mps:.2f}",
+                             sample.gps_fix])

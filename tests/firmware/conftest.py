@@ -17,7 +17,7 @@ import pytest
 from companion.params import write_parm_file
 from sitl.firmware import ArduPilotSitl, FirmwareMissing, ardupilot_binary
 from sitl.firmware.ardupilot import free_instance
-from sitl.firmware.monitor import FirmwareMonitor
+from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 REPO = Path(__file__).resolve().parents[2]
 _TAKEN: set[int] = set()     # instances this test session handed out (free_instance skips busy ports too)
@@ -97,10 +97,7 @@ class Rig:
         if self.monitor is None:
             return
         self.tmp.mkdir(parents=True, exist_ok=True)
-        with open(self.tmp / "truth.csv", "w") as handle:
-            handle.write("time_s,lat_deg,lon_deg,yaw_deg,mode,armed,groundspeed_mps,gps_fix\n")
-            handle.writelines(f"{s.time_s:.3f},{s.lat_deg:.8f},{s.lon_deg:.8f},{s.yaw_deg:.2f},{s.mode},"
-                              f"{int(s.armed)},{s.groundspeed_mps:.2f},{s.gps_fix}\n" for s in self.monitor.truth)
+        write_truth_csv(self.tmp / "truth.csv", self.monitor.truth)
         with open(self.tmp / "texts.txt", "w") as handle:
             handle.writelines(f"{t:.3f}\t{comp}\t{text}\n" for t, comp, text in self.monitor.texts)
 
