@@ -11,6 +11,6 @@
 from __future__ import annotations
 
 from fcmpc_fly.results import FlyResult, TruthTrack, distances, summary_lines, write_result
-from fcmpc_fly.runner import FlyOptions, fly
+from fcmpc_fly.runner import FlyOptions, fly, fly_in_process_alike
 
-__all__ = ["FlyOptions", "FlyResult", "TruthTrack", "distances", "fly", "summary_lines", "write_result"]
+__all__ = ["FlyOptions", "FlyResult", "TruthTrack", "distances", "fly", "fly_in_process_alike", "summary_lines", "write_result"]

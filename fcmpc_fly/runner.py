@@ -47,7 +47,7 @@ from fcmpc_fly.results import (REST_WINDOW_S, STATUS_EXIT, FlyResult, TruthTrack
                                write_result)
 from sitl.scenario import Scenario, load_scenario
 
-__all__ = ["FlyOptions", "fly", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
+__all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
            "REPO", "SHORT_KM"]
 
 REPO = Path(__file__).resolve().parents[1]
@@ -400,7 +400,13 @@ def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float
 
 def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[float, float],
                         result: FlyResult) -> FlyResult:
-    from companion.nav.estimator import vehicle_fusion_model
+    run = fly_in_process_alike(options, scenario_arg, dest, options.seed)
+    return replace(result, mc_remaining_m=run.remaining_m, mc_iterations=run.iterations)
+
+
+def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[float, float], seed: int):
+    """The in-process run (:func:`sitl.inprocess.fly_in_process`) of this flight's scenario, destination
+    and parameters with ``seed``: what ``--compare`` prints, and a spread of seeds for the tests."""
     from companion.params import NavConfig
     from sitl.inprocess import fly_in_process
     from sitl.world.build import build_truth_field
@@ -408,6 +414,4 @@ def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[floa
     scenario = load_scenario(scenario_arg)
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], **options.extra_params}
     nav = NavConfig.from_values(validate_all(values))
-    nav = nav.replace(fusion_model=vehicle_fusion_model(nav.fusion_model))   # what the companion flies
-    run = fly_in_process(nav, scenario, options.seed, build_truth_field(scenario, options.data_dir))
-    return replace(result, mc_remaining_m=run.remaining_m, mc_iterations=run.iterations)
+    return fly_in_process(nav, scenario, seed, build_truth_field(scenario, options.data_dir))

@@ -32,8 +32,7 @@ from companion.nav.navfilter import (
 )
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 
-__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings",
-           "vehicle_fusion_model"]
+__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
 
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
@@ -46,18 +45,6 @@ class FusionModel:
     TABLE3 = 1
     INS = 2
     DEAD_RECKONING = 3
-
-
-def vehicle_fusion_model(model: int) -> int:
-    """FUS_MODEL as the companion process flies it: auto (0) is Table 3 on a vehicle. With its bias
-    states calibrated at a NAV_START start the error-state filter beat Table 3 closed loop in five
-    quiet and faulted pairs, but flown as the companion's default through the short storm (seed 0)
-    its estimate ended ~95 km from the fixes and the companion's plausibility gate, which judges a
-    fix against that estimate, excluded every later step: the vehicle was still 64 km from the
-    destination after 30 simulated hours. The gate now judges with the filter's bias states; then
-    the long storm (seed 0) arrived 35.3 km off closed loop against 8.6 km in-process, the storm
-    recognised later. So it stays opt-in (2 or 3) until that is understood (README, issue 14)."""
-    return FusionModel.TABLE3 if model == FusionModel.AUTO else model
 
 
 @dataclass(frozen=True)

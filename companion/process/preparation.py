@@ -12,7 +12,6 @@ import math
 from dataclasses import replace
 
 from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet
-from companion.nav.estimator import vehicle_fusion_model
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.nav.mission import WMM_NAMES, Mission
@@ -60,11 +59,8 @@ class MissionPreparation:
             self.prepared = Mission(config)
 
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:
-        """The mission's settings: NAV_* from the parameters, this start, the resolved element set.
-
-        ``FUS_MODEL 0`` (auto) flies Table 3 here (:func:`vehicle_fusion_model`)."""
-        config = self.app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=elements)
-        return config.replace(fusion_model=vehicle_fusion_model(config.fusion_model))
+        """The mission's settings: NAV_* from the parameters, this start, the resolved element set."""
+        return self.app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=elements)
 
     def fits(self, config: NavConfig) -> bool:
         """The prepared mission serves ``config``: the same settings, a start within PREPARED_START_M

@@ -144,8 +144,14 @@ def e_reason_ok(reason: str, kind: str) -> bool:
     return reason.startswith(prefix) and detail in reason
 
 
+ISSUE_MISS_M = 1000.0    # issue 10: "the mission still arriving within 1 km afterwards"
+
+
 def test_mission_completes_after_the_faults(faulted_run):
     result = faulted_run[0]
     assert result.status == "arrived", result.message
-    assert result.step_remaining_m <= FLOOR_M
+    # measured with the error-state filter (the default since 2026-11-30): 0.11 km at the last step,
+    # 0.19 km at rest (seed 0); Table 3's fix alone arrived 1.03 km off, over the issue's 1 km
+    assert max(result.step_remaining_m, result.rest_remaining_m) <= ISSUE_MISS_M, \
+        f"missed by {result.step_remaining_m:.0f} m (last step), {result.rest_remaining_m:.0f} m (at rest)"
     assert result.companion["failsafes"] >= 3

@@ -1,28 +1,54 @@
 """The paper's storm missions closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
 
-Pass as for the Pacific mission (``test_missions_slow.py``). The short storm is flown in
-``test_short_storm_mission_slow.py``: one mission per module, so parallel workers fly them side
-by side. The simulator's storm clock is its time since boot, which includes the companion's stationary start-up (one control period, 0.6 % of
-the compressed window), so the storm is seen slightly earlier along the track than in-process.
+The short storm is flown in ``test_short_storm_mission_slow.py``: one mission per module, so
+parallel workers fly them side by side. The simulator's storm clock is its time since boot, which
+includes the companion's stationary start-up (one control period, 0.6 % of the compressed window),
+so the storm is seen slightly earlier along the track than in-process.
+
+**Judged against the in-process spread, not the same seed.** With the error-state filter (the
+default) a storm's miss depends on when the filter recognises it, and that moves with the noise:
+in-process, seeds 0-11 of the long storm end 8.4-32.1 km off and the short storm 13.0-51.5 km
+(Table 3's fix alone: 16.2-27.6 and 29.3-30.2 km). The closed loop draws other noise than the
+in-process run of its seed (``test_closed_loop.py``), so the same seed is not the same draw:
+flown closed loop, the long storm's seeds 0, 1 and 2 ended 35.3, 13.0 and 6.2 km off against 8.6, 10.6
+and 13.0 km in-process (the short storm's seed 0: 39.2 km). A closed loop that flies like the in-process mission ends inside that
+spread; a defect of the closed loop (a storm never recognised, steps excluded, a stalled mission)
+ends outside it. The limit is 1.5x the worst of ``SPREAD_SEEDS`` in-process runs.
 """
 from __future__ import annotations
 
+import math
+
 import pytest
 
-from fcmpc_fly import FlyOptions, fly
-from tests.companion.test_closed_loop import assert_close_to_monte_carlo
+from fcmpc_fly import FlyOptions, fly, fly_in_process_alike
 from tests.companion.test_missions_slow import HANG_S
 
 pytestmark = pytest.mark.timeout(HANG_S + 300.0)
 
+SPREAD_SEEDS = range(8)     # in-process, 1-5 s each
+
 
 def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
-    """Fly the bundled storm scenario closed loop (seed 0) and check it against the in-process run."""
+    """Fly the bundled storm scenario closed loop (seed 0) and check it against the in-process spread."""
     if not (shared_data / "storms").is_dir():
         pytest.skip(f"storm data not found under {shared_data}")
-    result = fly(FlyOptions(scenario=scenario, seed=0, compare=True, out_dir=str(tmp_path / "run"),
-                            timeout_s=HANG_S, tlog=False, data_dir=str(shared_data)))
-    assert_close_to_monte_carlo(result)
+    options = FlyOptions(scenario=scenario, seed=0, out_dir=str(tmp_path / "run"), timeout_s=HANG_S, tlog=False,
+                         data_dir=str(shared_data))
+    result = fly(options)
+    assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
+    dest = (result.dest_lat_deg, result.dest_lon_deg)
+    spread = [fly_in_process_alike(options, scenario, dest, seed) for seed in SPREAD_SEEDS]
+    misses = sorted(run.remaining_m for run in spread)
+    assert math.isfinite(result.step_remaining_m) and all(math.isfinite(m) for m in misses)
+    limit = 1.5 * misses[-1]
+    assert result.step_remaining_m <= limit, (
+        f"closed loop {result.step_remaining_m / 1e3:.1f} km, in-process seeds {[round(m / 1e3, 1) for m in misses]} km "
+        f"(limit {limit / 1e3:.1f} km) ({result.out_dir})")
+    # the steps: within the in-process runs' range, with the same margin
+    steps = sorted(run.iterations for run in spread)
+    assert 0.85 * steps[0] <= result.iterations <= 1.15 * steps[-1], (result.iterations, steps)
+    assert result.came_to_rest and abs(result.rest_remaining_m - result.step_remaining_m) <= 1000.0
 
 
 @pytest.mark.slow
