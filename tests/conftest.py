@@ -20,27 +20,34 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--run-slow", action="store_true", help="also run tests marked slow")
 
 
-# The longest modules (measured in CI: the whole missions, 150-640 s each under load, and PX4's
-# module with its 30-minute GPS-lost flight, ~400 s) go first, then the other slow ones: parallel
-# workers (pytest-xdist, one module at a time) take modules in this order, so the long ones start at
-# once instead of last on a worker while the others idle. xdist's loadscope would reorder modules by
-# their number of tests (most first, so these single-test modules last): setup.cfg turns that off
-# with --no-loadscope-reorder.
-LONGEST_MODULES = ("test_missions_slow.py", "test_storm_missions_slow.py", "test_short_storm_mission_slow.py",
-                   "test_px4.py")
+# The longest modules go first (measured in a CI run on 2 cores: the PX4 quadrants ~560 s and its
+# GPS-lost flight ~410 s, the long and short storms ~460 and ~360 s, the full Pacific ~310 s), then
+# the other slow ones: parallel workers (pytest-xdist, one module at a time) take modules in this
+# order, so the long ones start at once instead of last on a worker while the others idle. xdist's
+# loadscope would reorder modules by their number of tests (most first, so these single-test modules
+# last): setup.cfg turns that off with --no-loadscope-reorder.
+LONGEST_MODULES = ("test_px4.py", "test_px4_gps_lost.py", "test_storm_missions_slow.py",
+                   "test_short_storm_mission_slow.py", "test_missions_slow.py")
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than cores (at most 4, setup.cfg). The firmware tests spend most of
+    their wall time waiting on SITL paced in wall time (PX4 at 4-5x, ArduPilot at 10x): in a CI run with
+    one worker per core, 2 cores were busy 1.3 of 2 on average."""
+    return min(4, (os.cpu_count() or 1) + 1)
 
 
 def _start_order(item: pytest.Item) -> int:
     if item.path.name in LONGEST_MODULES:
-        return 0
-    return 1 if "slow" in item.keywords else 2
+        return LONGEST_MODULES.index(item.path.name)
+    return len(LONGEST_MODULES) + (0 if "slow" in item.keywords else 1)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     # whole modules move (a module fixture is set up once), in collection order within each class
     module_order: dict = {}
     for item in items:
-        module_order[item.path] = min(module_order.get(item.path, 2), _start_order(item))
+        module_order[item.path] = min(module_order.get(item.path, len(LONGEST_MODULES) + 1), _start_order(item))
     items.sort(key=lambda item: module_order[item.path])
     # CI runs the same command as a developer; CI=true switches the slow cases on.
     if config.getoption("--run-slow") or os.environ.get("CI", "").lower() == "true":
