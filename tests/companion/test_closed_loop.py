@@ -66,6 +66,9 @@ def test_short_pacific_mission_closed_loop(tmp_path):
     assert [r["phase"] for r in steps[:3]] == ["probe1", "probe2", "cruise"] and steps[-1]["phase"] == "arrived"
     assert all(r["samples"] >= 3500 for r in steps[1:])               # 10 Hz over 360 s
     assert all(r["ins_source"] == "fc" for r in steps)                 # GLOBAL_POSITION_INT, never GPS
+    # FUS_MODEL 0 (auto) with the stand-in's independent INS: the error-state filter, said at start
+    events = json.loads((tmp_path / "run" / "companion" / "summary.json").read_text())["events"]
+    assert any("position filter: INS error model" in e for e in events), [e for e in events if "filter" in e]
     sitl = json.loads((tmp_path / "run" / "sitl" / "summary.json").read_text())
     assert sitl["lockstep_timeouts"] == 0
     # the stand-in's GPS is denied from take-off: the companion feeds GPS_INPUT (COMP_POS_PUB 3);
