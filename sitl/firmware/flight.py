@@ -12,8 +12,10 @@ to come to rest. Records: ``truth.csv`` (firmware time, true position, mode, arm
 from __future__ import annotations
 
 import math
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,6 +111,10 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
     monitor = None
     denied_at = math.nan
     status, message = "error", ""
+    # SIGTERM (a supervisor, `kill`, `timeout`) stops the flight as Ctrl-C does: the records and the
+    # result are still written (it used to end the process with nothing but the companion's steps)
+    old_term = signal.signal(signal.SIGTERM, _raise_interrupt) \
+        if threading.current_thread() is threading.main_thread() else None
     try:
         monitor = rig.start()
         companion = subprocess.Popen(
@@ -144,8 +150,8 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
         monitor.pump(lambda m: m.time_s > t_done + 120.0 or _at_rest(m), 120.0, "the vehicle at rest")
     except TimeoutError as err:
         status, message = "timeout", str(err)
-    except KeyboardInterrupt:   # Ctrl-C: stop both, and still write the records and the result
-        status, message = "interrupted", "interrupted by the user"
+    except KeyboardInterrupt as err:   # Ctrl-C or SIGTERM: stop both, and still write the records and the result
+        status, message = "interrupted", f"stopped by {err.args[0]}" if err.args else "interrupted by the user"
     except (RuntimeError, OSError) as err:
         status, message = "error", str(err)
     finally:
@@ -158,9 +164,15 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
         if monitor is not None:
             monitor.close()
         rig.stop()
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
     truth = _write_truth(out / "truth.csv", monitor.truth if monitor is not None else [])
     return FirmwareRun(status, message, truth, time.monotonic() - wall0,
                        companion.returncode if companion is not None else None, denied_at)
+
+
+def _raise_interrupt(signum: int, frame) -> None:  # noqa: ARG001
+    raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 def _at_rest(monitor: FirmwareMonitor) -> bool:

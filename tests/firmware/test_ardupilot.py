@@ -118,3 +118,39 @@ def test_main_job_says_in_one_line_when_the_firmware_is_missing(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "no-such-ardurover" in lines[0] and "Traceback" not in done.stderr
     assert not (tmp_path / "run").exists()                          # nothing written for a run that never started
+
+
+def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
+    """``fcmpc-fly --fc ardupilot`` stopped by SIGTERM (a supervisor, ``kill``, ``timeout``) writes the
+    truth, the result and the summary as Ctrl-C does (the full Pacific run of 2026-12-01, stopped so,
+    left only the companion's steps)."""
+    import json
+    import subprocess
+    import sys
+
+    from sitl.firmware.ardupilot import free_instance
+    from tests.firmware.conftest import _TAKEN, REPO, _binary_or_skip
+    from tests.processes import Lines
+
+    _binary_or_skip()
+    instance = free_instance(first=71, taken=_TAKEN)
+    _TAKEN.add(instance)
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "scripts.fly", "--fc", "ardupilot", "--fc-instance", str(instance),
+                             "--short", "--short-km", "20", "--no-tlog", "--no-plot",
+                             "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = Lines(proc.stderr)
+        for _ in range(2):      # the second progress line (30 s of wall time apart): the flight is under way
+            assert lines.wait_for(" h simulated, ", WALL_S) is not None, lines.seen
+        proc.send_signal(signal.SIGTERM)
+        stdout, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "interrupted" and "SIGTERM" in result["message"], result
+    assert stdout.startswith("fcmpc-fly: interrupted before arriving"), stdout
+    assert len((out / "truth.csv").read_text().splitlines()) > 10     # the samples recorded until then
