@@ -5,9 +5,11 @@ import queue
 import subprocess
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["wait_for_file", "Lines"]
+__all__ = ["wait_for_file", "Lines", "reaped"]
 
 
 class Lines:
@@ -41,3 +43,14 @@ def wait_for_file(path: Path, procs: list[subprocess.Popen], timeout_s: float) -
         assert not dead, f"{dead} exited before writing {path}"
         assert time.monotonic() < deadline, f"{path} not written within {timeout_s:g} s"
         time.sleep(0.05)   # the polling interval of the wait, not a guess at how long a start takes
+
+
+@contextmanager
+def reaped(proc: subprocess.Popen) -> Iterator[subprocess.Popen]:
+    """``proc`` for the block; killed and waited for after it if still running (a failed wait)."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

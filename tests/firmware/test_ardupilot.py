@@ -130,7 +130,7 @@ def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
 
     from sitl.firmware.ardupilot import free_instance
     from tests.firmware.conftest import _TAKEN, REPO, _binary_or_skip
-    from tests.processes import Lines
+    from tests.processes import Lines, reaped
 
     _binary_or_skip()
     instance = free_instance(first=71, taken=_TAKEN)
@@ -140,16 +140,12 @@ def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
                              "--short", "--short-km", "20", "--no-tlog", "--no-plot",
                              "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    try:
+    with reaped(proc):
         lines = Lines(proc.stderr)
         for _ in range(2):      # the second progress line (30 s of wall time apart): the flight is under way
             assert lines.wait_for(" h simulated, ", WALL_S) is not None, lines.seen
         proc.send_signal(signal.SIGTERM)
         stdout, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     result = json.loads((out / "result.json").read_text())
     assert result["status"] == "interrupted" and "SIGTERM" in result["message"], result
     assert stdout.startswith("fcmpc-fly: interrupted before arriving"), stdout
