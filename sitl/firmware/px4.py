@@ -37,6 +37,10 @@ __all__ = ["MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_roo
 
 MAX_INSTANCE = 9          # px4-rc.mavlink: instances above 9 share the offboard port 14549
 PX4_MODEL = "sihsim_rover_ackermann"
+# Set on every simulated PX4 before the caller's parameters. SDLOG_BACKEND 0: no ULog (rc.logging
+# starts the logger unless it is 0; SDLOG_MODE -1 did not stop it, ~78 MB per few armed minutes);
+# the companion's steps.csv and the monitor's truth are the record
+SIMULATOR_PARAMS = {"SDLOG_BACKEND": 0}
 PARAM_TYPE_INT32, PARAM_TYPE_REAL32 = 6, 9    # MAV_PARAM_TYPE in QGroundControl's .params
 
 
@@ -82,7 +86,7 @@ class Px4Sitl:
 
     ``home``: (lat, lon) degrees, altitude 0 m (the field is the route's, at sea level).
     ``speed_factor``: PX4_SIM_SPEED_FACTOR (simulated seconds per wall second). ``params``:
-    parameters after ``params/px4-rover.params`` (when ``project_params``).
+    parameters after ``params/px4-rover.params`` (when ``project_params``) and :data:`SIMULATOR_PARAMS`.
     """
 
     workdir: Path
@@ -122,7 +126,7 @@ class Px4Sitl:
 
     def all_params(self) -> dict[str, float]:
         values = read_qgc_params(project_parm("px4-rover.params")) if self.project_params else {}
-        return {**values, **self.params}
+        return {**values, **SIMULATOR_PARAMS, **self.params}
 
     def environment(self, root: Path) -> dict[str, str]:
         bin_dir = Path(self.workdir) / "bin"

@@ -39,12 +39,10 @@ class Px4Rig:
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         # COM_LOW_BAT_ACT 0: PX4's SITL rcS sets 3 (land), and SIH's simulated battery called it after
         # ~2 simulated hours of the 30 km leg (the rover disarmed mid-route); a flight's own battery
-        # is not what this run measures (simulator only: params/px4-rover.params leaves it alone).
-        # SDLOG_BACKEND 0: no ULog (rc.logging starts the logger unless it is 0; SDLOG_MODE -1 did not
-        # stop it, ~78 MB per few armed minutes); the companion's steps.csv and the truth are the record
+        # is not what this run measures (simulator only: params/px4-rover.params leaves it alone)
         self.sitl = Px4Sitl(workdir=out / "px4", instance=flight.instance, home=flight.start,
                             speed_factor=flight.speedup,
-                            params={"SDLOG_BACKEND": 0, "COM_LOW_BAT_ACT": 0, **(params or {})}, root=px4_root())
+                            params={"COM_LOW_BAT_ACT": 0, **(params or {})}, root=px4_root())
 
     def start(self) -> FirmwareMonitor:
         self.sitl.start()

@@ -164,8 +164,7 @@ PX4_LOSS_WALL_S = 2.0
 # 30 s (300 samples) keeps the |F| reference within ~150 nT of SIH's noise, against a 1000 nT band,
 # but not the start's I calibration (SIH: 0.2-0.3 deg): a test that judges the fixes keeps the default
 PX4_STARTUP_S = 30.0
-PX4_CRUISE_KMH = 10.8
-PX4_NO_ULOG = {"SDLOG_BACKEND": 0}   # no logger (rc.logging); SDLOG_MODE -1 still logged ~78 MB per armed test      # 3 m/s: the SIH Ackermann rover's speed limit in params/px4-rover.params
+PX4_CRUISE_KMH = 10.8      # 3 m/s: the SIH Ackermann rover's speed limit in params/px4-rover.params
 
 
 def _px4_root_or_skip() -> Path:
@@ -193,7 +192,7 @@ class Px4TestRig(Rig):
         _PX4_TAKEN.add(instance)
         self.loss_timeout_s = PX4_LOSS_WALL_S * speed
         self.sitl = Px4Sitl(workdir=tmp_path / "px4", instance=instance, speed_factor=speed, root=root,
-                            params={**PX4_NO_ULOG, "COM_OF_LOSS_T": self.loss_timeout_s, **(params or {})})
+                            params={"COM_OF_LOSS_T": self.loss_timeout_s, **(params or {})})
         self.sitl.start()
         self.monitor = None
         if monitor:   # PX4's GCS link answers its first client only: a test may want another one there

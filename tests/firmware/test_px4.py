@@ -135,7 +135,7 @@ def test_companion_sigkill_leads_to_px4s_offboard_loss_failsafe(px4_factory):
     mon.pump(lambda m: m.time_s >= t_failsafe + 25.0, WALL_S, "holding")
     assert not moving_pairs(mon.truth, t_failsafe + 15.0, t_failsafe + 25.0, min_speed_mps=0.5), \
         "still moving 15 s into Hold"
-    # the rig switched PX4's logger off (PX4_NO_ULOG): armed for a while, it wrote no ULog
+    # PX4's logger is off (sitl.firmware.px4.SIMULATOR_PARAMS): armed for a while, it wrote no ULog
     assert not list((rig.tmp / "px4").rglob("*.ulg")), "PX4 wrote a ULog"
 
 
