@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Callable, Iterable, TextIO
 
 from companion.nav.geo import geodesic_direct, geodesic_inverse
 from companion.params import validate_all, write_parm_file
@@ -400,13 +400,14 @@ def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float
 
 def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[float, float],
                         result: FlyResult) -> FlyResult:
-    run = fly_in_process_alike(options, scenario_arg, dest, options.seed)
+    [run] = fly_in_process_alike(options, scenario_arg, dest, [options.seed])
     return replace(result, mc_remaining_m=run.remaining_m, mc_iterations=run.iterations)
 
 
-def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[float, float], seed: int):
-    """The in-process run (:func:`sitl.inprocess.fly_in_process`) of this flight's scenario, destination
-    and parameters with ``seed``: what ``--compare`` prints, and a spread of seeds for the tests."""
+def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[float, float], seeds: Iterable[int]):
+    """The in-process runs (:func:`sitl.inprocess.fly_in_process`) of this flight's scenario, destination
+    and parameters, one per seed (the truth field built once): what ``--compare`` prints, and a spread
+    of seeds for the tests."""
     from companion.params import NavConfig
     from sitl.inprocess import fly_in_process
     from sitl.world.build import build_truth_field
@@ -414,4 +415,5 @@ def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[flo
     scenario = load_scenario(scenario_arg)
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], **options.extra_params}
     nav = NavConfig.from_values(validate_all(values))
-    return fly_in_process(nav, scenario, seed, build_truth_field(scenario, options.data_dir))
+    truth = build_truth_field(scenario, options.data_dir)
+    return [fly_in_process(nav, scenario, seed, truth) for seed in seeds]
