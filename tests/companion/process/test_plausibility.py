@@ -11,9 +11,9 @@ from companion.io.records import read_steps_csv
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
+from companion.nav.magnetometer import decl_incl_deg
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
-from companion.nav.magnetometer import decl_incl_deg
 from companion.process.plausibility import (
     Judgement,
     MagPlausibility,
