@@ -10,6 +10,7 @@ pymavlink. Signing is not supported (the simulator does not sign).
 """
 from __future__ import annotations
 
+import math
 import struct
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -25,7 +26,7 @@ except ImportError:  # pragma: no cover - fastcrc is a dependency
     def _checksum(data: bytes) -> int:
         return x25crc(data).crc
 
-__all__ = ["INT16_MAX", "FrameEncoder", "int16"]
+__all__ = ["INT16_MAX", "FrameEncoder", "int16", "int16_truncated"]
 
 INT16_MAX = 32767
 
@@ -38,6 +39,19 @@ def int16(value: float) -> int:
     """
     v = int(round(value))
     return INT16_MAX if v > INT16_MAX else (-INT16_MAX - 1 if v < -INT16_MAX - 1 else v)
+
+def int16_truncated(value: float) -> int:
+    """``value`` as ArduPilot and PX4 put a float into an int16 magnetometer field: a C conversion,
+    truncated toward zero, and saturated.
+
+    >>> int16_truncated(302.9), int16_truncated(-21.8), int16_truncated(-40000.0)
+    (302, -21, -32768)
+    """
+    if not math.isfinite(value):
+        return INT16_MAX
+    v = int(value)
+    return INT16_MAX if v > INT16_MAX else (-INT16_MAX - 1 if v < -INT16_MAX - 1 else v)
+
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 

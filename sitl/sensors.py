@@ -160,6 +160,7 @@ class SensorSuite:
         self.decl_table_deg = decl_table_deg
         self.mag_clean_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)   # before noise and rounding
         self.mag_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.mag_float_nt: tuple[float, float, float] = (0.0, 0.0, 0.0)   # before quantisation
         self.accel_mps2: tuple[float, float, float] = (0.0, 0.0, -GRAVITY_MPS2)
         self.gyro_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.attitude_est = Attitude(0.0, 0.0, 0.0)
@@ -168,7 +169,12 @@ class SensorSuite:
                    extra_nt: float = 0.0, time_s: float = 0.0) -> tuple[float, float, float]:
         """Body-frame reading in nT: rotate by the true attitude, apply the calibration residuals
         (at ``time_s``, for the temperature drift), add bias, noise and ``extra_nt`` (a spike,
-        on each axis), quantise to ``mag_lsb_nt``."""
+        on each axis), quantise to ``mag_lsb_nt``.
+
+        The quantised reading is the in-process world's milligauss count, rounded; the reading
+        before quantisation (:attr:`mag_float_nt`) is the float a flight controller holds, which
+        the stand-in puts into HIGHRES_IMU and truncates into RAW_IMU/SCALED_IMU as the firmware
+        does (the companion takes a truncated count at its midpoint: the same error statistics)."""
         m = self.model
         bx, by, bz = ned_to_body(field_ned_nt, attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad)
         if self.mag_errors is not None:
@@ -180,6 +186,7 @@ class SensorSuite:
         raw = (bx + bias[0] + sigma * normal() + extra_nt,
                by + bias[1] + sigma * normal() + extra_nt,
                bz + bias[2] + sigma * normal() + extra_nt)
+        self.mag_float_nt = raw
         if lsb > 0.0:
             raw = (round(raw[0] / lsb) * lsb, round(raw[1] / lsb) * lsb, round(raw[2] / lsb) * lsb)
         self.mag_nt = raw

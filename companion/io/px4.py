@@ -9,7 +9,7 @@ rates follow), with -1 turning a stream off. Parsing what is not used costs the 
 and in SITL at a speed factor of N it is N times as much per wall second, so the companion turns
 those streams off (:func:`unused_streams`) before it asks for its own.
 
-The magnetometer is read from SCALED_IMU (:func:`mag_message`), PX4's ``sensor_mag`` as the
+The magnetometer is read from SCALED_IMU (:func:`companion.io.sensors.mag_units.mag_messages`), PX4's ``sensor_mag`` as the
 driver reports it, not from HIGHRES_IMU: PX4's HIGHRES_IMU stream subtracts EKF2's body-field bias
 *state* (``estimator_sensor_bias.mag_bias``) from ``vehicle_magnetometer``, and on a level ground
 vehicle that state is not observable (body z and the earth field's vertical are the same axis).
@@ -25,29 +25,17 @@ position feed (HIL_GPS) in :mod:`companion.io.position_feed`.
 """
 from __future__ import annotations
 
-__all__ = ["MAG_MESSAGES_BY_FAMILY", "PX4_UNUSED_STREAMS", "mag_message", "unused_streams"]
+__all__ = ["PX4_UNUSED_STREAMS", "unused_streams"]
 
 PX4_UNUSED_STREAMS = ("ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "ODOMETRY", "ALTITUDE", "DISTANCE_SENSOR",
                       "VFR_HUD", "HIGHRES_IMU")
-# the raw magnetometer of each family: ArduPilot's RAW_IMU, PX4's SCALED_IMU (sensor_mag instance 0)
-MAG_MESSAGES_BY_FAMILY = {"ardupilot": "RAW_IMU", "px4": "SCALED_IMU"}
 
 
-def mag_message(family: str, chosen: str | None = None) -> str:
-    """The message the companion reads the magnetometer from: ``chosen`` (``--mag-message``) or the
-    family's raw one.
-
-    >>> mag_message("px4"), mag_message("ardupilot"), mag_message("px4", "HIGHRES_IMU")
-    ('SCALED_IMU', 'RAW_IMU', 'HIGHRES_IMU')
-    """
-    return chosen or MAG_MESSAGES_BY_FAMILY.get(family, "RAW_IMU")
-
-
-def unused_streams(family: str, keep: str | None = None) -> tuple[str, ...]:
+def unused_streams(family: str, keep: tuple[str, ...] = ()) -> tuple[str, ...]:
     """Streams to turn off on a flight controller of ``family`` ("ardupilot", "px4"), but ``keep``
-    (the magnetometer message in use).
+    (the magnetometer messages in use).
 
-    >>> unused_streams("ardupilot"), unused_streams("px4")[:2], "HIGHRES_IMU" in unused_streams("px4", "HIGHRES_IMU")
+    >>> unused_streams("ardupilot"), unused_streams("px4")[:2], "HIGHRES_IMU" in unused_streams("px4", ("HIGHRES_IMU",))
     ((), ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED'), False)
     """
-    return tuple(name for name in (PX4_UNUSED_STREAMS if family == "px4" else ()) if name != keep)
+    return tuple(name for name in (PX4_UNUSED_STREAMS if family == "px4" else ()) if name not in keep)

@@ -127,6 +127,8 @@ class SampleIntake:
         for sample in decoder.decode(msg):
             if sample.kind not in self.source_kinds:
                 self.use(sample, sample.time_s, decoder.rates)
+        if decoder.superseded:
+            self.app.out.stop_superseded_streams()
 
     def use(self, sample, t: float, rates: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """One sample (MAVLink or --sensors) at message time ``t`` into the magnetometer pipeline."""

@@ -14,7 +14,8 @@ import time
 from companion import wrap_2pi
 from companion.io.mavlink_link import mavlink
 from companion.io.position_feed import feed_message_name, send_echo, send_feed
-from companion.io.px4 import mag_message, unused_streams
+from companion.io.px4 import unused_streams
+from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
 from companion.process.machine import State
@@ -69,15 +70,26 @@ class Outputs:
     def request_streams(self) -> None:
         link, app = self.link, self.app
         family = link.fc.conventions.family
-        mag_msg = mag_message(family, app.opts.mag_message)
-        app.decoder.mag_message = mag_msg     # PX4 streams HIGHRES_IMU until told otherwise: not that one
-        link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{mag_msg}"), MAG_STREAM_HZ)
-        for name in unused_streams(family, keep=mag_msg):   # before LOCAL_POSITION_NED may be asked for
+        mag_msgs = mag_messages(family, app.opts.mag_message)
+        app.decoder.mag_message = mag_msgs     # PX4 streams HIGHRES_IMU until told otherwise: not that one
+        app.decoder.highres_nt_per_unit = highres_nt_per_unit(family)
+        for name in mag_msgs:   # the fallback too, until the preferred one arrives (stop_superseded_streams)
+            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), MAG_STREAM_HZ)
+        for name in unused_streams(family, keep=mag_msgs):   # before LOCAL_POSITION_NED may be asked for
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), -1.0)
         for name, hz in STREAMS_HZ.items():
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), hz)
         if app.comp_cfg.position_publish == 1:
             link.send_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 2.0)
+
+    def stop_superseded_streams(self) -> None:
+        """Turn off a magnetometer stream the decoder replaced by a preferred one (RAW_IMU once
+        ArduPilot's HIGHRES_IMU arrives): the companion would only parse it."""
+        decoder = self.app.decoder
+        if decoder.superseded and self.app.opts.request_streams:
+            for name in sorted(decoder.superseded):
+                self.link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), -1.0)
+            decoder.superseded.clear()
 
     # ------------------------------------------------------------------ setpoints
     def zero_setpoint(self) -> bool:

@@ -1,7 +1,8 @@
 """The stand-in's telemetry: one method per message it sends, filled from the simulated vehicle.
 
 What each message means (README "Simulator"): the magnetometer fields of RAW_IMU/SCALED_IMU
-(mGauss) and HIGHRES_IMU (gauss) are the true field in the body frame plus sensor errors;
+(mGauss, truncated toward zero as ArduPilot and PX4 do) and HIGHRES_IMU (gauss as imitating PX4,
+ArduPilot's 1e-6 gauss as imitating ArduPilot) are the true field in the body frame plus sensor errors;
 ATTITUDE the true attitude plus noise; GPS_RAW_INT the raw receiver fix (truth plus noise,
 fix_type 3; 1 when the scenario denies GPS, 0 on a ``gps_off`` fault); GLOBAL_POSITION_INT and
 LOCAL_POSITION_NED the flight controller's own solution. Every time field is simulated time:
@@ -108,13 +109,16 @@ class Telemetry:
         ax, ay, az = sensors.accel_mps2
         gx, gy, gz = sensors.gyro_radps
         updated = 0b111111
-        if self.faults.mag_off:
+        if self.faults.mag_off:   # as in RAW_IMU: a dead sensor's zeros, marked as read
             mx = my = mz = 0.0
+            updated |= 0b111000000
         elif self.faults.mag_nan:
             mx = my = mz = math.nan
             updated |= 0b111000000
         else:
-            mx, my, mz = (v * 1e-5 for v in sensors.mag_nt)   # nT -> gauss
+            # nT -> gauss (PX4, the spec) or ArduPilot's compass.get_field() * 1000: 1e-6 gauss
+            per_nt = 1e-5 if self.dialect.autopilot == mavlink.MAV_AUTOPILOT_PX4 else 10.0
+            mx, my, mz = (v * per_nt for v in sensors.mag_float_nt)
             updated |= 0b111000000
         self.out.emit(mavlink.MAVLink_highres_imu_message, self.clock.boot_us, ax, ay, az, gx, gy, gz, mx, my, mz,
                       1013.25, 0.0, self.scenario.alt_m, 25.0, updated, 0)

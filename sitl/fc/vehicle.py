@@ -21,7 +21,7 @@ from dataclasses import replace
 from companion import wrap_pi
 from companion.nav.geo import metres_per_degree
 from sitl.clock import US_PER_S, SimClock
-from sitl.mavframe import int16
+from sitl.mavframe import int16, int16_truncated
 from sitl.scenario import Scenario
 from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion, make_error_models
 from sitl.world.magnetic import TruthField
@@ -139,8 +139,10 @@ class VehicleSim:
             return
         if self.field_us < 0:
             self.update_field()
-        x, y, z = self.sensors.sample_mag(self.field, self.true_attitude(), faults.mag_spike_nt, self.clock.time_s)
-        self.mag_ints = (int16(x / 100.0), int16(y / 100.0), int16(z / 100.0))   # nT -> mGauss
+        self.sensors.sample_mag(self.field, self.true_attitude(), faults.mag_spike_nt, self.clock.time_s)
+        x, y, z = self.sensors.mag_float_nt   # the firmware's float field
+        # nT -> mGauss, truncated as the firmware does (companion.io.sensors.mag_units)
+        self.mag_ints = (int16_truncated(x / 100.0), int16_truncated(y / 100.0), int16_truncated(z / 100.0))
 
     def sample_imu(self) -> None:
         sensors = self.sensors

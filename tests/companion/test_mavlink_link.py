@@ -156,7 +156,7 @@ def test_decoder_units_and_invalid_readings():
     dec = MavlinkDecoder(MessageClock(), imu=False)
     [mag] = dec.decode(_raw_imu(2_500_000, (293, -21, 304)))
     assert mag.kind is SampleKind.MAG and mag.time_s == 2.5
-    assert mag.mag_body_nt == (29300.0, -2100.0, 30400.0) and not mag.flags          # mG -> nT
+    assert mag.mag_body_nt == (29350.0, -2150.0, 30450.0) and not mag.flags          # mG -> nT (midpoint)
     [sat] = dec.decode(_raw_imu(2_600_000, (32767, 32767, 32767)))                    # how a NaN arrives
     assert sat.flags & SampleFlag.OVERFLOW and "saturated" in dec.last_problem["mag"]
     [zero] = dec.decode(_raw_imu(2_700_000, (0, 0, 0)))

@@ -11,7 +11,8 @@ import pytest
 from pymavlink.dialects.v20 import common
 
 from companion.io.position_feed import feed_message_name, send_feed, send_hil_gps
-from companion.io.px4 import mag_message, unused_streams
+from companion.io.px4 import unused_streams
+from companion.io.sensors.mag_units import mag_messages
 
 
 @dataclass
@@ -88,7 +89,7 @@ def test_feed_goes_out_in_the_message_each_autopilot_accepts(family, message):
 def test_unused_streams_only_on_px4():
     assert unused_streams("ardupilot") == ()
     assert "ATTITUDE" not in unused_streams("px4") and "SCALED_IMU" not in unused_streams("px4")
-    assert "HIGHRES_IMU" in unused_streams("px4") and "HIGHRES_IMU" not in unused_streams("px4", keep="HIGHRES_IMU")
+    assert "HIGHRES_IMU" in unused_streams("px4") and "HIGHRES_IMU" not in unused_streams("px4", keep=("HIGHRES_IMU",))
     assert all(hasattr(common, f"MAVLINK_MSG_ID_{name}") for name in unused_streams("px4"))
 
 
@@ -122,6 +123,7 @@ def test_px4_echo_carries_the_velocity_and_is_flown_on_ardupilots_is_not():
 
 def test_px4_magnetometer_is_read_without_ekf2s_bias_state():
     """PX4's HIGHRES_IMU subtracts EKF2's magnetometer-bias state, which wanders by thousands of nT on
-    a level rover: the companion reads sensor_mag (SCALED_IMU) there, RAW_IMU on ArduPilot."""
-    assert mag_message("px4") == "SCALED_IMU" and mag_message("ardupilot") == "RAW_IMU"
-    assert mag_message("px4", "HIGHRES_IMU") == "HIGHRES_IMU"
+    a level rover: the companion reads sensor_mag (SCALED_IMU) there; on ArduPilot HIGHRES_IMU, the
+    compass field untruncated, with RAW_IMU as the fallback."""
+    assert mag_messages("px4") == ("SCALED_IMU",) and mag_messages("ardupilot") == ("HIGHRES_IMU", "RAW_IMU")
+    assert mag_messages("px4", "HIGHRES_IMU") == ("HIGHRES_IMU",)

@@ -6,12 +6,17 @@ heartbeats, firmware time), never on sleeps.
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.io.mavlink_link import MessageClock
 from companion.io.records import read_steps_csv
+from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
+from companion.io.sensors.mavlink_source import MavlinkDecoder
 from tests.firmware.conftest import assert_forward_on as _assert_forward_on
 from tests.firmware.conftest import moving_pairs as _moving
 
@@ -36,6 +41,35 @@ def test_noise_free_compass_starts_and_every_quadrant_is_driven_forward(rig_fact
     courses = [(90.0 - p) % 360.0 for p in probes]
     _assert_forward_on(mon.truth, t1 + 15.0, t2, courses[0])
     _assert_forward_on(mon.truth, t2 + 15.0, t2 + 58.0, courses[1])
+
+
+def test_ardupilot_highres_imu_is_its_compass_field_untruncated_in_its_own_unit(rig_factory):
+    """ArduPilot's HIGHRES_IMU magnetometer is ``compass.get_field() * 1000`` (1e-6 gauss, not the spec's
+    gauss) and RAW_IMU the same field cut to whole milligauss toward zero. Read as ArduPilot's family,
+    both give the same field within half a count (50 nT), and a plausible Earth field."""
+    rig = rig_factory("highres")
+    mon = rig.monitor
+    for name in ("HIGHRES_IMU", "RAW_IMU"):
+        mon.send_command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), 1e5)
+    decoder = MavlinkDecoder(MessageClock(), mag_message=mag_messages("ardupilot"), imu=False,
+                             highres_nt_per_unit=highres_nt_per_unit("ardupilot"))
+    pairs, last_raw = [], None
+    while len(pairs) < 20:   # the monitor's own pump does not keep these messages: read them here
+        msg = mon.conn.recv_match(type=["HIGHRES_IMU", "RAW_IMU"], blocking=True, timeout=WALL_S)
+        assert msg is not None, "no HIGHRES_IMU / RAW_IMU from ArduPilot"
+        if msg.get_type() == "RAW_IMU":
+            last_raw = msg if (msg.xmag, msg.ymag, msg.zmag) != (0, 0, 0) else None   # the compass is up
+        elif last_raw is not None:
+            pairs.append((last_raw, msg))
+    for raw, high in pairs:
+        assert (int(high.xmag / 1000.0), int(high.ymag / 1000.0), int(high.zmag / 1000.0)) == \
+            (raw.xmag, raw.ymag, raw.zmag)
+        [from_raw] = decoder.decode(raw) or [None]
+        [from_high] = decoder.decode(high)
+        if from_raw is not None:            # the first RAW_IMU only: HIGHRES_IMU takes over
+            assert max(abs(a - b) for a, b in zip(from_raw.mag_body_nt, from_high.mag_body_nt)) <= 50.0
+        assert 20_000.0 < math.hypot(*from_high.mag_body_nt) < 70_000.0
+    assert decoder.superseded == {"RAW_IMU"}
 
 
 def test_companion_sigkill_stops_the_vehicle_within_ardupilots_timeout(rig_factory):

@@ -139,8 +139,11 @@ UNIX0_US = 1_700_000_000_000_000
 BOOT_OFFSET_US = UNIX0_US - 10_000_000  # UNIX time at boot: the autopilot booted 10 s before UNIX0
 
 
-def write_tlog(path: Path, steps: int = 50, *, other_system: bool = False, scaled_too: bool = False) -> Path:
-    """A tlog like ArduPilot's: boot-time IMU/attitude, UNIX-time GPS_RAW_INT, SYSTEM_TIME."""
+def write_tlog(path: Path, steps: int = 50, *, other_system: bool = False, scaled_too: bool = False,
+               highres_from: int | None = None) -> Path:
+    """A tlog like ArduPilot's: boot-time IMU/attitude, UNIX-time GPS_RAW_INT, SYSTEM_TIME;
+    ``highres_from``: the autopilot (MAV_AUTOPILOT_*) of a heartbeat and HIGHRES_IMU instead of RAW_IMU,
+    its magnetometer 21.0/4.5/-52.0 mG in that autopilot's unit."""
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
     out = bytearray()
@@ -151,6 +154,13 @@ def write_tlog(path: Path, steps: int = 50, *, other_system: bool = False, scale
                 (mav, mavlink.MAVLink_raw_imu_message(boot_ms * 1000, 10, -20, -1000, 1, 2, 3,
                                                        210, 45, -520, 0, 3150)),
                 (mav, mavlink.MAVLink_system_time_message(BOOT_OFFSET_US + boot_ms * 1000, boot_ms))]
+        if highres_from is not None:
+            per_mg = 1000.0 if highres_from == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else 1e-3   # -> its unit
+            msgs[1] = (mav, mavlink.MAVLink_highres_imu_message(
+                boot_ms * 1000, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0, 210 * per_mg, 45 * per_mg, -520 * per_mg,
+                1013.0, 0.0, 0.0, 25.0, 0x1FF, 0))
+            if i == 0:
+                msgs.insert(0, (mav, mavlink.MAVLink_heartbeat_message(11, highres_from, 0, 0, 3, 3)))
         if scaled_too:
             msgs.append((mav, mavlink.MAVLink_scaled_imu_message(boot_ms, 0, 0, -1000, 0, 0, 0, 999, 999, 999, 0)))
         if i % 5 == 0:
@@ -177,7 +187,7 @@ def test_tlog_units_and_boot_time(tmp_path: Path) -> None:
     assert imu.gyro_body_radps == pytest.approx((0.001, 0.002, 0.003))  # mrad/s
     assert imu.temperature_c == pytest.approx(31.5)
     mag = next(s for s in samples if isinstance(s, MagSample))
-    assert mag.mag_body_nt == (21000.0, 4500.0, -52000.0)  # mG -> nT
+    assert mag.mag_body_nt == (21050.0, 4550.0, -52050.0)  # mG -> nT, the midpoint of the truncated count
     gps = next(s for s in samples if isinstance(s, GpsSample))
     assert gps.time_s == pytest.approx(10.0005, abs=1e-6)  # UNIX stamp put on the boot clock
     assert gps.utc_s == pytest.approx((BOOT_OFFSET_US + 10_000_500) * 1e-6)
@@ -193,7 +203,17 @@ def test_tlog_ignores_other_systems_and_duplicate_imu_messages(tmp_path: Path) -
     atts = [s for s in samples if isinstance(s, AttitudeSample)]
     mags = [s for s in samples if isinstance(s, MagSample)]
     assert len(atts) == 50 and all(a.roll_rad == pytest.approx(0.1) for a in atts)
-    assert len(mags) == 50 and all(m.mag_body_nt[0] == 21000.0 for m in mags)  # RAW_IMU came first
+    assert len(mags) == 50 and all(m.mag_body_nt[0] == 21050.0 for m in mags)  # RAW_IMU came first
+
+
+@pytest.mark.parametrize("autopilot", [mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink.MAV_AUTOPILOT_PX4],
+                         ids=["ardupilot", "px4"])
+def test_tlog_highres_imu_in_the_recording_autopilots_unit(tmp_path: Path, autopilot: int) -> None:
+    """ArduPilot's HIGHRES_IMU magnetometer is milligauss x 1000, PX4's gauss: the log's heartbeat says which."""
+    samples = replay_all(LogReplaySource(write_tlog(tmp_path / "h.tlog", highres_from=autopilot)))
+    mags = [s for s in samples if isinstance(s, MagSample)]
+    assert len(mags) == 50
+    assert all(m.mag_body_nt == pytest.approx((21000.0, 4500.0, -52000.0), rel=1e-6) for m in mags)
 
 
 def test_truncated_tlog_ends_flagged(tmp_path: Path) -> None:

@@ -8,10 +8,11 @@ controller); :class:`MavlinkSource` wraps it with its own connection as a
 ==================  ======================================================================
 message             samples (units converted to SI / nT)
 ==================  ======================================================================
-RAW_IMU             ImuSample (mG, mrad/s as ArduPilot sends them) and MagSample (mG -> nT)
+RAW_IMU             ImuSample (mG, mrad/s as ArduPilot sends them) and MagSample (mG -> nT,
+                    the midpoint of the truncated count, :mod:`~companion.io.sensors.mag_units`)
 SCALED_IMU/2/3      the same, instances 0/1/2
-HIGHRES_IMU         ImuSample (SI) and MagSample (gauss -> nT) when its ``fields_updated``
-                    bits say so
+HIGHRES_IMU         ImuSample (SI) and MagSample (the autopilot's unit -> nT: gauss, ArduPilot
+                    1e-6 gauss) when its ``fields_updated`` bits say so
 ATTITUDE            AttitudeSample (yaw from true north); body rates kept in :attr:`rates`
 GPS_RAW_INT         GpsSample (fix type, lat/lon degE7, MSL and ellipsoid altitudes)
 GLOBAL_POSITION_INT not a sensor: the flight controller's *inertial solution*, kept as
@@ -20,8 +21,11 @@ GLOBAL_POSITION_INT not a sensor: the flight controller's *inertial solution*, k
 
 For each magnetometer instance the first message type that carries it provides it (a
 flight controller streaming RAW_IMU and SCALED_IMU for the same sensor gives each sample
-once), unless ``mag_message`` names the one to use. Readings that cannot be a field are
-flagged, not dropped (``valid`` False, so
+once), unless ``mag_message`` names the ones to use, preferred first: then a preferred type
+takes the instance over as soon as it arrives (HIGHRES_IMU over RAW_IMU on ArduPilot), and the
+type it replaced is listed in :attr:`MavlinkDecoder.superseded` so its stream can be stopped.
+
+Readings that cannot be a field are flagged, not dropped (``valid`` False, so
 :class:`~companion.io.sensors.base.StalenessMonitor` does not count them as fresh):
 non-finite values (READ_ERROR), int16 saturation -32768/32767 mG, which is how a NaN
 reaches the integer messages (OVERFLOW), exactly (0, 0, 0), a dead or absent sensor
@@ -42,7 +46,7 @@ from companion.io.mavlink_link import MavlinkLink, MessageClock
 from companion.io.sensors.base import AttitudeSample, GpsSample, ImuSample, MagSample, Sample, SampleFlag, \
     SensorError, SensorSource
 from companion.io.sensors.quality import FrozenDetector
-from companion.nav.magnetometer import GAUSS_TO_NT, MILLIGAUSS_TO_NT
+from companion.io.sensors.mag_units import GAUSS_TO_NT, count_to_nt
 
 __all__ = ["FcPosition", "MavlinkDecoder", "MavlinkSource"]
 
@@ -75,13 +79,13 @@ def _finite(*values: float) -> bool:
 class MavlinkDecoder:
     """MAVLink message -> samples, on the flight controller's clock."""
 
-    def __init__(self, clock: MessageClock, mag_message: str | None = None, stuck_count: int = 20,
-                 imu: bool = True) -> None:
-        if mag_message is not None and mag_message not in MAG_MESSAGES:
-            raise ValueError(f"magnetometer message {mag_message!r} not one of {', '.join(MAG_MESSAGES)}")
+    def __init__(self, clock: MessageClock, mag_message: str | tuple[str, ...] | None = None,
+                 stuck_count: int = 20, imu: bool = True, highres_nt_per_unit: float = GAUSS_TO_NT) -> None:
         self.clock = clock
         self.imu = imu   # False: skip ImuSample (a user that needs only the magnetometer saves the work)
         self.mag_message = mag_message
+        self.highres_nt_per_unit = highres_nt_per_unit   # the autopilot's HIGHRES_IMU unit (mag_units)
+        self.superseded: set[str] = set()   # magnetometer messages a preferred one replaced
         self._mag_type: dict[int, str] = {}
         self._stuck: dict[int, FrozenDetector] = {}
         self._gyro: tuple[float, float, float] | None = None
@@ -123,10 +127,32 @@ class MavlinkDecoder:
             return ms * 1e-3
         return self.clock.stamp_usec(getattr(msg, "time_usec", 0))
 
+    @property
+    def mag_message(self) -> tuple[str, ...] | None:
+        """The magnetometer messages in use, preferred first (None: the first that arrives)."""
+        return self._mag_messages
+
+    @mag_message.setter
+    def mag_message(self, names: str | tuple[str, ...] | None) -> None:
+        names = (names,) if isinstance(names, str) else (tuple(names) if names else None)
+        for name in names or ():
+            if name not in MAG_MESSAGES:
+                raise ValueError(f"magnetometer message {name!r} not one of {', '.join(MAG_MESSAGES)}")
+        self._mag_messages = names
+
     def _owns_mag(self, instance: int, mtype: str) -> bool:
-        if self.mag_message is not None:
-            return mtype == self.mag_message
-        return self._mag_type.setdefault(instance, mtype) == mtype
+        preferred = self._mag_messages
+        if preferred is None:
+            return self._mag_type.setdefault(instance, mtype) == mtype
+        if mtype not in preferred:
+            return False
+        current = self._mag_type.get(instance)
+        if current not in preferred or preferred.index(mtype) <= preferred.index(current):
+            if current is not None and current != mtype:
+                self.superseded.add(current)
+            self._mag_type[instance] = mtype
+            return True
+        return False
 
     def decode(self, msg) -> list[Sample]:
         mtype = msg.get_type()
@@ -151,8 +177,8 @@ class MavlinkDecoder:
                 raw = (msg.xmag, msg.ymag, msg.zmag)
                 self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
                 flags = self._mag_flags(instance, raw, True, t)
-                out.append(MagSample(t, (raw[0] * MILLIGAUSS_TO_NT, raw[1] * MILLIGAUSS_TO_NT,
-                                         raw[2] * MILLIGAUSS_TO_NT), instance, flags, self._stale_since(instance, flags)))
+                out.append(MagSample(t, (count_to_nt(raw[0]), count_to_nt(raw[1]), count_to_nt(raw[2])), instance,
+                                     flags, self._stale_since(instance, flags)))
             return out
         if mtype == "HIGHRES_IMU":
             t = self._time(msg)
@@ -167,7 +193,8 @@ class MavlinkDecoder:
                 raw = (msg.xmag, msg.ymag, msg.zmag)
                 if msg.fields_updated & 0x38:
                     self._gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
-                mag = (raw[0] * GAUSS_TO_NT, raw[1] * GAUSS_TO_NT, raw[2] * GAUSS_TO_NT)
+                scale = self.highres_nt_per_unit
+                mag = (raw[0] * scale, raw[1] * scale, raw[2] * scale)
                 flags = self._mag_flags(instance, raw, False, t)
                 out.append(MagSample(t, mag, instance, flags, self._stale_since(instance, flags)))
             return out

@@ -28,7 +28,9 @@ carry GPS time-of-week in ``TimeMS`` and boot time in ``T``, which is what is us
 
 tlog messages: ``ATTITUDE``; ``RAW_IMU`` in ArduPilot's units (mG, mrad/s, mG --
 the MAVLink spec leaves RAW_IMU units open); ``SCALED_IMU``/``2``/``3`` (mG, mrad/s,
-mgauss); ``HIGHRES_IMU`` (SI, gauss); ``GPS_RAW_INT``/``GPS2_RAW``. Time is the vehicle's
+mgauss; integer magnetometer counts at the midpoint of their truncation,
+:mod:`~companion.io.sensors.mag_units`); ``HIGHRES_IMU`` (SI; gauss, or ArduPilot's 1e-6 gauss
+when the log's autopilot HEARTBEAT says ArduPilot); ``GPS_RAW_INT``/``GPS2_RAW``. Time is the vehicle's
 boot time from ``time_boot_ms``/``time_usec``; a ``time_usec`` that is UNIX time (ArduPilot's
 GPS_RAW_INT) is converted with SYSTEM_TIME, or failing that with the recording timestamps.
 For each sensor instance the first message type seen provides it (an autopilot sending
@@ -59,6 +61,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (after the environment is set)
 
 from companion import wrap_2pi  # noqa: E402
+from companion.io.link.conventions import conventions_for  # noqa: E402
+from companion.io.sensors.mag_units import highres_nt_per_unit  # noqa: E402
 from companion.io.sensors.tlog import _TLOG_TYPES, _TlogClock, _tlog_convert  # noqa: E402
 from companion.io.sensors.base import (  # noqa: E402
     AttitudeSample,
@@ -301,6 +305,7 @@ class LogReplaySource(SensorSource):
         state = _TlogClock()
         owner: dict[tuple[str, int], str] = {}  # (kind, instance) -> message type
         system_id: int | None = None
+        highres_unit = GAUSS_TO_NT
         consumed = 0
         last_time = math.nan
         while True:
@@ -313,6 +318,8 @@ class LogReplaySource(SensorSource):
                 self.stats.record_error("tlog: unparsable bytes")
                 continue
             consumed += 8 + len(msg.get_msgbuf())
+            if mtype == "HEARTBEAT" and msg.get_srcComponent() == 1 and msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:
+                highres_unit = highres_nt_per_unit(conventions_for(msg.autopilot).family)   # its HIGHRES_IMU unit
             if mtype not in _TLOG_TYPES:
                 continue
             src = msg.get_srcSystem()
@@ -328,7 +335,7 @@ class LogReplaySource(SensorSource):
                 self.stats.dropped += 1  # a UNIX-time stamp before any boot-time reference
                 continue
             last_time = t
-            for sample in _tlog_convert(msg, mtype, t):
+            for sample in _tlog_convert(msg, mtype, t, highres_unit):
                 key = (sample.kind.value, 0 if isinstance(sample, AttitudeSample) else sample.instance)
                 if owner.setdefault(key, mtype) != mtype:
                     continue

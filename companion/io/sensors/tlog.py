@@ -22,13 +22,12 @@ from companion.io.sensors.base import (  # noqa: E402
     ImuSample,
     MagSample,
 )
+from companion.io.sensors.mag_units import GAUSS_TO_NT, count_to_nt  # noqa: E402
 
 __all__: list[str] = []   # used by companion.io.sensors.replay only
 
 
 GRAVITY_MPS2 = 9.80665
-MILLIGAUSS_TO_NT = 100.0
-GAUSS_TO_NT = 100_000.0
 _BOOT_USEC_LIMIT = 1e14  # time_usec below this (3 years) is time since boot, above UNIX time
 
 _TLOG_TYPES = frozenset({"ATTITUDE", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3",
@@ -79,7 +78,9 @@ class _TlogClock:
         return None
 
 
-def _tlog_convert(msg: Any, mtype: str, t: float) -> list[MagSample | ImuSample | AttitudeSample | GpsSample]:
+def _tlog_convert(msg: Any, mtype: str, t: float,
+                  highres_nt_per_unit: float = GAUSS_TO_NT) -> list[MagSample | ImuSample | AttitudeSample | GpsSample]:
+    """One message's samples; ``highres_nt_per_unit``: the recording autopilot's HIGHRES_IMU unit."""
     if mtype == "ATTITUDE":
         return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
     if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
@@ -93,8 +94,7 @@ def _tlog_convert(msg: Any, mtype: str, t: float) -> list[MagSample | ImuSample 
             ImuSample(t, (msg.xacc * g, msg.yacc * g, msg.zacc * g),
                       (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3),
                       temp * 0.01 if temp else None, instance),
-            MagSample(t, (msg.xmag * MILLIGAUSS_TO_NT, msg.ymag * MILLIGAUSS_TO_NT,
-                          msg.zmag * MILLIGAUSS_TO_NT), instance),
+            MagSample(t, (count_to_nt(msg.xmag), count_to_nt(msg.ymag), count_to_nt(msg.zmag)), instance),
         ]
     if mtype == "HIGHRES_IMU":
         instance = int(getattr(msg, "id", 0) or 0)
@@ -104,8 +104,8 @@ def _tlog_convert(msg: Any, mtype: str, t: float) -> list[MagSample | ImuSample 
             out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
                                  msg.temperature, instance))
         if updated & 0x1C0:
-            out.append(MagSample(t, (msg.xmag * GAUSS_TO_NT, msg.ymag * GAUSS_TO_NT,
-                                     msg.zmag * GAUSS_TO_NT), instance))
+            k = highres_nt_per_unit
+            out.append(MagSample(t, (msg.xmag * k, msg.ymag * k, msg.zmag * k), instance))
         return out
     if mtype in ("GPS_RAW_INT", "GPS2_RAW"):
         us = msg.time_usec

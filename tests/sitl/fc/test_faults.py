@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.io.sensors.mag_units import count_to_nt
 from sitl.scenario import load_scenario
 from sitl.truthlog import read_truth_csv
 from tests.sitl.conftest import REPO, body_to_ned, read_tlog, run_cli
@@ -84,7 +85,7 @@ def test_mag_spike_adds_value_on_each_axis(fault_run):
             a = att[raw.time_usec // 1000]
             n, e, d = field[float(math.floor(raw.time_usec / 1e6))]
             # expected body vector: the true NED field seen through the (estimated) attitude
-            m_ned = body_to_ned(a.roll, a.pitch, a.yaw, raw.xmag * 100.0, raw.ymag * 100.0, raw.zmag * 100.0)
+            m_ned = body_to_ned(a.roll, a.pitch, a.yaw, count_to_nt(raw.xmag), count_to_nt(raw.ymag), count_to_nt(raw.zmag))
             out.append(np.subtract(m_ned, (n, e, d)))
         return np.mean(out, axis=0)
 

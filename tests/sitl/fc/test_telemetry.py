@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.io.sensors.mag_units import count_to_nt
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from tests.sitl.conftest import body_to_ned
@@ -44,7 +45,7 @@ def test_magnetometer_matches_wmm_declination_inclination(sitl):
         a = att.get(raw.time_usec // 1000)
         if a is None:
             continue
-        n, e, d = body_to_ned(a.roll, a.pitch, a.yaw, raw.xmag * 100.0, raw.ymag * 100.0, raw.zmag * 100.0)
+        n, e, d = body_to_ned(a.roll, a.pitch, a.yaw, count_to_nt(raw.xmag), count_to_nt(raw.ymag), count_to_nt(raw.zmag))
         d_list.append(math.degrees(math.atan2(e, n)))
         i_list.append(math.degrees(math.atan2(d, math.hypot(n, e))))
     assert len(d_list) >= 250
@@ -77,7 +78,7 @@ def test_storm_changes_the_field_by_the_scenario_disturbance(sitl, shared_data):
         a = att.get(raw.time_usec // 1000)
         if a is None:
             continue
-        n, e, d = body_to_ned(a.roll, a.pitch, a.yaw, raw.xmag * 100.0, raw.ymag * 100.0, raw.zmag * 100.0)
+        n, e, d = body_to_ned(a.roll, a.pitch, a.yaw, count_to_nt(raw.xmag), count_to_nt(raw.ymag), count_to_nt(raw.zmag))
         meas.append((math.degrees(math.atan2(e, n)), math.degrees(math.atan2(d, math.hypot(n, e)))))
         # the simulator evaluates the field once per simulated second (--field-step 1)
         t_field = math.floor(raw.time_usec / 1e6)
