@@ -68,7 +68,9 @@ def test_mag_off_stuck_nan(fault_run):
     highres = _of(messages, "HIGHRES_IMU", 35.0, 38.0)
     assert highres and all(math.isnan(m.xmag) and m.fields_updated & 0x1C0 for m in highres)
     off = _of(messages, "HIGHRES_IMU", 10.0, 15.0)
-    assert off and all(m.fields_updated & 0x1C0 == 0 for m in off)
+    # a dead sensor's zeros, marked as read, as in RAW_IMU: the companion says "reads exactly zero"
+    assert off and all((m.xmag, m.ymag, m.zmag) == (0.0, 0.0, 0.0) and m.fields_updated & 0x1C0 == 0x1C0
+                       for m in off)
     status = _of(messages, "SYS_STATUS", 10.5, 15.0)
     assert status and all(not m.onboard_control_sensors_health & 4 for m in status)
 
