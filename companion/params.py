@@ -109,6 +109,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),
+    _p("NAV_REANCHOR_N", int, 3, 0, 100, "", "after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (the gate stands)"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -167,7 +168,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
     _p("COMP_SPIKE_NT", float, 5000.0, 10.0, 1e6, "nT", "reject a magnetometer sample this far from the running median"),
-    _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart"),
+    _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart than this and outside their joint 99.99 % ellipse"),
     # --- safety ceiling and who may write (start-up only: the link cannot raise them, issue 10) ---
     _boot("SAFE_SPEED_KMH", float, 60.0, 1.0, 300.0, "km/h", "speed no setpoint may exceed, whatever NAV_SPEED_KMH says"),
     _boot("SAFE_TMO_S", float, 5.0, 0.1, 60.0, "s", "longest failsafe timeout: COMP_*_TMO_S above it act as this"),
@@ -356,6 +357,7 @@ class NavConfig(_FromRegistry):
     elements: int = _from("NAV_ELEMENTS")
     calibrate: int = _from("NAV_CALIBRATE")
     fix_gate_m: float = _from("NAV_FIX_GATE_M")
+    reanchor_steps: int = _from("NAV_REANCHOR_N")
     solver: int = _from("MPC_SOLVER")
     fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
     fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)

@@ -20,7 +20,8 @@ remaining_m         estimated remaining distance
 course_deg          commanded course (from north, clockwise); speed_mps commanded speed
 solver_ok           0 when the QP failed; solver_time_s the QP time
 step_latency_s      wall time of the whole step (average + core + outputs)
-event               step | start | restart | done | failsafe
+event               step | start | restart | done | failsafe | excluded | reanchored (the
+                    excluded fixes agreed: ``jump_m`` the shift, ``est_sigma_m`` its 1-sigma)
 reason              the core's or the failsafe's reason text
 gps_fix             GPS_RAW_INT fix type at the step (0 none/stale); gps_lat/lon_deg the fix
                     when >= 2D: a reference for evaluation only, never used to steer

@@ -11,7 +11,9 @@ predicts over the move flown and updates with the averaged elements.
 
 The geomagnetic fix (eq. 49, on the steering pair, bias-corrected) is still computed from the
 prior: it is reported, and a fix farther than ``NAV_FIX_GATE_M`` from the prior estimate marks a
-wrong contour crossing or a disturbed measurement, so that step's update is skipped.
+wrong contour crossing or a disturbed measurement, so that step's update is skipped, unless the
+last ``NAV_REANCHOR_N`` rejected fixes agree on where the vehicle is: then the estimate, not the
+measurement, is wrong, and the filter re-anchors at the fix (:mod:`companion.nav.reanchor`).
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ import numpy as np
 
 from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
-from companion.nav.geo import geodesic_inverse, offset_position
+from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.navfilter import (
     ONSET_STEPS,
@@ -31,6 +33,7 @@ from companion.nav.navfilter import (
     NavigationFilter,
 )
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
+from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
 __all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
 
@@ -91,6 +94,7 @@ class PositionEstimator:
         self.rejected = 0
         self.rewinds = 0
         self.calibrate_start = True
+        self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self._ins = (math.nan, math.nan)
         self._history: list = []
 
@@ -122,9 +126,11 @@ class PositionEstimator:
         return self._estimate(updated=start_sigma_m is not None)
 
     def step(self, meas, measured: np.ndarray, dt_s: float, vel_en_mps: np.ndarray, lag_en_m: np.ndarray,
-             fallback: tuple[float, float]) -> Estimate:
+             fallback: tuple[float, float], shift: tuple[np.ndarray, float] | None = None) -> Estimate:
         """Predict over the move just flown and update with the averaged elements.
-        ``fallback``: the dead-reckoned position, used when the INS model has no INS this step.
+        ``fallback``: the dead-reckoned position, used when the INS model has no INS this step;
+        ``shift``: (east/north offset m, 1-sigma m) to re-anchor the estimate by before the
+        update (the companion's plausibility check found its excluded fixes agreeing).
 
         When this step switches the disturbance on, the filter goes back to before the loud
         steps that switched it on and flies them again with the raised bias noise: the onset
@@ -132,24 +138,25 @@ class PositionEstimator:
         absorbed meanwhile into the INS error states (tilt, gyro drift) would be carried, and
         extrapolated, for the rest of the mission."""
         f = self.filter
-        inputs = (meas, measured, dt_s, vel_en_mps, lag_en_m, fallback)
-        self._history.append((f.snapshot(), self._ins, inputs))
+        inputs = (meas, measured, dt_s, vel_en_mps, lag_en_m, fallback, shift)
+        self._history.append((f.snapshot(), self._ins, inputs, list(self.consensus.offsets)))
         del self._history[:-REWIND_STEPS]
         was_active = f.monitor.active
         estimate = self._step(*inputs)
         if f.monitor.active and not was_active:
             back = min(len(self._history), f.monitor.loud_steps + REWIND_EXTRA)
             replay = self._history[-back:]
-            state, self._ins, _ = replay[0]
+            state, self._ins, _, self.consensus.offsets = replay[0]
+            self.consensus.offsets = list(self.consensus.offsets)
             activations = f.monitor.activations
             f.restore(state)
             f.monitor.active, f.monitor.activations = True, activations
-            for _, _, again in replay:
+            for _, _, again, _ in replay:
                 estimate = self._step(*again)
             self.rewinds += 1
         return estimate
 
-    def _step(self, meas, measured, dt_s, vel_en_mps, lag_en_m, fallback) -> Estimate:
+    def _step(self, meas, measured, dt_s, vel_en_mps, lag_en_m, fallback, shift=None) -> Estimate:
         f = self.filter
         have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
@@ -159,10 +166,22 @@ class PositionEstimator:
                 return self._estimate(position=fallback)
             self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         prior = f.position(*self._ins)
+        if shift is not None:
+            offset, sigma = shift
+            f.reset_position(*offset_position(prior[0], prior[1], float(offset[0]), float(offset[1])), sigma,
+                             *self._ins)
+            self.consensus.clear()
+            prior = f.position(*self._ins)
         fix = self._fix(measured, prior, lag_en_m)
         if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m:
-            self.rejected += 1   # not a fix: a wrong contour crossing or a disturbed measurement
-            return self._estimate()
+            agreed = self.consensus.rejected(np.array(enu_offset(prior[0], prior[1], *fix)))
+            if agreed is None:
+                self.rejected += 1   # not a fix: a wrong contour crossing or a disturbed measurement
+                return self._estimate()
+            # the last rejected fixes agree: the estimate is what is wrong; start again at the fix
+            f.reset_position(*fix, 0.5 * self.consensus.settings.tolerance_m, *self._ins)
+        else:
+            self.consensus.clear()
         f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas))
         return self._estimate(fix=fix, updated=True)
 

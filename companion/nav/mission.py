@@ -43,18 +43,17 @@ import numpy as np
 from companion import course_from_theta
 from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, element_gradient, model_for_date
-from companion.nav.fusion import FusionSettings, InsGeomagFusion
+from companion.nav.field import WorldMagneticModel, element_gradient, model_for_date
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
+from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
 __all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES", "FROZEN_IN_FLIGHT"]
 
 KMH = 1.0 / 3.6
-F_NT_PER_DEG = 360.0   # automatic bounds and the fusion gate: a degree of D or I counts as 360 nT of F
 WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
 
 
@@ -227,11 +226,9 @@ class Mission:
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
         self.s_lower, self.s_upper = state_bounds(config, self.elements, field_at(config.start_lat_deg,
                                                                                  config.start_lon_deg), self.s_dest)
-        self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in self.elements.names])
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
-        self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
-                                                     config.fusion_p0_m2, config.fusion_feedback))
+        self.table3 = Table3Estimator(config, model, self.elements)   # FUS_MODEL 1, or auto without an INS
         de, dn = enu_offset(config.start_lat_deg, config.start_lon_deg, config.dest_lat_deg, config.dest_lon_deg)
         # paper bounds U in [0, U_max]^2: the quadrant towards the destination gives the signs
         self.quadrant = np.array([1.0 if de >= 0 else -1.0, 1.0 if dn >= 0 else -1.0])
@@ -244,6 +241,7 @@ class Mission:
         self.last: _Last | None = None
         self.finished: Command | None = None
         self.rejected_fixes = 0
+        self._shift: tuple[np.ndarray, float] | None = None
 
     def set_bias(self, bias: tuple[float, ...] | None) -> None:
         """The start-up calibration to subtract from every measurement (None: none), before the
@@ -278,6 +276,16 @@ class Mission:
             self.config = merged
             self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         return deferred
+
+    def reanchor(self, shift_en_m: np.ndarray, sigma_m: float) -> None:
+        """Shift the estimate by ``shift_en_m`` (east, north, m) at the next step, before its
+        update, with position 1-sigma ``sigma_m``: the caller's own gate (the companion's
+        plausibility check) found its rejected fixes agreeing (:mod:`companion.nav.reanchor`)."""
+        shift = np.asarray(shift_en_m, dtype=float)
+        if shift.shape != (2,) or not np.all(np.isfinite(shift)) or not (math.isfinite(sigma_m) and sigma_m > 0.0):
+            raise ValueError(f"a re-anchoring shift is two finite metres and a positive 1-sigma, got {shift_en_m!r}, "
+                             f"{sigma_m!r}")
+        self._shift = (shift, float(sigma_m))
 
     # --- snapshot (issue 10: resume after a restart) -------------------------------------------
     REBUILT = frozenset({"model", "mpc"})   # rebuilt from the configuration, never in a snapshot
@@ -323,11 +331,16 @@ class Mission:
         moved = self.last.velocity_en * dt
         self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))
         self.dead_reckoned_en = self.dead_reckoned_en + moved
+        shift, self._shift = self._shift, None
+        if shift is not None and self.estimator is None:   # Table 3's path: the estimate is the position
+            self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], *shift[0]))
+            self.table3.consensus.clear()
         # the averaged measurement describes the centre of its window, half a window back
         self.window_lag_en = self.last.velocity_en * min(max(meas.window_s, 0.0), dt) / 2.0
         sample_en = self.dead_reckoned_en - self.window_lag_en
         if self.estimator is not None:   # the filter runs on every step, the probes included
-            self._take(self.estimator.step(meas, measured, dt, self.last.velocity_en, self.window_lag_en, self.est))
+            self._take(self.estimator.step(meas, measured, dt, self.last.velocity_en, self.window_lag_en, self.est,
+                                           shift))
         g = self.gradient.observe(self.elements.difference(s, self.last.s), sample_en - self.last.sample_en, self.last.theta_rad,
                                   *self.last.velocity_en, dt, frozen=c.controller == Controller.LTI)
         if self.k == 2 and g is not None and c.grad_init == 1:
@@ -417,44 +430,14 @@ class Mission:
 
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
         """The error-state filter's estimate of this step (already made in :meth:`step`), or
-        Table 3's path: geomagnetic fix (eq. 49) from the dead-reckoned prior, fused with the INS when the
-        fix is weak (Algorithm 1's min |G| < sigma, read as the smallest singular value of the
-        model's G at the fix in degrees per metre, F counted at F_NT_PER_DEG: the estimated G is
-        too noisy to judge the fix by) or failed."""
+        Table 3's path (:mod:`companion.nav.table3`): (fix, fused, 1-sigma)."""
         if self.estimate is not None:
             e = self.estimate
             return (e.fix_lat_deg, e.fix_lon_deg), e.updated, e.sigma_m
-        c = self.config
-        lag_e, lag_n = self.window_lag_en
-        prior = offset_position(self.est[0], self.est[1], -lag_e, -lag_n)
-        try:
-            fix_result = element_fix(self.model, self.elements, s, float(prior[0]), float(prior[1]), c.alt_m, c.year)
-            fix = tuple(float(v) for v in offset_position(fix_result.lat_deg, fix_result.lon_deg, lag_e, lag_n))
-            # the fix is as good as the field's gradient where it lands (an error e moves it G^-1 e)
-            in_degrees = fix_result.gradient / self._degree_equivalent[:, None]
-            weak = float(np.linalg.svd(in_degrees, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
-        except PositionFixError:
-            fix, weak = None, True
-        if fix is not None and geodesic_inverse(self.est[0], self.est[1], *fix)[0] > c.fix_gate_m:
-            # farther from the dead-reckoned position than the vehicle can have strayed in a step
-            # (a wrong crossing of the contours, a disturbed measurement): not a fix
-            fix, weak = None, True
-            self.rejected_fixes += 1
-        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
-        fused, sigma = False, math.sqrt(c.fusion_rc_m2)
-        if weak and have_ins:
-            ins_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, meas.ins_lat_deg, meas.ins_lon_deg))
-            if fix is not None:
-                fix_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, *fix))
-                result = self.fusion.step(ins_en, fix_en)
-            else:
-                result = self.fusion.predict_only(ins_en)
-            self.est = tuple(float(v) for v in offset_position(c.start_lat_deg, c.start_lon_deg,
-                                                               result.east_m, result.north_m))
-            fused, sigma = True, result.sigma_m
-        elif fix is not None:
-            self.est = fix
-        return (fix if fix is not None else (math.nan, math.nan)), fused, sigma
+        self.est, fix, fused, sigma = self.table3.estimate(self.est, s, self.window_lag_en, meas.ins_lat_deg,
+                                                           meas.ins_lon_deg)
+        self.rejected_fixes = self.table3.rejected
+        return fix, fused, sigma
 
     # --- bookkeeping -------------------------------------------------------------------------
     def _probe(self, time_s: float, s: np.ndarray, theta: float, phase: str) -> Command:

@@ -254,6 +254,19 @@ class NavigationFilter:
         y = np.array(enu_offset(here[0], here[1], lat_deg, lon_deg), dtype=float)
         self._update(y, self._j(here[0]), np.eye(2) * sigma_m ** 2)
 
+    def reset_position(self, lat_deg: float, lon_deg: float, sigma_m: float,
+                       ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> None:
+        """Re-anchor the estimate at (lat, lon) with 1-sigma ``sigma_m`` per axis
+        (:mod:`companion.nav.reanchor`): the position's variance is first inflated by the square
+        of the distance to it, so the position update below moves the estimate there almost
+        whole instead of by the small step its own covariance would allow; bias and other states
+        keep what they have learned beyond their correlation with position."""
+        here = self.position(ins_lat_deg, ins_lon_deg)
+        distance2 = float(np.sum(np.square(enu_offset(here[0], here[1], lat_deg, lon_deg))))
+        spread = np.linalg.pinv(self._j(here[0]))              # position (m) -> state
+        self.kf.P = self.kf.P + spread @ spread.T * (distance2 + sigma_m ** 2)
+        self.update_position(lat_deg, lon_deg, sigma_m, ins_lat_deg, ins_lon_deg)
+
     def update_elements(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                         ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
                         standard_errors: np.ndarray | None = None) -> float:

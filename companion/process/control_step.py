@@ -4,7 +4,8 @@ Every NAV_PERIOD_S of *mission time* the averaged (D, I) (or (I, F)) and the fli
 controller's INS position (GLOBAL_POSITION_INT; dead reckoning on the commanded velocity when
 it is missing; nothing while that position is GPS-aided or our own estimate fed back) go into
 the core. A non-finite command, a solver failure or an estimate diverging from the geomagnetic
-fix by COMP_DIVERGE_KM is a navigation failure (:meth:`Phases.nav_failure`).
+fix (by COMP_DIVERGE_KM and beyond the two's joint 99.99 % ellipse,
+:func:`companion.failsafe.diverged`) is a navigation failure (:meth:`Phases.nav_failure`).
 """
 from __future__ import annotations
 
@@ -159,6 +160,14 @@ class ControlStep:
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
                           f_reference_nt=reference, noise=noise, fix_bias=bias)
         self.judgement = judgement
+        agreed = app.plausibility.agreed_shift(judgement, cmd.speed_mps * config.period_s, config.reanchor_steps)
+        if agreed is not None:   # the excluded fixes agree: the estimate is wrong, not the sensor
+            mission.reanchor(*agreed)
+            words = app.plausibility.reanchor_words(agreed[0])
+            app.out.say(words, mavlink.MAV_SEVERITY_WARNING)
+            app.reporting.record_event("reanchored", words, **{**app.reporting.plausibility_record(meas),
+                                       "jump_m": float(np.hypot(*agreed[0])), "est_sigma_m": agreed[1]})
+            return False
         said = app.plausibility.verdict(judgement)
         if said is not None:
             app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))

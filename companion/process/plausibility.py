@@ -37,16 +37,26 @@ its last command (the core's dead reckoning uses the actual time between steps).
 says which check failed (STATUSTEXT); ``sustained_steps`` in a row are flagged as a sustained
 offset (CRITICAL); the first plausible one after says so. The core's own 50 km fix gate
 (NAV_FIX_GATE_M) stays as the last line.
+
+Both checks take the prediction as the truth, so a wrong estimate would make every later good
+fix a "jump" and the vehicle would fly its last course on for good (ArduPilot SITL, full
+Pacific run: 40 periods excluded, 333 km to go after 26 h). When ``NAV_REANCHOR_N`` fix_jump
+exclusions in a row imply the same offset from the prediction (within the agreement tolerance,
+widened by the fixes' own noise and the dead reckoning's slack over a period), the estimate is
+what is wrong: the measurement is taken and the core re-anchors there
+(:class:`companion.nav.reanchor.OffsetConsensus`, :meth:`Mission.reanchor`), so the vehicle
+flies on its last course for at most that many periods.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient
+from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
 __all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge",
            "navigator_bias"]
@@ -71,6 +81,7 @@ class Judgement:
     jump_m: float = math.nan
     bound_m: float = math.nan
     noise_m: float = 0.0              # the bound's term for the measurement's own noise (3 sigma_noise)
+    offset_en_m: tuple[float, float] = (math.nan, math.nan)   # the implied fix minus the prediction, east/north
 
     def words(self) -> str:
         if self.kind == "f_band":
@@ -165,20 +176,51 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
         spread = inverse * np.asarray(noise, dtype=float)             # G^-1 diag(sigma): its Frobenius norm
         noise_m = limits.sigma_k * float(np.sqrt(np.sum(spread * spread)))   # is sqrt(trace(G^-1 R G^-T))
         bound += noise_m
-    jump = float(np.hypot(*(inverse @ residual)))
+    offset = inverse @ residual
+    jump = float(np.hypot(*offset))
+    implied = (float(offset[0]), float(offset[1]))
     if not jump <= bound:
-        return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m)
-    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m)
+        return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m,
+                         offset_en_m=implied)
+    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m, offset_en_m=implied)
 
 
 class MagPlausibility:
     """Consecutive exclusions and what to say about them (the app's words go through ``say``)."""
 
-    def __init__(self, limits: PlausibilityLimits = PlausibilityLimits()) -> None:
+    def __init__(self, limits: PlausibilityLimits = PlausibilityLimits(),
+                 reanchor: ReanchorSettings = ReanchorSettings()) -> None:
         self.limits = limits
         self.in_a_row = 0
         self.excluded = 0
+        self.reanchored = 0
+        self.consensus = OffsetConsensus(reanchor)
         self.f_reference_nt: float | None = None   # |F| level at the mission's first step (f_offset_nt)
+
+    def agreed_shift(self, judgement: Judgement, period_m: float, steps: int) -> tuple[np.ndarray, float] | None:
+        """For an excluded ``judgement``: (shift east/north m, its 1-sigma m) when this exclusion
+        and the ``steps - 1`` before it agree on the offset from the prediction (the estimate is
+        wrong), else None. ``period_m``: the distance flown in one period (dead-reckoning slack
+        between the agreeing fixes); ``steps``: NAV_REANCHOR_N (0: never). Any other verdict
+        ends the run."""
+        if steps != self.consensus.settings.steps:
+            self.consensus.settings = replace(self.consensus.settings, steps=steps)
+        if judgement.ok or judgement.kind != "fix_jump":
+            self.consensus.clear()
+            return None
+        slack = judgement.noise_m + self.limits.speed_slack * period_m
+        shift = self.consensus.rejected(np.array(judgement.offset_en_m), extra_tolerance_m=slack)
+        if shift is None:
+            return None
+        self.reanchored += 1
+        self.in_a_row = 0
+        sigma = math.hypot(judgement.noise_m / self.limits.sigma_k, 0.5 * self.consensus.settings.tolerance_m)
+        return shift, sigma
+
+    def reanchor_words(self, shift_en_m: np.ndarray) -> str:
+        n = self.consensus.settings.steps
+        return (f"FcMPC: {n} excluded fixes agree: estimate re-anchored "
+                f"{float(np.hypot(*shift_en_m)) / 1000.0:.1f} km")
 
     def verdict(self, judgement: Judgement) -> tuple[str, str] | None:
         """(severity name, text) to say for this judgement, or None to say nothing."""

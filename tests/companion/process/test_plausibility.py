@@ -249,3 +249,70 @@ def test_an_excluded_period_is_recorded_with_its_verdict(rig):
     assert row["jump_m"] == pytest.approx(app.stepper.judgement.jump_m) and row["jump_m"] > 100_000.0
     assert row["bound_m"] == pytest.approx(app.stepper.judgement.bound_m) and row["jump_m"] > row["bound_m"]
     assert row["noise_m"] == pytest.approx(app.stepper.judgement.noise_m)
+
+
+def _jump(east_m: float, north_m: float, noise_m: float = 0.0) -> Judgement:
+    return Judgement(False, "fix_jump", jump_m=math.hypot(east_m, north_m), bound_m=30e3, noise_m=noise_m,
+                     offset_en_m=(east_m, north_m))
+
+
+def test_agreeing_fix_jumps_give_a_shift_and_anything_else_ends_the_run():
+    p = MagPlausibility()
+    period_m = 13.9 * 360.0
+    assert p.agreed_shift(_jump(140e3, 20e3), period_m, 3) is None
+    assert p.agreed_shift(_jump(142e3, 19e3), period_m, 3) is None
+    assert p.agreed_shift(Judgement(False, "f_band", f_offset_nt=3000.0), period_m, 3) is None   # the sensor
+    assert p.agreed_shift(_jump(141e3, 21e3), period_m, 3) is None                  # a new run: one of three
+    assert p.agreed_shift(_jump(139e3, 20e3), period_m, 3) is None
+    shift, sigma = p.agreed_shift(_jump(140e3, 22e3, noise_m=3000.0), period_m, 3)
+    np.testing.assert_allclose(shift, [140e3, 22e3])
+    assert 2000.0 < sigma < 5000.0 and p.reanchored == 1 and p.in_a_row == 0
+    assert "3 excluded fixes agree: estimate re-anchored 141.7 km" in p.reanchor_words(shift)
+    assert all(p.agreed_shift(_jump(140e3, 20e3), period_m, 0) is None for _ in range(5))   # NAV_REANCHOR_N 0
+
+
+def test_scattered_fix_jumps_are_a_sensor_not_a_wrong_estimate():
+    p = MagPlausibility()
+    jumps = [_jump(140e3, 0.0), _jump(-60e3, 90e3), _jump(30e3, -120e3), _jump(140e3, 5e3), _jump(-60e3, 85e3)]
+    assert all(p.agreed_shift(j, 5000.0, 3) is None for j in jumps)
+
+
+def test_the_control_step_re_anchors_a_wrong_estimate_on_agreeing_exclusions(rig):
+    """A real core whose estimate is 150 km south of the truth (knocked before its second step):
+    the companion excludes the next two good periods as fix jumps, the third agrees with them, so
+    the core is re-anchored and its estimate is back within a few km; it is said and recorded."""
+    app, fc = rig
+    config = NavConfig.from_values(default_values())
+    app.mission = Mission(config)
+    model = model_for_date(config.year)
+    truth = [config.start_lat_deg, config.start_lon_deg]
+
+    def measure(t: float) -> None:
+        here = model.elements(truth[0], truth[1], config.alt_m, config.year)
+        app.mag.averager.add(t - 0.5, float(here.decl_deg), float(here.incl_deg),
+                             (float(here.x_nt), float(here.y_nt), float(here.z_nt)))
+
+    def fly(seconds: float) -> None:
+        c = app.command
+        moved = c.speed_mps * seconds
+        truth[:] = (float(v) for v in offset_position(truth[0], truth[1], moved * math.sin(c.course_rad),
+                                                      moved * math.cos(c.course_rad)))
+
+    period = config.period_s
+    measure(1.0)
+    app.stepper.step(1.0, window_limit_s=0.0)
+    app.mission.reanchor(np.array([0.0, -150e3]), 500.0)      # what one accepted outlier leaves behind
+    t = 1.0
+    for _ in range(5):
+        fly(period)
+        t += period
+        measure(t)
+        app.stepper.step(t)
+    texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+    assert "excluded fixes agree: estimate re-anchored 1" in texts, texts
+    assert app.plausibility.excluded == 2 and app.plausibility.reanchored == 1
+    est = app.command
+    assert geodesic_distance_m(est.est_lat_deg, est.est_lon_deg, *truth) < 5000.0
+    rows = read_steps_csv(app.log_dir / "steps.csv")
+    [row] = [r for r in rows if r["event"] == "reanchored"]
+    assert 140e3 < row["jump_m"] < 160e3 and 0.0 < row["est_sigma_m"] < 5000.0

@@ -57,7 +57,7 @@ def _fly_two_steps(tmp_path):
     for ms in range(6_000, 361_001, 5_000):                             # (the clock judges jumps: it ticks on)
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
     app.stepper.step(361.0)
-    saved = (app.mission.k, app.command, np.copy(app.mission.fusion.kf.P) if hasattr(app.mission.fusion, "kf") else None,
+    saved = (app.mission.k, app.command, np.copy(app.mission.table3.fusion.kf.P) if hasattr(app.mission.table3.fusion, "kf") else None,
              app.next_step_m, app.resume.mission_id)
     app.link.close()     # no orderly close: no summary, no hold
     fc.close()
@@ -80,7 +80,7 @@ def test_a_recent_state_resumes_the_mission_where_it_was(tmp_path):
         assert app.state == State.RUNNING and app.mission_no == 1 and app.restarts == 0
         assert app.mission.k == k and repr(app.command) == repr(command) and app.resume.mission_id == mission_id
         if covariance is not None:
-            assert np.array_equal(app.mission.fusion.kf.P, covariance)
+            assert np.array_equal(app.mission.table3.fusion.kf.P, covariance)
         assert app.next_step_m - app.m0 == pytest.approx(next_step)   # the step clock where it stood
         assert "resumed at step 1" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
         assert app.summary()["resumed_from"] == "mission 1 step 1"

@@ -1,0 +1,91 @@
+"""Re-anchoring (companion.nav.reanchor): a gate that takes a wrong estimate as the truth must not
+lock in. The estimate is knocked 70 km east mid-route (further than NAV_FIX_GATE_M, 50 km): every
+later good fix is then a "jump". With NAV_REANCHOR_N 3 the third agreeing rejection puts the
+estimate back and the mission arrives; with 0 (the gate alone) it ends 70 km off, which is what
+ArduPilot SITL showed (one outlier accepted, the next 40 periods rejected)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from geographiclib.geodesic import Geodesic
+
+from companion.nav.field import model_for_date
+from companion.nav.mission import Mission, Phase
+from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
+from tests.nav.test_mission import NoiselessWorld, nav_config
+
+WGS84 = Geodesic.WGS84
+KNOCK_EN_M = np.array([70e3, 0.0])
+KNOCK_AT = 4
+
+
+@pytest.fixture(scope="module")
+def model():
+    return model_for_date(2024.36)
+
+
+def test_agreeing_offsets_shift_and_scattered_ones_do_not():
+    consensus = OffsetConsensus(ReanchorSettings(steps=3, tolerance_m=5000.0))
+    scattered = [np.array([60e3, 0.0]), np.array([-20e3, 80e3]), np.array([60e3, 1e3]), np.array([58e3, 2e3])]
+    assert [consensus.rejected(o) for o in scattered] == [None] * 4   # (-20, 80) km is among each three
+    assert consensus.reanchors == 0
+    shift = consensus.rejected(np.array([61e3, -1e3]))                # now three agree within 5 km
+    np.testing.assert_allclose(shift, [61e3, -1e3])                   # the newest offset
+    assert consensus.reanchors == 1 and consensus.offsets == []
+
+
+def test_the_fixes_own_noise_widens_the_agreement_and_a_clear_ends_the_run():
+    consensus = OffsetConsensus(ReanchorSettings(steps=2, tolerance_m=1000.0))
+    assert consensus.rejected(np.array([50e3, 0.0])) is None
+    assert consensus.rejected(np.array([53e3, 0.0])) is None                      # 1.5 km from the mean
+    consensus.clear()
+    assert consensus.rejected(np.array([50e3, 0.0])) is None
+    assert consensus.rejected(np.array([53e3, 0.0]), extra_tolerance_m=1000.0) is not None
+
+
+@pytest.mark.parametrize("bad", [np.array([math.nan, 1.0]), np.array([1.0, 2.0, 3.0])])
+def test_a_malformed_offset_ends_the_run(bad):
+    consensus = OffsetConsensus(ReanchorSettings(steps=2))
+    consensus.rejected(np.array([50e3, 0.0]))
+    assert consensus.rejected(bad) is None and consensus.offsets == []
+
+
+def test_never_with_zero_steps():
+    consensus = OffsetConsensus(ReanchorSettings(steps=0))
+    assert all(consensus.rejected(np.array([50e3, 0.0])) is None for _ in range(10))
+
+
+def _fly_knocked(model, fus_model: int, reanchor_n: int):
+    nav = nav_config(None, distance_m=120e3, NAV_ELEMENTS=2, FUS_MODEL=fus_model, NAV_REANCHOR_N=reanchor_n)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    mission.set_start_fix(5.0)
+    commands = [mission.step(world.measure())]
+    errors = []
+    while not commands[-1].done and len(commands) < 200:
+        meas = world.fly(commands[-1])
+        if len(commands) == KNOCK_AT:
+            mission.reanchor(KNOCK_EN_M, 500.0)       # a wrong estimate, as one accepted outlier leaves it
+        commands.append(mission.step(meas))
+        c = commands[-1]
+        errors.append(WGS84.Inverse(c.est_lat_deg, c.est_lon_deg, world.lat, world.lon)["s12"])
+    return commands, world, mission, errors
+
+
+@pytest.mark.parametrize("fus_model", [1, 3], ids=["table3", "dead_reckoning_filter"])
+def test_a_knocked_estimate_re_anchors_after_three_agreeing_rejections(model, fus_model):
+    commands, world, mission, errors = _fly_knocked(model, fus_model, reanchor_n=3)
+    knocked = KNOCK_AT - 1                       # errors[i] is after command i + 1; the knocked step's
+    assert min(errors[knocked:knocked + 2]) > 60e3, "the knock took: two rejections, still knocked"
+    assert max(errors[knocked + 2:]) < 2e3, errors[knocked:knocked + 6]   # the third agrees: back
+    consensus = mission.table3.consensus if mission.estimator is None else mission.estimator.consensus
+    assert consensus.reanchors == 1
+    assert commands[-1].phase == Phase.ARRIVED and world.miss_m() < 2.0 * mission.config.arrive_m
+
+
+@pytest.mark.parametrize("fus_model", [1, 3], ids=["table3", "dead_reckoning_filter"])
+def test_without_re_anchoring_the_gate_locks_in(model, fus_model):
+    commands, world, _, errors = _fly_knocked(model, fus_model, reanchor_n=0)
+    assert min(errors[KNOCK_AT - 1:]) > 50e3
+    assert world.miss_m() > 50e3
