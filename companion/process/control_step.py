@@ -17,7 +17,7 @@ import numpy as np
 from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
-from companion.nav.geo import geodesic_distance_m, offset_position
+from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
@@ -185,9 +185,26 @@ class ControlStep:
             return "non-finite command from the navigation core"
         if not cmd.solver_ok:
             return f"solver failure: {cmd.reason}"
-        gap = geodesic_distance_m(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg) \
-            if all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg,
-                                              cmd.fix_lon_deg)) else math.nan
-        if diverged(gap, self.app.comp_cfg.diverge_m):
-            return f"estimate diverged: {gap / 1000.0:.1f} km from the geomagnetic fix"
+        if not all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg)):
+            return ""
+        gap = np.array(enu_offset(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg))
+        if diverged(gap, self.app.comp_cfg.diverge_m, self.gap_covariance(cmd)):
+            return f"estimate diverged: {float(np.hypot(*gap)) / 1000.0:.1f} km from the geomagnetic fix"
         return ""
+
+    def gap_covariance(self, cmd) -> np.ndarray | None:
+        """Covariance (east/north, m^2) of the fix minus the estimate: the filter's own covariance
+        (or its 1-sigma per axis on Table 3's path) plus the fix's noise from this period's
+        scatter (the plausibility check's noise term, 3 sigma through G^-1, split over two axes).
+        None when the estimate's uncertainty is not known."""
+        ee, en, nn = cmd.est_cov_en_m2
+        if all(math.isfinite(v) for v in (ee, en, nn)):
+            cov = np.array([[ee, en], [en, nn]])
+        elif math.isfinite(cmd.est_sigma_m):
+            cov = np.eye(2) * cmd.est_sigma_m ** 2
+        else:
+            return None
+        judged = self.judgement
+        if judged is not None and math.isfinite(judged.noise_m):
+            cov = cov + np.eye(2) * (judged.noise_m / 3.0) ** 2 / 2.0
+        return cov
