@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from companion.app import LIVE_FROZEN_FIELDS, apply_live_config
 from companion.failsafe import Health, HealthLimits, diverged
 from companion.nav.mission import Measurement, Mission
@@ -61,3 +63,11 @@ def test_live_config_applies_weights_and_speed_but_keeps_the_mission():
     assert mission.config.dest_lat_deg == base.dest_lat_deg and mission.config.controller == base.controller
     assert mission.mpc.settings.horizon == 3
     assert set(LIVE_FROZEN_FIELDS) <= {f for f in NavConfig.__dataclass_fields__}
+
+
+def test_divergence_is_judged_in_the_gaps_covariance():
+    cov = np.diag([30e3 ** 2, 3e3 ** 2])                       # wide east-west, narrow north-south
+    assert not diverged((60e3, 0.0), 50e3, cov)                # 2 sigma along the wide axis
+    assert diverged((0.0, 60e3), 50e3, cov)                    # 20 sigma across it
+    assert not diverged((0.0, 40e3), 50e3, cov)                # inside COMP_DIVERGE_KM: never
+    assert diverged((0.0, 60e3), 50e3, np.full((2, 2), np.nan)) and diverged((0.0, 60e3), 50e3, None)

@@ -70,3 +70,17 @@ def test_real_mission_first_step_probes_east(rig):
     app.mag.averager.add(0.5, -1.5, 48.0)
     app.stepper.step(1.0, window_limit_s=0.0)
     assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)
+
+
+def test_a_gap_inside_the_estimates_own_uncertainty_is_not_a_divergence(rig):
+    """60 km between estimate and fix (beyond COMP_DIVERGE_KM, 50 km): a filter whose covariance
+    says 40 km per axis flies on; one that claims 5 km has diverged."""
+    app, fc = rig
+    far = replace(GOOD, fix_lat_deg=32.5 + 60e3 / 111e3)
+    _run_step(app, replace(far, est_cov_en_m2=(40e3 ** 2, 0.0, 40e3 ** 2)))
+    assert app.state == State.RUNNING and app.restarts == 0
+    _sent(fc)
+    app.command = None                       # judged as a first step again: the stand-in core has no field model
+    _run_step(app, replace(far, est_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
+    assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
+        m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
