@@ -76,9 +76,12 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--errors", default=None, metavar="SPEC",
                         help="switch error sources of the realistic world on (+name) or off (-name), comma "
-                             "separated: heading, main_field, crustal, calibration, noise, storm, ins; 'none', 'all'")
+                             "separated: heading, main_field, crustal, calibration, noise, storm, motion, ins; 'none', 'all'")
     parser.add_argument("--process-model", choices=("ins", "dead_reckoning"), default=None,
                         help="the error-state filter's process model (FUS_MODEL 2 or 3); default auto (the INS here)")
+    parser.add_argument("--no-ins", action="store_true",
+                        help="the vehicle carries no navigation-grade INS (ArduPilot, PX4 on MEMS sensors): "
+                             "the navigator gets no INS position, and auto dead-reckons")
     parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
                         help="override the scenario's [attitude] heading_source")
     parser.add_argument("--budget", action="store_true",
@@ -112,6 +115,8 @@ def _run(argv: list[str] | None) -> int:
             scenario = with_errors(scenario, parse_errors(args.errors), real)
         except ValueError as err:
             parser.error(str(err))
+    if args.no_ins:   # after --errors, whose ins source would bring the INS back
+        scenario = replace(scenario, ins=replace(scenario.ins, onboard=False))
     overrides = read_parm_file(args.params) if args.params else {}
     overrides.update(param_items(args.param))
     if args.process_model:

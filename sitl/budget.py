@@ -15,6 +15,9 @@ Sources (names for ``fcmpc-montecarlo --errors`` and ``--budget``):
     white magnetometer and attitude noise and the magnetometer's resolution; off: none.
 ``storm``
     the scenario's storm disturbance (storm scenarios only); off: quiet.
+``motion``
+    the vehicle's motion errors (water current, speed scale, course bias; ``[vehicle]``): what
+    makes dead reckoning on the commands drift; off: the vehicle goes exactly where commanded.
 ``ins``
     the INS's initial errors and gyro drift (Table 1); off: a perfect INS. With the ``ins``
     heading source the INS azimuth error is the heading error, so the budget's ``heading`` row
@@ -39,10 +42,11 @@ from sitl.world.ins import InsErrorConfig, InsErrorModel
 from sitl.world.magerrors import MagErrors
 from sitl.world.magnetic import TruthField, decl_incl_from_ned
 from sitl.world.sampling import rotation_nb
+from sitl.world.vehicle import MotionErrorConfig
 
 __all__ = ["SOURCES", "parse_errors", "with_errors", "only", "SourceError", "predicted_fix_error"]
 
-SOURCES = ("heading", "main_field", "crustal", "calibration", "noise", "storm", "ins")
+SOURCES = ("heading", "main_field", "crustal", "calibration", "noise", "storm", "motion", "ins")
 PERFECT_INS = InsErrorConfig(misalign_arcmin=(0.0, 0.0, 0.0), vel_err_mps=0.0, pos_err_east_m=0.0,
                              pos_err_north_m=0.0, gyro_bias_degph=0.0, gyro_markov_degph=0.0, deterministic=True)
 
@@ -82,6 +86,8 @@ def with_errors(scenario: Scenario, switches: dict[str, bool], real: Scenario) -
             s = replace(s, sensors=replace(s.sensors, **{k: getattr(real.sensors, k) if on else 0.0 for k in keys}))
         elif name == "storm":
             s = replace(s, storm=replace(s.storm, enabled=on and real.storm.enabled))
+        elif name == "motion":
+            s = replace(s, motion=real.motion if on else MotionErrorConfig())
         elif name == "ins":
             s = replace(s, ins=real.ins if on else PERFECT_INS)
     # the sample-by-sample path whenever anything of the realistic world is on
@@ -131,7 +137,8 @@ def predicted_fix_error(real: Scenario, source: str, seed: int, duration_s: floa
     ``truth_factory(scenario)`` builds a :class:`TruthField` (``sitl.world.build``). Heading:
     the yaw error at the end of the mission is the D error; calibration: the residual applied to
     the destination's body field on the route's final course; noise: one averaged-noise draw;
-    fields: truth minus the navigator's model. ``ins``: the fix does not use the INS: e = 0.
+    fields: truth minus the navigator's model. ``ins`` and ``motion``: the fix does not use the
+    INS or the dead reckoning: e = 0.
     """
     lat, lon, alt, year = real.dest_lat_deg, real.dest_lon_deg, real.alt_m, real.year
     nav_model = model_for_date(year)

@@ -51,7 +51,7 @@ from sitl.sensors import WaveMotion, make_error_models
 from sitl.world.ins import InsErrorModel
 from sitl.world.magnetic import TruthField
 from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
-from sitl.world.vehicle import VehicleState, step_vehicle
+from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState, step_vehicle
 
 __all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
 
@@ -102,7 +102,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     ``nav_model`` is the navigator's field model; by default ``truth.model`` when the truth's
     main field is the navigator's WMM (the ideal world), else the model ``NavConfig`` names.
     """
-    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed = np.random.SeedSequence(seed).spawn(6)
+    # (spawn by index: a seventh stream leaves the first six, and so every older draw, as they were)
+    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed = np.random.SeedSequence(seed).spawn(7)
     noise_rng = np.random.default_rng(noise_seed)
     fhz_rng = np.random.default_rng(fhz_seed)
     se_rng = np.random.default_rng(se_seed)
@@ -119,6 +120,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     substeps = max(1, int(round(nav.period_s / substep_s)))
     dt = nav.period_s / substeps
     errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
+    motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed)) if scenario.motion.active \
+        else NO_MOTION_ERRORS
     if not sampled:
         start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
         sigma_d, sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
@@ -146,7 +149,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         lats = np.array([k[1].lat_deg for k in knots])
         lons = np.array([k[1].lon_deg for k in knots])
         times = np.array([k[0] for k in knots])
-        ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg)
+        ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg) if scenario.ins.onboard \
+            else (math.nan, math.nan)
         if sampled:
             ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
@@ -180,7 +184,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     while not command.done:
         knots = [(time_s, state, *slow_errors(time_s, state))]
         for index in range(substeps):
-            state = step_vehicle(state, dt, command.course_rad, command.speed_mps, scenario.vehicle)
+            state = step_vehicle(state, dt, command.course_rad, command.speed_mps, scenario.vehicle, motion)
             ins.propagate(dt, state.lat_deg, state.vel_east_mps, state.vel_north_mps)
             t = time_s + (index + 1) * dt
             knots.append((t, state, *slow_errors(t, state)))

@@ -8,8 +8,9 @@ Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration r
 ``inprocess_samples``), ``[ins]``, ``[storm]``, ``[[faults]]``, and for the realistic world
 ``[field]`` (``main = "wmm" | "igrf14"``, ``crustal = true`` with ``crustal_rms_down_nt``,
 ``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
-"true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt).
-Absent tables leave the paper's ideal world.
+"true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt), and
+in ``[vehicle]`` the motion errors (``current_mps``, ``speed_scale_sigma``, ``course_bias_deg``,
+``Scenario.motion``). Absent tables leave the paper's ideal world.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from sitl.world.attitude import AttitudeErrorConfig
 from sitl.world.crustal import CrustalConfig
 from sitl.world.ins import InsErrorConfig
 from sitl.world.magerrors import MagErrorConfig
-from sitl.world.vehicle import VehicleLimits
+from sitl.world.vehicle import MotionErrorConfig, VehicleLimits
 
 __all__ = ["Scenario", "SensorModel", "StormConfig", "FieldConfig", "Fault", "ScenarioError", "load_scenario",
            "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
@@ -149,6 +150,7 @@ class Scenario:
     source: str = ""
     attitude: AttitudeErrorConfig = AttitudeErrorConfig()
     field_model: FieldConfig = FieldConfig()
+    motion: MotionErrorConfig = MotionErrorConfig()
 
     @property
     def heading_source(self) -> str:
@@ -219,6 +221,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         vehicle["max_speed_mps"] = float(vehicle.pop("max_speed_kmh")) / 3.6
     if "turn_rate_dps" in vehicle:
         vehicle["turn_rate_radps"] = math.radians(float(vehicle.pop("turn_rate_dps")))
+    # current_mps, speed_scale_sigma, course_bias_deg: the run's motion errors (sitl.world.vehicle)
+    motion = {k: vehicle.pop(k) for k in list(vehicle) if k in MotionErrorConfig.__dataclass_fields__}
     ins = dict(_section(data, "ins", path))
     unit = ins.pop("misalign_unit", "arcmin")
     if unit not in ("arcmin", "arcsec"):
@@ -256,4 +260,5 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         source=str(path),
         attitude=_build(AttitudeErrorConfig, _section(data, "attitude", path), path, "attitude"),
         field_model=field_config,
+        motion=_build(MotionErrorConfig, motion, path, "vehicle"),
     )

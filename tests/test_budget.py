@@ -78,7 +78,7 @@ def test_budget_script_writes_its_table(tmp_path, capsys):
     assert code == 0
     printed = capsys.readouterr().out
     rows = json.loads((tmp_path / "pacific_real" / "budget.json").read_text())["rows"]
-    assert [r["source"] for r in rows] == ["none", "heading", "main_field", "crustal", "calibration", "noise",
+    assert [r["source"] for r in rows] == ["none", "heading", "main_field", "crustal", "calibration", "noise", "motion",
                                            "ins", "all"]          # no storm in pacific_real
     for row in rows:
         assert f"| {row['source']} |" in printed and math.isfinite(row["median_km"])

@@ -214,3 +214,15 @@ def test_engine_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
         lines = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and names in lines[0], lines
     assert not any(tmp_path.iterdir())
+
+
+def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
+    """--no-ins: the measurement carries no INS position (ArduPilot, PX4 on MEMS sensors), so auto
+    takes the dead-reckoning filter; with the INS on board it takes the INS model."""
+    for flag, expected in ((["--no-ins"], "dead_reckoning"), ([], "ins")):
+        code = main(["--scenario", "pacific", "--runs", "1", "--workers", "1", "--controllers", "fc", "--quiet",
+                     "--no-plots", "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path / expected), *flag])
+        assert code == 0
+        with open(tmp_path / expected / "pacific" / "runs.csv") as handle:
+            [row] = list(csv.DictReader(handle))
+        assert row["process_model"] == expected

@@ -69,8 +69,8 @@ class SitlServer:
         truth_full = truth if truth is not None else build_truth_field(sc, config.data_dir, config.expected_duration_s,
                                                                        seed=config.seed)
         self.sysid, self.compid = config.sysid, 1
-        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(6))
+        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal, rng_motion = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(7))
         self.clock = SimClock()
         self.counters = Counters()
         self._stop = threading.Event()
@@ -85,7 +85,7 @@ class SitlServer:
         self.faults = FaultInjector(sc.faults, self.clock, self.counters, self.out.say)
         self.out.faults = self.faults
         self.vehicle = VehicleSim(sc, truth_full, self.clock, self.faults, rng_sensors, rng_nav, rng_gps,
-                                  rng_att=rng_att, rng_cal=rng_cal,
+                                  rng_att=rng_att, rng_cal=rng_cal, rng_motion=rng_motion,
                                   ins_step_s=config.ins_step_s, wave_roll_deg=config.wave_roll_deg,
                                   wave_pitch_deg=config.wave_pitch_deg)
         self.telemetry = Telemetry(self.out, self.vehicle, self.faults, self.guidance, self.dialect, self.clock,

@@ -3,7 +3,8 @@
 One object holds the world's state at the current simulated instant:
 
 * motion: :func:`sitl.world.vehicle.step_vehicle` towards the commanded ``(course, speed)``
-  (``cmd``), with the NED acceleration and yaw rate the IMU needs;
+  (``cmd``), with the scenario's motion errors (current, speed scale, course bias) drawn for the
+  seed, and the NED acceleration and yaw rate the IMU needs;
 * field: the truth field (WMM + storm, :class:`sitl.world.magnetic.TruthField`) at the true
   position, re-evaluated every ``field_step_s``; its storm part is kept for the truth log;
 * attitude: course over ground plus wave roll and pitch (:class:`sitl.sensors.WaveMotion`);
@@ -25,7 +26,7 @@ from sitl.mavframe import int16, int16_truncated
 from sitl.scenario import Scenario
 from sitl.sensors import GRAVITY_MPS2, NavSolution, SensorSuite, WaveMotion, make_error_models
 from sitl.world.magnetic import TruthField
-from sitl.world.vehicle import VehicleState, step_vehicle
+from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState, step_vehicle
 
 __all__ = ["VehicleSim"]
 
@@ -35,7 +36,7 @@ class VehicleSim:
 
     def __init__(self, scenario: Scenario, truth: TruthField, clock: SimClock, faults, rng_sensors, rng_nav,
                  rng_gps, *, ins_step_s: float, wave_roll_deg: float, wave_pitch_deg: float, rng_att=None,
-                 rng_cal=None) -> None:
+                 rng_cal=None, rng_motion=None) -> None:
         sc = scenario
         self.scenario = scenario
         self.clock = clock
@@ -46,6 +47,8 @@ class VehicleSim:
         self.wave = WaveMotion(roll_amp_deg=wave_roll_deg, pitch_amp_deg=wave_pitch_deg)
         errors = make_error_models(sc, rng_att, rng_cal)   # sitl.world's attitude/calibration errors
         self.sensors = SensorSuite(sc.sensors, rng_sensors, errors.attitude, errors.mag, errors.decl_table_deg)
+        self.motion = MotionErrors.draw(sc.motion, rng_motion) if sc.motion.active and rng_motion is not None \
+            else NO_MOTION_ERRORS
         self.nav = NavSolution(sc.ins, rng_nav, aided_noise_m=0.2 * sc.sensors.gps_noise_m, ins_step_s=ins_step_s)
         self.gps_rng = rng_gps
         self.cmd = (0.0, 0.0)           # commanded (course rad, speed m/s)
@@ -127,7 +130,7 @@ class VehicleSim:
             return
         before = self.state
         course_cmd, speed_cmd = self.cmd
-        self.state = after = step_vehicle(before, dt, course_cmd, speed_cmd, self.scenario.vehicle)
+        self.state = after = step_vehicle(before, dt, course_cmd, speed_cmd, self.scenario.vehicle, self.motion)
         self.accel_ned = ((after.vel_north_mps - before.vel_north_mps) / dt,
                           (after.vel_east_mps - before.vel_east_mps) / dt, 0.0)
         self.yaw_rate = wrap_pi(after.course_rad - before.course_rad) / dt

@@ -73,6 +73,7 @@ class InsErrorConfig:
     gyro_markov_degph: float = 0.005
     gyro_markov_tau_s: float = 3600.0
     deterministic: bool = False
+    onboard: bool = True      # False: no navigation-grade INS (ArduPilot, PX4 on MEMS): no INS position
 
 
 class InsErrorModel:

@@ -253,3 +253,42 @@ def test_unknown_top_level_table_is_refused(tmp_path):
     path = write(tmp_path, GOOD + "[vehical]\nmax_speed_kmh = 10.0\n")
     with pytest.raises(ScenarioError, match="vehical"):
         load_scenario(path)
+
+
+def test_motion_errors_move_the_track_off_the_command():
+    """A 0.3 m/s eastward current, 2 % more speed and a 1 deg course bias: after an hour on a
+    northward command at 10 m/s the vehicle is where those put it, not where it was commanded."""
+    from sitl.world.vehicle import MotionErrors
+
+    motion = MotionErrors((0.3, 0.0), 1.02, math.radians(1.0))
+    start = VehicleState(30.0, 150.0, 0.0, 10.2)
+    state = start
+    for _ in range(3600):
+        state = step_vehicle(state, 1.0, 0.0, 10.0, LIMITS, motion)
+    line = Geodesic.WGS84.Inverse(start.lat_deg, start.lon_deg, state.lat_deg, state.lon_deg)
+    north, east = line["s12"] * math.cos(math.radians(line["azi1"])), line["s12"] * math.sin(math.radians(line["azi1"]))
+    assert north == pytest.approx(10.2 * 3600.0 * math.cos(math.radians(1.0)), rel=2e-3)
+    assert east == pytest.approx((0.3 + 10.2 * math.sin(math.radians(1.0))) * 3600.0, rel=2e-2)
+    assert state.vel_east_mps == pytest.approx(0.3 + 10.2 * math.sin(math.radians(1.0)), rel=1e-6)
+    assert math.degrees(state.course_rad) == pytest.approx(1.0, abs=1e-6)        # the heading steered
+
+
+def test_no_motion_errors_are_the_old_kinematics_bit_for_bit():
+    from sitl.world.vehicle import MotionErrors
+
+    a = b = VehicleState(33.0, 152.0, 0.3, 5.0)
+    for k in range(200):
+        a = step_vehicle(a, 7.0, 0.01 * k, 13.9, LIMITS)
+        b = step_vehicle(b, 7.0, 0.01 * k, 13.9, LIMITS, MotionErrors())
+    assert a == b
+
+
+def test_the_realistic_scenarios_draw_motion_errors_and_the_ideal_ones_none():
+    from sitl.scenario import load_scenario
+    from sitl.world.vehicle import MotionErrors
+
+    assert not load_scenario("pacific").motion.active
+    real = load_scenario("pacific_real").motion
+    draws = [MotionErrors.draw(real, np.random.default_rng(s)) for s in range(400)]
+    assert np.std([d.current_en_mps[0] for d in draws]) == pytest.approx(real.current_mps, rel=0.15)
+    assert np.std([math.degrees(d.course_bias_rad) for d in draws]) == pytest.approx(real.course_bias_deg, rel=0.15)
