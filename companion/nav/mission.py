@@ -242,6 +242,7 @@ class Mission:
         self.finished: Command | None = None
         self.rejected_fixes = 0
         self._shift: tuple[np.ndarray, float] | None = None
+        self._had_ins = False
 
     def set_bias(self, bias: tuple[float, ...] | None) -> None:
         """The start-up calibration to subtract from every measurement (None: none), before the
@@ -277,10 +278,19 @@ class Mission:
             self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         return deferred
 
+    @property
+    def dead_reckons(self) -> bool:
+        """The estimate has no independent position between fixes (dead reckoning, or Table 3's
+        path without an INS at the last step): agreeing rejected fixes then mean it is wrong."""
+        if self.estimator is not None:
+            return self.estimator.dead_reckons
+        return not self._had_ins
+
     def reanchor(self, shift_en_m: np.ndarray, sigma_m: float) -> None:
         """Shift the estimate by ``shift_en_m`` (east, north, m) at the next step, before its
         update, with position 1-sigma ``sigma_m``: the caller's own gate (the companion's
-        plausibility check) found its rejected fixes agreeing (:mod:`companion.nav.reanchor`)."""
+        plausibility check) found its rejected fixes agreeing (:mod:`companion.nav.reanchor`);
+        callers do this only where :attr:`dead_reckons`."""
         shift = np.asarray(shift_en_m, dtype=float)
         if shift.shape != (2,) or not np.all(np.isfinite(shift)) or not (math.isfinite(sigma_m) and sigma_m > 0.0):
             raise ValueError(f"a re-anchoring shift is two finite metres and a positive 1-sigma, got {shift_en_m!r}, "
@@ -316,17 +326,11 @@ class Mission:
         if self.last is not None and meas.time_s <= self.last.time_s:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
-        if self.last is None:  # k = 0: at the start, fly theta_1
-            have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
-            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not have_ins:
-                # auto without an independent INS: Table 3's path (the fix alone here) until the
-                # dead-reckoning model (FUS_MODEL 3) is validated closed-loop (README, issue 14)
-                self.estimator, self.bias = None, self._given_bias
-                measured = self.measured.values(meas) - self.bias
-                s = measured[:2]
+        if self.last is None:  # k = 0: at the start, fly theta_1 (auto without an INS: dead reckoning)
             if self.estimator is not None:
                 self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
+        self._had_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
         dt = meas.time_s - self.last.time_s
         moved = self.last.velocity_en * dt
         self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))

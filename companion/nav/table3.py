@@ -8,9 +8,9 @@ at ``F_NT_PER_DEG``: the estimated G is too noisy to judge the fix by) or failed
 INS, the paper's INS/geomagnetic fusion (eq. 46-58, :mod:`companion.nav.fusion`) gives it.
 
 A fix farther than ``NAV_FIX_GATE_M`` from the dead-reckoned position is a wrong contour
-crossing or a disturbed measurement and is dropped, unless the last ``NAV_REANCHOR_N`` dropped
-fixes agree on where the vehicle is (:mod:`companion.nav.reanchor`): then the estimate is what
-is wrong, and the fix is taken.
+crossing or a disturbed measurement and is dropped, unless there is no INS and the last
+``NAV_REANCHOR_N`` dropped fixes agree on where the vehicle is (:mod:`companion.nav.reanchor`):
+then the estimate is what is wrong, and the fix is taken.
 """
 from __future__ import annotations
 
@@ -60,7 +60,8 @@ class Table3Estimator:
             # farther from the dead-reckoned position than the vehicle can have strayed in a step
             # (a wrong crossing of the contours, a disturbed measurement): not a fix, unless the
             # last rejected fixes agree on where the vehicle is (the estimate is what is wrong)
-            if self.consensus.rejected(np.array(enu_offset(est[0], est[1], *fix))) is None:
+            have_ins = math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg)
+            if have_ins or self.consensus.rejected(np.array(enu_offset(est[0], est[1], *fix))) is None:
                 fix, weak = None, True
                 self.rejected += 1
         elif fix is not None:

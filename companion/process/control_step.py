@@ -160,7 +160,10 @@ class ControlStep:
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
                           f_reference_nt=reference, noise=noise, fix_bias=bias)
         self.judgement = judgement
-        agreed = app.plausibility.agreed_shift(judgement, cmd.speed_mps * config.period_s, config.reanchor_steps)
+        # only a dead-reckoned estimate can be re-anchored: with an independent INS, fixes that
+        # agree far from it are biased fixes (dead_reckons)
+        steps = config.reanchor_steps if getattr(mission, "dead_reckons", False) else 0
+        agreed = app.plausibility.agreed_shift(judgement, cmd.speed_mps * config.period_s, steps)
         if agreed is not None:   # the excluded fixes agree: the estimate is wrong, not the sensor
             mission.reanchor(*agreed)
             words = app.plausibility.reanchor_words(agreed[0])

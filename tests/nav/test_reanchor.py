@@ -5,6 +5,7 @@ estimate back and the mission arrives; with 0 (the gate alone) it ends 70 km off
 ArduPilot SITL showed (one outlier accepted, the next 40 periods rejected)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -57,7 +58,7 @@ def test_never_with_zero_steps():
     assert all(consensus.rejected(np.array([50e3, 0.0])) is None for _ in range(10))
 
 
-def _fly_knocked(model, fus_model: int, reanchor_n: int):
+def _fly_knocked(model, fus_model: int, reanchor_n: int, knock_sigma_m: float = 500.0):
     nav = nav_config(None, distance_m=120e3, NAV_ELEMENTS=2, FUS_MODEL=fus_model, NAV_REANCHOR_N=reanchor_n)
     world, mission = NoiselessWorld(nav, model), Mission(nav, model)
     mission.set_start_fix(5.0)
@@ -66,7 +67,7 @@ def _fly_knocked(model, fus_model: int, reanchor_n: int):
     while not commands[-1].done and len(commands) < 200:
         meas = world.fly(commands[-1])
         if len(commands) == KNOCK_AT:
-            mission.reanchor(KNOCK_EN_M, 500.0)       # a wrong estimate, as one accepted outlier leaves it
+            mission.reanchor(KNOCK_EN_M, knock_sigma_m)   # a wrong estimate, as one accepted outlier leaves it
         commands.append(mission.step(meas))
         c = commands[-1]
         errors.append(WGS84.Inverse(c.est_lat_deg, c.est_lon_deg, world.lat, world.lon)["s12"])
@@ -89,3 +90,33 @@ def test_without_re_anchoring_the_gate_locks_in(model, fus_model):
     commands, world, _, errors = _fly_knocked(model, fus_model, reanchor_n=0)
     assert min(errors[KNOCK_AT - 1:]) > 50e3
     assert world.miss_m() > 50e3
+
+
+@pytest.mark.parametrize("fus_model, with_ins, dead_reckons", [
+    (2, True, False), (0, True, False), (0, False, True), (3, True, True), (3, False, True), (1, True, False), (1, False, True)])
+def test_only_a_dead_reckoned_estimate_is_re_anchored(model, fus_model, with_ins, dead_reckons):
+    """With an independent INS, fixes that agree far from the estimate are biased fixes (the
+    realistic world's heading error in D: re-anchoring on them took the Monte Carlo's median miss
+    from 67 to 163 km), so only a dead-reckoned estimate re-anchors."""
+    nav = nav_config(None, NAV_ELEMENTS=2, FUS_MODEL=fus_model)
+    world, mission = NoiselessWorld(nav, model), Mission(nav, model)
+    mission.set_start_fix(5.0)
+
+    def measured(m):
+        return dataclasses.replace(m, ins_lat_deg=world.lat, ins_lon_deg=world.lon) if with_ins else m
+
+    command = mission.step(measured(world.measure()))
+    for _ in range(3):
+        command = mission.step(measured(world.fly(command)))
+    assert mission.dead_reckons is dead_reckons
+
+
+def test_the_filters_gate_is_judged_in_its_own_uncertainty(model):
+    """A far fix is a blunder only if the filter is sure it is far: knocked 70 km with a 500 m
+    1-sigma it rejects the fixes (and, with no re-anchoring, stays off); knocked as far with a
+    60 km 1-sigma it takes the first fix and is back (the absolute gate alone rejected it, and a
+    dead-reckoning filter whose 1-sigma had grown to 117 km stayed 576 km off for good)."""
+    _, _, _, sure = _fly_knocked(model, 3, reanchor_n=0, knock_sigma_m=500.0)
+    _, _, _, unsure = _fly_knocked(model, 3, reanchor_n=0, knock_sigma_m=60e3)
+    assert min(sure[KNOCK_AT - 1:]) > 50e3
+    assert unsure[KNOCK_AT - 1] < 5e3 and max(unsure[KNOCK_AT - 1:]) < 5e3

@@ -207,7 +207,7 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     """PX4 SIH's |F| sat ~7000 nT below WMM's from power-on: a level present at the start (a scale
     residual, a coarser simulator field) is judged about, so the mission flies; a change still is not."""
     app, fc = rig
-    config = NavConfig.from_values(default_values())
+    config = NavConfig.from_values({**default_values(), "FUS_MODEL": 1})   # the calibrated constant bias
     app.mission = Mission(config)
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
@@ -231,7 +231,7 @@ def test_an_excluded_period_is_recorded_with_its_verdict(rig):
     """A period whose field belongs 150 km away is excluded as a fix jump, and its row in steps.csv
     carries the verdict (jump, bound, noise term) in the same columns as a step flown."""
     app, fc = rig
-    config = NavConfig.from_values(default_values())
+    config = NavConfig.from_values({**default_values(), "FUS_MODEL": 1})   # the calibrated constant bias
     app.mission = Mission(config)
     model = model_for_date(config.year)
     start = model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
@@ -282,7 +282,7 @@ def test_the_control_step_re_anchors_a_wrong_estimate_on_agreeing_exclusions(rig
     the companion excludes the next two good periods as fix jumps, the third agrees with them, so
     the core is re-anchored and its estimate is back within a few km; it is said and recorded."""
     app, fc = rig
-    config = NavConfig.from_values(default_values())
+    config = NavConfig.from_values({**default_values(), "NAV_REANCHOR_N": 3, "FUS_MODEL": 1})
     app.mission = Mission(config)
     model = model_for_date(config.year)
     truth = [config.start_lat_deg, config.start_lon_deg]
