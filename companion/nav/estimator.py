@@ -2,9 +2,7 @@
 
 Chooses the process model at the first step (``FUS_MODEL`` 2 INS, 3 dead reckoning; 0 auto takes
 the INS model when the measurement carries an INS position independent of this navigator, and
-dead reckoning without one: in the realistic world without an INS, with the vehicle's motion
-errors, it missed by 28 km median over 20 seeds on (I, F) where Table 3's fix alone missed by
-51 km), starts
+the mission falls back to Table 3's path without one: README "Without an INS"), starts
 the filter at the mission's start (a GPS-known start is a position measurement with
 ``FUS_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
 there, which observes the bias states against the model: the start-up calibration, carried

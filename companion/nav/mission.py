@@ -326,7 +326,16 @@ class Mission:
         if self.last is not None and meas.time_s <= self.last.time_s:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
-        if self.last is None:  # k = 0: at the start, fly theta_1 (auto without an INS: dead reckoning)
+        if self.last is None:  # k = 0: at the start, fly theta_1
+            have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not have_ins:
+                # auto without an independent INS: Table 3's path (the fix alone here). The
+                # dead-reckoning filter (FUS_MODEL 3) was better in the in-process realistic world
+                # but ended 141.7 km off against ArduPilot SITL where this path ended 31.5 km
+                # off (README, "Without an INS")
+                self.estimator, self.bias = None, self._given_bias
+                measured = self.measured.values(meas) - self.bias
+                s = measured[:2]
             if self.estimator is not None:
                 self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
