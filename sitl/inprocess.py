@@ -51,7 +51,7 @@ from sitl.sensors import WaveMotion, make_error_models
 from sitl.world.ins import InsErrorModel
 from sitl.world.magnetic import TruthField
 from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
-from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState, step_vehicle
+from sitl.world.vehicle import MotionErrors, VehicleState, step_vehicle
 
 __all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
 
@@ -120,8 +120,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     substeps = max(1, int(round(nav.period_s / substep_s)))
     dt = nav.period_s / substeps
     errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
-    motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed)) if scenario.motion.active \
-        else NO_MOTION_ERRORS
+    motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed))
     if not sampled:
         start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
         sigma_d, sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),

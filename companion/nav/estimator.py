@@ -123,7 +123,7 @@ class PositionEstimator:
         """The first step, at the mission's start: choose the process model, set the prior, and
         observe the start position (GPS) and, when calibrating, the biases there."""
         c = self.config
-        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        have_ins = meas.has_ins
         if c.fusion_model == FusionModel.DEAD_RECKONING or (c.fusion_model == FusionModel.AUTO and not have_ins):
             pos_sigma = start_sigma_m if start_sigma_m is not None else self.settings.ins.pos_err_m
             process = DeadReckoningProcess(self.settings.dead_reckoning, c.start_lat_deg, c.start_lon_deg, pos_sigma)
@@ -163,8 +163,8 @@ class PositionEstimator:
         if f.monitor.active and not was_active:
             back = min(len(self._history), f.monitor.loud_steps + REWIND_EXTRA)
             replay = self._history[-back:]
-            state, self._ins, _, self.consensus.offsets = replay[0]
-            self.consensus.offsets = list(self.consensus.offsets)
+            state, self._ins, _, offsets = replay[0]
+            self.consensus.offsets = list(offsets)
             activations = f.monitor.activations
             f.restore(state)
             f.monitor.active, f.monitor.activations = True, activations
@@ -175,7 +175,7 @@ class PositionEstimator:
 
     def _step(self, meas, measured, dt_s, vel_en_mps, lag_en_m, fallback, shift=None) -> Estimate:
         f = self.filter
-        have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        have_ins = meas.has_ins
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
         f.predict(dt_s, vel_en_mps, lat_now)
         if isinstance(f.process, InsProcess):

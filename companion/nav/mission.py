@@ -108,6 +108,11 @@ class Measurement:
     h_se_nt: float = math.nan
     z_se_nt: float = math.nan
 
+    @property
+    def has_ins(self) -> bool:
+        """The measurement carries an (independent) INS position."""
+        return math.isfinite(self.ins_lat_deg) and math.isfinite(self.ins_lon_deg)
+
 
 @dataclass(frozen=True)
 class Command:
@@ -327,8 +332,7 @@ class Mission:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
-            have_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
-            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not have_ins:
+            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not meas.has_ins:
                 # auto without an independent INS: Table 3's path (the fix alone here). The
                 # dead-reckoning filter (FUS_MODEL 3) was better in the in-process realistic world
                 # but ended 141.7 km off against ArduPilot SITL where this path ended 31.5 km
@@ -339,7 +343,7 @@ class Mission:
             if self.estimator is not None:
                 self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
-        self._had_ins = math.isfinite(meas.ins_lat_deg) and math.isfinite(meas.ins_lon_deg)
+        self._had_ins = meas.has_ins
         dt = meas.time_s - self.last.time_s
         moved = self.last.velocity_en * dt
         self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))

@@ -46,6 +46,7 @@ class Table3Estimator:
         """(position, fix or NaNs, fused with the INS, 1-sigma m) for the step whose dead-reckoned
         position is ``est``, measuring ``s`` at the window centre ``lag_en_m`` behind it."""
         c = self.config
+        have_ins = math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg)
         lag_e, lag_n = (float(v) for v in lag_en_m)
         prior = offset_position(est[0], est[1], -lag_e, -lag_n)
         try:
@@ -60,14 +61,13 @@ class Table3Estimator:
             # farther from the dead-reckoned position than the vehicle can have strayed in a step
             # (a wrong crossing of the contours, a disturbed measurement): not a fix, unless the
             # last rejected fixes agree on where the vehicle is (the estimate is what is wrong)
-            have_ins = math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg)
             if have_ins or self.consensus.rejected(np.array(enu_offset(est[0], est[1], *fix))) is None:
                 fix, weak = None, True
                 self.rejected += 1
         elif fix is not None:
             self.consensus.clear()
         position, fused, sigma = est, False, math.sqrt(c.fusion_rc_m2)
-        if weak and math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg):
+        if weak and have_ins:
             ins_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, ins_lat_deg, ins_lon_deg))
             if fix is not None:
                 result = self.fusion.step(ins_en, np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, *fix)))

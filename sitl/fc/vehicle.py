@@ -47,8 +47,7 @@ class VehicleSim:
         self.wave = WaveMotion(roll_amp_deg=wave_roll_deg, pitch_amp_deg=wave_pitch_deg)
         errors = make_error_models(sc, rng_att, rng_cal)   # sitl.world's attitude/calibration errors
         self.sensors = SensorSuite(sc.sensors, rng_sensors, errors.attitude, errors.mag, errors.decl_table_deg)
-        self.motion = MotionErrors.draw(sc.motion, rng_motion) if sc.motion.active and rng_motion is not None \
-            else NO_MOTION_ERRORS
+        self.motion = MotionErrors.draw(sc.motion, rng_motion) if rng_motion is not None else NO_MOTION_ERRORS
         self.nav = NavSolution(sc.ins, rng_nav, aided_noise_m=0.2 * sc.sensors.gps_noise_m, ins_step_s=ins_step_s)
         self.gps_rng = rng_gps
         self.cmd = (0.0, 0.0)           # commanded (course rad, speed m/s)

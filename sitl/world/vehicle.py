@@ -60,6 +60,9 @@ class MotionErrors:
 
     @classmethod
     def draw(cls, config: MotionErrorConfig, rng: np.random.Generator) -> MotionErrors:
+        """One run's errors (none, without touching ``rng``, when ``config`` has none)."""
+        if not config.active:
+            return NO_MOTION_ERRORS
         current = rng.normal(0.0, 1.0, 2) * config.current_mps
         scale = 1.0 + float(rng.normal()) * config.speed_scale_sigma
         bias = math.radians(float(rng.normal()) * config.course_bias_deg)
@@ -115,9 +118,9 @@ def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_sp
     course = wrap_2pi(state.course_rad + turn)
     mid_course = state.course_rad + 0.5 * turn
     step_m = 0.5 * (state.speed_mps + speed) * dt_s
-    north_m = step_m * math.cos(mid_course) + motion.current_en_mps[1] * dt_s
-    east_m = step_m * math.sin(mid_course) + motion.current_en_mps[0] * dt_s
     drift_n = motion.current_en_mps[1] * dt_s     # (written so that no errors is bit-identical to before)
+    north_m = step_m * math.cos(mid_course) + drift_n
+    east_m = step_m * math.sin(mid_course) + motion.current_en_mps[0] * dt_s
     east_per_deg, north_per_deg = metres_per_degree(state.lat_deg + 0.5 * step_m * math.cos(mid_course) / 111e3
                                                     + 0.5 * drift_n / 111e3)
     lat = state.lat_deg + north_m / float(north_per_deg)
