@@ -100,6 +100,8 @@ class ControlStep:
         core0 = time.perf_counter()
         cmd = mission.step(meas)
         core_latency = time.perf_counter() - core0
+        if app.command is None:
+            self.learn_f_reference(meas)
         nav_fault = self.fault(cmd)
         app.out.publish(cmd, avg)
         if app.fc_view.feeding_own and cmd.phase == Phase.CRUISE:
@@ -127,6 +129,19 @@ class ControlStep:
         app.next_step_m = t_k + mission.config.period_s
         app.resume.save()
 
+    def learn_f_reference(self, meas: Measurement) -> None:
+        """At the first step, the start (a known position): learn the |F| level the band is judged
+        about, with the bias the core chose to subtract there. Learnt before the core's first step,
+        it took the bias before auto had fallen back to Table 3's constant calibration (zero), and
+        every later step subtracted the calibration a second time (PX4 SIH, +590 nT: periods judged
+        1000-1040 nT off and excluded, 4 of 11 in 30 minutes)."""
+        mission = self.app.mission
+        model = getattr(mission, "model", None)   # (a test's stand-in core has none)
+        config = mission.config
+        self.app.plausibility.f_reference_nt = None if model is None else f_offset_nt(
+            model, mission.elements, config.year, config.alt_m, meas.f_nt, mission.bias,
+            config.start_lat_deg, config.start_lon_deg)
+
     def excluded(self, t_k: float, meas: Measurement, se: dict[str, float] | None = None) -> bool:
         """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);
         True if it is excluded (said, recorded). The first step has no prediction to judge against.
@@ -134,11 +149,7 @@ class ControlStep:
         app = self.app
         cmd, mission = app.command, app.mission
         config = mission.config
-        if cmd is None:   # the first step, at the start: learn the |F| level the band is judged about
-            model = getattr(mission, "model", None)   # (a test's stand-in core has none)
-            app.plausibility.f_reference_nt = None if model is None else f_offset_nt(
-                model, mission.elements, config.year, config.alt_m, meas.f_nt, mission.bias,
-                config.start_lat_deg, config.start_lon_deg)
+        if cmd is None:   # the first step, at the start: nothing to judge against (learn_f_reference)
             return False
         if cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
             return False

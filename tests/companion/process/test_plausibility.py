@@ -227,6 +227,29 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     _sent(fc)
 
 
+def test_the_level_is_learnt_with_the_calibration_the_core_subtracts(rig):
+    """Auto without an INS falls back to Table 3's constant start-up calibration at the first step:
+    the |F| level is judged net of that calibration, not with it subtracted twice (PX4 SIH, +590 nT
+    calibrated: later periods were judged ~1000 nT off and excluded)."""
+    app, fc = rig
+    config = NavConfig.from_values({**default_values(), "NAV_ELEMENTS": 2})   # (I, F); FUS_MODEL 0 (auto), no INS
+    app.mission = Mission(config)
+    start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
+    ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
+    level = 700.0
+    high = ned * (1.0 + level / float(start.f_nt))                       # the calibrated level, from the start on
+    app.mission.set_bias(tuple(level if n == "f_nt" else 0.0 for n in app.mission.measured.names))
+    app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(high))
+    app.stepper.step(1.0, window_limit_s=0.0)
+    assert app.mission.estimator is None                                 # Table 3's path, its bias subtracted
+    assert app.plausibility.f_reference_nt == pytest.approx(0.0, abs=1.0)
+    app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(high))
+    app.stepper.step(361.0)
+    assert app.mission.k == 2 and app.plausibility.excluded == 0
+    assert app.stepper.judgement.f_offset_nt == pytest.approx(0.0, abs=50.0)   # the probe's few km: a few nT
+    _sent(fc)
+
+
 def test_an_excluded_period_is_recorded_with_its_verdict(rig):
     """A period whose field belongs 150 km away is excluded as a fix jump, and its row in steps.csv
     carries the verdict (jump, bound, noise term) in the same columns as a step flown."""
