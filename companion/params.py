@@ -109,6 +109,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),
+    _p("NAV_MERR_DEG", float, 0.3, 0.0, 10.0, "deg", "Table 3's uncertainty: 1-sigma of the field model's D/I error at a point (crust, main-field model), uncorrelated beyond NAV_MERR_KM"),
+    _p("NAV_MERR_NT", float, 300.0, 0.0, 1e5, "nT", "Table 3's uncertainty: 1-sigma of the field model's F/H/Z error at a point"),
+    _p("NAV_MERR_KM", float, 25.0, 0.01, 1e5, "km", "Table 3's uncertainty: correlation length of the field model's error (how far the start-up calibration holds)"),
     _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
@@ -357,6 +360,9 @@ class NavConfig(_FromRegistry):
     elements: int = _from("NAV_ELEMENTS")
     calibrate: int = _from("NAV_CALIBRATE")
     fix_gate_m: float = _from("NAV_FIX_GATE_M")
+    model_err_deg: float = _from("NAV_MERR_DEG")
+    model_err_nt: float = _from("NAV_MERR_NT")
+    model_err_length_m: float = _from("NAV_MERR_KM", 1000.0)
     reanchor_steps: int = _from("NAV_REANCHOR_N")
     solver: int = _from("MPC_SOLVER")
     fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)

@@ -65,7 +65,7 @@ FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_
                     "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
                     "filter_r_deg", "filter_r_nt", "filter_r_source", "filter_rmin_deg", "filter_rmin_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
                     "bias_qa_deg", "bias_qa_nt", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
-                    "grad_init")
+                    "model_err_deg", "model_err_nt", "model_err_length_m", "grad_init")
 
 
 class Phase:
@@ -226,6 +226,7 @@ class Mission:
         self.estimator = PositionEstimator(config, model, self.measured) if use_filter else None
         self.estimate: Estimate | None = None
         self.start_sigma_m: float | None = None
+        self.table3 = Table3Estimator(config, model, self.elements)   # FUS_MODEL 1, or auto without an INS
         self.set_bias(bias)
         field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)
@@ -233,7 +234,6 @@ class Mission:
                                                                                  config.start_lon_deg), self.s_dest)
         self.gradient = GradientEstimator(config.grad_update, config.grad_min_move_m)
         self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
-        self.table3 = Table3Estimator(config, model, self.elements)   # FUS_MODEL 1, or auto without an INS
         de, dn = enu_offset(config.start_lat_deg, config.start_lon_deg, config.dest_lat_deg, config.dest_lon_deg)
         # paper bounds U in [0, U_max]^2: the quadrant towards the destination gives the signs
         self.quadrant = np.array([1.0 if de >= 0 else -1.0, 1.0 if dn >= 0 else -1.0])
@@ -260,6 +260,7 @@ class Mission:
             raise ValueError(f"the element bias must be {n} finite numbers, got {bias!r}")
         self._given_bias = value
         self.bias = value if self.estimator is None else np.zeros(n)
+        self.table3.calibrated = bias is not None
 
     def set_start_fix(self, sigma_m: float | None, calibrate: bool = True) -> None:
         """The start position is known to this 1-sigma (None: it is not), before the first step;
@@ -279,7 +280,7 @@ class Mission:
                     if f.name in FROZEN_IN_FLIGHT and getattr(new, f.name) != getattr(old, f.name)]
         merged = new.replace(**{name: getattr(old, name) for name in FROZEN_IN_FLIGHT})
         if merged != old:
-            self.config = merged
+            self.config = self.table3.config = merged
             self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         return deferred
 
@@ -442,8 +443,10 @@ class Mission:
 
     def _filter_fields(self) -> dict:
         e = self.estimate   # the filter's own 1-sigma and covariance go out with every command
-        return {} if e is None else {"est_cov_en_m2": e.cov_en_m2, "nis": e.nis, "disturbed": e.disturbed,
-                                     "bias": e.bias, "est_sigma_m": e.sigma_m}
+        if e is None:        # Table 3's path: its covariance once it has estimated (cruise)
+            return {"est_cov_en_m2": self.table3.cov_tuple()} if self.table3.estimated else {}
+        return {"est_cov_en_m2": e.cov_en_m2, "nis": e.nis, "disturbed": e.disturbed, "bias": e.bias,
+                "est_sigma_m": e.sigma_m}
 
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
         """The error-state filter's estimate of this step (already made in :meth:`step`), or
@@ -452,7 +455,7 @@ class Mission:
             e = self.estimate
             return (e.fix_lat_deg, e.fix_lon_deg), e.updated, e.sigma_m
         self.est, fix, fused, sigma = self.table3.estimate(self.est, s, self.window_lag_en, meas.ins_lat_deg,
-                                                           meas.ins_lon_deg)
+                                                           meas.ins_lon_deg, meas.time_s, self.elements.standard_errors(meas))
         self.rejected_fixes = self.table3.rejected
         return fix, fused, sigma
 

@@ -11,23 +11,70 @@ A fix farther than ``NAV_FIX_GATE_M`` from the dead-reckoned position is a wrong
 crossing or a disturbed measurement and is dropped, unless there is no INS and the last
 ``NAV_REANCHOR_N`` dropped fixes agree on where the vehicle is (:mod:`companion.nav.reanchor`):
 then the estimate is what is wrong, and the fix is taken.
+
+Uncertainty (east/north covariance ``P``, m^2; the paper gives none for the fix). A taken fix
+replaces the estimate, so its covariance is the fix's own::
+
+    P_fix = G^-1 (R_noise + R_model(d)) G^-T
+
+``G`` the model's gradient at the fix (element units per metre), ``R_noise`` the period's
+measured standard errors with the ``FUS_RMIN_*`` floor (``FUS_R_*`` where none is measured),
+``R_model(d)`` what the field model gets wrong there that the start-up calibration did not
+remove: a Gauss-Markov field in distance with 1-sigma ``s`` (``NAV_MERR_DEG``/``NAV_MERR_NT``)
+and correlation length ``L`` (``NAV_MERR_KM``), so at a distance ``d`` from the calibration
+point the error of the difference is ``2 s^2 (1 - exp(-d / L))``; ``s^2`` without a
+calibration. Between fixes (none, dropped) ``P`` grows from the last fix's by the dead
+reckoning since it, whose errors are constant over a run (a current, a speed scale, a course
+bias) and so grow linearly, not as a random walk: ``(FUS_CUR_MPS t)^2 + (0.02 s)^2 + n
+FUS_DR_POS_M^2`` per axis after ``t`` seconds, ``s`` metres and ``n`` steps. Where
+the fix is weak and fused with the INS, the Table 3 filter's own 1-sigma is reported. Before
+this, the 1-sigma was ``sqrt(FUS_RC_KM2)`` (1.4 km) always: against ArduPilot SITL the estimate
+was up to 95 km off while it said 1.4 km, and that number goes to the flight controller
+(GPS accuracy) and into the companion's plausibility and divergence judgements.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
-from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
+from companion.nav.geo import enu_offset, geodesic_distance_m, geodesic_inverse, offset_position
+from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 from companion.params import NavConfig
 
-__all__ = ["F_NT_PER_DEG", "Table3Estimator"]
+__all__ = ["F_NT_PER_DEG", "ModelError", "Table3Estimator", "fix_covariance"]
 
 F_NT_PER_DEG = 360.0   # automatic bounds and the fusion gate: a degree of D or I counts as 360 nT of F
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """The field model's element error as a Gauss-Markov field in distance: 1-sigma
+    ``sigma_deg`` (D, I) and ``sigma_nt`` (F, H, Z) at a point, correlation length ``length_m``."""
+
+    sigma_deg: float = 0.3
+    sigma_nt: float = 300.0
+    length_m: float = 25_000.0
+
+    def variance(self, names: tuple[str, ...], distance_m: float | None) -> np.ndarray:
+        """Variance of each element's model error at ``distance_m`` from a calibration point,
+        after the calibration's value there is removed; ``None``: not calibrated."""
+        point = np.array([self.sigma_nt if n.endswith("_nt") else self.sigma_deg for n in names]) ** 2
+        if distance_m is None:
+            return point
+        return 2.0 * point * (1.0 - math.exp(-max(distance_m, 0.0) / self.length_m))
+
+
+def fix_covariance(gradient: np.ndarray, element_variance: np.ndarray) -> np.ndarray:
+    """East/north covariance (m^2) of a fix from the element errors' variances through the
+    gradient ``G`` (element units per metre): ``G^-1 diag(variance) G^-T``."""
+    inverse = np.linalg.inv(np.asarray(gradient, dtype=float))
+    return (inverse * np.asarray(element_variance, dtype=float)) @ inverse.T
 
 
 class Table3Estimator:
@@ -40,18 +87,67 @@ class Table3Estimator:
         self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self.rejected = 0
         self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in elements.names])
+        self.model_error = ModelError(config.model_err_deg, config.model_err_nt, config.model_err_length_m)
+        self.calibrated = False      # the start-up calibration is removed (Mission.set_bias)
+        self.estimated = False       # cov_en_m2 is an estimate's (a cruise step has been estimated)
+        self.cov_en_m2 = np.eye(2) * config.gps_sigma_m ** 2   # the start: GPS-known
+        self._declared = np.array([config.filter_r_nt if n.endswith("_nt") else config.filter_r_deg
+                                   for n in elements.names])
+        self._floor = np.array([config.filter_rmin_nt if n.endswith("_nt") else config.filter_rmin_deg
+                                for n in elements.names])
+        self._last: tuple[float, tuple[float, float]] = (0.0, (config.start_lat_deg, config.start_lon_deg))
+        # the last fix (or the start): its covariance and time, the distance and steps flown since
+        self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = self.cov_en_m2, 0.0, 0.0, 0
+
+    def cov_tuple(self) -> tuple[float, float, float]:
+        """:attr:`cov_en_m2` as (east-east, east-north, north-north), m^2 (Command.est_cov_en_m2)."""
+        return float(self.cov_en_m2[0, 0]), float(self.cov_en_m2[0, 1]), float(self.cov_en_m2[1, 1])
+
+    def noise_variance(self, standard_errors: np.ndarray) -> np.ndarray:
+        """The averaged elements' noise variance: measured standard errors plus the floor in
+        quadrature, the declared noise where none is measured (as the error-state filter's R)."""
+        se = np.asarray(standard_errors, dtype=float)
+        return np.where(np.isfinite(se), np.where(np.isfinite(se), se, 0.0) ** 2 + self._floor ** 2,
+                        self._declared ** 2)
+
+    def _dead_reckoned_covariance(self, time_s: float, est: tuple[float, float]) -> np.ndarray:
+        """``P`` of the dead-reckoned ``est`` at ``time_s``: the last fix's grown by the dead
+        reckoning since it (module docstring); advances the distance and steps flown."""
+        c = self.config
+        self._flown_m += geodesic_distance_m(*self._last[1], est[0], est[1])
+        self._steps += 1
+        dt = max(time_s - self._anchor_time_s, 0.0)
+        grown = (c.current_sigma_mps * dt) ** 2 + (DeadReckoningSpec.speed_frac * self._flown_m) ** 2 \
+            + self._steps * c.dr_pos_sigma_m ** 2
+        return self._anchor_cov + np.eye(2) * grown
 
     def estimate(self, est: tuple[float, float], s: np.ndarray, lag_en_m: np.ndarray, ins_lat_deg: float,
-                 ins_lon_deg: float) -> tuple[tuple[float, float], tuple[float, float], bool, float]:
-        """(position, fix or NaNs, fused with the INS, 1-sigma m) for the step whose dead-reckoned
-        position is ``est``, measuring ``s`` at the window centre ``lag_en_m`` behind it."""
+                 ins_lon_deg: float, time_s: float = math.nan,
+                 standard_errors: np.ndarray | None = None) -> tuple[tuple[float, float], tuple[float, float], bool, float]:
+        """(position, fix or NaNs, fused with the INS, 1-sigma m per axis) for the step at mission
+        time ``time_s`` whose dead-reckoned position is ``est``, measuring ``s`` (its standard
+        errors ``standard_errors``, NaN or None: not measured) at the window centre ``lag_en_m``
+        behind it. The covariance is left in :attr:`cov_en_m2`."""
+        position, fix, fused, sigma, cov = self._estimate(est, s, lag_en_m, ins_lat_deg, ins_lon_deg, time_s,
+                                                          standard_errors)
+        self.cov_en_m2, self.estimated = cov, True
+        now = time_s if math.isfinite(time_s) else self._last[0]
+        self._last = (now, position)
+        if not (math.isnan(fix[0]) and not fused):   # a fix (or the fused position): dead reckon from here
+            self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = cov, now, 0.0, 0
+        return position, fix, fused, sigma
+
+    def _estimate(self, est, s, lag_en_m, ins_lat_deg, ins_lon_deg, time_s, standard_errors):
         c = self.config
         have_ins = math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg)
+        cov = self._dead_reckoned_covariance(time_s if math.isfinite(time_s) else self._last[0], est)
+        gradient = None
         lag_e, lag_n = (float(v) for v in lag_en_m)
         prior = offset_position(est[0], est[1], -lag_e, -lag_n)
         try:
             found = element_fix(self.model, self.elements, s, float(prior[0]), float(prior[1]), c.alt_m, c.year)
             fix = tuple(float(v) for v in offset_position(found.lat_deg, found.lon_deg, lag_e, lag_n))
+            gradient = found.gradient
             # the fix is as good as the field's gradient where it lands (an error e moves it G^-1 e)
             in_degrees = found.gradient / self._degree_equivalent[:, None]
             weak = float(np.linalg.svd(in_degrees, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
@@ -66,7 +162,7 @@ class Table3Estimator:
                 self.rejected += 1
         elif fix is not None:
             self.consensus.clear()
-        position, fused, sigma = est, False, math.sqrt(c.fusion_rc_m2)
+        position, fused = est, False
         if weak and have_ins:
             ins_en = np.array(enu_offset(c.start_lat_deg, c.start_lon_deg, ins_lat_deg, ins_lon_deg))
             if fix is not None:
@@ -75,7 +171,22 @@ class Table3Estimator:
                 result = self.fusion.predict_only(ins_en)
             position = tuple(float(v) for v in offset_position(c.start_lat_deg, c.start_lon_deg,
                                                                result.east_m, result.north_m))
-            fused, sigma = True, result.sigma_m
+            fused, cov = True, np.eye(2) * result.sigma_m ** 2
         elif fix is not None:
             position = fix
-        return position, (fix if fix is not None else (math.nan, math.nan)), fused, sigma
+            cov = self._fix_covariance(gradient, fix, standard_errors)
+        sigma = math.sqrt(0.5 * float(cov[0, 0] + cov[1, 1]))
+        return position, (fix if fix is not None else (math.nan, math.nan)), fused, sigma, cov
+
+    def _fix_covariance(self, gradient: np.ndarray, fix: tuple[float, float],
+                        standard_errors: np.ndarray | None) -> np.ndarray:
+        """``P_fix`` (module docstring) of a fix at ``fix`` with the model's gradient there."""
+        c = self.config
+        n = len(self.elements.names)
+        se = np.full(n, np.nan) if standard_errors is None else np.asarray(standard_errors, dtype=float)[:n]
+        distance = geodesic_distance_m(c.start_lat_deg, c.start_lon_deg, *fix) if self.calibrated else None
+        variance = self.noise_variance(se) + self.model_error.variance(self.elements.names, distance)
+        try:
+            return fix_covariance(gradient, variance)
+        except np.linalg.LinAlgError:   # a singular G (the fix's Newton steps would have failed first):
+            return np.eye(2) * c.fix_gate_m ** 2   # as uncertain as the gate lets a fix be
