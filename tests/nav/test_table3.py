@@ -84,3 +84,13 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     grown2 = 2 * config.dr_pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * 2 * flown) ** 2 \
         + (config.current_sigma_mps * 720.0) ** 2
     np.testing.assert_allclose(table3.cov_en_m2, before + np.eye(2) * grown2, rtol=1e-6)
+
+
+def test_a_changed_gate_reaches_table3_in_flight(model):
+    """NAV_FIX_GATE_M applies at once (not frozen in flight): Table 3's path judges with it."""
+    from companion.nav.mission import Mission
+
+    config = nav_config(FUS_MODEL=1)
+    mission = Mission(config, model)
+    assert mission.reconfigure(config.replace(fix_gate_m=20e3)) == []
+    assert mission.table3.config.fix_gate_m == 20e3
