@@ -141,6 +141,7 @@ class Command:
     nis: float = math.nan           # the filter's normalised innovation squared this step
     disturbed: bool = False         # the filter judges a disturbance active (bias noise raised)
     bias: tuple[float, ...] = ()    # estimated element biases, measured minus model
+    next_fix_sigma_m: float = math.nan   # est_sigma_m against the next fix (Table 3: less the shared model error)
 
 
 def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -444,7 +445,7 @@ class Mission:
     def _filter_fields(self) -> dict:
         e = self.estimate   # the filter's own 1-sigma and covariance go out with every command
         if e is None:        # Table 3's path: its covariance once it has estimated (cruise)
-            return {"est_cov_en_m2": self.table3.cov_tuple()} if self.table3.estimated else {}
+            return self.table3.command_fields()
         return {"est_cov_en_m2": e.cov_en_m2, "nis": e.nis, "disturbed": e.disturbed, "bias": e.bias,
                 "est_sigma_m": e.sigma_m}
 

@@ -27,7 +27,12 @@ calibration. Between fixes (none, dropped) ``P`` grows from the last fix's by th
 reckoning since it, whose errors are constant over a run (a current, a speed scale, a course
 bias) and so grow linearly, not as a random walk: ``(FUS_CUR_MPS t)^2 + (0.02 s)^2 + n
 FUS_DR_POS_M^2`` per axis after ``t`` seconds, ``s`` metres and ``n`` steps. Where
-the fix is weak and fused with the INS, the Table 3 filter's own 1-sigma is reported. Before
+the fix is weak and fused with the INS, the Table 3 filter's own 1-sigma is reported.
+
+Against the *next* fix the estimate is judged with :attr:`relative_cov_en_m2`: the same, less
+the field model's error, which the next fix a few km on shares (its difference over a step is
+what the plausibility check's margin is for). Judged with the full covariance, a 20000 nT
+spike whose period's fix jumped 81 km in the paper's world passed as plausible. Before
 this, the 1-sigma was ``sqrt(FUS_RC_KM2)`` (1.4 km) always: against ArduPilot SITL the estimate
 was up to 95 km off while it said 1.4 km, and that number goes to the flight controller
 (GPS accuracy) and into the companion's plausibility and divergence judgements.
@@ -98,10 +103,17 @@ class Table3Estimator:
         self._last: tuple[float, tuple[float, float]] = (0.0, (config.start_lat_deg, config.start_lon_deg))
         # the last fix (or the start): its covariance and time, the distance and steps flown since
         self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = self.cov_en_m2, 0.0, 0.0, 0
+        self.relative_cov_en_m2 = self._anchor_relative_cov = self.cov_en_m2
 
-    def cov_tuple(self) -> tuple[float, float, float]:
-        """:attr:`cov_en_m2` as (east-east, east-north, north-north), m^2 (Command.est_cov_en_m2)."""
-        return float(self.cov_en_m2[0, 0]), float(self.cov_en_m2[0, 1]), float(self.cov_en_m2[1, 1])
+    def command_fields(self) -> dict:
+        """The uncertainty a :class:`companion.nav.mission.Command` carries from this path, once
+        a cruise step has been estimated: ``est_cov_en_m2`` (east-east, east-north, north-north,
+        m^2) and ``next_fix_sigma_m``."""
+        if not self.estimated:
+            return {}
+        c = self.cov_en_m2
+        return {"est_cov_en_m2": (float(c[0, 0]), float(c[0, 1]), float(c[1, 1])),
+                "next_fix_sigma_m": self.relative_sigma_m}
 
     def noise_variance(self, standard_errors: np.ndarray) -> np.ndarray:
         """The averaged elements' noise variance: measured standard errors plus the floor in
@@ -110,16 +122,21 @@ class Table3Estimator:
         return np.where(np.isfinite(se), np.where(np.isfinite(se), se, 0.0) ** 2 + self._floor ** 2,
                         self._declared ** 2)
 
-    def _dead_reckoned_covariance(self, time_s: float, est: tuple[float, float]) -> np.ndarray:
-        """``P`` of the dead-reckoned ``est`` at ``time_s``: the last fix's grown by the dead
-        reckoning since it (module docstring); advances the distance and steps flown."""
+    @property
+    def relative_sigma_m(self) -> float:
+        """1-sigma per axis of :attr:`relative_cov_en_m2` (m): the estimate against the next fix."""
+        return math.sqrt(0.5 * float(self.relative_cov_en_m2[0, 0] + self.relative_cov_en_m2[1, 1]))
+
+    def _dead_reckoned_growth(self, time_s: float, est: tuple[float, float]) -> np.ndarray:
+        """What the dead reckoning since the last fix adds to ``P`` at ``time_s`` (module
+        docstring); advances the distance and steps flown."""
         c = self.config
         self._flown_m += geodesic_distance_m(*self._last[1], est[0], est[1])
         self._steps += 1
         dt = max(time_s - self._anchor_time_s, 0.0)
         grown = (c.current_sigma_mps * dt) ** 2 + (DeadReckoningSpec.speed_frac * self._flown_m) ** 2 \
             + self._steps * c.dr_pos_sigma_m ** 2
-        return self._anchor_cov + np.eye(2) * grown
+        return np.eye(2) * grown
 
     def estimate(self, est: tuple[float, float], s: np.ndarray, lag_en_m: np.ndarray, ins_lat_deg: float,
                  ins_lon_deg: float, time_s: float = math.nan,
@@ -128,19 +145,21 @@ class Table3Estimator:
         time ``time_s`` whose dead-reckoned position is ``est``, measuring ``s`` (its standard
         errors ``standard_errors``, NaN or None: not measured) at the window centre ``lag_en_m``
         behind it. The covariance is left in :attr:`cov_en_m2`."""
-        position, fix, fused, sigma, cov = self._estimate(est, s, lag_en_m, ins_lat_deg, ins_lon_deg, time_s,
-                                                          standard_errors)
-        self.cov_en_m2, self.estimated = cov, True
+        position, fix, fused, sigma, cov, relative = self._estimate(est, s, lag_en_m, ins_lat_deg, ins_lon_deg,
+                                                                    time_s, standard_errors)
+        self.cov_en_m2, self.relative_cov_en_m2, self.estimated = cov, relative, True
         now = time_s if math.isfinite(time_s) else self._last[0]
         self._last = (now, position)
         if not (math.isnan(fix[0]) and not fused):   # a fix (or the fused position): dead reckon from here
-            self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = cov, now, 0.0, 0
+            self._anchor_cov, self._anchor_relative_cov = cov, relative
+            self._anchor_time_s, self._flown_m, self._steps = now, 0.0, 0
         return position, fix, fused, sigma
 
     def _estimate(self, est, s, lag_en_m, ins_lat_deg, ins_lon_deg, time_s, standard_errors):
         c = self.config
         have_ins = math.isfinite(ins_lat_deg) and math.isfinite(ins_lon_deg)
-        cov = self._dead_reckoned_covariance(time_s if math.isfinite(time_s) else self._last[0], est)
+        grown = self._dead_reckoned_growth(time_s if math.isfinite(time_s) else self._last[0], est)
+        cov, relative = self._anchor_cov + grown, self._anchor_relative_cov + grown
         gradient = None
         lag_e, lag_n = (float(v) for v in lag_en_m)
         prior = offset_position(est[0], est[1], -lag_e, -lag_n)
@@ -172,20 +191,25 @@ class Table3Estimator:
             position = tuple(float(v) for v in offset_position(c.start_lat_deg, c.start_lon_deg,
                                                                result.east_m, result.north_m))
             fused, cov = True, np.eye(2) * result.sigma_m ** 2
+            relative = cov
         elif fix is not None:
             position = fix
             cov = self._fix_covariance(gradient, fix, standard_errors)
+            relative = self._fix_covariance(gradient, fix, standard_errors, with_model=False)
         sigma = math.sqrt(0.5 * float(cov[0, 0] + cov[1, 1]))
-        return position, (fix if fix is not None else (math.nan, math.nan)), fused, sigma, cov
+        return position, (fix if fix is not None else (math.nan, math.nan)), fused, sigma, cov, relative
 
     def _fix_covariance(self, gradient: np.ndarray, fix: tuple[float, float],
-                        standard_errors: np.ndarray | None) -> np.ndarray:
-        """``P_fix`` (module docstring) of a fix at ``fix`` with the model's gradient there."""
+                        standard_errors: np.ndarray | None, with_model: bool = True) -> np.ndarray:
+        """``P_fix`` (module docstring) of a fix at ``fix`` with the model's gradient there
+        (``with_model`` False: its noise alone)."""
         c = self.config
         n = len(self.elements.names)
         se = np.full(n, np.nan) if standard_errors is None else np.asarray(standard_errors, dtype=float)[:n]
         distance = geodesic_distance_m(c.start_lat_deg, c.start_lon_deg, *fix) if self.calibrated else None
-        variance = self.noise_variance(se) + self.model_error.variance(self.elements.names, distance)
+        variance = self.noise_variance(se)
+        if with_model:
+            variance = variance + self.model_error.variance(self.elements.names, distance)
         try:
             return fix_covariance(gradient, variance)
         except np.linalg.LinAlgError:   # a singular G (the fix's Newton steps would have failed first):

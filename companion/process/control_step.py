@@ -157,7 +157,9 @@ class ControlStep:
         flown = cmd.speed_mps * dt
         lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
                                    flown * math.cos(cmd.course_rad))
-        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
+        # against this fix: the estimate's uncertainty less the field-model error the two share
+        sigma = next(v for v in (cmd.next_fix_sigma_m, cmd.est_sigma_m, math.sqrt(app.nav_cfg.fusion_rc_m2))
+                     if math.isfinite(v))
         reference = app.plausibility.f_reference_nt
         if reference is None or not math.isfinite(reference):   # resumed mid-route: no start to learn it at
             reference = 0.0

@@ -2,7 +2,9 @@
 
 Judged before the core sees the measurement, against where the vehicle should be: the last
 estimate flown on with the last command (:meth:`Outputs.current_estimate`), uncertainty
-``sigma_m`` (the estimate's 1-sigma). Two checks:
+``sigma_m`` (the estimate's 1-sigma against this fix: ``Command.next_fix_sigma_m`` where the
+navigator gives one, Table 3's path, whose own 1-sigma holds the field model's error that the
+next fix shares; else ``est_sigma_m``). Two checks:
 
 ``f_band``    ``|F_measured - bias_F - F_model(predicted) - F_reference|`` over ``f_band_nt``
               (1000 nT: the model's own error at sea is ~100 nT, the crustal field a few hundred).

@@ -66,6 +66,10 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     np.testing.assert_allclose(table3.cov_en_m2, expected, rtol=1e-3)
     assert sigma == pytest.approx(math.sqrt(0.5 * np.trace(expected)), rel=1e-3)
     assert sigma > 5e3   # (I, F) on a Pacific route: kilometres to tens of, not 1.4 km
+    # against the next fix (a few km on, the same model error): the fix's noise alone
+    noise_only = fix_covariance(found.gradient, se ** 2 + np.array([config.filter_rmin_deg, config.filter_rmin_nt]) ** 2)
+    np.testing.assert_allclose(table3.relative_cov_en_m2, noise_only, rtol=1e-3)
+    assert table3.relative_sigma_m < 0.5 * sigma
 
     flown = 10e3
     moved = tuple(float(v) for v in offset_position(*position, 0.0, flown))
@@ -76,6 +80,7 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     grown = config.dr_pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * flown) ** 2 \
         + (config.current_sigma_mps * 360.0) ** 2
     np.testing.assert_allclose(table3.cov_en_m2, before + np.eye(2) * grown, rtol=1e-6)
+    np.testing.assert_allclose(table3.relative_cov_en_m2, noise_only + np.eye(2) * grown, rtol=1e-3)
     assert sigma2 > sigma
     # a second dropped step: the dead reckoning's errors are constant (a current, a speed scale),
     # so they grow with the time and distance since the fix, not as a random walk
