@@ -76,6 +76,7 @@ __all__ = [
     "DisturbanceMonitor",
     "FilterSettings",
     "NavigationFilter",
+    "measured_variance",
 ]
 
 HOUR_S = 3600.0
@@ -104,8 +105,18 @@ class BiasSpec:
     qa_deg_rth: float = 0.05
     qa_nt_rth: float = 40.0
 
-    def per_element(self, names: tuple[str, ...], deg: float, nt: float) -> np.ndarray:
+    @staticmethod
+    def per_element(names: tuple[str, ...], deg: float, nt: float) -> np.ndarray:
         return np.array([nt if name.endswith("_nt") else deg for name in names])
+
+
+def measured_variance(standard_errors: np.ndarray, r_min: np.ndarray, r_declared: np.ndarray) -> np.ndarray:
+    """Noise variance of each averaged element: its measured standard error with the floor
+    ``r_min`` added in quadrature, ``se^2 + r_min^2``, or the declared ``r^2`` where no finite,
+    non-negative one was measured (element units)."""
+    se = np.asarray(standard_errors, dtype=float)
+    measured = np.isfinite(se) & (se >= 0.0)
+    return np.where(measured, np.where(measured, se, 0.0) ** 2 + r_min ** 2, r_declared ** 2)
 
 
 @dataclass(frozen=True)
@@ -242,10 +253,7 @@ class NavigationFilter:
         standard errors) the declared ``diag(r^2)``."""
         if self.settings.r_source != 1 or standard_errors is None:
             return self._r
-        se = np.asarray(standard_errors, dtype=float)
-        measured = np.isfinite(se) & (se >= 0.0)
-        sigma2 = np.where(measured, np.where(measured, se, 0.0) ** 2 + self._r_min ** 2, self._r_declared ** 2)
-        return np.diag(sigma2)
+        return np.diag(measured_variance(standard_errors, self._r_min, self._r_declared))
 
     def update_position(self, lat_deg: float, lon_deg: float, sigma_m: float,
                         ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> None:

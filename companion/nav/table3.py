@@ -48,6 +48,7 @@ from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, geodesic_inverse, offset_position
+from companion.nav.navfilter import BiasSpec, measured_variance
 from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 from companion.params import NavConfig
@@ -69,7 +70,7 @@ class ModelError:
     def variance(self, names: tuple[str, ...], distance_m: float | None) -> np.ndarray:
         """Variance of each element's model error at ``distance_m`` from a calibration point,
         after the calibration's value there is removed; ``None``: not calibrated."""
-        point = np.array([self.sigma_nt if n.endswith("_nt") else self.sigma_deg for n in names]) ** 2
+        point = BiasSpec.per_element(names, self.sigma_deg, self.sigma_nt) ** 2
         if distance_m is None:
             return point
         return 2.0 * point * (1.0 - math.exp(-max(distance_m, 0.0) / self.length_m))
@@ -96,10 +97,8 @@ class Table3Estimator:
         self.calibrated = False      # the start-up calibration is removed (Mission.set_bias)
         self.estimated = False       # cov_en_m2 is an estimate's (a cruise step has been estimated)
         self.cov_en_m2 = np.eye(2) * config.gps_sigma_m ** 2   # the start: GPS-known
-        self._declared = np.array([config.filter_r_nt if n.endswith("_nt") else config.filter_r_deg
-                                   for n in elements.names])
-        self._floor = np.array([config.filter_rmin_nt if n.endswith("_nt") else config.filter_rmin_deg
-                                for n in elements.names])
+        self._declared = BiasSpec.per_element(elements.names, config.filter_r_deg, config.filter_r_nt)
+        self._floor = BiasSpec.per_element(elements.names, config.filter_rmin_deg, config.filter_rmin_nt)
         self._last: tuple[float, tuple[float, float]] = (0.0, (config.start_lat_deg, config.start_lon_deg))
         # the last fix (or the start): its covariance and time, the distance and steps flown since
         self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = self.cov_en_m2, 0.0, 0.0, 0
@@ -114,13 +113,6 @@ class Table3Estimator:
         c = self.cov_en_m2
         return {"est_cov_en_m2": (float(c[0, 0]), float(c[0, 1]), float(c[1, 1])),
                 "next_fix_sigma_m": self.relative_sigma_m}
-
-    def noise_variance(self, standard_errors: np.ndarray) -> np.ndarray:
-        """The averaged elements' noise variance: measured standard errors plus the floor in
-        quadrature, the declared noise where none is measured (as the error-state filter's R)."""
-        se = np.asarray(standard_errors, dtype=float)
-        return np.where(np.isfinite(se), np.where(np.isfinite(se), se, 0.0) ** 2 + self._floor ** 2,
-                        self._declared ** 2)
 
     @property
     def relative_sigma_m(self) -> float:
@@ -207,7 +199,7 @@ class Table3Estimator:
         n = len(self.elements.names)
         se = np.full(n, np.nan) if standard_errors is None else np.asarray(standard_errors, dtype=float)[:n]
         distance = geodesic_distance_m(c.start_lat_deg, c.start_lon_deg, *fix) if self.calibrated else None
-        variance = self.noise_variance(se)
+        variance = measured_variance(se, self._floor, self._declared)   # as the error-state filter's R
         if with_model:
             variance = variance + self.model_error.variance(self.elements.names, distance)
         try:
