@@ -152,10 +152,13 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_RMIN_NT", float, 0.5, 0.0, 10000.0, "nT", "floor added in quadrature to a measured F, H or Z standard error"),
     _p("FUS_B0_DEG", float, 0.5, 1e-6, 90.0, "deg", "prior 1-sigma of the D/I bias states (measured minus model)"),
     _p("FUS_B0_NT", float, 500.0, 1e-3, 1e5, "nT", "prior 1-sigma of the F/H/Z bias states"),
-    _p("FUS_BQ_DEG", float, 0.0002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
-    _p("FUS_BQ_NT", float, 0.2, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while quiet"),
+    _p("FUS_BQ_DEG", float, 0.002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
+    _p("FUS_BQ_NT", float, 2.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while quiet"),
     _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
+    _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
+    _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
+    _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled"),
     _p("FUS_DR_POS_M", float, 150.0, 0.0, 1e5, "m", "dead reckoning: position error added per step (turns, speed changes)"),
     _p("FUS_CUR_MPS", float, 0.3, 0.0, 10.0, "m/s", "dead reckoning: prior 1-sigma of the current (drift) per axis"),
     _p("FUS_CUR_Q", float, 0.05, 0.0, 10.0, "m/s/rt(h)", "dead reckoning: random walk of the current"),
@@ -382,6 +385,9 @@ class NavConfig(_FromRegistry):
     bias_q_nt: float = _from("FUS_BQ_NT")
     bias_qa_deg: float = _from("FUS_BQA_DEG")
     bias_qa_nt: float = _from("FUS_BQA_NT")
+    local_err_deg: float = _from("FUS_GM_DEG")
+    local_err_nt: float = _from("FUS_GM_NT")
+    local_err_length_m: float = _from("FUS_GM_KM", 1000.0)
     dr_pos_sigma_m: float = _from("FUS_DR_POS_M")
     current_sigma_mps: float = _from("FUS_CUR_MPS")
     current_q_mps: float = _from("FUS_CUR_Q")

@@ -52,8 +52,9 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
     wall0 = time.monotonic()
     out = Path(options.out_dir) if options.out_dir else \
         REPO / "out" / "fly" / f"{scenario.name}-{name}-{datetime.now():%Y%m%d-%H%M%S}"
-    companion_values = {k: v for k, v in values.items() if k not in _MISSION and k in {**scenario.nav_overrides(),
-                                                                                    **options.extra_params}}
+    # the scenario's [navigator] table describes its simulated world, not the firmware's
+    given = {**scenario.nav_overrides(navigator=False), **options.extra_params}
+    companion_values = {k: v for k, v in values.items() if k not in _MISSION and k in given}
     run = fly_firmware(FirmwareFlight(
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,

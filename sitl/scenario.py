@@ -151,6 +151,9 @@ class Scenario:
     attitude: AttitudeErrorConfig = AttitudeErrorConfig()
     field_model: FieldConfig = FieldConfig()
     motion: MotionErrorConfig = MotionErrorConfig()
+    # [navigator]: registry values of the navigator as set up for this world (the ideal presets
+    # tell it that its field model is the truth); any --param given by the user wins
+    navigator: tuple[tuple[str, float], ...] = ()
 
     @property
     def heading_source(self) -> str:
@@ -161,11 +164,14 @@ class Scenario:
     def start_posix(self) -> float:
         return _parse_utc(self.start_utc).timestamp()
 
-    def nav_overrides(self) -> dict[str, float]:
-        """Registry values this scenario sets (start, destination, altitude, date)."""
-        return {"NAV_START_LAT": self.start_lat_deg, "NAV_START_LON": self.start_lon_deg,
-                "NAV_DEST_LAT": self.dest_lat_deg, "NAV_DEST_LON": self.dest_lon_deg,
-                "NAV_ALT_M": self.alt_m, "NAV_YEAR": self.year}
+    def nav_overrides(self, navigator: bool = True) -> dict[str, float]:
+        """Registry values this scenario sets: start, destination, altitude, date, and (unless
+        ``navigator`` is False: a flight on real firmware, whose world is not this one) the
+        ``[navigator]`` table."""
+        mission = {"NAV_START_LAT": self.start_lat_deg, "NAV_START_LON": self.start_lon_deg,
+                   "NAV_DEST_LAT": self.dest_lat_deg, "NAV_DEST_LON": self.dest_lon_deg,
+                   "NAV_ALT_M": self.alt_m, "NAV_YEAR": self.year}
+        return {**mission, **dict(self.navigator)} if navigator else mission
 
 
 def _parse_utc(text: str) -> datetime:
@@ -204,7 +210,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{path}: {err}") from None
     unknown = set(data) - {"name", "description", "mission", "vehicle", "sensors", "ins", "storm", "faults",
-                           "attitude", "field"}
+                           "attitude", "field", "navigator"}
     if unknown:
         raise ScenarioError(f"{path}: unknown key(s) or table(s): {', '.join(sorted(unknown))}")
     mission = _section(data, "mission", path)
@@ -245,6 +251,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
                for key in list(field_table) if key.startswith("crustal")}
     field_config = _build(FieldConfig, {**field_table, "crustal": _build(CrustalConfig, crustal, path, "field")},
                           path, "field")
+    navigator = _navigator(_section(data, "navigator", path), path)
     return Scenario(
         name=str(data.get("name", path.stem)),
         description=str(data.get("description", "")),
@@ -261,4 +268,16 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         attitude=_build(AttitudeErrorConfig, _section(data, "attitude", path), path, "attitude"),
         field_model=field_config,
         motion=_build(MotionErrorConfig, motion, path, "vehicle"),
+        navigator=navigator,
     )
+
+
+def _navigator(table: dict, path: Path) -> tuple[tuple[str, float], ...]:
+    """The ``[navigator]`` table, checked against the parameter registry (names and ranges)."""
+    from companion.params import ParamError, validate_all
+
+    try:
+        checked = validate_all(table)
+    except ParamError as err:
+        raise ScenarioError(f"{path}: [navigator]: {err}") from None
+    return tuple((name.upper(), checked[name.upper()]) for name in table)

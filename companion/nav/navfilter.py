@@ -96,7 +96,9 @@ RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias l
 @dataclass(frozen=True)
 class BiasSpec:
     """Bias states: prior 1-sigma, and random walk per sqrt(hour) while quiet and while a
-    disturbance is active, for angles (deg) and intensities (nT)."""
+    disturbance is active, for angles (deg) and intensities (nT); and the local model error:
+    a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
+    ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0)."""
 
     sigma0_deg: float = 0.5
     sigma0_nt: float = 500.0
@@ -104,6 +106,13 @@ class BiasSpec:
     q_nt_rth: float = 0.2
     qa_deg_rth: float = 0.05
     qa_nt_rth: float = 40.0
+    local_deg: float = 0.0
+    local_nt: float = 0.0
+    local_length_m: float = 25_000.0
+
+    @property
+    def has_local(self) -> bool:
+        return self.local_deg > 0.0 or self.local_nt > 0.0
 
     @staticmethod
     def per_element(names: tuple[str, ...], deg: float, nt: float) -> np.ndarray:
@@ -166,7 +175,8 @@ class DisturbanceMonitor:
 
 
 class NavigationFilter:
-    """Error-state filter over ``process`` plus one bias state per element of ``elements``."""
+    """Error-state filter over ``process`` plus one bias state per element of ``elements``, and
+    one local model-error state per element when ``settings.bias.has_local``."""
 
     def __init__(self, process: ProcessModel, elements: ElementSet, settings: FilterSettings,
                  model: WorldMagneticModel, alt_m: float, year: float) -> None:
@@ -181,13 +191,18 @@ class NavigationFilter:
         self._bias_sigma0 = b.per_element(names, b.sigma0_deg, b.sigma0_nt)
         self._bias_q = b.per_element(names, b.q_deg_rth, b.q_nt_rth)
         self._bias_qa = b.per_element(names, b.qa_deg_rth, b.qa_nt_rth)
+        self.nl = self.nb if b.has_local else 0
+        self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
         self._r_declared = b.per_element(names, settings.r_deg, settings.r_nt)
         self._r_min = b.per_element(names, settings.r_min_deg, settings.r_min_nt)
         self._r = np.diag(self._r_declared ** 2)
-        n = process.n + self.nb
+        n = process.n + self.nb + self.nl
         kf = KalmanFilter(dim_x=n, dim_z=self.nb)
         kf.x = np.zeros((n, 1))
-        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2))
+        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2))
+        # measured minus model beyond the position, from the state: the bias plus the local error
+        self._total = np.hstack([np.zeros((self.nb, process.n)), np.eye(self.nb),
+                                 np.eye(self.nb)[:, :self.nl]])
         self.kf = kf
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
@@ -199,12 +214,13 @@ class NavigationFilter:
 
     @property
     def bias(self) -> np.ndarray:
-        """Estimated element biases (measured minus model), element units."""
-        return self.kf.x[self.process.n:, 0].copy()
+        """Estimated element biases (measured minus model at the true position: the bias states
+        plus the local model error), element units."""
+        return self._total @ self.x
 
     @property
     def bias_sigma(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.kf.P)[self.process.n:])
+        return np.sqrt(np.diag(self._total @ self.kf.P @ self._total.T))
 
     def position(self, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> tuple[float, float]:
         """The fused position (degrees); the INS position is needed with the INS process model."""
@@ -216,7 +232,12 @@ class NavigationFilter:
         return j @ self.kf.P @ j.T
 
     def _j(self, lat_deg: float) -> np.ndarray:
-        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb))])
+        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl))])
+
+    def _h(self, gradient: np.ndarray, lat_deg: float) -> np.ndarray:
+        """Jacobian of the elements with respect to the state: ``G J`` then the bias and local
+        error states, which enter additively."""
+        return np.hstack([gradient @ self.process.jacobian(lat_deg), self._total[:, self.process.n:]])
 
     def snapshot(self) -> tuple:
         """Everything a step changes, to go back to (:meth:`restore`)."""
@@ -236,12 +257,16 @@ class NavigationFilter:
             return
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         q = self._bias_qa if self.monitor.active else self._bias_q
-        k = self.process.n
-        size = k + self.nb
+        k, nb = self.process.n, self.nb
+        size = k + nb + self.nl
         transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
         transition[:k, :k], noise[:k, :k] = phi, q_d
-        transition[k:, k:] = np.eye(self.nb)
-        noise[k:, k:] = np.diag(q ** 2 * dt_s / HOUR_S)
+        transition[k:k + nb, k:k + nb] = np.eye(nb)
+        noise[k:k + nb, k:k + nb] = np.diag(q ** 2 * dt_s / HOUR_S)
+        if self.nl:   # first-order Gauss-Markov in the distance travelled
+            decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
+            transition[k + nb:, k + nb:] = np.eye(self.nl) * decay
+            noise[k + nb:, k + nb:] = np.diag(self._local_sigma ** 2 * (1.0 - decay ** 2))
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
@@ -304,7 +329,7 @@ class NavigationFilter:
         centre = offset_position(lat, lon, -float(lag[0]), -float(lag[1]))
         c_lat, c_lon = float(centre[0]), float(centre[1])
         values, g = element_values_and_gradient(self.model, self.elements, c_lat, c_lon, self.alt_m, self.year)
-        h = np.hstack([g @ self.process.jacobian(lat), np.eye(self.nb)])
+        h = self._h(g, lat)
         y = self.elements.difference(np.asarray(measured, dtype=float), values + self.bias)
         return y, h, self.measurement_noise(standard_errors)
 
@@ -323,18 +348,20 @@ class NavigationFilter:
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         r2 = np.diag(self.measurement_noise(standard_errors))
-        var = np.clip(y ** 2 - r2, r2 / 100.0, self._bias_sigma0 ** 2)
+        local = np.zeros(self.nb)
+        local[:self.nl] = self._local_sigma ** 2     # the local error at the start is part of y
+        var = np.clip(y ** 2 - r2 - local, r2 / 100.0, self._bias_sigma0 ** 2)
         k = self.process.n
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
-        self.kf.P[k:, k:] = np.diag(var)
+        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl]]))
         return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
 
     def innovation_covariance(self, lat_deg: float, lon_deg: float,
                               standard_errors: np.ndarray | None = None) -> np.ndarray:
         """S = H P H^T + R of an element measurement at this position (for tests and gates)."""
         g = element_gradient(self.model, self.elements, lat_deg, lon_deg, self.alt_m, self.year)
-        h = np.hstack([g @ self.process.jacobian(lat_deg), np.eye(self.nb)])
+        h = self._h(g, lat_deg)
         return h @ self.kf.P @ h.T + self.measurement_noise(standard_errors)
 
     def _update(self, y: np.ndarray, h: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:

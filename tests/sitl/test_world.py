@@ -227,6 +227,8 @@ def test_good_file_loads(tmp_path):
     (GOOD + "[storm]\ntime_map = \"warp\"\n", ["time_map"]),
     (GOOD.replace("destination = [28.0, 158.0]\n", ""), ["[mission]", "destination"]),
     ("vehicle = 3\n" + GOOD.replace("[vehicle]\nmax_speed_kmh = 60.0\n", ""), ["[vehicle]", "table"]),
+    (GOOD + "[navigator]\nFUS_GM_DEGS = 0.0\n", ["[navigator]", "FUS_GM_DEGS"]),
+    (GOOD + "[navigator]\nFUS_GM_NT = -1.0\n", ["[navigator]", "FUS_GM_NT"]),
 ])
 def test_bad_scenario_names_the_file_and_the_key(tmp_path, text, words):
     path = write(tmp_path, text)
@@ -236,6 +238,21 @@ def test_bad_scenario_names_the_file_and_the_key(tmp_path, text, words):
     assert str(path) in message
     for word in words:
         assert word in message, message
+
+
+def test_navigator_table_reaches_the_simulated_worlds_but_not_real_firmware(tmp_path):
+    """The ideal presets declare the navigator of the paper's world (no local model error); the
+    realistic ones keep the registry's (a real vehicle's) values; a flight on real firmware takes
+    the mission from a scenario but never its [navigator] table."""
+    from companion.params import default_values
+
+    ideal, real = load_scenario("pacific"), load_scenario("pacific_real")
+    assert ideal.nav_overrides()["FUS_GM_NT"] == 0.0 < default_values()["FUS_GM_NT"]
+    assert "FUS_GM_NT" not in real.nav_overrides()
+    assert "FUS_GM_NT" not in ideal.nav_overrides(navigator=False)
+    assert ideal.nav_overrides(navigator=False)["NAV_DEST_LON"] == 158.0
+    lower = load_scenario(write(tmp_path, GOOD + "[navigator]\nfus_gm_km = 10\n"))
+    assert lower.nav_overrides()["FUS_GM_KM"] == 10.0
 
 
 def test_unknown_scenario_name_lists_the_bundled_ones():
