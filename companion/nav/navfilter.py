@@ -4,7 +4,10 @@ State: the process model's error states (:mod:`companion.nav.process`: 15 INS er
 4 dead-reckoning states) followed by one bias state per measured element (D, I in degrees;
 F, H, Z in nT): what the measurement carries beyond the main-field model at the true position
 (the heading's bias in D, the main-field model's and the crust's error, a magnetic storm, a
-calibration residual), each a random walk.
+calibration residual), each a random walk; then, when configured, one local model-error state
+per element (the part of the model's error that changes along the route, the crust): first-order
+Gauss-Markov in the *distance travelled*, ``m' = exp(-d / L) m`` with ``d = |v| dt``, its
+variance relaxing to ``sigma_local^2``, so standing still does not decorrelate it.
 
 Measurement form: the averaged elements directly, as innovations against the field model with
 its Jacobian (an extended Kalman filter), not a geomagnetic position fix with
@@ -13,9 +16,9 @@ where a fix would mix them through G^-1; (2) a fix needs a square, invertible G 
 where the contours are nearly parallel (the heading-free (I, F) contours are 23-27 deg apart on
 the Pacific route), while the innovation form only ever multiplies by G: a weak direction is
 simply little observed, with its covariance saying so; (3) three elements (D, I, F) weighted by
-their declared noise need no special case. With ``y = S_meas - S_model(p) - b``:
+their declared noise need no special case. With ``y = S_meas - S_model(p) - b - m``:
 
-    y ~ G J dx + db + v,   H = [G J, I],   R = diag(sigma_element^2)
+    y ~ G J dx + db + dm + v,   H = [G J, I, I],   R = diag(sigma_element^2)
 
 where ``J = d(true east, north) / d(state)`` comes from the process model and G is the model's
 gradient at the predicted position (:func:`companion.nav.field.element_gradient`), evaluated at
@@ -42,8 +45,9 @@ conservatively to stay quiet). Once a disturbance has been recognised in the mis
 threshold to switch on again after a release is ``REACTIVE_ON`` (2.0): the test's threshold
 follows the prior odds, and after a storm's onset another loud stretch is far more likely a
 storm than noise. A quiet mission keeps
-the small ``q``, so it is not made worse by a storm setting. Defaults: quiet 0.0002 deg (0.2 nT)
-per sqrt(h), about what the main-field model's error changes along a route; active 0.05 deg
+the small ``q``, so it is not made worse by a storm setting. Defaults: quiet 0.002 deg (2 nT)
+per sqrt(h) (the paper's ideal world declares 0.0002 deg, 0.2 nT: about what the main-field
+model's error changes along a route, when nothing else does); active 0.05 deg
 (40 nT) per sqrt(h), the order of the 10 May 2024 storm's change of I near the Pacific route
 (up to 0.25 deg within hours).
 
@@ -342,7 +346,10 @@ class NavigationFilter:
         bias variance, the positive-part James-Stein shrinkage): an innovation at the noise level
         says the model and sensor agree, and the filter does not carry the start-up average's own
         noise into the whole mission as a bias (0.2-0.6 km on the Pacific route); a large one
-        (a calibration residual, crust, model error) is taken almost whole. Then the usual update.
+        (a calibration residual, crust, model error) is taken almost whole. The local model-error
+        states keep their stationary variance and the bias takes the rest,
+        ``var_b = clip(y^2 - r^2 - sigma_local^2, ...)``: what is carried from the start is the
+        calibration, not the crust under the start. Then the usual update.
         Returns the NIS of the calibration measurement."""
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
