@@ -113,6 +113,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_MERR_NT", float, 300.0, 0.0, 1e5, "nT", "Table 3's uncertainty: 1-sigma of the field model's F/H/Z error at a point"),
     _p("NAV_MERR_KM", float, 25.0, 0.01, 1e5, "km", "Table 3's uncertainty: correlation length of the field model's error (how far the start-up calibration holds)"),
     _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
+    _p("NAV_DR_HDG", int, 1, 0, 1, "", "dead reckoning between fixes (no independent INS position) on 0 the commanded course, 1 the heading measured over the period (magnetometer levelled by the accelerometer, plus the model's D) where it is measured"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -154,6 +155,8 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_B0_NT", float, 500.0, 1e-3, 1e5, "nT", "prior 1-sigma of the F/H/Z bias states"),
     _p("FUS_BQ_DEG", float, 0.002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
     _p("FUS_BQ_NT", float, 2.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while quiet"),
+    _p("FUS_BQD_DEG", float, 0.0075, 0.0, 1.0, "deg/rt(km)", "random walk of the D/I bias states per distance travelled: the main-field model's error against the start-up calibration grows with the distance from the start (0.2 deg in 800 km)"),
+    _p("FUS_BQD_NT", float, 7.5, 0.0, 1000.0, "nT/rt(km)", "random walk of the F/H/Z bias states per distance travelled (200 nT in 800 km)"),
     _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
@@ -170,6 +173,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_POS_PUB", int, 3, 0, 3, "", "give the FC our position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off, 3 GPS_INPUT as its second GPS (an echo while its own GPS works)"),
     _p("COMP_FEED_ACC_M", float, 5.0, 0.5, 1000.0, "m", "horizontal accuracy claimed in GPS_INPUT: the feed's short-term (relative) accuracy; the EKF diverges when told the km-level absolute one"),
     _p("COMP_FEED_BLEND", float, 0.5, 0.1, 20.0, "m/s", "speed at which a new estimate is blended into the fed position: no steps the EKF would reject, and slow because the FC's speed loop sees the fed speed (GUIDED velocity steering needs no position)"),
+    _p("COMP_MAG_HZ", float, 10.0, 1.0, 100.0, "Hz", "magnetometer stream rate asked of the FC: up to the sensor's own rate, every sample is averaged (PX4 SIH makes 50 distinct samples/s); in SITL at N x real time the companion decodes N times as many per wall second"),
     _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
     _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
@@ -367,6 +371,7 @@ class NavConfig(_FromRegistry):
     model_err_nt: float = _from("NAV_MERR_NT")
     model_err_length_m: float = _from("NAV_MERR_KM", 1000.0)
     reanchor_steps: int = _from("NAV_REANCHOR_N")
+    dr_heading: int = _from("NAV_DR_HDG")
     solver: int = _from("MPC_SOLVER")
     fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
     fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)
@@ -383,6 +388,8 @@ class NavConfig(_FromRegistry):
     bias_sigma0_nt: float = _from("FUS_B0_NT")
     bias_q_deg: float = _from("FUS_BQ_DEG")
     bias_q_nt: float = _from("FUS_BQ_NT")
+    bias_qd_deg: float = _from("FUS_BQD_DEG")
+    bias_qd_nt: float = _from("FUS_BQD_NT")
     bias_qa_deg: float = _from("FUS_BQA_DEG")
     bias_qa_nt: float = _from("FUS_BQA_NT")
     local_err_deg: float = _from("FUS_GM_DEG")
@@ -411,6 +418,7 @@ class CompanionConfig(_FromRegistry):
     heading_source: int = _from("COMP_HEADING_SRC")
     feed_accuracy_m: float = _from("COMP_FEED_ACC_M")
     feed_blend_mps: float = _from("COMP_FEED_BLEND")
+    mag_rate_hz: float = _from("COMP_MAG_HZ")
     mag_timeout_s: float = _from("COMP_MAG_TMO_S")
     att_timeout_s: float = _from("COMP_ATT_TMO_S")
     heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")

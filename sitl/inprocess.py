@@ -39,10 +39,11 @@ the ideal world's streams [0] and [1] are drawn exactly as before the others exi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from companion.nav.elements import ElementSet, element_set, hz_standard_errors, resolve_elements
 from companion.nav.geo import enu_offset, geodesic_distance_m
 from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
@@ -102,8 +103,13 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     ``nav_model`` is the navigator's field model; by default ``truth.model`` when the truth's
     main field is the navigator's WMM (the ideal world), else the model ``NavConfig`` names.
     """
-    # (spawn by index: a seventh stream leaves the first six, and so every older draw, as they were)
-    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed = np.random.SeedSequence(seed).spawn(7)
+    # (spawn by index: a new stream leaves the older ones, and so every older draw, as they were)
+    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed = \
+        np.random.SeedSequence(seed).spawn(8)
+    accel_rng = np.random.default_rng(accel_seed)
+    if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
+        nav = nav.replace(elements=resolve_elements(nav.elements, compass_derived=True))
+    heading_free = element_set(nav.elements or ElementSet.PAPER).heading_free
     noise_rng = np.random.default_rng(noise_seed)
     fhz_rng = np.random.default_rng(fhz_seed)
     se_rng = np.random.default_rng(se_seed)
@@ -129,7 +135,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         sigma_f = sensors.mag_noise_nt / math.sqrt(samples)
         se_spread = MAD_SE_RELATIVE_SD / math.sqrt(samples)
     settings = SampleSettings(sensors.mag_rate_hz, sensors.mag_noise_nt, sensors.mag_lsb_nt, sensors.mag_bias_nt,
-                              sensors.attitude_noise_deg, scenario.heading_source)
+                              sensors.attitude_noise_deg, scenario.heading_source, sensors.accel_noise_mps2)
     wave = WaveMotion()
     mag_apply = errors.mag.apply if errors.mag is not None else None
 
@@ -154,10 +160,12 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
             ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
-            avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng)
+            avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng, accel_rng)
+            if heading_free and math.isfinite(avg.incl_grav_deg):
+                avg = gravity_referenced(avg)   # the companion's I for a heading-free set, and its H, Z
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
                                avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
-                               avg.z_se_nt), avg
+                               avg.z_se_nt, avg.mag_heading_deg), avg
         # analytic path: the path's points after the start knot (the start alone at step 0)
         path = slice(1, None) if len(knots) > 1 else slice(0, 1)
         ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
@@ -209,6 +217,15 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         est_cov_en_m2=np.array(covs, dtype=float),
         process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
     )
+
+
+def gravity_referenced(avg: AveragedElements) -> AveragedElements:
+    """The average as the companion forms it for a heading-free set: I gravity-referenced, and H and
+    Z from F and that I (:meth:`companion.process.control_step.ControlStep.step`)."""
+    incl = math.radians(avg.incl_grav_deg)
+    h_se, z_se = hz_standard_errors(avg.f_nt, avg.incl_grav_deg, avg.f_se_nt, avg.incl_grav_se_deg)
+    return replace(avg, incl_deg=avg.incl_grav_deg, incl_se_deg=avg.incl_grav_se_deg, h_nt=avg.f_nt * math.cos(incl),
+                   z_nt=avg.f_nt * math.sin(incl), h_se_nt=h_se, z_se_nt=z_se)
 
 
 def nees_per_step(result: RunResult) -> np.ndarray:

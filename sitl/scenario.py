@@ -96,7 +96,7 @@ class StormConfig:
         return tuple(_parse_utc(text).timestamp() for text in self.window_utc)  # type: ignore[return-value]
 
 
-MAIN_FIELD_MODELS = ("wmm", "igrf14")
+MAIN_FIELD_MODELS = ("wmm", "igrf14", "ardupilot")
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,8 @@ class FieldConfig:
     """The ``[field]`` table: the truth's main-field model and its crustal anomaly field.
 
     ``main = "wmm"`` is the navigator's own model (the paper's ideal world: the map is the
-    territory); ``"igrf14"`` is IGRF-14 (:mod:`sitl.world.igrf`). The crustal field
+    territory); ``"igrf14"`` is IGRF-14 (:mod:`sitl.world.igrf`); ``"ardupilot"`` ArduPilot's own
+    10-degree tables, the world ArduPilot SITL flies in (:mod:`sitl.world.fc_tables`). The crustal field
     (:mod:`sitl.world.crustal`) is drawn per run from the run's seed.
     """
 

@@ -123,8 +123,9 @@ class ErrorModels:
 
 def make_error_models(scenario, rng_attitude: np.random.Generator, rng_mag: np.random.Generator) -> ErrorModels:
     """Draw a run's attitude and calibration errors of ``scenario`` (None where it has none) and
-    give the flight controller's declination table (IGRF-14 at the scenario's year) when its
-    heading is magnetic. The simulator and the in-process Monte Carlo both call this."""
+    give the flight controller's declination table (IGRF-14 at the scenario's year, or ArduPilot's
+    own in its world) when its heading is magnetic. The simulator and the in-process Monte Carlo both call this."""
+    from sitl.world.fc_tables import ardupilot_tables
     from sitl.world.igrf import igrf14_model
 
     attitude = None if scenario.attitude.ideal else AttitudeErrors(scenario.attitude, rng_attitude)
@@ -132,7 +133,9 @@ def make_error_models(scenario, rng_attitude: np.random.Generator, rng_mag: np.r
     mag = MagErrors.draw(mag_config, rng_mag) if mag_config.active else None
     table = None
     if scenario.heading_source == "magnetic":
-        model, year, alt = igrf14_model(scenario.year), scenario.year, scenario.alt_m
+        # ArduPilot's EKF takes its declination from the tables its SITL world is made of
+        model = ardupilot_tables() if scenario.field_model.main == "ardupilot" else igrf14_model(scenario.year)
+        year, alt = scenario.year, scenario.alt_m
 
         def table(lat_deg, lon_deg):
             return model.elements(lat_deg, lon_deg, alt, year).decl_deg

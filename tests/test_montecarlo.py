@@ -216,10 +216,10 @@ def test_engine_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-def test_without_an_ins_auto_flies_the_fix_alone(tmp_path, capsys):
+def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
     """--no-ins: the measurement carries no INS position (ArduPilot, PX4 on MEMS sensors), so auto
-    takes Table 3's path (the fix alone); with the INS on board it takes the INS model."""
-    for flag, expected in ((["--no-ins"], "table3"), ([], "ins")):
+    takes the dead-reckoning filter; with the INS on board it takes the INS model."""
+    for flag, expected in ((["--no-ins"], "dead_reckoning"), ([], "ins")):
         code = main(["--scenario", "pacific", "--runs", "1", "--workers", "1", "--controllers", "fc", "--quiet",
                      "--no-plots", "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path / expected), *flag])
         assert code == 0

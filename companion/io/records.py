@@ -25,6 +25,10 @@ event               step | start | restart | done | failsafe | excluded | reanch
 reason              the core's or the failsafe's reason text
 gps_fix             GPS_RAW_INT fix type at the step (0 none/stale); gps_lat/lon_deg the fix
                     when >= 2D: a reference for evaluation only, never used to steer
+incl_se_deg         the period's standard error of I; jump_m, bound_m, noise_m the plausibility
+                    verdict (the implied fix's jump, its bound, the noise term)
+mag_heading_deg     the magnetic heading measured over the period (magnetometer levelled by the
+                    accelerometer); plus the model's D it is the heading dead-reckoned on
 ==================  ===========================================================================
 """
 from __future__ import annotations
@@ -42,7 +46,7 @@ STEP_COLUMNS = (
     "window_s", "spikes", "invalid", "ins_lat_deg", "ins_lon_deg", "ins_source", "est_lat_deg", "est_lon_deg",
     "est_sigma_m", "fix_lat_deg", "fix_lon_deg", "fused", "remaining_m", "course_deg", "speed_mps", "solver_ok",
     "solver_time_s", "step_latency_s", "event", "reason", "gps_fix", "gps_lat_deg", "gps_lon_deg",
-    "incl_se_deg", "jump_m", "bound_m", "noise_m",
+    "incl_se_deg", "jump_m", "bound_m", "noise_m", "mag_heading_deg",
 )
 
 

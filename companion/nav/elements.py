@@ -39,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["ElementSet", "ELEMENT_SETS", "element_set", "ELEMENT_NAMES", "STANDARD_ERROR_NAMES", "hz_standard_errors"]
+__all__ = ["ElementSet", "ELEMENT_SETS", "element_set", "ELEMENT_NAMES", "STANDARD_ERROR_NAMES", "hz_standard_errors",
+           "resolve_elements"]
 
 ARCSEC_PER_DEG = 3600.0
 # One QP unit per 0.1 nT: a cruise step (5 km) on the Pacific route changes F by 10-25 nT,
@@ -122,6 +123,19 @@ ELEMENT_SETS: dict[int, ElementSet] = {
     ElementSet.HORIZONTAL_VERTICAL: ElementSet(ElementSet.HORIZONTAL_VERTICAL, ("h_nt", "z_nt")),
     ElementSet.WEIGHTED: ElementSet(ElementSet.WEIGHTED, ("decl_deg", "incl_deg", "f_nt")),
 }
+
+
+def resolve_elements(requested: int, compass_derived: bool) -> int:
+    """NAV_ELEMENTS against the heading source: with a compass-derived yaw never D ((D, I) and
+    (D, I, F) become (I, F); (H, Z) stays); auto (0) is (D, I) with an independent heading and
+    (I, F) without one.
+
+    >>> resolve_elements(0, True), resolve_elements(0, False), resolve_elements(4, True), resolve_elements(3, True)
+    (2, 1, 2, 3)
+    """
+    if compass_derived:
+        return requested if requested == ElementSet.HORIZONTAL_VERTICAL else ElementSet.HEADING_FREE
+    return ElementSet.PAPER if requested == 0 else requested
 
 
 def hz_standard_errors(f_nt: float, incl_deg: float, f_se_nt: float, incl_se_deg: float) -> tuple[float, float]:

@@ -1,6 +1,6 @@
 """The period's gravity-referenced inclination, and the standard error of a period's average.
 
-Pure: sequences of per-sample values in, numbers out.
+Pure: sequences (or arrays) of per-sample values in, numbers out.
 
 **The period's I_g is a ratio of averages, not an average of per-sample angles.** Per sample,
 ``asin(-m.f / (|m||f|))`` (:func:`companion.nav.magnetometer.gravity_inclination_deg`) divides
@@ -44,6 +44,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 __all__ = ["MAD_TO_SIGMA", "ratio_inclination_deg", "robust_standard_error"]
 
 MAD_TO_SIGMA = 1.482602218505602   # 1 / Phi^-1(3/4): the MAD of a normal sample is 0.6745 sigma
@@ -70,25 +72,26 @@ def robust_standard_error(values: Sequence[float]) -> float:
     return MAD_TO_SIGMA * _median([abs(v - centre) for v in values]) / math.sqrt(n)
 
 
-def ratio_inclination_deg(dots: Sequence[float], mag_ned: Sequence[Sequence[float]],
-                          force_ned: Sequence[Sequence[float]]) -> tuple[float, float]:
+def ratio_inclination_deg(dots, mag_ned, force_ned) -> tuple[float, float]:
     """``(I_g, its standard error)`` in degrees, NaN without samples or with a zero mean.
 
     ``dots``: ``m . f`` per sample (body frame, nT m/s^2); ``mag_ned``, ``force_ned``: the field and
-    the specific force per sample in NED. ``I_g = asin(-mean(m.f) / (|mean m| |mean f|))``.
+    the specific force per sample in NED (sequences of triples or (N, 3) arrays).
+    ``I_g = asin(-mean(m.f) / (|mean m| |mean f|))``.
 
     >>> incl, se = ratio_inclination_deg([-20000.0 * 9.81] * 2, [(20000.0, 0.0, 20000.0)] * 2,
     ...                                  [(0.0, 0.0, -9.81)] * 2)
     >>> round(incl, 9), se
     (45.0, 0.0)
     """
-    n = len(dots)
+    d = np.asarray(dots, dtype=float).reshape(-1)
+    n = d.size
     if n == 0:
         return math.nan, math.nan
-    dot = math.fsum(dots) / n
-    m = tuple(math.fsum(column) / n for column in zip(*mag_ned))
-    f = tuple(math.fsum(column) / n for column in zip(*force_ned))
-    m_norm, f_norm = math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2), math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
+    mv = np.asarray(mag_ned, dtype=float).reshape(n, 3)
+    fv = np.asarray(force_ned, dtype=float).reshape(n, 3)
+    dot, m, f = float(d.mean()), mv.mean(axis=0), fv.mean(axis=0)
+    m_norm, f_norm = float(np.linalg.norm(m)), float(np.linalg.norm(f))
     if not (m_norm > 0.0 and f_norm > 0.0 and math.isfinite(m_norm * f_norm)):
         return math.nan, math.nan
     sine = max(-1.0, min(1.0, -dot / (m_norm * f_norm)))
@@ -97,12 +100,8 @@ def ratio_inclination_deg(dots: Sequence[float], mag_ned: Sequence[Sequence[floa
         return incl, math.nan
     # each sample's first-order influence on the sine: d(-dot/(|M||F|)) with |M| and |F| moving
     # along their means' directions
-    um = tuple(c / m_norm for c in m)
-    uf = tuple(c / f_norm for c in f)
-    scale = m_norm * f_norm
-    influence = [-(d - dot) / scale
-                 - sine * ((mv[0] - m[0]) * um[0] + (mv[1] - m[1]) * um[1] + (mv[2] - m[2]) * um[2]) / m_norm
-                 - sine * ((fv[0] - f[0]) * uf[0] + (fv[1] - f[1]) * uf[1] + (fv[2] - f[2]) * uf[2]) / f_norm
-                 for d, mv, fv in zip(dots, mag_ned, force_ned)]
-    se_sine = robust_standard_error(influence)
+    influence = (-(d - dot) / (m_norm * f_norm) - sine * ((mv - m) @ (m / m_norm)) / m_norm
+                 - sine * ((fv - f) @ (f / f_norm)) / f_norm)
+    centre = float(np.median(influence))
+    se_sine = MAD_TO_SIGMA * float(np.median(np.abs(influence - centre))) / math.sqrt(n)
     return incl, math.degrees(se_sine / math.sqrt(1.0 - sine * sine))

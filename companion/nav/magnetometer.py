@@ -44,6 +44,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from companion.frames import Matrix3, Vector3, body_to_ned
+from companion.nav.heading import levelled_heading_deg
 from companion.nav.inclination import ratio_inclination_deg, robust_standard_error
 
 __all__ = [
@@ -67,6 +68,7 @@ GAUSS_TO_NT = 1e5
 
 
 _IDENTITY3: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+_NAN3: Vector3 = (math.nan, math.nan, math.nan)
 
 
 @dataclass(frozen=True)
@@ -230,7 +232,9 @@ class AveragedDI:
     were none. F is the mean of the per-sample magnitudes, so it needs no attitude at all.
     ``incl_grav_deg``: the gravity-referenced I of the ``grav_count`` gravity samples (a ratio of
     averages); ``*_se_*``: the standard errors of the averages from the period's own scatter
-    (robust: a few spikes do not widen them; :mod:`companion.nav.inclination`)."""
+    (robust: a few spikes do not widen them; :mod:`companion.nav.inclination`);
+    ``mag_heading_deg``: the magnetic heading of the gravity samples' mean body field, levelled by
+    their mean specific force (:func:`companion.nav.heading.levelled_heading_deg`)."""
 
     decl_deg: float
     incl_deg: float
@@ -246,6 +250,7 @@ class AveragedDI:
     incl_se_deg: float = math.nan
     f_se_nt: float = math.nan
     incl_grav_se_deg: float = math.nan
+    mag_heading_deg: float = math.nan
 
     @property
     def valid(self) -> bool:
@@ -256,6 +261,15 @@ class AveragedDI:
         if not self.count:
             return 0.0
         return min(max(2.0 * (end_time_s - self.mean_time_s), 0.0), max_s)
+
+
+def _heading_of(grav: list[tuple[float, ...]]) -> float:
+    """The levelled magnetic heading of the gravity samples' mean body field and force (NaN: none)."""
+    body = [s[11:17] for s in grav if math.isfinite(sum(s[11:17]))]
+    if not body:
+        return math.nan
+    means = [math.fsum(column) / len(body) for column in zip(*body)]
+    return levelled_heading_deg(means[0:3], means[3:6])
 
 
 class PeriodAverager:
@@ -273,15 +287,17 @@ class PeriodAverager:
         return len(self._samples)
 
     def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0),
-            mag_dot_force: float = math.nan, force_ned: Vector3 = (math.nan, math.nan, math.nan)) -> None:
+            mag_dot_force: float = math.nan, force_ned: Vector3 = (math.nan, math.nan, math.nan),
+            mag_body: Vector3 = _NAN3, force_body: Vector3 = _NAN3) -> None:
         """One sample; ``mag_dot_force`` (``m . f`` in the body frame, nT m/s^2) and ``force_ned`` (the
-        specific force in NED) make it a gravity sample for I_g (module docstring), NaN: not one."""
+        specific force in NED) make it a gravity sample for I_g (module docstring), NaN: not one;
+        with its body-frame field ``mag_body`` (nT) and ``force_body`` (m/s^2) it counts for the heading."""
         if self._ref_d is None:
             self._ref_d = decl_deg
         d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
         self._samples.append((time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2], math.sqrt(
             ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2]), mag_dot_force,
-            force_ned[0], force_ned[1], force_ned[2]))
+            force_ned[0], force_ned[1], force_ned[2], *mag_body, *force_body))
 
     def take(self, end_time_s: float) -> AveragedDI:
         """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
@@ -300,7 +316,7 @@ class PeriodAverager:
         return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
                           (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n, incl_grav, len(grav),
                           robust_standard_error(columns[1]), robust_standard_error(columns[2]),
-                          robust_standard_error(columns[6]), incl_grav_se)
+                          robust_standard_error(columns[6]), incl_grav_se, _heading_of(grav))
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]
@@ -434,7 +450,9 @@ class MagProcessor:
             f = imu[1]
             dot = calibrated[0] * f[0] + calibrated[1] * f[1] + calibrated[2] * f[2]
             force_ned = body_to_ned(f, *rpy)
-        self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned)
+            self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned, calibrated, f)
+        else:
+            self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned)
         st.accepted += 1
         return True
 

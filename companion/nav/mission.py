@@ -45,9 +45,11 @@ from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_date
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
+from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
+from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
@@ -64,84 +66,8 @@ FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_
                     "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
                     "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
                     "filter_r_deg", "filter_r_nt", "filter_r_source", "filter_rmin_deg", "filter_rmin_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
-                    "bias_qa_deg", "bias_qa_nt", "local_err_deg", "local_err_nt", "local_err_length_m", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
+                    "bias_qd_deg", "bias_qd_nt", "bias_qa_deg", "bias_qa_nt", "local_err_deg", "local_err_nt", "local_err_length_m", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
                     "model_err_deg", "model_err_nt", "model_err_length_m", "grad_init")
-
-
-class Phase:
-    PROBE_1 = "probe1"
-    PROBE_2 = "probe2"
-    CRUISE = "cruise"
-    HOLD = "hold"            # a bad measurement: stop and wait for the next one
-    ARRIVED = "arrived"
-    FAILED = "failed"
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """Inputs of one step.
-
-    ``time_s``: message time at the end of the step. ``decl_deg``, ``incl_deg``, ``f_nt``: D, I
-    and the total intensity F averaged over the last ``window_s`` seconds (0: an instantaneous
-    value); the mission uses the two of its element set (NAV_ELEMENTS) and refers them to the
-    centre of that window, half a window back along the move. INS position in degrees, NaN when
-    the source has none (or when it is not independent of this navigator: GPS-aided, or our
-    own estimate fed back).
-
-    ``decl_se_deg`` ... ``z_se_nt``: the standard error of each period average, measured from the
-    period's own scatter (NaN when not measured); the error-state filter takes its measurement
-    noise from them (``FUS_R_SRC`` 1, :meth:`ElementSet.standard_errors`).
-    """
-
-    time_s: float
-    decl_deg: float
-    incl_deg: float
-    ins_lat_deg: float = math.nan
-    ins_lon_deg: float = math.nan
-    window_s: float = 0.0
-    f_nt: float = math.nan
-    h_nt: float = math.nan
-    z_nt: float = math.nan
-    decl_se_deg: float = math.nan
-    incl_se_deg: float = math.nan
-    f_se_nt: float = math.nan
-    h_se_nt: float = math.nan
-    z_se_nt: float = math.nan
-
-    @property
-    def has_ins(self) -> bool:
-        """The measurement carries an (independent) INS position."""
-        return math.isfinite(self.ins_lat_deg) and math.isfinite(self.ins_lon_deg)
-
-
-@dataclass(frozen=True)
-class Command:
-    """Output of one step: fly ``course_rad`` at ``speed_mps`` until the next step."""
-
-    time_s: float
-    step: int
-    phase: str
-    course_rad: float
-    speed_mps: float
-    done: bool
-    est_lat_deg: float
-    est_lon_deg: float
-    est_sigma_m: float
-    remaining_m: float
-    theta_rad: float = math.nan
-    u_first_mps: tuple[float, float] = (math.nan, math.nan)
-    compensation_mps: tuple[float, float] = (0.0, 0.0)
-    fix_lat_deg: float = math.nan
-    fix_lon_deg: float = math.nan
-    fused: bool = False
-    solver_ok: bool = True
-    solver_time_s: float = 0.0
-    reason: str = ""
-    est_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)   # ee, en, nn
-    nis: float = math.nan           # the filter's normalised innovation squared this step
-    disturbed: bool = False         # the filter judges a disturbance active (bias noise raised)
-    bias: tuple[float, ...] = ()    # estimated element biases, measured minus model
-    next_fix_sigma_m: float = math.nan   # est_sigma_m against the next fix (Table 3: less the shared model error)
 
 
 def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -334,20 +260,16 @@ class Mission:
             return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
-            if self.estimator is not None and c.fusion_model == FusionModel.AUTO and not meas.has_ins:
-                # auto without an independent INS: Table 3's path (the fix alone here). The
-                # dead-reckoning filter (FUS_MODEL 3) was better in the in-process realistic world
-                # but ended 141.7 km off against ArduPilot SITL where this path ended 31.5 km
-                # off (README, "Without an INS")
-                self.estimator, self.bias = None, self._given_bias
-                measured = self.measured.values(meas) - self.bias
-                s = measured[:2]
             if self.estimator is not None:
                 self._take(self.estimator.start(meas, measured, self.start_sigma_m))
             return self._probe(meas.time_s, s, math.radians(c.probe1_deg), Phase.PROBE_1)
         self._had_ins = meas.has_ins
         dt = meas.time_s - self.last.time_s
-        moved = self.last.velocity_en * dt
+        flown = self.last.velocity_en   # dead reckoning, NAV_DR_HDG 1: along the measured heading (the FC steers on its own yaw)
+        if c.dr_heading == 1 and not meas.has_ins and math.isfinite(meas.mag_heading_deg):
+            decl = self.model.elements(*self.est, c.alt_m, c.year).decl_deg
+            flown = flown_velocity_en(flown, meas.mag_heading_deg, float(decl))
+        moved = flown * dt
         self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))
         self.dead_reckoned_en = self.dead_reckoned_en + moved
         shift, self._shift = self._shift, None
@@ -355,10 +277,10 @@ class Mission:
             self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], *shift[0]))
             self.table3.consensus.clear()
         # the averaged measurement describes the centre of its window, half a window back
-        self.window_lag_en = self.last.velocity_en * min(max(meas.window_s, 0.0), dt) / 2.0
+        self.window_lag_en = flown * min(max(meas.window_s, 0.0), dt) / 2.0
         sample_en = self.dead_reckoned_en - self.window_lag_en
         if self.estimator is not None:   # the filter runs on every step, the probes included
-            self._take(self.estimator.step(meas, measured, dt, self.last.velocity_en, self.window_lag_en, self.est,
+            self._take(self.estimator.step(meas, measured, dt, flown, self.window_lag_en, self.est,
                                            shift))
         g = self.gradient.observe(self.elements.difference(s, self.last.s), sample_en - self.last.sample_en, self.last.theta_rad,
                                   *self.last.velocity_en, dt, frozen=c.controller == Controller.LTI)

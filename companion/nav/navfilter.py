@@ -100,7 +100,9 @@ RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias l
 @dataclass(frozen=True)
 class BiasSpec:
     """Bias states: prior 1-sigma, and random walk per sqrt(hour) while quiet and while a
-    disturbance is active, for angles (deg) and intensities (nT); and the local model error:
+    disturbance is active, for angles (deg) and intensities (nT), plus a random walk per
+    sqrt(km) travelled (``qd_*_rkm``: the main-field model's error relative to the start-up
+    calibration, which holds at the start and less the farther the vehicle goes); and the local model error:
     a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
     ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0)."""
 
@@ -113,6 +115,8 @@ class BiasSpec:
     local_deg: float = 0.0
     local_nt: float = 0.0
     local_length_m: float = 25_000.0
+    qd_deg_rkm: float = 0.0
+    qd_nt_rkm: float = 0.0
 
     @property
     def has_local(self) -> bool:
@@ -195,6 +199,7 @@ class NavigationFilter:
         self._bias_sigma0 = b.per_element(names, b.sigma0_deg, b.sigma0_nt)
         self._bias_q = b.per_element(names, b.q_deg_rth, b.q_nt_rth)
         self._bias_qa = b.per_element(names, b.qa_deg_rth, b.qa_nt_rth)
+        self._bias_qd = b.per_element(names, b.qd_deg_rkm, b.qd_nt_rkm)
         self.nl = self.nb if b.has_local else 0
         self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
         self._r_declared = b.per_element(names, settings.r_deg, settings.r_nt)
@@ -266,7 +271,8 @@ class NavigationFilter:
         transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
         transition[:k, :k], noise[:k, :k] = phi, q_d
         transition[k:k + nb, k:k + nb] = np.eye(nb)
-        noise[k:k + nb, k:k + nb] = np.diag(q ** 2 * dt_s / HOUR_S)
+        distance_km = math.hypot(*vel_en_mps) * dt_s / 1000.0
+        noise[k:k + nb, k:k + nb] = np.diag(q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km)
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
             transition[k + nb:, k + nb:] = np.eye(self.nl) * decay

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet
+from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, resolve_elements
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.nav.mission import WMM_NAMES, Mission
@@ -84,17 +84,19 @@ class MissionPreparation:
         app = self.app
         verdict = app.fc_view.heading_verdict(now)
         requested = app.nav_cfg.elements
-        if verdict is None or verdict.compass_derived:
+        compass = verdict is None or verdict.compass_derived
+        code = resolve_elements(requested, compass)
+        if compass:
             reason = verdict.reason if verdict is not None else "heading source unknown"
             if requested in (ElementSet.PAPER, ElementSet.WEIGHTED):
-                return ElementSet.HEADING_FREE, (f"NAV_ELEMENTS {requested} asks for D, but the FC yaw is "
-                                                 f"compass-derived ({reason}): D is no measurement")
+                return code, (f"NAV_ELEMENTS {requested} asks for D, but the FC yaw is "
+                              f"compass-derived ({reason}): D is no measurement")
             if requested == ElementSet.HORIZONTAL_VERTICAL:
-                return requested, f"NAV_ELEMENTS 3, FC yaw compass-derived ({reason})"
-            return ElementSet.HEADING_FREE, f"FC yaw is compass-derived ({reason})"
+                return code, f"NAV_ELEMENTS 3, FC yaw compass-derived ({reason})"
+            return code, f"FC yaw is compass-derived ({reason})"
         if requested == 0:
-            return ElementSet.PAPER, f"heading independent of the compass ({verdict.reason})"
-        return requested, f"NAV_ELEMENTS {requested} ({verdict.reason})"
+            return code, f"heading independent of the compass ({verdict.reason})"
+        return code, f"NAV_ELEMENTS {requested} ({verdict.reason})"
 
     def _gravity_referenced(self, avg) -> bool:
         heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)

@@ -3,7 +3,8 @@
 :func:`build_truth_field` turns a :class:`~sitl.scenario.Scenario` into a
 :class:`~sitl.world.magnetic.TruthField`: the main field of ``[field] main`` (the World
 Magnetic Model of the scenario's date, :func:`companion.nav.field.model_for_date`, the
-navigator's own model; or IGRF-14, :func:`sitl.world.igrf.igrf14_model`), the crustal anomaly
+navigator's own model; IGRF-14, :func:`sitl.world.igrf.igrf14_model`; or ArduPilot's own tables,
+:mod:`sitl.world.fc_tables`), the crustal anomaly
 field when ``[field] crustal = true`` (drawn for ``seed``; the Monte Carlo redraws it per run
 with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm disturbance of
 :mod:`sitl.storms` with the scenario's time rule:
@@ -30,10 +31,11 @@ from companion.nav.geo import geodesic_distance_m
 from companion.params import SPEC_BY_NAME
 from sitl.scenario import Scenario
 from sitl.storms import default_data_dir
+from sitl.world.fc_tables import ardupilot_tables
 from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
-__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s"]
+__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model"]
 
 
 class StormUnavailableError(RuntimeError):
@@ -56,6 +58,17 @@ def expected_mission_duration_s(scenario: Scenario, speed_mps: float | None = No
     return distance / speed_mps
 
 
+def main_field_model(scenario: Scenario):
+    """The truth's main-field model of ``[field] main``: WMM of the scenario's date, IGRF-14, or
+    ArduPilot's tables (:mod:`sitl.world.fc_tables`)."""
+    main = scenario.field_model.main
+    if main == "igrf14":
+        return igrf14_model(scenario.year)
+    if main == "ardupilot":
+        return ardupilot_tables()
+    return model_for_date(scenario.year)
+
+
 def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
                       expected_duration_s: float | None = None, outside: str = "hold",
                       seed: int = 0) -> TruthField:
@@ -69,8 +82,7 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     ``raise``). Raises :class:`StormUnavailableError` naming the cause when the storm cannot
     be built.
     """
-    main = scenario.field_model.main
-    model = igrf14_model(scenario.year) if main == "igrf14" else model_for_date(scenario.year)
+    model = main_field_model(scenario)
     quiet = TruthField(model=model, year=scenario.year, crustal_config=scenario.field_model.crustal,
                        crustal_origin=(scenario.start_lat_deg, scenario.start_lon_deg)).for_seed(seed)
     storm = scenario.storm

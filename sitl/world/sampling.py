@@ -20,18 +20,24 @@ sample at a time), sample by sample rather than as an analytic averaged draw:
    rotated into NED with the reported attitude, D, I, H, Z and F per sample, averaged over the
    period (D unwrapped around the first sample): :class:`AveragedElements`, with each average's
    standard error from the period's own scatter, ``1.4826 MAD / sqrt(n)`` as the companion
-   measures it (:func:`companion.nav.inclination.robust_standard_error`).
+   measures it (:func:`companion.nav.inclination.robust_standard_error`); and the magnetic
+   heading of the period's steady part (after the first ``SETTLE_S``), levelled by gravity from
+   the mean body field, as the companion measures it (:func:`companion.nav.heading.levelled_heading_deg`),
+   and the gravity-referenced I of the same samples (:func:`companion.nav.inclination.ratio_inclination_deg`),
+   which the companion navigates on with a heading-free element set.
 
 Pure: arrays and a seeded generator in, averages out.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
+from companion.nav.heading import levelled_heading_deg
+from companion.nav.inclination import ratio_inclination_deg
 from sitl.world.attitude import compass_yaw_rad
 
 __all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "robust_standard_errors",
@@ -59,6 +65,9 @@ class AveragedElements:
     f_se_nt: float = math.nan
     h_se_nt: float = math.nan
     z_se_nt: float = math.nan
+    mag_heading_deg: float = math.nan
+    incl_grav_deg: float = math.nan
+    incl_grav_se_deg: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -71,6 +80,7 @@ class SampleSettings:
     mag_bias_nt: tuple[float, float, float]
     attitude_noise_deg: float
     heading_source: str = "true"
+    accel_noise_mps2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +108,8 @@ def rotation_nb(roll, pitch, yaw) -> np.ndarray:
 
 
 MAD_TO_SIGMA = 1.482602218505602
+STANDARD_GRAVITY = 9.80665
+SETTLE_S = 60.0     # the companion's gravity samples wait this long after a new command (its SETTLE_AFTER_COMMAND_S)
 
 
 def robust_standard_errors(values: np.ndarray) -> np.ndarray:
@@ -123,12 +135,13 @@ def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:
 
 def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callable[[np.ndarray], tuple],
                   mag_apply: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
-                  rng: np.random.Generator) -> AveragedElements:
+                  rng: np.random.Generator, accel_rng: np.random.Generator | None = None) -> AveragedElements:
     """Simulate and average the samples of one period (see the module docstring).
 
     ``tilt_rad(t)`` gives the true (roll, pitch) arrays at sample times; ``mag_apply(body, t)``
     the calibration residuals (None: none). Draws 3 magnetometer then 3 attitude normals per
-    sample, as one (N, 6) block.
+    sample, as one (N, 6) block; the accelerometer's white noise (``accel_noise_mps2``) comes from
+    ``accel_rng``, so the other draws stay as they were without it.
     """
     t0, t1 = float(knots.time_s[0]), float(knots.time_s[-1])
     count = max(1, int(round((t1 - t0) * settings.rate_hz))) if t1 > t0 else max(1, int(round(settings.rate_hz)))
@@ -158,4 +171,14 @@ def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callab
     else:
         yaw_est = yaw + slow[:, 2] + sat * noise[:, 5]
     ned = np.einsum("nij,nj->ni", rotation_nb(roll_est, pitch_est, yaw_est), meas)
-    return elements_from_ned(ned, t1)
+    # the gravity samples as the companion takes them: the period's steady part, the specific force
+    # f = -g times the body's down axis (the waves' accelerations average out) plus white noise
+    steady = t >= t0 + SETTLE_S if t1 - t0 > 2.0 * SETTLE_S else np.ones(count, dtype=bool)
+    force = -STANDARD_GRAVITY * c_nb[steady, 2, :]
+    if settings.accel_noise_mps2 > 0.0 and accel_rng is not None:
+        force = force + settings.accel_noise_mps2 * accel_rng.standard_normal(force.shape)
+    mag = meas[steady]
+    force_ned = np.einsum("nij,nj->ni", rotation_nb(roll_est[steady], pitch_est[steady], yaw_est[steady]), force)
+    incl_grav, incl_grav_se = ratio_inclination_deg(np.einsum("ni,ni->n", mag, force), ned[steady], force_ned)
+    return replace(elements_from_ned(ned, t1), mag_heading_deg=levelled_heading_deg(mag.mean(axis=0), force.mean(axis=0)),
+                   incl_grav_deg=incl_grav, incl_grav_se_deg=incl_grav_se)

@@ -228,11 +228,11 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
 
 
 def test_the_level_is_learnt_with_the_calibration_the_core_subtracts(rig):
-    """Auto without an INS falls back to Table 3's constant start-up calibration at the first step:
-    the |F| level is judged net of that calibration, not with it subtracted twice (PX4 SIH, +590 nT
-    calibrated: later periods were judged ~1000 nT off and excluded)."""
+    """Table 3's path subtracts a constant start-up calibration: the |F| level is judged net of it,
+    not with it subtracted twice (PX4 SIH, +590 nT calibrated, when auto fell back to Table 3 inside
+    the first step: later periods were judged ~1000 nT off and excluded)."""
     app, fc = rig
-    config = NavConfig.from_values({**default_values(), "NAV_ELEMENTS": 2})   # (I, F); FUS_MODEL 0 (auto), no INS
+    config = NavConfig.from_values({**default_values(), "NAV_ELEMENTS": 2, "FUS_MODEL": 1})   # (I, F), Table 3
     app.mission = Mission(config)
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
