@@ -21,7 +21,7 @@ from companion.nav.mission import Command, Phase
 from companion.process.machine import State
 from companion.process.options import FC_POSITION_MAX_AGE_S, STARTUP_GRACE_S
 
-__all__ = ["MAG_STREAM_HZ", "STREAMS_HZ", "Outputs"]
+__all__ = ["STREAMS_HZ", "Outputs"]
 
 ECHO_SIGMA_M = 50.0               # what the echo of the FC's own GPS-aided position is worth to the feed
 FEED_PERIOD_S = 0.1               # GPS_INPUT rate (message time)
@@ -30,7 +30,6 @@ FEED_SATELLITES = 10
 
 # Streams requested from the flight controller (MAV_CMD_SET_MESSAGE_INTERVAL), Hz.
 STREAMS_HZ = {"ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 1.0, "GPS_RAW_INT": 1.0, "GPS2_RAW": 1.0, "SYSTEM_TIME": 1.0}
-MAG_STREAM_HZ = 10.0
 
 
 class Outputs:
@@ -74,7 +73,7 @@ class Outputs:
         app.decoder.mag_message = mag_msgs     # PX4 streams HIGHRES_IMU until told otherwise: not that one
         app.decoder.highres_nt_per_unit = highres_nt_per_unit(family)
         for name in mag_msgs:   # the fallback too, until the preferred one arrives (stop_superseded_streams)
-            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), MAG_STREAM_HZ)
+            link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), app.comp_cfg.mag_rate_hz)
         for name in unused_streams(family, keep=mag_msgs):   # before LOCAL_POSITION_NED may be asked for
             link.send_message_interval(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), -1.0)
         for name, hz in STREAMS_HZ.items():
