@@ -145,7 +145,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
     _p("FUS_FEEDBACK", int, 0, 0, 1, "", "0 INS corrected by the estimated error, 1 eq. 58 as printed"),
     # --- estimation filter (issue 14: companion/nav/navfilter.py) ---
-    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else Table 3), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
+    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else with dead reckoning), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
     _p("FUS_R_DEG", float, 0.002, 1e-6, 10.0, "deg", "declared 1-sigma noise of an averaged D or I"),
     _p("FUS_R_NT", float, 2.0, 1e-3, 10000.0, "nT", "declared 1-sigma noise of an averaged F, H or Z"),
     _p("FUS_R_SRC", int, 1, 0, 1, "", "measurement noise of the error-state filter: 1 each period's measured standard errors with FUS_RMIN_* added in quadrature (FUS_R_DEG/FUS_R_NT where none is measured), 0 the declared FUS_R_DEG/FUS_R_NT"),

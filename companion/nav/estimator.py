@@ -2,7 +2,7 @@
 
 Chooses the process model at the first step (``FUS_MODEL`` 2 INS, 3 dead reckoning; 0 auto takes
 the INS model when the measurement carries an INS position independent of this navigator, and
-the mission falls back to Table 3's path without one: README "Without an INS"), starts
+dead reckoning without one: README "Without an INS"), starts
 the filter at the mission's start (a GPS-known start is a position measurement with
 ``FUS_GPS_M``; with ``NAV_CALIBRATE 1`` the start-up average is also an element measurement
 there, which observes the bias states against the model: the start-up calibration, carried
@@ -128,8 +128,9 @@ class PositionEstimator:
         if c.fusion_model == FusionModel.DEAD_RECKONING or (c.fusion_model == FusionModel.AUTO and not have_ins):
             pos_sigma = start_sigma_m if start_sigma_m is not None else self.settings.ins.pos_err_m
             process = DeadReckoningProcess(self.settings.dead_reckoning, c.start_lat_deg, c.start_lon_deg, pos_sigma)
-            self.reason = ("dead reckoning: FUS_MODEL 3" if c.fusion_model == FusionModel.DEAD_RECKONING else
-                           "dead reckoning: no independent INS position")
+            course = "the measured heading" if c.dr_heading == 1 else "the commanded course"
+            self.reason = (f"dead reckoning on {course}: FUS_MODEL 3" if c.fusion_model == FusionModel.DEAD_RECKONING
+                           else f"dead reckoning on {course}: no independent INS position")
         elif have_ins:
             process = InsProcess(self.settings.ins, meas.ins_lat_deg)
             self.reason = "INS error model: an independent INS position is available"

@@ -26,7 +26,6 @@ import time
 
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import ELEMENT_SETS
-from companion.nav.estimator import FusionModel
 from companion.nav.mission import Command, Phase
 from companion.process.machine import Event, State
 from companion.process.options import MAX_RESTARTS
@@ -195,8 +194,6 @@ class Phases:
         estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
-        elif estimator is None and config.fusion_model == FusionModel.AUTO:
-            app.out.say("FcMPC: position filter: Table 3 (FUS_MODEL 0: no independent INS position at the start)")
 
     # ------------------------------------------------------------------ running
     def running(self, now: float, reasons: list[str], dt: float) -> bool:
