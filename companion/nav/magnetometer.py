@@ -41,11 +41,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from itertools import chain
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from companion.frames import Matrix3, Vector3, body_to_ned
 from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import ratio_inclination_deg, robust_standard_error
+from companion.nav.inclination import MAD_TO_SIGMA, ratio_inclination_deg
 
 __all__ = [
     "MILLIGAUSS_TO_NT",
@@ -69,6 +72,7 @@ GAUSS_TO_NT = 1e5
 
 _IDENTITY3: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 _NAN3: Vector3 = (math.nan, math.nan, math.nan)
+SAMPLE_COLUMNS = 17   # time, D, I, field NED (3), |F|, m.f, force NED (3), body field (3), body force (3)
 
 
 @dataclass(frozen=True)
@@ -263,13 +267,12 @@ class AveragedDI:
         return min(max(2.0 * (end_time_s - self.mean_time_s), 0.0), max_s)
 
 
-def _heading_of(grav: list[tuple[float, ...]]) -> float:
-    """The levelled magnetic heading of the gravity samples' mean body field and force (NaN: none)."""
-    body = [s[11:17] for s in grav if math.isfinite(sum(s[11:17]))]
-    if not body:
+def _robust_se(column: np.ndarray) -> float:
+    """``1.4826 MAD / sqrt(n)`` of one column (NaN below two samples), as
+    :func:`companion.nav.inclination.robust_standard_error`."""
+    if column.size < 2:
         return math.nan
-    means = [math.fsum(column) / len(body) for column in zip(*body)]
-    return levelled_heading_deg(means[0:3], means[3:6])
+    return MAD_TO_SIGMA * float(np.median(np.abs(column - np.median(column)))) / math.sqrt(column.size)
 
 
 class PeriodAverager:
@@ -307,16 +310,19 @@ class PeriodAverager:
         if not used:
             return AveragedDI(math.nan, math.nan, 0, math.nan, math.nan, math.nan)
         n = len(used)
-        columns = list(zip(*used))                 # one pass; the sums and spreads read columns
-        sums = [math.fsum(columns[k]) for k in range(7)]
-        d = (sums[1] / n + 180.0) % 360.0 - 180.0
-        grav = [s for s in used if math.isfinite(s[7]) and math.isfinite(s[8] + s[9] + s[10])]
-        incl_grav, incl_grav_se = ratio_inclination_deg([s[7] for s in grav], [s[3:6] for s in grav],
-                                                        [s[8:11] for s in grav])
-        return AveragedDI(d, sums[2] / n, n, sums[0] / n, used[0][0], used[-1][0],
-                          (sums[3] / n, sums[4] / n, sums[5] / n), sums[6] / n, incl_grav, len(grav),
-                          robust_standard_error(columns[1]), robust_standard_error(columns[2]),
-                          robust_standard_error(columns[6]), incl_grav_se, _heading_of(grav))
+        # (n, 17): one array, every average a column operation (fromiter: a quarter of np.array's time)
+        a = np.fromiter(chain.from_iterable(used), dtype=float, count=n * SAMPLE_COLUMNS).reshape(n, SAMPLE_COLUMNS)
+        means = a[:, :7].mean(axis=0)
+        d = (float(means[1]) + 180.0) % 360.0 - 180.0
+        grav = np.isfinite(a[:, 7]) & np.all(np.isfinite(a[:, 8:11]), axis=1)
+        incl_grav, incl_grav_se = ratio_inclination_deg(a[grav, 7], a[grav, 3:6], a[grav, 8:11])
+        body = grav & np.all(np.isfinite(a[:, 11:17]), axis=1)
+        heading = levelled_heading_deg(a[body, 11:14].mean(axis=0), a[body, 14:17].mean(axis=0)) \
+            if body.any() else math.nan
+        return AveragedDI(d, float(means[2]), n, float(means[0]), used[0][0], used[-1][0],
+                          (float(means[3]), float(means[4]), float(means[5])), float(means[6]), incl_grav,
+                          int(grav.sum()), _robust_se(a[:, 1]), _robust_se(a[:, 2]), _robust_se(a[:, 6]),
+                          incl_grav_se, heading)
 
     def drop_before(self, time_s: float) -> None:
         self._samples = [s for s in self._samples if s[0] >= time_s]
