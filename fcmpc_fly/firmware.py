@@ -19,10 +19,6 @@ from fcmpc_fly.runner import REPO, FlyOptions, finish, prepare
 
 __all__ = ["fly_on_ardupilot", "fly_on_px4"]
 
-PX4_ROVER_CRUISE_KMH = 10.8     # 3 m/s: SIH's Ackermann rover with params/px4-rover.params (RO_SPEED_LIM)
-# SIH's magnetometer: 50 distinct samples/s, 2000-3000 nT of noise per axis (ten times a real
-# sensor's); read at 10 Hz four of five were thrown away (measured: SCALED_IMU asked at 100 Hz repeats half)
-PX4_SIH_MAG_HZ = 50.0
 _MISSION = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON", "COMP_ARM_ENABLE", "COMP_SP_RATE_HZ")
 
 
@@ -38,14 +34,14 @@ def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
 
 def fly_on_px4(options: FlyOptions) -> FlyResult:
     """The same against PX4 SITL with SIH (``$FCMPC_PX4`` or ``../shared/px4``): its Ackermann rover at
-    :data:`PX4_ROVER_CRUISE_KMH` unless ``--param NAV_SPEED_KMH`` says otherwise; PX4's pacing is its
+    :data:`sitl.firmware.px4_flight.COMPANION_VALUES` (3 m/s, SIH's magnetometer at 50 Hz) unless ``--param``
+    says otherwise; PX4's pacing is its
     speed factor (``--speedup``, default 10)."""
     from sitl.firmware.px4 import px4_root
-    from sitl.firmware.px4_flight import fly_px4
+    from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
 
     px4_root()
-    return _fly_on(options, "px4", fly_px4, 10.0, {"NAV_SPEED_KMH": PX4_ROVER_CRUISE_KMH, "COMP_HB_TMO_S": 10.0,
-                                                       "SAFE_TMO_S": 10.0, "COMP_MAG_HZ": PX4_SIH_MAG_HZ})
+    return _fly_on(options, "px4", fly_px4, 10.0, COMPANION_VALUES)
 
 
 def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:

@@ -164,7 +164,6 @@ PX4_LOSS_WALL_S = 2.0
 # 30 s (300 samples) keeps the |F| reference within ~150 nT of SIH's noise, against a 1000 nT band,
 # but not the start's I calibration (SIH: 0.2-0.3 deg): a test that judges the fixes keeps the default
 PX4_STARTUP_S = 30.0
-PX4_CRUISE_KMH = 10.8      # 3 m/s: the SIH Ackermann rover's speed limit in params/px4-rover.params
 
 
 def _px4_root_or_skip() -> Path:
@@ -205,11 +204,9 @@ class Px4TestRig(Rig):
         return self.sitl.companion_url
 
     def start_companion(self, startup_s: float | None = PX4_STARTUP_S, **values) -> Path:
-        # COMP_HB_TMO_S: the companion also judges a silent flight controller in wall time, and SIH
-        # on a shared 2-core machine was starved for over 3 s of wall time (a companion failsafe
-        # 80 s into a GPS-lost run; SAFE_TMO_S is its ceiling); PX4's offboard timeout is the one judged here
-        return super().start_companion(startup_s, **{"NAV_SPEED_KMH": PX4_CRUISE_KMH, "COMP_HB_TMO_S": 10.0,
-                                                    "SAFE_TMO_S": 10.0, **values})
+        from sitl.firmware.px4_flight import COMPANION_VALUES   # the companion as fcmpc-fly --fc px4 flies it
+
+        return super().start_companion(startup_s, **{**COMPANION_VALUES, **values})
 
 
 _PX4_TAKEN: set[int] = set()

@@ -105,9 +105,6 @@ def test_arming_refusal_reaches_the_operator_with_backoff(rig_factory):
     assert not mon.armed
 
 
-@pytest.mark.skip(reason="open (issue 16), flaky under load: passed 2 of 2 runs alone (14 steps flown without GPS, "
-                         "one excluded), but in the parallel CI run (two workers on two cores beside the closed-loop "
-                         "missions) ArduPilot left GUIDED 238 s after GPS loss")
 @pytest.mark.slow
 def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
     """GPS lost 30 s after arming: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
