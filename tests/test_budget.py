@@ -100,8 +100,10 @@ def test_main_field_alone_costs_what_the_budget_predicts():
     The prediction |G^-1 e| is the error of one geomagnetic fix, which is what Table 3's fusion
     (FUS_MODEL 1) steers on: measured 8.26 km against 8.18 km predicted (README), here within
     25 %. The INS error-state filter (FUS_MODEL 2, what `auto` picks in this world) blends the
-    biased fix with an INS that, with this source alone, is perfect: it must miss by less
-    (measured 6.01 km), never more.
+    biased fix with an INS that, with this source alone, is perfect: it must miss by less, never
+    more. It declares the model error growing with distance (FUS_BQD_*, 2026-12-01), so over 800 km
+    it leans on that INS: measured 0.48 km (6.01 km before the distance walk); here under a
+    quarter of the predicted fix error.
     """
     from companion.params import NavConfig, validate_all
     from sitl.inprocess import fly_in_process
@@ -117,4 +119,4 @@ def test_main_field_alone_costs_what_the_budget_predicts():
         assert result.arrived
         misses[fusion] = result.remaining_m
     assert misses[1] == pytest.approx(predicted.fix_error_m, rel=0.25)
-    assert 0.5 * predicted.fix_error_m < misses[2] < misses[1]
+    assert misses[2] < 0.25 * predicted.fix_error_m and misses[2] < misses[1]

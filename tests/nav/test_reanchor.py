@@ -139,7 +139,10 @@ def test_the_ellipse_gate_keeps_a_dead_reckoning_filter_from_locking_in(monkeypa
     ellipse it arrives 65 km off (the worst of 20 seeds: 116 km). Flown with the navigator it was
     found in, without local model-error states (the paper world's declared one): with the default
     states seed 18 arrives either way (2026-12-01: 18 km gated, 11 km in kilometres alone), so the
-    states hide the lock-in here; the gate is what keeps it from coming back when they cannot."""
+    states hide the lock-in here; the gate is what keeps it from coming back when they cannot. The
+    same holds for dead reckoning on the measured heading (NAV_DR_HDG 1, the default since
+    2026-12-01: seed 18 arrives without the gate too), so the test dead-reckons on the commanded
+    course as the filter did when the lock-in was found (2026-12-02: 51 km gated, 1,404 km alone)."""
     from dataclasses import replace
 
     import companion.nav.estimator as estimator
@@ -152,7 +155,7 @@ def test_the_ellipse_gate_keeps_a_dead_reckoning_filter_from_locking_in(monkeypa
     scenario = replace(scenario, ins=replace(scenario.ins, onboard=False))
     truth = build_truth_field(scenario)
     nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **IDEAL_NAVIGATOR,
-                                              "FUS_MODEL": 3, "NAV_ELEMENTS": 2}))
+                                              "FUS_MODEL": 3, "NAV_ELEMENTS": 2, "NAV_DR_HDG": 0}))
     gated = fly_in_process(nav, scenario, 18, truth)
     assert gated.arrived and gated.remaining_m < 150e3, gated.remaining_m
     monkeypatch.setattr(estimator, "FIX_GATE_PROBABILITY", 0.0)     # the kilometres alone
