@@ -174,6 +174,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("COMP_FEED_ACC_M", float, 5.0, 0.5, 1000.0, "m", "horizontal accuracy claimed in GPS_INPUT: the feed's short-term (relative) accuracy; the EKF diverges when told the km-level absolute one"),
     _p("COMP_FEED_BLEND", float, 0.5, 0.1, 20.0, "m/s", "speed at which a new estimate is blended into the fed position: no steps the EKF would reject, and slow because the FC's speed loop sees the fed speed (GUIDED velocity steering needs no position)"),
     _p("COMP_MAG_HZ", float, 10.0, 1.0, 100.0, "Hz", "magnetometer stream rate asked of the FC: up to the sensor's own rate, every sample is averaged (PX4 SIH makes 50 distinct samples/s); in SITL at N x real time the companion decodes N times as many per wall second"),
+    _p("COMP_TRIM_DEG", float, 0.0, 0.0, 45.0, "deg", "steer the measured true heading (levelled magnetometer + model D) onto the course: the setpoint's course is trimmed by the FC's yaw error, at most this; 0 off (the FC's yaw is trusted)"),
     _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
     _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
     _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
@@ -419,6 +420,7 @@ class CompanionConfig(_FromRegistry):
     feed_accuracy_m: float = _from("COMP_FEED_ACC_M")
     feed_blend_mps: float = _from("COMP_FEED_BLEND")
     mag_rate_hz: float = _from("COMP_MAG_HZ")
+    trim_max_deg: float = _from("COMP_TRIM_DEG")
     mag_timeout_s: float = _from("COMP_MAG_TMO_S")
     att_timeout_s: float = _from("COMP_ATT_TMO_S")
     heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")

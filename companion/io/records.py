@@ -29,6 +29,8 @@ incl_se_deg         the period's standard error of I; jump_m, bound_m, noise_m t
                     verdict (the implied fix's jump, its bound, the noise term)
 mag_heading_deg     the magnetic heading measured over the period (magnetometer levelled by the
                     accelerometer); plus the model's D it is the heading dead-reckoned on
+sent_course_deg     the course the setpoints carry: course_deg plus the FC's yaw error
+                    (``COMP_TRIM_DEG``, :mod:`companion.nav.steering`), else course_deg
 ==================  ===========================================================================
 """
 from __future__ import annotations
@@ -46,7 +48,7 @@ STEP_COLUMNS = (
     "window_s", "spikes", "invalid", "ins_lat_deg", "ins_lon_deg", "ins_source", "est_lat_deg", "est_lon_deg",
     "est_sigma_m", "fix_lat_deg", "fix_lon_deg", "fused", "remaining_m", "course_deg", "speed_mps", "solver_ok",
     "solver_time_s", "step_latency_s", "event", "reason", "gps_fix", "gps_lat_deg", "gps_lon_deg",
-    "incl_se_deg", "jump_m", "bound_m", "noise_m", "mag_heading_deg",
+    "incl_se_deg", "jump_m", "bound_m", "noise_m", "mag_heading_deg", "sent_course_deg",
 )
 
 

@@ -49,6 +49,7 @@ import numpy as np
 from companion.frames import Matrix3, Vector3, body_to_ned
 from companion.nav.heading import levelled_heading_deg
 from companion.nav.inclination import MAD_TO_SIGMA, ratio_inclination_deg
+from companion.nav.steering import YawOffsetTracker
 
 __all__ = [
     "MILLIGAUSS_TO_NT",
@@ -378,6 +379,8 @@ class MagProcessor:
         self.last_di: tuple[float, float] = (math.nan, math.nan)
         self._pending: tuple[float, Vector3, tuple | None] | None = None
         self._imu: tuple[float, Vector3, Vector3] | None = None
+        self.yaw_offset = YawOffsetTracker()
+        """The FC's yaw minus the levelled magnetic heading (:mod:`companion.nav.steering`), paused or not."""
 
     def add_specific_force(self, time_s: float, accel_body_mps2: Vector3, gyro_body_radps: Vector3) -> None:
         """The accelerometer and gyro of the next magnetometer sample (same message or instant)."""
@@ -448,6 +451,8 @@ class MagProcessor:
             st.last_reject = "spike"
             return False
         self.last_di = (d, i)
+        if imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
+            self.yaw_offset.add(time_s, rpy[2], calibrated, imu[1])
         if self.paused:
             st.paused += 1
             return False

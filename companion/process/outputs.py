@@ -18,6 +18,7 @@ from companion.io.px4 import unused_streams
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
+from companion.nav.steering import trimmed_course_rad
 from companion.process.machine import State
 from companion.process.options import FC_POSITION_MAX_AGE_S, STARTUP_GRACE_S
 
@@ -95,6 +96,25 @@ class Outputs:
         att = self.app.mag.attitude
         course = wrap_2pi(att.yaw_rad) if att is not None else 0.0
         return self.stream(course, 0.0)
+
+    def stream_command(self, cmd: Command) -> bool:
+        """The navigator's command as a setpoint, its course trimmed by the FC's yaw error
+        (``COMP_TRIM_DEG``, :mod:`companion.nav.steering`)."""
+        return self.stream(self.course_to_send(cmd), cmd.speed_mps)
+
+    def course_to_send(self, cmd: Command) -> float:
+        """``cmd.course_rad`` plus the FC's yaw error (FC yaw minus the true heading we measure)."""
+        app = self.app
+        max_trim = app.comp_cfg.trim_max_deg
+        if not max_trim > 0.0 or app.mission is None or cmd.done or not cmd.speed_mps > 0.0:
+            return cmd.course_rad
+        offset = app.mag.yaw_offset.offset_rad(app.now)
+        estimate = self.current_estimate() if math.isfinite(offset) else None
+        if estimate is None:
+            return cmd.course_rad
+        nav = app.mission.config
+        decl = float(app.mission.model.elements(estimate[0], estimate[1], nav.alt_m, nav.year).decl_deg)
+        return trimmed_course_rad(cmd.course_rad, offset, decl, max_trim)
 
     def stream(self, course_rad: float, speed_mps: float) -> bool:
         app = self.app

@@ -224,7 +224,7 @@ class Phases:
             self.resume()
         if reasons:
             return False
-        sent = app.out.stream(app.command.course_rad, app.command.speed_mps) if app.command is not None else False
+        sent = app.out.stream_command(app.command) if app.command is not None else False
         if not following:
             if self.our_hold or (self.fc_failsafe_hold and not app.fc_view.fc_failsafe):
                 self.engage(now)   # our failsafe's hold, or the FC's own failsafe cleared: take it back

@@ -61,7 +61,8 @@ class Reporting:
             "fix_lon_deg": cmd.fix_lon_deg, "fused": cmd.fused, "remaining_m": cmd.remaining_m,
             "course_deg": math.degrees(cmd.course_rad), "speed_mps": cmd.speed_mps, "solver_ok": cmd.solver_ok,
             "solver_time_s": cmd.solver_time_s, "step_latency_s": latency, "event": event, "reason": reason,
-            "mag_heading_deg": meas.mag_heading_deg, **self.gps_record(), **self.plausibility_record(meas)})
+            "mag_heading_deg": meas.mag_heading_deg, "sent_course_deg": math.degrees(app.out.course_to_send(cmd)),
+            **self.gps_record(), **self.plausibility_record(meas)})
 
     def plausibility_record(self, meas: Measurement) -> dict:
         """The inclination's standard error and the period's plausibility verdict (jump, bound, noise

@@ -25,8 +25,11 @@ __all__ = ["COMPANION_VALUES", "MONITOR_RATES_HZ", "Px4Rig", "deny_gps", "fly_px
 # 80 s into a GPS-lost run; PX4's own offboard timeout is the one that matters);
 # COMP_MAG_HZ 50: SIH makes 50 distinct magnetometer samples per second with 2000-3000 nT of noise
 # per axis (ten times a real sensor's), and at 10 Hz four of five were thrown away (SCALED_IMU asked
-# at 100 Hz repeats half of its samples)
-COMPANION_VALUES = {"NAV_SPEED_KMH": 10.8, "COMP_HB_TMO_S": 10.0, "SAFE_TMO_S": 10.0, "COMP_MAG_HZ": 50.0}
+# at 100 Hz repeats half of its samples);
+# COMP_TRIM_DEG 30: after GPS loss EKF2's yaw follows our fed track and the rover's true track ran
+# 14-20 deg off the command (companion.nav.steering); the companion steers its own measured heading
+COMPANION_VALUES = {"NAV_SPEED_KMH": 10.8, "COMP_HB_TMO_S": 10.0, "SAFE_TMO_S": 10.0, "COMP_MAG_HZ": 50.0,
+                    "COMP_TRIM_DEG": 30.0}
 
 # The GCS link streams attitude and positions at 50 Hz: the monitor needs none of them but the
 # time (GLOBAL_POSITION_INT, SYSTEM_TIME) and the truth, so the rest is turned off (rate 0).

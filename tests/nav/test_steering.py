@@ -1,0 +1,100 @@
+"""The course trimmed by the flight controller's yaw error (companion.nav.steering) and the
+magnetometer pipeline that measures that error.
+
+Oracles: a body-frame field and gravity made with :func:`companion.frames.ned_to_body` from a known
+true attitude and declination; the flight controller's yaw set to the true heading plus a known
+error, which the trim must take out; noise of PX4 SIH's size on the field.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.frames import ned_to_body
+from companion.nav.magnetometer import AttitudeState, MagProcessor
+from companion.nav.steering import YawOffsetTracker, trimmed_course_rad
+
+G = 9.80665
+
+
+def _sample(heading_deg: float, roll_deg: float, pitch_deg: float, decl_deg: float, incl_deg: float = 50.0,
+            f_nt: float = 45000.0):
+    """Body field and specific force of a vehicle with true heading ``heading_deg`` where the field
+    points ``decl_deg`` east of true north."""
+    h, z = f_nt * math.cos(math.radians(incl_deg)), f_nt * math.sin(math.radians(incl_deg))
+    d = math.radians(decl_deg)
+    rpy = (math.radians(roll_deg), math.radians(pitch_deg), math.radians(heading_deg))
+    return ned_to_body((h * math.cos(d), h * math.sin(d), z), *rpy), ned_to_body((0.0, 0.0, -G), *rpy)
+
+
+@settings(max_examples=200, deadline=None)
+@given(heading=st.floats(0.0, 359.9), decl=st.floats(-25.0, 25.0), error=st.floats(-25.0, 25.0),
+       roll=st.floats(-20.0, 20.0), pitch=st.floats(-20.0, 20.0), course=st.floats(0.0, 359.9))
+def test_the_trim_makes_the_true_heading_the_course(heading, decl, error, roll, pitch, course):
+    """An FC whose yaw is the true heading plus ``error`` steers that yaw onto what it is sent; the
+    sent course is the course plus the error, so the true heading it flies is the course."""
+    tracker = YawOffsetTracker(tau_s=10.0)
+    mag, force = _sample(heading, roll, pitch, decl)
+    for k in range(100):
+        tracker.add(0.1 * k, math.radians(heading + error), mag, force)
+    sent = trimmed_course_rad(math.radians(course), tracker.offset_rad(9.9), decl, 30.0)
+    flown = math.degrees(sent) - error                  # the FC's yaw on `sent`, less its error
+    assert abs((flown - course + 180.0) % 360.0 - 180.0) < 1e-6
+
+
+def test_the_offset_averages_noise_of_sih_size():
+    """SIH's field noise (2500 nT per axis) at 50 Hz over the 20 s time constant: the offset within
+    0.5 deg of a 17 deg yaw error (one sample's heading scatters by about 4 deg)."""
+    rng = np.random.default_rng(7)
+    tracker = YawOffsetTracker()
+    decl, heading, error = 8.0, 200.0, 17.0
+    mag, force = _sample(heading, 1.0, -2.0, decl)
+    for k in range(50 * 120):
+        noisy = np.asarray(mag) + rng.normal(0.0, 2500.0, 3)
+        tracker.add(0.02 * k, math.radians(heading + error), tuple(noisy), force)
+    delta = math.degrees(tracker.offset_rad(0.02 * (50 * 120 - 1))) - decl
+    assert delta == pytest.approx(error, abs=0.5)
+
+
+def test_no_offset_before_enough_samples_nor_after_the_stream_stops():
+    tracker = YawOffsetTracker(tau_s=20.0, max_age_s=5.0, min_span_s=5.0)
+    mag, force = _sample(90.0, 0.0, 0.0, 0.0)
+    for k in range(40):                                  # 3.9 s of samples
+        tracker.add(0.1 * k, math.radians(95.0), mag, force)
+    assert math.isnan(tracker.offset_rad(3.9))
+    for k in range(40, 80):
+        tracker.add(0.1 * k, math.radians(95.0), mag, force)
+    assert math.degrees(tracker.offset_rad(7.9)) == pytest.approx(5.0, abs=1e-9)
+    assert math.isnan(tracker.offset_rad(7.9 + 5.1))      # the stream stopped
+    assert not tracker.add(8.0, math.nan, mag, force)
+    assert not tracker.add(8.0, 0.0, mag, (0.0, 0.0, 0.0))  # no gravity: nothing to level with
+
+
+def test_the_trim_is_clamped_and_off_without_an_offset():
+    course = math.radians(10.0)
+    assert trimmed_course_rad(course, math.radians(40.0), 0.0, 30.0) == pytest.approx(math.radians(40.0))
+    assert trimmed_course_rad(course, math.radians(-40.0), 0.0, 30.0) == pytest.approx(math.radians(340.0))
+    assert trimmed_course_rad(course, math.nan, 0.0, 30.0) == course
+    assert trimmed_course_rad(course, math.radians(5.0), math.nan, 30.0) == course
+    assert trimmed_course_rad(course, math.radians(5.0), 0.0, 0.0) == course   # COMP_TRIM_DEG 0: off
+
+
+def test_the_magnetometer_pipeline_measures_the_fc_yaw_error_and_ignores_turns():
+    """MagProcessor feeds its tracker from the FC's attitude and the same instant's IMU: a 12 deg yaw
+    error is measured while steady; samples turning faster than ``max_turn_radps`` are left out."""
+    proc = MagProcessor()
+    decl, heading, error = -6.0, 135.0, 12.0
+    mag, force = _sample(heading, 2.0, 3.0, decl)
+    for k in range(300):
+        t = 0.1 * k
+        turning = 100 <= k < 150
+        proc.add_attitude(AttitudeState.from_body_rates(t, math.radians(2.0), math.radians(3.0),
+                                                        math.radians(heading + (90.0 if turning else error)), 0.0, 0.0, 0.0))
+        proc.add_specific_force(t, force, (0.0, 0.0, 0.5 if turning else 0.0))
+        proc.add_mag(t, mag)
+    proc.flush()
+    assert math.degrees(proc.yaw_offset.offset_rad(29.9)) - decl == pytest.approx(error, abs=1e-6)
