@@ -161,8 +161,9 @@ PX4_SPEED = 12.0
 PX4_LOSS_WALL_S = 2.0
 # The companion's stationary start-up average against PX4: SIH runs at about 1x until the rover arms,
 # whatever its speed factor, so the default (one NAV_PERIOD_S, 160 s) cost ~165 s of wall time per test;
-# 30 s (300 samples) keeps the |F| reference within ~150 nT of SIH's noise, against a 1000 nT band,
-# but not the start's I calibration (SIH: 0.2-0.3 deg): a test that judges the fixes keeps the default
+# 30 s at SIH's 50 Hz (COMP_MAG_HZ in px4_flight.COMPANION_VALUES) are 1500 samples, as many as the
+# 160 s at 10 Hz the fix-judging tests needed for the start's I calibration (at 10 Hz, 300 samples took
+# SIH's 0.2-0.3 deg noise into it)
 PX4_STARTUP_S = 30.0
 
 

@@ -43,7 +43,7 @@ PROBE_S = 160.0
 # runs (load 8-10; 262 s each) and 4 of 4 beside two busy processes as well (load 4.6-7.7; 266-276 s);
 # in all six the companion's steps reached PX4 within 0.4 s of simulated time, no message gap, track
 # within 4.2 deg of the course (15 allowed), heading within 2.4 deg of the track (30 allowed). Those
-# runs used the 160 s start-up average, which this test keeps (the rig's default is 30 s, PX4_STARTUP_S).
+# runs used the 160 s start-up average; since 2026-12-02 the rig's 30 s at 50 Hz (PX4_STARTUP_S).
 QUADRANT_SPEED = 4.0
 REPO = Path(__file__).resolve().parents[2]
 
@@ -75,10 +75,12 @@ def test_offboard_engaged_held_and_every_quadrant_driven_forward(px4_factory, pr
     """OFFBOARD after setpoints stream, held through both probing moves (courses NE, SE or SW, NW),
     each driven forward; then an operator's Hold is respected, not fought."""
     rig = px4_factory("quadrants", speed=QUADRANT_SPEED)
-    # the full start-up average (one period): with the rig's 30 s, the calibration at the start took
-    # SIH's noise with it (I -0.30 deg), every step's fix then implied a 220-290 km jump against a
-    # 170-200 km bound, and the second probe never came (CI run of 2026-11-30)
-    rig.start_companion(None, NAV_DEST_LAT=32.9, NAV_DEST_LON=152.1, NAV_PERIOD_S=PROBE_S,
+    # the rig's 30 s start-up average: at 10 Hz it took SIH's noise into the calibration at the start
+    # (I -0.30 deg), every step's fix then implied a 220-290 km jump against a 170-200 km bound, and the
+    # second probe never came (CI run of 2026-11-30), so this test averaged one period (160 s, ~1x
+    # before arming: 130 s more wall time per case); at SIH's 50 Hz (COMP_MAG_HZ, 2026-12-01) 30 s
+    # are 1500 samples, as many as 160 s were
+    rig.start_companion(NAV_DEST_LAT=32.9, NAV_DEST_LON=152.1, NAV_PERIOD_S=PROBE_S,
                         NAV_PROBE1_DEG=probes[0], NAV_PROBE2_DEG=probes[1])
     mon = rig.monitor
     mon.pump(rig.said("phase probe2"), WALL_S, "second probing move")
