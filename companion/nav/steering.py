@@ -68,10 +68,8 @@ class YawOffsetTracker:
         if not (math.isfinite(time_s) and math.isfinite(fc_yaw_rad) and math.isfinite(psi_m)):
             return False
         gap = time_s - self._last_s if math.isfinite(self._last_s) else math.inf
-        if gap < 0.0:
-            return False
-        if gap > 10.0 * self.tau_s:        # the first sample, or after a long gap: start again
-            keep, self._first_s = 0.0, time_s
+        if gap < 0.0 or gap > 10.0 * self.tau_s:   # the first sample, a long gap, a clock that went
+            keep, self._first_s = 0.0, time_s       # back (the FC rebooted): start again
         else:
             keep = math.exp(-gap / self.tau_s)
         offset = fc_yaw_rad - math.radians(psi_m)

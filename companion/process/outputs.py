@@ -109,11 +109,12 @@ class Outputs:
         if not max_trim > 0.0 or app.mission is None or cmd.done or not cmd.speed_mps > 0.0:
             return cmd.course_rad
         offset = app.mag.yaw_offset.offset_rad(app.now)
-        estimate = self.current_estimate() if math.isfinite(offset) else None
+        model = getattr(app.mission, "model", None)   # (a test's stand-in core has none)
+        estimate = self.current_estimate() if math.isfinite(offset) and model is not None else None
         if estimate is None:
             return cmd.course_rad
         nav = app.mission.config
-        decl = float(app.mission.model.elements(estimate[0], estimate[1], nav.alt_m, nav.year).decl_deg)
+        decl = float(model.elements(estimate[0], estimate[1], nav.alt_m, nav.year).decl_deg)
         return trimmed_course_rad(cmd.course_rad, offset, decl, max_trim)
 
     def stream(self, course_rad: float, speed_mps: float) -> bool:

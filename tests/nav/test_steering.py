@@ -71,6 +71,11 @@ def test_no_offset_before_enough_samples_nor_after_the_stream_stops():
     assert math.degrees(tracker.offset_rad(7.9)) == pytest.approx(5.0, abs=1e-9)
     assert math.isnan(tracker.offset_rad(7.9 + 5.1))      # the stream stopped
     assert not tracker.add(8.0, math.nan, mag, force)
+    assert tracker.add(1.0, math.radians(80.0), mag, force)     # the FC rebooted: its clock starts again
+    assert math.isnan(tracker.offset_rad(1.0))                   # and so does the record (not 5 deg)
+    for k in range(11, 80):
+        tracker.add(0.1 * k, math.radians(80.0), mag, force)
+    assert math.degrees(tracker.offset_rad(7.9)) == pytest.approx(-10.0, abs=1e-9)
     assert not tracker.add(8.0, 0.0, mag, (0.0, 0.0, 0.0))  # no gravity: nothing to level with
 
 
