@@ -371,6 +371,8 @@ class MagProcessor:
     """Gravity-referenced I leaves out samples turning faster than this (centripetal acceleration)."""
     settle_until_s: float = -math.inf
     """Message time before which gravity-referenced I is left out (a new command's transient)."""
+    track_yaw_offset: bool = False
+    """Feed :attr:`yaw_offset` (only the steering trim, ``COMP_TRIM_DEG`` > 0, reads it)."""
 
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
@@ -451,7 +453,7 @@ class MagProcessor:
             st.last_reject = "spike"
             return False
         self.last_di = (d, i)
-        if imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
+        if self.track_yaw_offset and imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
             self.yaw_offset.add(time_s, rpy[2], calibrated, imu[1])
         if self.paused:
             st.paused += 1

@@ -86,7 +86,7 @@ class CompanionApp:
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
         self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
-                                self.comp_cfg.spike_nt)
+                                self.comp_cfg.spike_nt, track_yaw_offset=self.comp_cfg.trim_max_deg > 0.0)
         self.health = Health(self._limits())
         self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish, self.comp_cfg.feed_blend_mps)
         # the parts
@@ -187,6 +187,7 @@ class CompanionApp:
         self.comp_cfg = CompanionConfig.from_values(values)
         self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
                            self.comp_cfg.spike_nt)
+        self.mag.track_yaw_offset = self.comp_cfg.trim_max_deg > 0.0
         self.health.limits = self._limits()
         self.fc_view.position_publish = self.comp_cfg.position_publish
         self.fc_view.feed.blend_mps = self.comp_cfg.feed_blend_mps

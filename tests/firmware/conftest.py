@@ -142,14 +142,18 @@ def moving_pairs(truth, t0: float, t1: float, min_speed_mps: float = 3.0):
     return pairs
 
 
-def assert_forward_on(truth, t0: float, t1: float, course_deg: float, min_speed_mps: float = 3.0) -> None:
-    """The true track between t0 and t1 follows ``course_deg`` within 15 deg, heading first."""
+def assert_forward_on(truth, t0: float, t1: float, course_deg: float, min_speed_mps: float = 3.0) -> list[float]:
+    """The true track between t0 and t1 follows ``course_deg`` within 15 deg, heading first; returns
+    each judged pair's track error (deg)."""
     pairs = moving_pairs(truth, t0, t1, min_speed_mps)
     assert len(pairs) >= 5, f"vehicle did not move on course {course_deg} between {t0:.0f} and {t1:.0f} s"
+    errors = []
     for a, b in pairs:
         track = bearing_deg(a, b)
-        assert angle_diff_deg(track, course_deg) < 15.0, f"track {track:.0f} deg, commanded {course_deg:.0f} deg"
+        errors.append(angle_diff_deg(track, course_deg))
+        assert errors[-1] < 15.0, f"track {track:.0f} deg, commanded {course_deg:.0f} deg"
         assert angle_diff_deg(a.yaw_deg, track) < 30.0, f"heading {a.yaw_deg:.0f} deg against track {track:.0f}: reversing"
+    return errors
 
 
 # --- PX4 SITL with SIH ---------------------------------------------------------------------------

@@ -91,7 +91,7 @@ def test_the_trim_is_clamped_and_off_without_an_offset():
 def test_the_magnetometer_pipeline_measures_the_fc_yaw_error_and_ignores_turns():
     """MagProcessor feeds its tracker from the FC's attitude and the same instant's IMU: a 12 deg yaw
     error is measured while steady; samples turning faster than ``max_turn_radps`` are left out."""
-    proc = MagProcessor()
+    proc = MagProcessor(track_yaw_offset=True)
     decl, heading, error = -6.0, 135.0, 12.0
     mag, force = _sample(heading, 2.0, 3.0, decl)
     for k in range(300):
