@@ -50,9 +50,13 @@ class Engine:
 
 def batches(items: list[tuple[int, RunSpec]], workers: int, per_batch: int | None = None) -> list[list]:
     """Split the tasks into batches: about 8 per worker keeps everyone busy to the end while
-    amortising the round trip; at most 16 runs each so results arrive (and are stored) steadily."""
+    amortising the round trip; at most 16 runs each so results arrive (and are stored) steadily.
+    The last ``workers`` batches' worth of runs go one per task, so no worker is left finishing a
+    whole batch while the others idle (a batch of 9 Fc-MPC runs was a 2 s tail of a 15 s Monte
+    Carlo)."""
     size = per_batch or max(1, min(16, len(items) // (8 * max(1, workers)) or 1))
-    return [items[i:i + size] for i in range(0, len(items), size)]
+    whole = max(0, len(items) - size * max(1, workers)) // size * size   # runs in whole batches
+    return [items[i:i + size] for i in range(0, whole, size)] + [[item] for item in items[whole:]]
 
 
 def run_all(specs: Iterable[tuple[int, RunSpec]], engine: Engine) -> Iterator[tuple[int, RunOutput]]:

@@ -226,3 +226,17 @@ def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
         with open(tmp_path / expected / "pacific" / "runs.csv") as handle:
             [row] = list(csv.DictReader(handle))
         assert row["process_model"] == expected
+
+
+@pytest.mark.parametrize("count", [0, 1, 7, 64, 150, 1000, 10_000])
+@pytest.mark.parametrize("workers", [1, 2, 5])
+def test_batches_keep_every_run_once_in_order_and_end_one_run_per_task(count, workers):
+    from montecarlo.engines import batches
+
+    items = list(range(count))
+    split = batches(items, workers)
+    assert [item for batch in split for item in batch] == items
+    assert all(1 <= len(batch) <= 16 for batch in split)
+    # the tail a worker could be left alone with is one run, not a batch
+    tail = split[-workers:] if len(split) >= workers else split
+    assert all(len(batch) == 1 for batch in tail)
