@@ -21,7 +21,7 @@ field_n_nt, field_e_nt, field_d_nt  true field (WMM + disturbance) NED at the tr
 dist_n_nt, dist_e_nt, dist_d_nt     storm disturbance part of it, nT
 decl_deg, incl_deg true declination / inclination of the true field
 distance_m         path length flown
-remaining_m        geodesic distance from the true position to the scenario destination
+remaining_m        geodesic distance from the true position to the scenario destination (Vincenty, 0.1 mm)
 est_lat_deg, est_lon_deg  last position estimate the companion sent (MAV_CMD_EXTERNAL_POSITION_ESTIMATE), empty if none
 faults             active faults, ``kind`` or ``kind=value``, separated by ``;``
 boot_s             the autopilot's boot time (its ``time_boot_ms`` / 1000): ``time_s`` until an

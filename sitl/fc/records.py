@@ -17,7 +17,7 @@ from datetime import datetime
 from pathlib import Path
 
 from companion import wrap_2pi
-from companion.nav.geo import geodesic_distance_m
+from companion.nav.geo import geodesic_inverse
 from sitl.truthlog import TlogWriter, TruthLog
 from sitl.world.magnetic import decl_incl_from_ned
 
@@ -64,7 +64,8 @@ class Records:
         att = v.true_attitude()
         g = guidance
         sc = v.scenario
-        remaining = geodesic_distance_m(s.lat_deg, s.lon_deg, sc.dest_lat_deg, sc.dest_lon_deg)
+        # Vincenty (within 0.1 mm): geographiclib's Inverse here was a tenth of the simulator's time
+        remaining = geodesic_inverse(s.lat_deg, s.lon_deg, sc.dest_lat_deg, sc.dest_lon_deg)[0]
         est = v.ext_estimate
         self.last_log_us = v.clock.t_us
         self.truth_log.write({

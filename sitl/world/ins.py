@@ -47,10 +47,13 @@ def expm_times(f: np.ndarray, dt_s: float, x: np.ndarray) -> np.ndarray:
     (``dt / pieces`` at most :data:`TAYLOR_PIECE_S`); see the module docstring for its accuracy."""
     pieces = max(1, math.ceil(dt_s / TAYLOR_PIECE_S))
     a = f * (dt_s / pieces)
+    term = np.empty_like(x)
     for _ in range(pieces):
-        y = x
-        for k in range(TAYLOR_TERMS, 0, -1):
-            y = x + (a @ y) * (1.0 / k)
+        y = x.copy()
+        for k in range(TAYLOR_TERMS, 0, -1):     # in place: the same operations, no temporaries
+            np.dot(a, y, out=term)
+            term *= 1.0 / k
+            np.add(x, term, out=y)
         x = y
     return x
 
