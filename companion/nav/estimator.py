@@ -84,7 +84,8 @@ def filter_settings(config) -> FilterSettings:
         r_min_deg=config.filter_rmin_deg, r_min_nt=config.filter_rmin_nt,
         bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
                       config.bias_qa_deg, config.bias_qa_nt, config.local_err_deg, config.local_err_nt,
-                      config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt),
+                      config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
+                      bool(config.bias_qa_adapt)),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps))

@@ -95,6 +95,7 @@ ACTIVE_OFF = 1.2     # ... and below this for RELEASE_STEPS steps in a row it is
 RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias let go too early
                      # is absorbed into the INS error states (measured: long storm 52 km without
                      # the hold, 14 km with it, 4 seeds)
+ADAPT_GAIN = 0.5     # covariance matching: the active noise's scale moves by (NIS / m)^ADAPT_GAIN a step
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,7 @@ class BiasSpec:
     local_length_m: float = 25_000.0
     qd_deg_rkm: float = 0.0
     qd_nt_rkm: float = 0.0
+    qa_adapt: bool = False
 
     @property
     def has_local(self) -> bool:
@@ -215,6 +217,7 @@ class NavigationFilter:
         self.kf = kf
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
+        self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
 
     # --- state --------------------------------------------------------------------------------
     @property
@@ -251,10 +254,10 @@ class NavigationFilter:
     def snapshot(self) -> tuple:
         """Everything a step changes, to go back to (:meth:`restore`)."""
         return (self.kf.x.copy(), self.kf.P.copy(), self.process.snapshot(), self.monitor.snapshot(),
-                self.last_nis)
+                self.last_nis, self.qa_scale)
 
     def restore(self, state: tuple) -> None:
-        x, p, process, monitor, self.last_nis = state
+        x, p, process, monitor, self.last_nis, self.qa_scale = state
         self.kf.x, self.kf.P = x.copy(), p.copy()
         self.process.restore(process)
         self.monitor.restore(monitor)
@@ -265,7 +268,7 @@ class NavigationFilter:
         if dt_s <= 0.0:
             return
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
-        q = self._bias_qa if self.monitor.active else self._bias_q
+        q = self._bias_qa * self.qa_scale if self.monitor.active else self._bias_q
         k, nb = self.process.n, self.nb
         size = k + nb + self.nl
         transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
@@ -319,8 +322,22 @@ class NavigationFilter:
         y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors)
         nis, whitened = self._update(y, h, r)
         self.last_nis = nis
-        self.monitor.observe(whitened)
+        was_active = self.monitor.active
+        if self.monitor.observe(whitened) and self.settings.bias.qa_adapt:
+            self._match_active_noise(was_active)
         return nis
+
+    def _match_active_noise(self, was_active: bool) -> None:
+        """Covariance matching of the active bias noise: a disturbance starts at the configured
+        ``q_a``; then each step its scale moves by ``(NIS / m)^ADAPT_GAIN`` of the monitor's
+        averaged NIS, so innovations larger than the filter predicts raise it and smaller ones
+        (a random walk so loose that the bias absorbs every measurement) lower it, between the
+        quiet ``q`` and ``q_a`` itself."""
+        if not was_active:
+            self.qa_scale = 1.0
+            return
+        floor = float(np.max(self._bias_q / np.maximum(self._bias_qa, 1e-300)))
+        self.qa_scale = min(1.0, max(floor, self.qa_scale * self.monitor.average ** ADAPT_GAIN))
 
     def innovation_nis(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,

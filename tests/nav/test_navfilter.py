@@ -336,3 +336,45 @@ def test_heading_free_standard_errors_follow_from_f_and_i():
     se_h, se_z = hz_standard_errors(f, incl, se_f, se_i)
     assert se_h == pytest.approx(np.std(fs * np.cos(incls)), rel=0.03)
     assert se_z == pytest.approx(np.std(fs * np.sin(incls)), rel=0.03)
+
+
+@pytest.mark.parametrize("adapt", [False, True])
+def test_covariance_matching_scales_the_active_bias_noise_between_quiet_and_active(model, adapt):
+    """FUS_BQA_ADAPT: while a disturbance is active, innovations far smaller than the filter
+    predicts (the bias walk so loose that it absorbs every measurement) lower the active noise's
+    scale by (NIS / m)^ADAPT_GAIN of the averaged NIS a step, down to the quiet walk and never
+    below; innovations far larger hold it at the configured FUS_BQA_* and never above; the
+    predict then walks the biases at the scaled noise (by hand). Without it the scale stays 1."""
+    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_adapt=adapt)
+    settings = FilterSettings(bias=spec)
+    process = DeadReckoningProcess(settings.dead_reckoning, *START, pos_sigma_m=5.0)
+    elements = ELEMENT_SETS[ElementSet.PAPER]
+    flt = NavigationFilter(process, elements, settings, model, ALT, YEAR)
+    k = process.n
+    s_true = elements.values(model.elements(*START, ALT, YEAR))
+    flt.monitor.active, flt.monitor.activations, flt.monitor.average = True, 1, 1.0   # a storm under way
+    scales = []
+    for _ in range(12):                     # standing still, measuring the model exactly: NIS ~ 0
+        flt.predict(360.0, np.zeros(2), START[0])
+        flt.update_elements(s_true, None, standard_errors=np.array([0.002, 0.002]))
+        scales.append(flt.qa_scale)
+    floor = 0.002 / 0.05
+    if not adapt:
+        assert scales == [1.0] * 12
+        return
+    assert all(b <= a for a, b in zip(scales, scales[1:])) and scales[0] < 1.0
+    assert scales[-1] == pytest.approx(floor) and min(scales) >= floor
+    before = np.diag(flt.kf.P)[k:k + 2].copy()
+    flt.predict(3600.0, np.zeros(2), START[0])     # an hour: the biases walk at the scaled active noise
+    np.testing.assert_allclose(np.diag(flt.kf.P)[k:k + 2] - before, (np.array([0.05, 0.05]) * floor) ** 2,
+                               rtol=1e-9)
+    for _ in range(6):                      # then far too loud: back up, but not above FUS_BQA_*
+        flt.predict(360.0, np.zeros(2), START[0])
+        flt.update_elements(s_true + np.array([0.3, -0.3]), None, standard_errors=np.array([0.002, 0.002]))
+        scales.append(flt.qa_scale)
+    assert scales[-1] == 1.0 and max(scales) == 1.0
+    # a rewind (the estimator's snapshot) takes the scale back with everything else
+    state = flt.snapshot()
+    flt.qa_scale = 0.5
+    flt.restore(state)
+    assert flt.qa_scale == 1.0
