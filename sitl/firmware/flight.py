@@ -112,9 +112,12 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
     denied_at = math.nan
     status, message = "error", ""
     # SIGTERM (a supervisor, `kill`, `timeout`) stops the flight as Ctrl-C does: the records and the
-    # result are still written (it used to end the process with nothing but the companion's steps)
-    old_term = signal.signal(signal.SIGTERM, _raise_interrupt) \
-        if threading.current_thread() is threading.main_thread() else None
+    # result are still written (it used to end the process with nothing but the companion's steps).
+    # SIGINT gets the handler explicitly too: a job started in the background by a non-interactive
+    # shell inherits SIGINT ignored, and `kill -INT` then did nothing (fcmpc-fly's stand-in path,
+    # fcmpc_fly.runner._Interrupts, already installs its own)
+    old_handlers = {signum: signal.signal(signum, _raise_interrupt) for signum in (signal.SIGINT, signal.SIGTERM)} \
+        if threading.current_thread() is threading.main_thread() else {}
     try:
         monitor = rig.start()
         companion = subprocess.Popen(
@@ -164,8 +167,8 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
         if monitor is not None:
             monitor.close()
         rig.stop()
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, old_term)
+        for signum, handler in old_handlers.items():
+            signal.signal(signum, handler)
     truth = _write_truth(out / "truth.csv", monitor.truth if monitor is not None else [])
     return FirmwareRun(status, message, truth, time.monotonic() - wall0,
                        companion.returncode if companion is not None else None, denied_at)

@@ -151,10 +151,12 @@ def test_main_job_says_in_one_line_when_the_firmware_is_missing(tmp_path):
     assert not (tmp_path / "run").exists()                          # nothing written for a run that never started
 
 
-def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "sigint-in-background"])
+def test_main_job_stopped_by_a_signal_still_writes_its_records(tmp_path, signum):
     """``fcmpc-fly --fc ardupilot`` stopped by SIGTERM (a supervisor, ``kill``, ``timeout``) writes the
     truth, the result and the summary as Ctrl-C does (the full Pacific run of 2026-12-01, stopped so,
-    left only the companion's steps)."""
+    left only the companion's steps). SIGINT stops it too when it was started as a background job
+    of a non-interactive shell, which starts it with SIGINT ignored (``kill -INT`` once did nothing)."""
     import json
     import subprocess
     import sys
@@ -163,6 +165,9 @@ def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
     from tests.firmware.conftest import _TAKEN, REPO, _binary_or_skip
     from tests.processes import Lines, reaped
 
+    def as_background_job() -> None:       # what `cmd &` in a script does to SIGINT
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
     _binary_or_skip()
     instance = free_instance(first=71, taken=_TAKEN)
     _TAKEN.add(instance)
@@ -170,14 +175,15 @@ def test_main_job_stopped_by_sigterm_still_writes_its_records(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "scripts.fly", "--fc", "ardupilot", "--fc-instance", str(instance),
                              "--short", "--short-km", "20", "--no-tlog", "--no-plot",
                              "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=as_background_job if signum == signal.SIGINT else None)
     with reaped(proc):
         lines = Lines(proc.stderr)
         for _ in range(2):      # the second progress line (30 s of wall time apart): the flight is under way
             assert lines.wait_for(" h simulated, ", WALL_S) is not None, lines.seen
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(signum)
         stdout, _ = proc.communicate(timeout=120)
     result = json.loads((out / "result.json").read_text())
-    assert result["status"] == "interrupted" and "SIGTERM" in result["message"], result
+    assert result["status"] == "interrupted" and signal.Signals(signum).name in result["message"], result
     assert stdout.startswith("fcmpc-fly: interrupted before arriving"), stdout
     assert len((out / "truth.csv").read_text().splitlines()) > 10     # the samples recorded until then
