@@ -218,6 +218,7 @@ class NavigationFilter:
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
+        self._qa_floor = float(np.max(self._bias_q / np.maximum(self._bias_qa, 1e-300)))   # ... down to the quiet walk
 
     # --- state --------------------------------------------------------------------------------
     @property
@@ -336,8 +337,7 @@ class NavigationFilter:
         if not was_active:
             self.qa_scale = 1.0
             return
-        floor = float(np.max(self._bias_q / np.maximum(self._bias_qa, 1e-300)))
-        self.qa_scale = min(1.0, max(floor, self.qa_scale * self.monitor.average ** ADAPT_GAIN))
+        self.qa_scale = min(1.0, max(self._qa_floor, self.qa_scale * self.monitor.average ** ADAPT_GAIN))
 
     def innovation_nis(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
