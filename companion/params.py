@@ -159,7 +159,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQD_NT", float, 7.5, 0.0, 1000.0, "nT/rt(km)", "random walk of the F/H/Z bias states per distance travelled (200 nT in 800 km)"),
     _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
-    _p("FUS_BQA_ADAPT", int, 0, 0, 1, "", "while a disturbance is active: 0 the bias states walk at FUS_BQA_*, 1 at FUS_BQA_* scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*"),
+    _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while a disturbance is active: 1 (default) the bias states walk at FUS_BQA_* scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
     _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled"),

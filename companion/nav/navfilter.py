@@ -118,7 +118,7 @@ class BiasSpec:
     local_length_m: float = 25_000.0
     qd_deg_rkm: float = 0.0
     qd_nt_rkm: float = 0.0
-    qa_adapt: bool = False
+    qa_adapt: bool = True
 
     @property
     def has_local(self) -> bool:
