@@ -3,6 +3,10 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,6 +120,29 @@ def test_local_pool_of_two_gives_the_same_results_as_one_process():
     one = dict(run_all(specs, Engine("local", 1)))
     two = dict(run_all(specs, Engine("local", 2)))
     assert all(_without_wall(one[i]) == _without_wall(two[i]) for i in one)
+
+
+# a fresh interpreter whose numpy loaded BLAS with the machine's default threads, then the pool
+_BLAS_PROBE = """
+import json, threadpoolctl, numpy
+from montecarlo.engines import local_pool
+parent = [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+with local_pool(2) as pool:
+    workers = [[i["num_threads"] for i in info if i["user_api"] == "blas"]
+               for info in pool.map(threadpoolctl.threadpool_info, range(4))]
+print(json.dumps({"parent": parent, "workers": workers}))
+"""
+
+
+def test_local_pool_workers_run_one_blas_thread_although_the_parent_loaded_more():
+    """Forked workers inherit the BLAS the parent loaded: the environment variables come too late."""
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    done = subprocess.run([sys.executable, "-c", _BLAS_PROBE], env=env, capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1], check=True)
+    threads = json.loads(done.stdout.strip().splitlines()[-1])
+    if max(threads["parent"], default=1) < 2:
+        pytest.skip("BLAS runs one thread here anyway: nothing to pin")
+    assert threads["workers"] and all(counts == [1] * len(counts) and counts for counts in threads["workers"])
 
 
 SWEEP = ["--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
