@@ -221,7 +221,7 @@ class PositionEstimator:
         start = offset_position(prior[0], prior[1], -float(lag_en_m[0]), -float(lag_en_m[1]))
         try:
             fix = element_fix(self.model, self.steering, target, float(start[0]), float(start[1]),
-                              self.config.alt_m, self.config.year)
+                              self.config.alt_m, self.config.year, report_at_fix=False)   # the position is all we use
         except PositionFixError:
             return None
         moved = offset_position(fix.lat_deg, fix.lon_deg, float(lag_en_m[0]), float(lag_en_m[1]))

@@ -203,6 +203,7 @@ def element_fix(
     max_step_m: float = 200e3,
     max_condition: float = 1e6,
     step_m: float | None = None,
+    report_at_fix: bool = True,
 ) -> PositionFix:
     """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
 
@@ -212,7 +213,9 @@ def element_fix(
     central differences of +-``step_m`` when given), shorten dp
     to at most ``max_step_m`` metres, and move with :func:`companion.nav.geo.offset_position`.
     It has converged once a step is shorter than ``tol_m`` metres; the fix is the position after
-    that step, with its residual and condition.
+    that step, with its residual and condition there (``report_at_fix`` False: those of the
+    iterate before it, less than ``tol_m`` away, which saves one model evaluation; the position
+    is the same).
 
     Element contours can cross more than once on the globe; the iteration finds the crossing the
     prior leads to, so the prior should be within a few hundred km. Raises PositionFixError for
@@ -263,6 +266,8 @@ def element_fix(
         lat, lon = float(new_lat), float(new_lon)
         if abs(lat) > _MAX_FIX_LAT_DEG:
             raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; {where}")
+        if not report_at_fix and last_step_m < tol_m:
+            return PositionFix(lat, lon, iteration + 1, residual_norm, condition, gradient)
     raise PositionFixError(
         f"no convergence within {max_iter} iterations: {where}, last Newton step {last_step_m:.3g} m "
         f"(target {elements.label} = {tuple(float(v) for v in target)})"

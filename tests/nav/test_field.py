@@ -348,6 +348,32 @@ def test_fix_recovers_true_position_from_a_prior_20_to_50_km_away(year: float) -
         assert 1.0 <= fix.condition < 1e3
 
 
+def test_fix_without_the_report_at_the_fix_lands_on_the_same_position_one_evaluation_sooner(
+        wmm2020: WorldMagneticModel) -> None:
+    rng = np.random.default_rng(7)
+    calls = {"n": 0}
+    counted = wmm2020.ned_and_slopes
+
+    def counting(*args):
+        calls["n"] += 1
+        return counted(*args)
+
+    for _ in range(20):
+        lat, lon = rng.uniform(*PACIFIC_BOX["lat"]), rng.uniform(*PACIFIC_BOX["lon"])
+        truth = wmm2020.elements(lat, lon, 0.0, PAPER_EPOCH)
+        measured = (truth.decl_deg + rng.normal(0.0, 0.01), truth.incl_deg + rng.normal(0.0, 0.01))
+        prior = geodesic_direct(lat, lon, rng.uniform(0.0, 2.0 * math.pi), rng.uniform(0.0, 30e3))
+        wmm2020.ned_and_slopes, calls["n"] = counting, 0
+        try:
+            full = geomagnetic_fix(wmm2020, *measured, *prior, 0.0, PAPER_EPOCH)
+            full_calls, calls["n"] = calls["n"], 0
+            quick = geomagnetic_fix(wmm2020, *measured, *prior, 0.0, PAPER_EPOCH, report_at_fix=False)
+        finally:
+            del wmm2020.ned_and_slopes
+        assert (quick.lat_deg, quick.lon_deg, quick.iterations) == (full.lat_deg, full.lon_deg, full.iterations)
+        assert calls["n"] == full_calls - 1
+
+
 def test_fix_step_limit_bounds_each_move(wmm2020: WorldMagneticModel) -> None:
     truth = wmm2020.elements(30.0, 155.0, 0.0, PAPER_EPOCH)
     prior = geodesic_direct(30.0, 155.0, 0.5, 50e3)
