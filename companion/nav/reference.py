@@ -14,7 +14,9 @@ from geographiclib.geodesic import Geodesic
 
 from companion.nav.geo import WGS84, metres_per_degree
 
-__all__ = ["ReferencePath"]
+__all__ = ["COARSE", "ReferencePath"]
+
+COARSE = 16    # the nearest sample is searched among every 16th first, then beside it
 
 
 @lru_cache(maxsize=16)
@@ -39,13 +41,24 @@ class ReferencePath:
     def __init__(self, start: tuple[float, float], dest: tuple[float, float], spacing_m: float = 250.0) -> None:
         self.length_m, self.along_m, self.lat_deg, self.lon_deg = _sampled(
             float(start[0]), float(start[1]), float(dest[0]), float(dest[1]), float(spacing_m))
+        self._coarse = np.unique(np.append(np.arange(0, len(self.lat_deg), COARSE), len(self.lat_deg) - 1))
 
     def nearest_index(self, lat_deg: float, lon_deg: float) -> int:
-        """Index of the sample nearest to a position (local metric; exact enough at 250 m spacing)."""
+        """Index of the sample nearest to a position (local metric; exact enough at 250 m spacing).
+        Along a gently curved path the distance is unimodal in the index, so the nearest sample
+        lies within :data:`COARSE` samples of the nearest of every ``COARSE``-th: two small
+        searches instead of one over the whole path (the same index; tested)."""
         east_per_deg, north_per_deg = metres_per_degree(lat_deg)
-        d_east = ((self.lon_deg - lon_deg + 180.0) % 360.0 - 180.0) * east_per_deg
-        d_north = (self.lat_deg - lat_deg) * north_per_deg
-        return int(np.argmin(d_east * d_east + d_north * d_north))
+        coarse = self._coarse
+        rough = int(coarse[np.argmin(self._distance2(coarse, lat_deg, lon_deg, east_per_deg, north_per_deg))])
+        near = np.arange(max(0, rough - COARSE), min(len(self.lat_deg), rough + COARSE + 1))
+        return int(near[np.argmin(self._distance2(near, lat_deg, lon_deg, east_per_deg, north_per_deg))])
+
+    def _distance2(self, index: np.ndarray, lat_deg: float, lon_deg: float, east_per_deg: float,
+                   north_per_deg: float) -> np.ndarray:
+        d_east = ((self.lon_deg[index] - lon_deg + 180.0) % 360.0 - 180.0) * east_per_deg
+        d_north = (self.lat_deg[index] - lat_deg) * north_per_deg
+        return d_east * d_east + d_north * d_north
 
     def aim_point(self, lat_deg: float, lon_deg: float, lookahead_m: float) -> tuple[float, float]:
         """The path point ``lookahead_m`` beyond the one nearest to the position (the end at most)."""

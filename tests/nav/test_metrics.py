@@ -21,6 +21,7 @@ from companion.nav.metrics import (
     step_lengths_m,
     track_metrics,
 )
+from companion.nav.geo import metres_per_degree
 from companion.nav.reference import ReferencePath
 
 WGS84 = Geodesic.WGS84
@@ -185,3 +186,16 @@ def test_aim_point_stops_at_the_destination():
     aim = path.aim_point(lat, lon, 10000.0)
     assert WGS84.Inverse(*aim, *DEST)["s12"] < 1e-3
     assert path.length_m == pytest.approx(LINE.s13)
+
+
+def test_nearest_index_of_the_two_step_search_is_the_full_searchs():
+    """Points up to 3000 km off the route and beyond both ends, against the argmin over every sample."""
+    path = ReferencePath(START, DEST)
+    rng = np.random.default_rng(3)
+    lat = rng.uniform(min(START[0], DEST[0]) - 15.0, max(START[0], DEST[0]) + 15.0, 400)
+    lon = rng.uniform(min(START[1], DEST[1]) - 15.0, max(START[1], DEST[1]) + 15.0, 400)
+    for la, lo in zip(lat, lon):
+        east_per_deg, north_per_deg = metres_per_degree(float(la))
+        d_east = ((path.lon_deg - lo + 180.0) % 360.0 - 180.0) * east_per_deg
+        d_north = (path.lat_deg - la) * north_per_deg
+        assert path.nearest_index(float(la), float(lo)) == int(np.argmin(d_east ** 2 + d_north ** 2))
