@@ -109,6 +109,29 @@ def test_averager_splits_by_time_and_reports_the_window():
     assert not avg.take(20.0).valid
 
 
+def test_averager_keeps_a_long_periods_later_samples_in_order_across_takes():
+    """Thousands of samples (the buffer grows many times), taken in uneven pieces, with the
+    declination wrapping across 180 deg in the part kept for the next period."""
+    avg = PeriodAverager()
+    times = np.arange(1, 5001) * 0.1                       # 0.1 .. 500 s
+    decl = (175.0 + times * 0.004 + 180.0) % 360.0 - 180.0   # 175 deg -> -165 deg, through 180
+    for t, d in zip(times, decl):
+        avg.add(float(t), float(d), 40.0 + 0.001 * float(t))
+    previous = 0.0
+    for end in (123.45, 300.0, 500.0):
+        piece = avg.take(end)
+        in_piece = (times > previous) & (times <= end)
+        assert piece.count == int(in_piece.sum())
+        assert (piece.first_time_s, piece.last_time_s) == (times[in_piece][0], times[in_piece][-1])
+        assert piece.mean_time_s == pytest.approx(times[in_piece].mean(), abs=1e-9)
+        unwrapped = (175.0 + times[in_piece] * 0.004).mean()           # the true mean, before wrapping
+        assert (piece.decl_deg - unwrapped + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-9)
+        assert piece.incl_deg == pytest.approx((40.0 + 0.001 * times[in_piece]).mean(), abs=1e-12)
+        assert len(avg) == int((times > end).sum())
+        previous = end
+    assert not avg.take(600.0).valid
+
+
 def test_attitude_propagation_with_body_rates():
     att = AttitudeState.from_body_rates(10.0, 0.0, 0.0, math.radians(90.0), 0.0, 0.0, math.radians(6.0))
     assert att.yaw_rate_radps == pytest.approx(math.radians(6.0))       # level: Euler rate = body rate
