@@ -47,7 +47,7 @@ import numpy as np
 
 from companion.frames import Matrix3, Vector3, body_to_ned
 from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import MAD_TO_SIGMA, ratio_inclination_deg
+from companion.nav.inclination import mad_standard_error, ratio_inclination_deg
 from companion.nav.steering import YawOffsetTracker
 
 __all__ = [
@@ -270,9 +270,7 @@ class AveragedDI:
 def _robust_se(column: np.ndarray) -> float:
     """``1.4826 MAD / sqrt(n)`` of one column (NaN below two samples), as
     :func:`companion.nav.inclination.robust_standard_error`."""
-    if column.size < 2:
-        return math.nan
-    return MAD_TO_SIGMA * float(np.median(np.abs(column - np.median(column)))) / math.sqrt(column.size)
+    return mad_standard_error(column)
 
 
 class PeriodAverager:

@@ -11,7 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
+from companion.nav.inclination import MAD_TO_SIGMA, mad_standard_error, robust_standard_error
 from companion.nav.magnetometer import (
     AttitudeState, MagProcessor, PeriodAverager, gravity_inclination_deg,
 )
@@ -142,3 +145,18 @@ def test_processor_feeds_the_ratio_and_leaves_out_turns_and_the_settling_time():
     result = proc.take(t)
     assert result.count == 300 and result.grav_count == 300 - 50 - 50
     assert result.incl_grav_deg == pytest.approx(I_TRUE, abs=1e-9)
+
+
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=2, max_size=60))
+def test_mad_standard_error_is_numpys_median_formula_to_the_bit(values):
+    """The partition medians give exactly what np.median gives (odd and even counts, ties)."""
+    v = np.array(values)
+    expected = MAD_TO_SIGMA * float(np.median(np.abs(v - np.median(v)))) / math.sqrt(v.size)
+    assert mad_standard_error(v) == expected
+    assert mad_standard_error(v) == robust_standard_error(values) or \
+        math.isclose(mad_standard_error(v), robust_standard_error(values), rel_tol=1e-12, abs_tol=1e-300)
+
+
+def test_mad_standard_error_is_nan_with_a_nan_or_fewer_than_two_values():
+    assert math.isnan(mad_standard_error(np.array([1.0])))
+    assert math.isnan(mad_standard_error(np.array([1.0, math.nan, 2.0])))
