@@ -95,10 +95,13 @@ class Judgement:
 
 
 def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, f_nt: float,
-                bias: np.ndarray, lat_deg: float, lon_deg: float) -> float:
-    """``F_measured - bias_F - F_model(lat, lon)``, nT (``bias_F`` 0 when the set has no F)."""
+                bias: np.ndarray, lat_deg: float, lon_deg: float, field=None) -> float:
+    """``F_measured - bias_F - F_model(lat, lon)``, nT (``bias_F`` 0 when the set has no F);
+    ``field``: the model's elements there, when the caller has them already."""
     f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
-    return float(f_nt - f_bias - float(model.elements(lat_deg, lon_deg, alt_m, year).f_nt))
+    if field is None:
+        field = model.elements(lat_deg, lon_deg, alt_m, year)
+    return float(f_nt - f_bias - float(field.f_nt))
 
 
 def navigator_bias(mission) -> tuple[np.ndarray, np.ndarray]:
@@ -163,7 +166,7 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     'f_band'
     """
     field = model.elements(pred_lat_deg, pred_lon_deg, alt_m, year)
-    f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg) - f_reference_nt
+    f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg, field) - f_reference_nt
     if not abs(f_offset) <= limits.f_band_nt:
         return Judgement(False, "f_band", f_offset_nt=f_offset)
     removed = bias if fix_bias is None else np.asarray(fix_bias, dtype=float)
