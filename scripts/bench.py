@@ -2,6 +2,7 @@
 
     fcmpc-bench                 # everything (a few minutes on 2 cores)
     fcmpc-bench --quick         # skip the 150-mission Monte Carlo and the closed-loop parts
+    fcmpc-bench --repeat 3      # each part three times in a row: per row the median run, and the range
 
 Each row prints our median, the anchors it is judged against (the README's figure from before
 issue 13, measured on a faster machine, and the baseline measured on the 2-core development
@@ -18,11 +19,13 @@ the tests.
 """
 from __future__ import annotations
 
+import argparse
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -210,22 +213,63 @@ def bench_companion() -> list[Row]:
 def _run(argv: list[str] | None) -> int:
     parser = ArgumentParser(prog="fcmpc-bench", description="fcmpc benchmarks (medians)")
     parser.add_argument("--quick", action="store_true", help="skip the Monte Carlo and the closed-loop parts")
+    parser.add_argument("--repeat", type=_positive_int, default=1,
+                        help="run each part N times in a row and print, per row, the median run and the range "
+                             "(a shared machine's speed moves between runs minutes apart)")
     args = parser.parse_args(argv)
     sections: list[Callable[[], list[Row]]] = [bench_mpc, bench_field, bench_mission_step]
     if not args.quick:
         sections += [bench_montecarlo, bench_simulator, bench_companion]
     rows: list[Row] = []
     for section in sections:
-        try:
-            rows += section()
-        except Exception as err:  # noqa: BLE001 -- a missing part must not hide the others' numbers
-            rows.append((section.__name__, f"FAILED: {type(err).__name__}: {err}", "", ""))
+        runs = []
+        for _ in range(args.repeat):
+            try:
+                runs.append(section())
+            except Exception as err:  # noqa: BLE001 -- a missing part must not hide the others' numbers
+                runs.append([(section.__name__, f"FAILED: {type(err).__name__}: {err}", "", "")])
+        rows += median_rows(runs)
         print(f"  ... {section.__name__} done", file=sys.stderr)
     print(format_rows(rows))
     print(f"\n(load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores: "
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")
     return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"needs a whole number >= 1, got {text!r}")
+    return value
+
+
+_LEADING_NUMBER = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)")
+
+
+def median_rows(runs: list[list[Row]]) -> list[Row]:
+    """One row per benchmark from repeated runs of a section: the run whose figure is the median
+    (the lower median for an even count), its anchors as that run printed them, and the range of
+    the figures over the runs after it. Rows are matched by name; a row whose figure is not a
+    number (a scenario name, a failure) is the first run's."""
+    if len(runs) == 1:
+        return list(runs[0])
+    merged: list[Row] = []
+    for row in runs[0]:
+        same = [r for run in runs for r in run if r[0] == row[0]]
+        numbers = [_LEADING_NUMBER.match(r[1]) for r in same]
+        if not all(numbers):
+            merged.append(row)
+            continue
+        values = [float(m.group(1)) for m in numbers]
+        order = sorted(range(len(values)), key=values.__getitem__)
+        middle = same[order[(len(order) - 1) // 2]]
+        merged.append((middle[0], f"{middle[1]} [{min(values):g}-{max(values):g}, {len(values)} runs]",
+                       middle[2], middle[3]))
+    return merged
 
 
 def format_rows(rows: list[Row]) -> str:

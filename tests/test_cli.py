@@ -47,6 +47,7 @@ CASES = [
     ("fcmpc-montecarlo", ["--runs", "0"], "--runs"),
     ("fcmpc-montecarlo", ["--param", "MPC_S_AUTO=0", "--param", "NAV_DEST_LAT=-30"], "MPC_S_MIN_I"),   # Table 4 bounds refuse it
     ("fcmpc-bench", ["--quik"], "--quik"),
+    ("fcmpc-bench", ["--repeat", "0"], "--repeat"),
 ]
 
 
