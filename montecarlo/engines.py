@@ -18,7 +18,7 @@ is not installed by any extra. Workers need the same package versions as the cli
 BLAS threads are pinned to one per worker, since the matrices are 2x2 to 15x15: by environment
 for the engines that start fresh processes (Dask, Ray), by threadpoolctl in the local pool's
 forked workers, which inherit the BLAS the parent has already loaded (a library caller whose
-numpy runs two threads per core made a 50 x 3 Monte Carlo take 23.5 s instead of 10.7 s).
+numpy runs two threads per core made a 50 x 3 Monte Carlo take 23.5 s instead of 11.7 s).
 """
 from __future__ import annotations
 
