@@ -94,9 +94,10 @@ def local_pool(workers: int) -> ProcessPoolExecutor:
 
 def _local(items: list, workers: int) -> Iterator[tuple[int, RunOutput]]:
     if workers <= 1:
-        with threadpool_limits(1):
-            for index, spec in items:
-                yield index, run_specs([(index, spec)])[0][1]
+        for index, spec in items:
+            with threadpool_limits(1):   # for the run only: the caller's own numpy keeps its threads
+                output = run_specs([(index, spec)])[0][1]
+            yield index, output
         return
     with local_pool(workers) as pool:
         futures = [pool.submit(run_specs, batch) for batch in batches(items, workers)]

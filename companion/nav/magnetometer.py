@@ -267,12 +267,6 @@ class AveragedDI:
         return min(max(2.0 * (end_time_s - self.mean_time_s), 0.0), max_s)
 
 
-def _robust_se(column: np.ndarray) -> float:
-    """``1.4826 MAD / sqrt(n)`` of one column (NaN below two samples), as
-    :func:`companion.nav.inclination.robust_standard_error`."""
-    return mad_standard_error(column)
-
-
 class PeriodAverager:
     """Accumulates per-sample (time, D, I); :meth:`take` averages those up to a time.
 
@@ -331,8 +325,8 @@ class PeriodAverager:
             if body.any() else math.nan
         return AveragedDI(d, float(means[2]), n, float(means[0]), float(a[0, 0]), float(a[-1, 0]),
                           (float(means[3]), float(means[4]), float(means[5])), float(means[6]), incl_grav,
-                          int(grav.sum()), _robust_se(a[:, 1]), _robust_se(a[:, 2]), _robust_se(a[:, 6]),
-                          incl_grav_se, heading)
+                          int(grav.sum()), mad_standard_error(a[:, 1]), mad_standard_error(a[:, 2]),
+                          mad_standard_error(a[:, 6]), incl_grav_se, heading)
 
     def drop_before(self, time_s: float) -> None:
         rows = self._rows[:self._count]
