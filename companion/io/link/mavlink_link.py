@@ -55,6 +55,7 @@ class LinkStats:
     setpoints_refused: int = 0
     positions_fed: int = 0
     dropped_stamps: int = 0        # FC messages dropped by the clock's judgement
+    before_heartbeat: int = 0      # FC messages dropped because they came before its first heartbeat
     last_refusal: str = ""
 
 
@@ -109,7 +110,8 @@ class MavlinkLink(LinkOutputs):
         out = {"bad_frames": self.stats.bad_frames, "leftover_bytes": self.stats.leftover_bytes,
                "impostor_frames": self.peers.impostor_frames, "peers_evicted": self.peers.evicted,
                "stranger_datagrams_shed": self.peers.shed,
-               "dropped_stamps": self.stats.dropped_stamps, "out_of_order": self.clock.out_of_order,
+               "dropped_stamps": self.stats.dropped_stamps, "before_heartbeat": self.stats.before_heartbeat,
+               "out_of_order": self.clock.out_of_order,
                "far_future": self.clock.far_future, "far_past": self.clock.far_past,
                "fc_reboots": self.clock.reboots, "time_jumps": self.clock.jumps,
                "other_autopilots": sorted(self.peers.other_autopilots)}
@@ -276,13 +278,20 @@ class MavlinkLink(LinkOutputs):
         ids = self.peers.fc_ids
         if ids is None:
             return False
-        if not fc.detected:
-            fc.sysid, fc.compid = ids
-            fc.conventions = conventions_for(msg.autopilot) if msg.get_type() == "HEARTBEAT" else fc.conventions
-            if self._mav is not None:
-                self._mav.srcSystem = ids[0]
         if (msg.get_srcSystem(), msg.get_srcComponent()) != ids:
             return False
+        if not fc.detected:
+            # Nothing of the FC's is kept before the heartbeat that says which autopilot it is: one
+            # read can hold its ATTITUDE before that heartbeat, which pins it while the batch is
+            # parsed, and a message kept then started the companion on the default (ArduPilot)
+            # conventions against PX4 (wrong magnetometer messages, F -42,184 nT, every step excluded)
+            if msg.get_type() != "HEARTBEAT":
+                self.stats.before_heartbeat += 1
+                return False
+            fc.sysid, fc.compid = ids
+            fc.conventions = conventions_for(msg.autopilot)
+            if self._mav is not None:
+                self._mav.srcSystem = ids[0]
         if not self._judge_time(msg):
             self.stats.dropped_stamps += 1
             return False

@@ -169,3 +169,43 @@ def test_filter_calibrates_at_a_nav_start_start(rig, monkeypatch, fus_model):
     mission = app.mission
     assert mission.estimator is not None and mission.estimator.calibrate_start
     assert mission.start_sigma_m == app.nav_cfg.gps_sigma_m
+
+
+def test_px4s_messages_read_before_its_first_heartbeat_do_not_start_the_companion_as_ardupilot(tmp_path):
+    """PX4 already streaming when the companion starts listening: its ATTITUDE and SCALED_IMU wait
+    in the socket before its first HEARTBEAT, one read takes them all, and the heartbeat pins the
+    FC while the batch is parsed. Nothing before that heartbeat is kept, so the companion starts on
+    PX4's conventions (CI, 2026-12-02: it said "ArduPilot FC sysid 3 detected", asked for the wrong
+    magnetometer messages and excluded every step)."""
+    import socket as socket_module
+
+    from pymavlink import mavutil
+
+    from companion.app import AppOptions, CompanionApp
+
+    with socket_module.socket(socket_module.AF_INET, socket_module.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    app = CompanionApp(AppOptions(connect=f"udpin:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
+                                  log_dir=str(tmp_path / "log"), quiet=True, tlog=False))
+    app.open()
+    fc = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=3, source_component=1)
+    try:
+        for k in range(5):
+            fc.mav.attitude_send(20_000 + 20 * k, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+            fc.mav.scaled_imu_send(20_000 + 20 * k, 0, 0, -1000, 0, 0, 0, 200, 20, 400)
+        fc.mav.heartbeat_send(mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_PX4, 1, 4 << 16 | 3 << 24, 3)
+        fc.mav.system_time_send(0, 20_200)
+        app.link.wait_readable(5.0)           # all of it is queued: the companion's first read holds it
+        for _ in range(20):
+            app.spin(0.05)
+            if app.state != State.WAIT_FC:
+                break
+        assert app.state != State.WAIT_FC, "the PX4 heartbeat was not taken"
+        detected = [e for e in app.out.events if "detected" in e]
+        assert len(detected) == 1 and "PX4 FC sysid 3 detected" in detected[0], detected
+        assert app.link.fc.conventions.name == "PX4" and app.fc_view.family == app.link.fc.conventions.family
+        assert app.link.stats.before_heartbeat >= 1, "the batch did not hold messages before the heartbeat"
+    finally:
+        fc.close()
+        app.close()
