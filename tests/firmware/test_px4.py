@@ -48,6 +48,12 @@ QUADRANT_SPEED = 4.0
 REPO = Path(__file__).resolve().parents[2]
 
 
+def _next_phase_s(mon, after_s: float) -> float | None:
+    """Monitor time of the companion's first phase text after ``after_s`` that is not probe 2."""
+    later = [t for t, _, text in mon.texts_matching(" phase ", 191) if t > after_s and "phase probe2" not in text]
+    return later[0] if later else None
+
+
 def _offboard_samples(truth, t0: float, t1: float):
     return [s for s in truth if t0 <= s.time_s <= t1]
 
@@ -86,13 +92,18 @@ def test_offboard_engaged_held_and_every_quadrant_driven_forward(px4_factory, pr
     mon.pump(rig.said("phase probe2"), WALL_S, "second probing move")
     t1 = mon.texts_matching("phase probe1", 191)[0][0]
     t2 = mon.texts_matching("phase probe2", 191)[0][0]
-    mon.pump(lambda m: m.time_s >= t2 + PROBE_S, WALL_S, "end of the second probe")
-    held = _offboard_samples(mon.truth, t1 + 2.0, t2 + PROBE_S - 2.0)
+    mon.pump(lambda m: _next_phase_s(m, t2) is not None, WALL_S, "the step after the second probe")
+    # each probe is judged until 2 s before the step that ends it, as the monitor stamped that
+    # step's text: a probe-2 text that reached the monitor late (load) moved a window ending at
+    # t2 + PROBE_S - 2 into the cruise's turn of ~175 deg (15.02 deg off once in CI; measured, 8
+    # runs: the rover leaves the course 2.4-3.3 s after that end, 1 s of turn inside is 2-3 deg)
+    t3 = min(_next_phase_s(mon, t2), t2 + PROBE_S)
+    held = _offboard_samples(mon.truth, t1 + 2.0, t3 - 2.0)
     assert held and all(s.mode == OFFBOARD and s.armed for s in held), \
         f"left OFFBOARD: modes {sorted({hex(s.mode) for s in held})}"
     courses = [(90.0 - p) % 360.0 for p in probes]
-    assert_forward_on(mon.truth, t1 + 10.0, t2, courses[0], ROVER_MIN_SPEED)
-    assert_forward_on(mon.truth, t2 + 10.0, t2 + PROBE_S - 2.0, courses[1], ROVER_MIN_SPEED)
+    assert_forward_on(mon.truth, t1 + 10.0, t2 - 2.0, courses[0], ROVER_MIN_SPEED)
+    assert_forward_on(mon.truth, t2 + 10.0, t3 - 2.0, courses[1], ROVER_MIN_SPEED)
     assert not mon.texts_matching("mission failed", 191), mon.texts_matching("FcMPC", 191)
     assert not mon.texts_matching("stuck", 191), "SIH's magnetometer was judged stuck"
     # no period excluded for |F| (the f_band check): what HIGHRES_IMU's drifting field did ("nT off the
