@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import ratio_inclination_deg
+from companion.nav.inclination import mad_standard_error, ratio_inclination_deg
 from sitl.world.attitude import compass_yaw_rad
 
 __all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "robust_standard_errors",
@@ -107,17 +107,14 @@ def rotation_nb(roll, pitch, yaw) -> np.ndarray:
                      np.stack([-sp, sr * cp, cr * cp], -1)], -2)
 
 
-MAD_TO_SIGMA = 1.482602218505602
 STANDARD_GRAVITY = 9.80665
 SETTLE_S = 60.0     # the companion's gravity samples wait this long after a new command (its SETTLE_AFTER_COMMAND_S)
 
 
 def robust_standard_errors(values: np.ndarray) -> np.ndarray:
-    """``1.4826 MAD / sqrt(n)`` of each column of ``values`` (N, k); NaN below two samples."""
-    if len(values) < 2:
-        return np.full(values.shape[1], np.nan)
-    centre = np.median(values, axis=0)
-    return MAD_TO_SIGMA * np.median(np.abs(values - centre), axis=0) / math.sqrt(len(values))
+    """``1.4826 MAD / sqrt(n)`` of each column of ``values`` (N, k), the companion's own
+    :func:`companion.nav.inclination.mad_standard_error`; NaN below two samples."""
+    return np.array([mad_standard_error(np.ascontiguousarray(column)) for column in np.asarray(values).T])
 
 
 def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:
