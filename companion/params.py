@@ -159,6 +159,8 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQD_NT", float, 7.5, 0.0, 1000.0, "nT/rt(km)", "random walk of the F/H/Z bias states per distance travelled (200 nT in 800 km)"),
     _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
+    _p("FUS_BH_DEG", float, 0.1, 0.0, 5.0, "deg", "prior 1-sigma of each heading harmonic (cos, sin of psi and 2 psi) of the D/I calibration residual: a body-frame hard/soft-iron residual changes D and I when the vehicle turns; 0: no such states (before 2026-12-02)"),
+    _p("FUS_BH_NT", float, 200.0, 0.0, 5000.0, "nT", "prior 1-sigma of each heading harmonic of the F/H/Z calibration residual; 0: no such states (before 2026-12-02)"),
     _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while a disturbance is active: 1 (default) the bias states walk at FUS_BQA_* scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
@@ -395,6 +397,8 @@ class NavConfig(_FromRegistry):
     bias_qa_deg: float = _from("FUS_BQA_DEG")
     bias_qa_nt: float = _from("FUS_BQA_NT")
     bias_qa_adapt: int = _from("FUS_BQA_ADAPT")
+    bias_heading_deg: float = _from("FUS_BH_DEG")
+    bias_heading_nt: float = _from("FUS_BH_NT")
     local_err_deg: float = _from("FUS_GM_DEG")
     local_err_nt: float = _from("FUS_GM_NT")
     local_err_length_m: float = _from("FUS_GM_KM", 1000.0)

@@ -43,11 +43,23 @@ from companion.nav.navfilter import (
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
-__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
+__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings", "window_heading_rad"]
 
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
 FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only outside this innovation ellipse
+
+
+def window_heading_rad(meas, vel_en_mps: np.ndarray | None = None, min_speed_mps: float = 0.5) -> float:
+    """The true heading held over the measured window (rad from north): the magnetometer's
+    levelled magnetic heading plus the measured declination, else the course of the velocity
+    flown when moving faster than ``min_speed_mps``, else NaN (not known)."""
+    heading = meas.mag_heading_deg + meas.decl_deg
+    if math.isfinite(heading):
+        return math.radians(heading)
+    if vel_en_mps is not None and math.hypot(*vel_en_mps) > min_speed_mps:
+        return math.atan2(float(vel_en_mps[0]), float(vel_en_mps[1]))
+    return math.nan
 
 
 class FusionModel:
@@ -85,7 +97,7 @@ def filter_settings(config) -> FilterSettings:
         bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
                       config.bias_qa_deg, config.bias_qa_nt, config.local_err_deg, config.local_err_nt,
                       config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
-                      bool(config.bias_qa_adapt)),
+                      bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps))
@@ -139,6 +151,7 @@ class PositionEstimator:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
         self.filter = NavigationFilter(process, self.measured, self.settings, self.model, c.alt_m, c.year)
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
+        self.filter.set_heading(window_heading_rad(meas))
         if start_sigma_m is not None:
             self.filter.update_position(c.start_lat_deg, c.start_lon_deg, start_sigma_m, *self._ins)
             if c.calibrate and self.calibrate_start:
@@ -181,6 +194,7 @@ class PositionEstimator:
         have_ins = meas.has_ins
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
         f.predict(dt_s, vel_en_mps, lat_now)
+        f.set_heading(window_heading_rad(meas, vel_en_mps))
         if isinstance(f.process, InsProcess):
             if not have_ins:   # no INS this step: keep the covariance honest, steer on dead reckoning
                 return self._estimate(position=fallback)

@@ -7,7 +7,16 @@ F, H, Z in nT): what the measurement carries beyond the main-field model at the 
 calibration residual), each a random walk; then, when configured, one local model-error state
 per element (the part of the model's error that changes along the route, the crust): first-order
 Gauss-Markov in the *distance travelled*, ``m' = exp(-d / L) m`` with ``d = |v| dt``, its
-variance relaxing to ``sigma_local^2``, so standing still does not decorrelate it.
+variance relaxing to ``sigma_local^2``, so standing still does not decorrelate it; then, when
+configured, four heading states per element: the magnetometer's calibration residual, which sits
+in the body frame and so changes the elements as the vehicle turns. To first order a hard-iron
+offset ``o`` appears in the north-east-down field as ``R(psi) o`` and a soft-iron residual ``S``
+as ``R(psi) S R(psi)^T B``: a constant (carried by the bias state) plus the first and second
+harmonics of the true heading ``psi``, ``c^T [cos psi, sin psi, cos 2 psi, sin 2 psi]``, whose
+coefficients ``c`` are constants with prior 1-sigma ``heading_deg`` / ``heading_nt``. Their
+measurement columns are that row at the window's heading (:meth:`NavigationFilter.set_heading`);
+with the heading unknown they are zero and the residual's variance at a random heading,
+``2 sigma^2``, is added to R instead.
 
 Measurement form: the averaged elements directly, as innovations against the field model with
 its Jacobian (an extended Kalman filter), not a geomagnetic position fix with
@@ -16,9 +25,9 @@ where a fix would mix them through G^-1; (2) a fix needs a square, invertible G 
 where the contours are nearly parallel (the heading-free (I, F) contours are 23-27 deg apart on
 the Pacific route), while the innovation form only ever multiplies by G: a weak direction is
 simply little observed, with its covariance saying so; (3) three elements (D, I, F) weighted by
-their declared noise need no special case. With ``y = S_meas - S_model(p) - b - m``:
+their declared noise need no special case. With ``y = S_meas - S_model(p) - b - m - (I kron h(psi)) c``:
 
-    y ~ G J dx + db + dm + v,   H = [G J, I, I],   R = diag(sigma_element^2)
+    y ~ G J dx + db + dm + (I kron h(psi)) c + v,   H = [G J, I, I, I kron h(psi)],   R = diag(sigma_element^2)
 
 where ``J = d(true east, north) / d(state)`` comes from the process model and G is the model's
 gradient at the predicted position (:func:`companion.nav.field.element_gradient`), evaluated at
@@ -76,14 +85,17 @@ __all__ = [
     "NIS_ALPHA",
     "ONSET_STEPS",
     "RELEASE_STEPS",
+    "HARMONIC_TERMS",
     "BiasSpec",
     "DisturbanceMonitor",
     "FilterSettings",
     "NavigationFilter",
+    "harmonic_row",
     "measured_variance",
 ]
 
 HOUR_S = 3600.0
+HARMONIC_TERMS = 4   # heading states per element: cos, sin of the heading and of twice it
 NIS_ALPHA = 0.3      # weight of the newest step in the averaged NIS: about 3 steps of memory
 ACTIVE_ON = 3.5      # averaged NIS / m above this: a disturbance is active (see the module docstring)
 REACTIVE_ON = 2.0    # ... once one has been recognised in this mission: storms last hours, so the
@@ -105,7 +117,10 @@ class BiasSpec:
     sqrt(km) travelled (``qd_*_rkm``: the main-field model's error relative to the start-up
     calibration, which holds at the start and less the farther the vehicle goes); and the local model error:
     a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
-    ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0)."""
+    ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0); and
+    the calibration residual's dependence on the heading: prior 1-sigma ``heading_deg`` /
+    ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
+    the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0)."""
 
     sigma0_deg: float = 0.5
     sigma0_nt: float = 500.0
@@ -119,6 +134,8 @@ class BiasSpec:
     qd_deg_rkm: float = 0.0
     qd_nt_rkm: float = 0.0
     qa_adapt: bool = True
+    heading_deg: float = 0.0
+    heading_nt: float = 0.0
 
     @property
     def has_local(self) -> bool:
@@ -127,6 +144,16 @@ class BiasSpec:
     @staticmethod
     def per_element(names: tuple[str, ...], deg: float, nt: float) -> np.ndarray:
         return np.array([nt if name.endswith("_nt") else deg for name in names])
+
+
+def harmonic_row(heading_rad: float) -> np.ndarray:
+    """``cos psi, sin psi, cos 2 psi, sin 2 psi``: how a body-frame calibration residual enters
+    an element at true heading ``psi`` (rad), level. A hard-iron offset ``o`` appears in the
+    north-east-down field as ``R(psi) o`` (first harmonic), a soft-iron residual ``S`` as
+    ``R(psi) S R(psi)^T B`` (first harmonic through its vertical cross terms, second through
+    its horizontal block); each element is linear in that field error to first order."""
+    return np.array([math.cos(heading_rad), math.sin(heading_rad),
+                     math.cos(2.0 * heading_rad), math.sin(2.0 * heading_rad)])
 
 
 def measured_variance(standard_errors: np.ndarray, r_min: np.ndarray, r_declared: np.ndarray) -> np.ndarray:
@@ -204,16 +231,22 @@ class NavigationFilter:
         self._bias_qd = b.per_element(names, b.qd_deg_rkm, b.qd_nt_rkm)
         self.nl = self.nb if b.has_local else 0
         self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
+        heading_sigma = b.per_element(names, b.heading_deg, b.heading_nt)
+        self.nh = HARMONIC_TERMS * self.nb if np.any(heading_sigma > 0.0) else 0   # none for this element set
+        self._heading_sigma = np.repeat(heading_sigma, HARMONIC_TERMS)[:self.nh]
         self._r_declared = b.per_element(names, settings.r_deg, settings.r_nt)
         self._r_min = b.per_element(names, settings.r_min_deg, settings.r_min_nt)
         self._r = np.diag(self._r_declared ** 2)
-        n = process.n + self.nb + self.nl
+        n = process.n + self.nb + self.nl + self.nh
         kf = KalmanFilter(dim_x=n, dim_z=self.nb)
         kf.x = np.zeros((n, 1))
-        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2))
+        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2),
+                          np.diag(self._heading_sigma ** 2))
         # measured minus model beyond the position, from the state: the bias plus the local error
+        # plus the heading harmonics (their columns follow the heading: set_heading)
         self._total = np.hstack([np.zeros((self.nb, process.n)), np.eye(self.nb),
-                                 np.eye(self.nb)[:, :self.nl]])
+                                 np.eye(self.nb)[:, :self.nl], np.zeros((self.nb, self.nh))])
+        self.heading_known = False
         self.kf = kf
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
@@ -245,7 +278,21 @@ class NavigationFilter:
         return j @ self.kf.P @ j.T
 
     def _j(self, lat_deg: float) -> np.ndarray:
-        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl))])
+        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh))])
+
+    def set_heading(self, heading_rad: float) -> None:
+        """The vehicle's true heading over the window measured next (rad; NaN: not known). The
+        heading states enter the elements as ``cos psi, sin psi, cos 2 psi, sin 2 psi`` times
+        their coefficients; with the heading unknown their columns are zero and the residual at
+        that heading is measurement noise instead (:meth:`measurement_noise`)."""
+        if not self.nh:
+            return
+        self.heading_known = math.isfinite(heading_rad)
+        row = harmonic_row(heading_rad) if self.heading_known else np.zeros(HARMONIC_TERMS)
+        first = self.process.n + self.nb + self.nl
+        for element in range(self.nb):   # block diagonal: element e's own four coefficients
+            start = first + HARMONIC_TERMS * element
+            self._total[element, start:start + HARMONIC_TERMS] = row
 
     def _h(self, gradient: np.ndarray, lat_deg: float) -> np.ndarray:
         """Jacobian of the elements with respect to the state: ``G J`` then the bias and local
@@ -271,7 +318,7 @@ class NavigationFilter:
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         q = self._bias_qa * self.qa_scale if self.monitor.active else self._bias_q
         k, nb = self.process.n, self.nb
-        size = k + nb + self.nl
+        size = k + nb + self.nl + self.nh
         transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
         transition[:k, :k], noise[:k, :k] = phi, q_d
         transition[k:k + nb, k:k + nb] = np.eye(nb)
@@ -279,8 +326,10 @@ class NavigationFilter:
         noise[k:k + nb, k:k + nb] = np.diag(q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km)
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
-            transition[k + nb:, k + nb:] = np.eye(self.nl) * decay
-            noise[k + nb:, k + nb:] = np.diag(self._local_sigma ** 2 * (1.0 - decay ** 2))
+            transition[k + nb:k + nb + self.nl, k + nb:k + nb + self.nl] = np.eye(self.nl) * decay
+            noise[k + nb:k + nb + self.nl, k + nb:k + nb + self.nl] = np.diag(self._local_sigma ** 2 * (1.0 - decay ** 2))
+        if self.nh:   # constants: the residual sits in the body frame
+            transition[k + nb + self.nl:, k + nb + self.nl:] = np.eye(self.nh)
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
@@ -291,8 +340,12 @@ class NavigationFilter:
         declared noise for an element without a finite measured one; with ``r_source`` 0 (or no
         standard errors) the declared ``diag(r^2)``."""
         if self.settings.r_source != 1 or standard_errors is None:
-            return self._r
-        return np.diag(measured_variance(standard_errors, self._r_min, self._r_declared))
+            r = self._r
+        else:
+            r = np.diag(measured_variance(standard_errors, self._r_min, self._r_declared))
+        if self.nh and not self.heading_known:   # the residual at an unknown heading: E|row|^2 = 2
+            r = r + np.diag(2.0 * self._heading_sigma[::HARMONIC_TERMS] ** 2)
+        return r
 
     def update_position(self, lat_deg: float, lon_deg: float, sigma_m: float,
                         ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> None:
@@ -384,7 +437,7 @@ class NavigationFilter:
         k = self.process.n
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
-        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl]]))
+        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2]))
         return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
 
     def innovation_covariance(self, lat_deg: float, lon_deg: float,
