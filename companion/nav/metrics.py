@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from geographiclib.geodesic import Geodesic
 
 from companion.nav.geo import WGS84, geodesic_distance_m, geodesic_inverse
+from companion.nav.reference import COARSE, coarse_indices, sampled_geodesic
 
 __all__ = [
     "PMR_TOLERANCE_M",
@@ -41,7 +41,6 @@ PMR_TOLERANCE_M = 300.0
 _GEODESIC_SAMPLE_M = 250.0
 _WINDOW = 3          # segments either side of the nearest vertex searched exactly
 _CHUNK = 64          # points per block of the nearest-vertex search
-_COARSE = 16         # the nearest vertex is searched among every 16th first, then beside it
 
 
 def _ecef(lat_deg, lon_deg) -> np.ndarray:
@@ -53,13 +52,11 @@ def _ecef(lat_deg, lon_deg) -> np.ndarray:
 
 @lru_cache(maxsize=16)
 def _geodesic_polyline(start: tuple[float, float], dest: tuple[float, float]) -> np.ndarray:
-    """ECEF vertices (m) of the start->destination geodesic sampled every ~250 m, read-only:
-    computed once per route and process (3200 geographiclib positions for the Pacific route
-    cost more than the rest of a run's metrics)."""
-    line = WGS84.InverseLine(start[0], start[1], dest[0], dest[1])
-    count = max(2, int(math.ceil(line.s13 / _GEODESIC_SAMPLE_M)) + 1)
-    samples = [line.Position(s, Geodesic.LATITUDE | Geodesic.LONGITUDE) for s in np.linspace(0.0, line.s13, count)]
-    poly = _ecef(np.array([p["lat2"] for p in samples]), np.array([p["lon2"] for p in samples]))
+    """ECEF vertices (m) of the start->destination geodesic sampled every ~250 m (the reference
+    path's samples, :func:`companion.nav.reference.sampled_geodesic`), read-only, once per route
+    and process."""
+    _, _, lat, lon = sampled_geodesic(start[0], start[1], dest[0], dest[1], _GEODESIC_SAMPLE_M)
+    poly = _ecef(lat, lon)
     poly.flags.writeable = False
     return poly
 
@@ -71,20 +68,19 @@ def path_deviation_m(lat_deg, lon_deg, start: tuple[float, float], dest: tuple[f
     a gently curved line the distance from a point is unimodal, so its nearest segment touches
     the nearest vertex: each point is measured exactly against the :data:`_WINDOW` segments on
     either side of that vertex instead of against all of them (the same minimum; tested against
-    the full search). For the same reason the nearest vertex lies within :data:`_COARSE`
-    vertices of the nearest of every ``_COARSE``-th vertex, so it is found in two small
-    searches instead of one over the whole polyline."""
+    the full search). For the same reason the nearest vertex is found in two small searches
+    (:func:`companion.nav.reference.coarse_indices`) instead of one over the whole polyline."""
     poly = _geodesic_polyline((float(start[0]), float(start[1])), (float(dest[0]), float(dest[1])))
     points = _ecef(np.asarray(lat_deg, dtype=float), np.asarray(lon_deg, dtype=float)).reshape(-1, 3)
     origin = poly[0]                     # relative coordinates: squares of <= 1e7 m, no cancellation
     rel_poly, rel_points = poly - origin, points - origin
-    coarse_index = np.unique(np.append(np.arange(0, len(poly), _COARSE), len(poly) - 1))
+    coarse_index = coarse_indices(len(poly))
     coarse = rel_poly[coarse_index]
     nearest = np.empty(len(points), dtype=int)
     for first in range(0, len(points), _CHUNK):   # chunks keep the (points x vertices) matrix small
         diff = rel_points[first:first + _CHUNK, None, :] - coarse[None, :, :]
         nearest[first:first + _CHUNK] = coarse_index[np.argmin(np.einsum("pvk,pvk->pv", diff, diff), axis=1)]
-    near = np.clip(nearest[:, None] + np.arange(-_COARSE, _COARSE + 1)[None, :], 0, len(poly) - 1)
+    near = np.clip(nearest[:, None] + np.arange(-COARSE, COARSE + 1)[None, :], 0, len(poly) - 1)
     diff = rel_poly[near] - rel_points[:, None, :]
     nearest = near[np.arange(len(points)), np.argmin(np.einsum("pvk,pvk->pv", diff, diff), axis=1)]
     seg_index = np.clip(nearest[:, None] + np.arange(-_WINDOW, _WINDOW)[None, :], 0, len(poly) - 2)

@@ -14,16 +14,23 @@ from geographiclib.geodesic import Geodesic
 
 from companion.nav.geo import WGS84, metres_per_degree
 
-__all__ = ["COARSE", "ReferencePath"]
+__all__ = ["COARSE", "ReferencePath", "coarse_indices", "sampled_geodesic"]
 
 COARSE = 16    # the nearest sample is searched among every 16th first, then beside it
 
 
+def coarse_indices(count: int) -> np.ndarray:
+    """Every :data:`COARSE`-th index of ``count`` samples, and the last: where a two-step nearest
+    search looks first (along a gently curved path the distance is unimodal in the index, so the
+    nearest sample lies within ``COARSE`` of the nearest of these)."""
+    return np.unique(np.append(np.arange(0, count, COARSE), count - 1))
+
+
 @lru_cache(maxsize=16)
-def _sampled(lat0: float, lon0: float, lat1: float, lon1: float, spacing_m: float):
-    """(length, along, lat, lon) of the sampled geodesic, read-only arrays. Cached: sampling a
-    799 km route costs 3200 geodesic positions (~0.1 s), and every mission of a Monte Carlo
-    flies the same route."""
+def sampled_geodesic(lat0: float, lon0: float, lat1: float, lon1: float, spacing_m: float):
+    """(length m, along m, lat deg, lon deg) of the geodesic sampled every ``spacing_m`` or less,
+    read-only arrays. Cached: sampling a 799 km route costs 3200 geodesic positions (~0.1 s),
+    and every mission of a Monte Carlo flies the same route (and its metrics measure against it)."""
     line = WGS84.InverseLine(lat0, lon0, lat1, lon1)
     count = max(2, math.ceil(line.s13 / spacing_m) + 1)
     along = np.linspace(0.0, line.s13, count)
@@ -39,15 +46,14 @@ class ReferencePath:
     """The geodesic sampled every ``spacing_m`` metres; nearest point and lookahead point."""
 
     def __init__(self, start: tuple[float, float], dest: tuple[float, float], spacing_m: float = 250.0) -> None:
-        self.length_m, self.along_m, self.lat_deg, self.lon_deg = _sampled(
+        self.length_m, self.along_m, self.lat_deg, self.lon_deg = sampled_geodesic(
             float(start[0]), float(start[1]), float(dest[0]), float(dest[1]), float(spacing_m))
-        self._coarse = np.unique(np.append(np.arange(0, len(self.lat_deg), COARSE), len(self.lat_deg) - 1))
+        self._coarse = coarse_indices(len(self.lat_deg))
 
     def nearest_index(self, lat_deg: float, lon_deg: float) -> int:
-        """Index of the sample nearest to a position (local metric; exact enough at 250 m spacing).
-        Along a gently curved path the distance is unimodal in the index, so the nearest sample
-        lies within :data:`COARSE` samples of the nearest of every ``COARSE``-th: two small
-        searches instead of one over the whole path (the same index; tested)."""
+        """Index of the sample nearest to a position (local metric; exact enough at 250 m spacing),
+        in two small searches (:func:`coarse_indices`) instead of one over the whole path (the
+        same index; tested)."""
         east_per_deg, north_per_deg = metres_per_degree(lat_deg)
         coarse = self._coarse
         rough = int(coarse[np.argmin(self._distance2(coarse, lat_deg, lon_deg, east_per_deg, north_per_deg))])
