@@ -87,6 +87,7 @@ class Estimate:
     fix_lat_deg: float = math.nan
     fix_lon_deg: float = math.nan
     updated: bool = False
+    fix_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
 
 def filter_settings(config) -> FilterSettings:
@@ -119,6 +120,7 @@ class PositionEstimator:
         self.calibrate_start = True
         self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self._ins = (math.nan, math.nan)
+        self._fix_gradient = np.full((2, 2), np.nan)   # G of the last fix, element units per metre
         self._history: list = []
 
     @property
@@ -207,6 +209,7 @@ class PositionEstimator:
             self.consensus.clear()
             prior = f.position(*self._ins)
         fix = self._fix(measured, prior, lag_en_m)
+        fix_cov = self._fix_covariance(meas) if fix is not None else None
         if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m \
                 and self._implausible(measured, lag_en_m, meas):
             agreed = self.consensus.rejected(np.array(enu_offset(prior[0], prior[1], *fix))) \
@@ -219,7 +222,22 @@ class PositionEstimator:
         else:
             self.consensus.clear()
         f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas))
-        return self._estimate(fix=fix, updated=True)
+        return self._estimate(fix=fix, updated=True, fix_cov=fix_cov)
+
+    def _fix_covariance(self, meas) -> tuple[float, float, float] | None:
+        """East/north covariance (m^2) of the bias-corrected fix on the steering pair:
+        ``G^-1 C G^-T`` with C the uncertainty of the biases at this heading plus the noise
+        (:meth:`NavigationFilter.beyond_position_covariance`), G the fix's own (at its last
+        iterate); None where G is singular. With the heading states a fix right after a turn is
+        as uncertain as the bias there, and judged so (the companion's divergence check)."""
+        n = len(self.steering.names)
+        c = self.filter.beyond_position_covariance(self.measured.standard_errors(meas))[:n, :n]
+        try:
+            g_inv = np.linalg.inv(self._fix_gradient)
+        except np.linalg.LinAlgError:
+            return None
+        cov = g_inv @ c @ g_inv.T
+        return float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
 
     def _implausible(self, measured: np.ndarray, lag_en_m: np.ndarray, meas) -> bool:
         """The measurement's NIS against the filter's own innovation covariance is beyond
@@ -238,14 +256,16 @@ class PositionEstimator:
                               self.config.alt_m, self.config.year, report_at_fix=False)   # the position is all we use
         except PositionFixError:
             return None
+        self._fix_gradient = fix.gradient
         moved = offset_position(fix.lat_deg, fix.lon_deg, float(lag_en_m[0]), float(lag_en_m[1]))
         return float(moved[0]), float(moved[1])
 
-    def _estimate(self, fix=None, updated: bool = False, position=None) -> Estimate:
+    def _estimate(self, fix=None, updated: bool = False, position=None, fix_cov=None) -> Estimate:
         f = self.filter
         lat, lon = position if position is not None else f.position(*self._ins)
         cov = f.covariance_en(lat)
         return Estimate(float(lat), float(lon), (float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])),
                         math.sqrt(0.5 * (cov[0, 0] + cov[1, 1])), tuple(float(b) for b in f.bias),
                         f.last_nis if updated else math.nan, f.monitor.active,
-                        fix[0] if fix else math.nan, fix[1] if fix else math.nan, updated)
+                        fix[0] if fix else math.nan, fix[1] if fix else math.nan, updated,
+                        fix_cov if fix_cov is not None else (math.nan, math.nan, math.nan))

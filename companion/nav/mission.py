@@ -369,7 +369,7 @@ class Mission:
         if e is None:        # Table 3's path: its covariance once it has estimated (cruise)
             return self.table3.command_fields()
         return {"est_cov_en_m2": e.cov_en_m2, "nis": e.nis, "disturbed": e.disturbed, "bias": e.bias,
-                "est_sigma_m": e.sigma_m}
+                "est_sigma_m": e.sigma_m, "fix_cov_en_m2": e.fix_cov_en_m2}
 
     def _estimate_position(self, meas: Measurement, s: np.ndarray, g: np.ndarray):
         """The error-state filter's estimate of this step (already made in :meth:`step`), or

@@ -268,6 +268,12 @@ class NavigationFilter:
     def bias_sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self._total @ self.kf.P @ self._total.T))
 
+    def beyond_position_covariance(self, standard_errors: np.ndarray | None = None) -> np.ndarray:
+        """Covariance (element units) of what a measurement carries beyond the position: the
+        estimated biases' uncertainty at the current heading (bias, local and heading states)
+        plus the measurement noise R. Through G^-1 it is the uncertainty of a bias-corrected fix."""
+        return self._total @ self.kf.P @ self._total.T + self.measurement_noise(standard_errors)
+
     def position(self, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> tuple[float, float]:
         """The fused position (degrees); the INS position is needed with the INS process model."""
         return self.process.position(self.x, ins_lat_deg, ins_lon_deg)

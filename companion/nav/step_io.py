@@ -92,3 +92,4 @@ class Command:
     disturbed: bool = False         # the filter judges a disturbance active (bias noise raised)
     bias: tuple[float, ...] = ()    # estimated element biases, measured minus model
     next_fix_sigma_m: float = math.nan   # est_sigma_m against the next fix (Table 3: less the shared model error)
+    fix_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)   # the fix's own (filter: biases + noise)

@@ -210,8 +210,10 @@ class ControlStep:
 
     def gap_covariance(self, cmd) -> np.ndarray | None:
         """Covariance (east/north, m^2) of the fix minus the estimate: the filter's own covariance
-        (or its 1-sigma per axis on Table 3's path) plus the fix's noise from this period's
-        scatter (the plausibility check's noise term, 3 sigma through G^-1, split over two axes).
+        (or its 1-sigma per axis on Table 3's path) plus the fix's own: the filter's (its biases'
+        uncertainty at this heading and the noise, through G^-1) or, on Table 3's path, the
+        noise from this period's scatter (the plausibility check's noise term, 3 sigma through
+        G^-1, split over two axes).
         None when the estimate's uncertainty is not known."""
         ee, en, nn = cmd.est_cov_en_m2
         if all(math.isfinite(v) for v in (ee, en, nn)):
@@ -220,6 +222,9 @@ class ControlStep:
             cov = np.eye(2) * cmd.est_sigma_m ** 2
         else:
             return None
+        fe, fen, fn = cmd.fix_cov_en_m2
+        if all(math.isfinite(v) for v in (fe, fen, fn)):   # the filter's: biases at this heading + noise
+            return cov + np.array([[fe, fen], [fen, fn]])
         judged = self.judgement
         if judged is not None and math.isfinite(judged.noise_m):
             cov = cov + np.eye(2) * (judged.noise_m / 3.0) ** 2 / 2.0

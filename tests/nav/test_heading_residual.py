@@ -168,3 +168,24 @@ def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellip
 
     with_states, without = inside(), inside(FUS_BH_DEG=0.0, FUS_BH_NT=0.0)
     assert with_states >= 9 and with_states > without, (with_states, without)
+
+
+def test_a_fix_after_a_turn_is_as_uncertain_as_the_bias_at_the_new_heading(model):
+    """Calibrated at heading 0 at a GPS-known start, the uncertainty of what a measurement carries
+    beyond the position (what a bias-corrected fix inherits through G^-1) is the noise's order at
+    0 deg. At 90 deg it is what the calibration left of ``b + c_sin1 - c_cos2`` given the pinned
+    ``u = b + c_cos1 + c_cos2`` (by hand, per element, with the bias prior ``v = y^2 - r^2`` the
+    calibration sets and ``s^2`` per coefficient): ``v + 2 s^2 - (v - s^2)^2 / (v + 2 s^2)``."""
+    flt, settings = _pinned_filter(model, 0.1)
+    elements = ELEMENT_SETS[ElementSet.PAPER]
+    s_true = elements.values(model.elements(*START, ALT, YEAR))
+    flt.set_heading(0.0)
+    flt.update_position(*START, 5.0)
+    y = np.array([0.1, -0.05])
+    flt.calibrate(s_true + y)
+    at_start = np.diag(flt.beyond_position_covariance())
+    flt.set_heading(math.radians(90.0))
+    turned = np.diag(flt.beyond_position_covariance())
+    assert np.all(at_start < 0.01 ** 2), at_start
+    v, s2 = y ** 2 - settings.r_deg ** 2, 0.1 ** 2
+    np.testing.assert_allclose(turned, v + 2.0 * s2 - (v - s2) ** 2 / (v + 2.0 * s2), rtol=0.01)

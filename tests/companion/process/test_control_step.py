@@ -84,3 +84,19 @@ def test_a_gap_inside_the_estimates_own_uncertainty_is_not_a_divergence(rig):
     _run_step(app, replace(far, est_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
     assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
         m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+
+
+def test_a_gap_inside_the_fixs_own_uncertainty_is_not_a_divergence(rig):
+    """The same 60 km gap against an estimate sure to 5 km: when the fix itself is uncertain by
+    40 km per axis (the heading states' bias at a new heading, through an (I, F) G^-1) the gap is
+    judged with it and the vehicle flies on (ArduPilot SITL, 2026-12-02: the first cruise step's
+    fix 70.8 km off stopped the GPS-lost test); with a fix sure to 5 km it has diverged."""
+    app, fc = rig
+    far = replace(GOOD, fix_lat_deg=32.5 + 60e3 / 111e3, est_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2))
+    _run_step(app, replace(far, fix_cov_en_m2=(40e3 ** 2, 0.0, 40e3 ** 2)))
+    assert app.state == State.RUNNING and app.restarts == 0
+    _sent(fc)
+    app.command = None
+    _run_step(app, replace(far, fix_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
+    assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
+        m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
