@@ -19,6 +19,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
+from companion.nav.steering import is_new_course
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
@@ -116,6 +117,9 @@ class ControlStep:
         previous = app.command
         if previous is None or abs(previous.course_rad - cmd.course_rad) > 0.02 or previous.speed_mps != cmd.speed_mps:
             app.mag.settle_until_s = now + SETTLE_AFTER_COMMAND_S   # turn and speed transient: no I_g
+        if is_new_course(None if previous is None else (previous.course_rad, previous.speed_mps), cmd.course_rad,
+                         cmd.speed_mps):
+            app.mag.yaw_offset.new_course(now)   # the trim: the FC's yaw error differs on the new heading
         app.command = cmd
         if cmd.phase != app.last_phase:
             app.out.say(f"FcMPC: step {cmd.step} phase {cmd.phase}"

@@ -219,6 +219,8 @@ class Phases:
         if following:
             self.fc_failsafe_hold = ""
             self.our_hold = False
+            if not self.was_following and app.command is not None and app.command.speed_mps > 0.0:
+                app.mag.yaw_offset.new_course(now)   # moving again after a hold: a new record for the trim
         self.was_following = following
         app.stepper.advance_dead_reckoning(now, dt, following and not reasons)
         if reasons or not following:

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 
 from companion.frames import ned_to_body
 from companion.nav.magnetometer import AttitudeState, MagProcessor
-from companion.nav.steering import YawOffsetTracker, trimmed_course_rad
+from companion.nav.heading import levelled_heading_deg
+from companion.nav.steering import YawOffsetTracker, is_new_course, trimmed_course_rad
 
 G = 9.80665
 
@@ -103,3 +104,98 @@ def test_the_magnetometer_pipeline_measures_the_fc_yaw_error_and_ignores_turns()
         proc.add_mag(t, mag)
     proc.flush()
     assert math.degrees(proc.yaw_offset.offset_rad(29.9)) - decl == pytest.approx(error, abs=1e-6)
+
+
+def test_a_new_course_replaces_the_old_headings_offset_within_seconds_and_stays_quiet():
+    """EKF2's yaw error is heading-dependent: +5 deg on the first probe's heading, -3 deg after the
+    turn to the second. Told of the new course, the trim holds +5 during the turn, gives -3 within
+    1 deg from 3 s after the change on (the old record alone: still +1.5 after 10 s), and with per-sample
+    heading noise of ~5 deg at 50 Hz its estimate scatters by under 0.5 deg (1-sigma) while
+    weighted with ``fresh_tau_s`` (3 s) and under 0.25 deg once back on ``tau_s`` (20 s) (seed 11:
+    5.1 deg per sample; 0.24 and 0.07 deg)."""
+    rng = np.random.default_rng(11)
+    tracker = YawOffsetTracker()
+    decl = 4.0
+    mag_a, force_a = _sample(45.0, 1.0, -1.0, decl)
+    mag_b, force_b = _sample(135.0, -1.0, 2.0, decl)
+
+    def noisy(mag):
+        return tuple(np.asarray(mag) + rng.normal(0.0, 2500.0, 3))
+
+    def delta(t):
+        return math.degrees(tracker.offset_rad(t)) - decl
+
+    scatter = [(levelled - 45.0 + decl + 180.0) % 360.0 - 180.0 for levelled in
+               (levelled_heading_deg(noisy(mag_a), force_a)
+                for _ in range(2000))]
+    assert 4.0 < float(np.std(scatter)) < 6.0                    # the per-sample noise the bounds are for
+    t = 0.0
+    for _ in range(50 * 120):                                     # two minutes on the first heading
+        tracker.add(t, math.radians(45.0 + 5.0), noisy(mag_a), force_a)
+        t += 0.02
+    assert delta(t) == pytest.approx(5.0, abs=0.5)
+    change = t
+    tracker.new_course(change)                                    # the turn: 4 s, no samples (turning)
+    assert delta(change + 1.0) == pytest.approx(delta(change), abs=1e-12)   # the old offset holds
+    t = change + 4.0
+    fresh, settled = [], []
+    while t < change + 200.0:
+        tracker.add(t, math.radians(135.0 - 3.0), noisy(mag_b), force_b)
+        if t - change >= 4.0 + tracker.fresh_min_span_s + 1.0:    # 3 s of fresh samples on
+            assert delta(t) == pytest.approx(-3.0, abs=1.0), t - change
+            if t - change < tracker.fresh_s:
+                fresh.append(delta(t))
+            elif t - change > tracker.fresh_s + 3.0 * tracker.tau_s:   # the 20 s record, settled
+                settled.append(delta(t))
+        elif t - change < 4.0 + tracker.fresh_min_span_s - 0.05:  # the fresh record still short: +5 held
+            assert delta(t) == pytest.approx(5.0, abs=0.5)
+        t += 0.02
+    assert float(np.std(fresh)) < 0.5 and float(np.std(settled)) < 0.25
+    assert abs(float(np.mean(settled)) + 3.0) < 0.3
+
+
+def test_without_being_told_the_record_keeps_the_old_heading():
+    """The reference the test above improves on: the 20 s record alone, 10 s after the turn."""
+    tracker = YawOffsetTracker()
+    mag_a, force_a = _sample(45.0, 0.0, 0.0, 0.0)
+    mag_b, force_b = _sample(135.0, 0.0, 0.0, 0.0)
+    for k in range(50 * 120):
+        tracker.add(0.02 * k, math.radians(50.0), mag_a, force_a)
+    for k in range(50 * 10):
+        tracker.add(124.0 + 0.02 * k, math.radians(132.0), mag_b, force_b)
+    assert math.degrees(tracker.offset_rad(134.0)) > 1.0          # still far from -3
+
+
+def test_samples_of_the_old_course_and_a_reboot_after_the_change():
+    tracker = YawOffsetTracker()
+    mag, force = _sample(90.0, 0.0, 0.0, 0.0)
+    for k in range(400):
+        tracker.add(0.02 * k, math.radians(95.0), mag, force)
+    tracker.new_course(8.0)
+    assert not tracker.add(7.99, math.radians(70.0), mag, force)  # stamped before the change: left out
+    assert math.degrees(tracker.offset_rad(8.0)) == pytest.approx(5.0, abs=1e-9)
+    assert math.isnan(tracker.offset_rad(7.98 + tracker.max_age_s + 0.1))   # the stream stopped: none held
+    tracker.new_course(8.5)                                       # a second change before the record spans
+    for k in range(int(tracker.fresh_min_span_s / 0.02) + 1):
+        tracker.add(8.5 + 0.02 * k, math.radians(85.0), mag, force)
+    assert math.degrees(tracker.offset_rad(11.0)) == pytest.approx(-5.0, abs=1e-9)
+    assert tracker.add(1.0, math.radians(80.0), mag, force)       # the FC rebooted: nothing held
+    assert math.isnan(tracker.offset_rad(1.0))
+    for k in range(1, int(tracker.min_span_s / 0.02) + 2):       # and the first record's span applies
+        tracker.add(1.0 + 0.02 * k, math.radians(80.0), mag, force)
+    assert math.degrees(tracker.offset_rad(6.1)) == pytest.approx(-10.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("previous,course_deg,speed,new", [
+    (None, 45.0, 3.0, True),             # the first command: motion starts
+    ((math.radians(45.0), 0.0), 45.0, 3.0, True),     # from standing
+    ((math.radians(45.0), 3.0), 54.0, 3.0, False),    # 9 deg: the 20 s record follows
+    ((math.radians(45.0), 3.0), 135.0, 3.0, True),    # the turn between probes
+    ((math.radians(355.0), 3.0), 3.0, 3.0, False),    # across north: 8 deg
+    ((math.radians(355.0), 3.0), 6.0, 3.0, True),     # 11 deg
+    ((math.radians(45.0), 3.0), 45.0, 5.0, False),    # a new speed only
+    ((math.radians(45.0), 3.0), 135.0, 0.0, False),   # stopping (arrived)
+    (None, 45.0, 0.0, False),
+])
+def test_what_is_a_new_course(previous, course_deg, speed, new):
+    assert is_new_course(previous, math.radians(course_deg), speed) is new

@@ -100,3 +100,31 @@ def test_a_gap_inside_the_fixs_own_uncertainty_is_not_a_divergence(rig):
     _run_step(app, replace(far, fix_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
     assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
         m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
+
+
+def test_a_new_course_starts_the_trims_record_again(rig):
+    """The first command (motion starts) and a turn of 29 deg each restart the FC-yaw-error record
+    (:meth:`YawOffsetTracker.new_course`): 3 s after each, the offset is that of the samples since,
+    not a mix with the 30 s before; the same command again does not restart it."""
+    app, fc = rig
+    tracker = app.mag.yaw_offset
+    mag, force = (20000.0 * 0.5, -20000.0 * 0.8660254, 40000.0), (0.0, 0.0, -9.81)   # 60 deg magnetic
+
+    def feed(t0: float, seconds: float, error_deg: float) -> float:
+        for k in range(int(seconds * 50)):
+            tracker.add(t0 + 0.02 * (k + 1), math.radians(60.0 + error_deg), mag, force)
+        return t0 + seconds
+
+    cmd = replace(GOOD, est_lat_deg=math.nan, est_lon_deg=math.nan)   # nothing to judge the next steps against
+    now = app.now
+    feed(now - 30.0, 30.0, 5.0)                        # standing: +5
+    _run_step(app, cmd)
+    t = feed(now, 3.0, -3.0)
+    assert math.degrees(tracker.offset_rad(t)) == pytest.approx(-3.0, abs=1e-6)
+    _run_step(app, cmd)                                # the same command: the record goes on
+    t = feed(t, 3.0, 5.0)
+    assert -3.0 + 1.0 < math.degrees(tracker.offset_rad(t)) < 5.0 - 1.0
+    app.link.clock.now_s = t
+    _run_step(app, replace(cmd, course_rad=cmd.course_rad + 0.5))
+    t = feed(t, 3.0, 9.0)
+    assert math.degrees(tracker.offset_rad(t)) == pytest.approx(9.0, abs=1e-6)
