@@ -38,9 +38,15 @@ new commanded course or start of motion (:meth:`YawOffsetTracker.new_course`) an
 * weighs with ``fresh_tau_s`` (3 s) for ``fresh_s`` (60 s) after the change, the time EKF2's
   error took to settle, then with ``tau_s`` again. Noise: the exponential mean of per-sample
   noise sigma at rate f has sigma / sqrt(2 tau f): 5 deg at 50 Hz gives 0.29 deg with 3 s,
-  0.11 deg with 20 s. Replayed open loop on the 7 runs' logs (estimate minus EKF2's true error,
+  0.22 deg with 5 s. Replayed open loop on the 7 runs' logs (estimate minus EKF2's true error,
   first 60 s of each probe), the worst error fell from 6.3 to 3.9 deg and the mean from 1.2 to
-  0.8 deg; 2 s gave 3.6, 5 s 4.3 (the remaining ~2 deg is a bias in the measured heading, not lag).
+  0.8 deg; 2 s gave 3.6, 5 s 4.3 (the remaining ~2 deg is not lag: no shorter tau removes it).
+
+``tau_s`` is 5 s, not 20 s, on a held course too: EKF2's error also wanders while the course is
+held (once from -5 to +28 deg over 110 s, ~0.25 deg/s: a 20 s record lagged it by 5-6 deg and the
+true track ran 7.2 deg off; replayed open loop there, the worst error of the estimate was 6.4 deg
+with 20 s, 3.5 with 5 s). Replayed on the 7 baseline runs, +60..158 s of each probe: worst 3.4 deg
+with 20 s, 2.7 with 10 s, 2.5 with 5 s.
 
 The very first record (and one after a long gap or a clock that went back) has nothing to hold
 and gives no offset before it spans ``min_span_s``: the course is sent untrimmed.
@@ -86,7 +92,7 @@ class YawOffsetTracker:
     ``fresh_tau_s`` for ``fresh_s``; the old offset is held until it spans ``fresh_min_span_s``.
     """
 
-    tau_s: float = 20.0
+    tau_s: float = 5.0
     max_age_s: float = 5.0
     min_span_s: float = 5.0
     fresh_tau_s: float = 3.0
