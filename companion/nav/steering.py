@@ -156,6 +156,7 @@ class YawOffsetTracker:
         value = self._value()
         return value if math.isfinite(value) else self._held_rad
 
+
 def is_new_course(previous: tuple[float, float] | None, course_rad: float, speed_mps: float) -> bool:
     """Whether the command ``(course_rad, speed_mps)`` after ``previous`` (its course in rad and
     speed in m/s, None for none) starts a new record of the trim: the first command, the start
