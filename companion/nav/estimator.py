@@ -31,7 +31,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from companion.nav.elements import ElementSet
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.navfilter import (
@@ -208,10 +208,13 @@ class PositionEstimator:
                              *self._ins)
             self.consensus.clear()
             prior = f.position(*self._ins)
-        fix = self._fix(measured, prior, lag_en_m)
+        # the model at the window centre, evaluated once: the fix's first iterate and the update
+        at_centre = element_values_and_gradient(self.model, self.measured, *f.window_centre(lag_en_m, *self._ins),
+                                                self.config.alt_m, self.config.year)
+        fix = self._fix(measured, prior, lag_en_m, at_centre)
         fix_cov = self._fix_covariance(meas) if fix is not None else None
         if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m \
-                and self._implausible(measured, lag_en_m, meas):
+                and self._implausible(measured, lag_en_m, meas, at_centre):
             agreed = self.consensus.rejected(np.array(enu_offset(prior[0], prior[1], *fix))) \
                 if self.dead_reckons else None
             if agreed is None:
@@ -219,9 +222,10 @@ class PositionEstimator:
                 return self._estimate()
             # the last rejected fixes agree: the estimate is what is wrong; start again at the fix
             f.reset_position(*fix, 0.5 * self.consensus.settings.tolerance_m, *self._ins)
+            at_centre = None    # the estimate moved: its window centre with it
         else:
             self.consensus.clear()
-        f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas))
+        f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas), at_centre)
         return self._estimate(fix=fix, updated=True, fix_cov=fix_cov)
 
     def _fix_covariance(self, meas) -> tuple[float, float, float] | None:
@@ -239,21 +243,25 @@ class PositionEstimator:
         cov = g_inv @ c @ g_inv.T
         return float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
 
-    def _implausible(self, measured: np.ndarray, lag_en_m: np.ndarray, meas) -> bool:
+    def _implausible(self, measured: np.ndarray, lag_en_m: np.ndarray, meas, at_centre=None) -> bool:
         """The measurement's NIS against the filter's own innovation covariance is beyond
         ``FIX_GATE_PROBABILITY``: a far fix is a blunder only if the filter is sure it is far."""
-        nis = self.filter.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas))
+        nis = self.filter.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas),
+                                         at_centre)
         return not nis <= float(chi2.ppf(FIX_GATE_PROBABILITY, len(measured)))
 
-    def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray):
+    def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
         """The bias-corrected geomagnetic fix on the steering pair from the prior, referred to the
-        end of the step like the estimate (None when it fails)."""
+        end of the step like the estimate (None when it fails); ``at_centre``: the measured set's
+        elements and G at the window centre, the fix's first iterate."""
         n = len(self.steering.names)
         target = measured[:n] - self.filter.bias[:n]
         start = offset_position(prior[0], prior[1], -float(lag_en_m[0]), -float(lag_en_m[1]))
+        first = None if at_centre is None else (at_centre[0][:n], at_centre[1][:n])
         try:
             fix = element_fix(self.model, self.steering, target, float(start[0]), float(start[1]),
-                              self.config.alt_m, self.config.year, report_at_fix=False)   # the position is all we use
+                              self.config.alt_m, self.config.year, report_at_fix=False,   # the position is all we use
+                              at_prior=first)
         except PositionFixError:
             return None
         self._fix_gradient = fix.gradient

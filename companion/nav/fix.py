@@ -204,6 +204,7 @@ def element_fix(
     max_condition: float = 1e6,
     step_m: float | None = None,
     report_at_fix: bool = True,
+    at_prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PositionFix:
     """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
 
@@ -215,7 +216,8 @@ def element_fix(
     It has converged once a step is shorter than ``tol_m`` metres; the fix is the position after
     that step, with its residual and condition there (``report_at_fix`` False: those of the
     iterate before it, less than ``tol_m`` away, which saves one model evaluation; the position
-    is the same).
+    is the same). ``at_prior``: the elements and exact G at the prior when the caller has them
+    already (:func:`element_values_and_gradient`; the first iterate then costs no evaluation).
 
     Element contours can cross more than once on the globe; the iteration finds the crossing the
     prior leads to, so the prior should be within a few hundred km. Raises PositionFixError for
@@ -245,7 +247,10 @@ def element_fix(
     lat, lon = float(prior_lat_deg), float(prior_lon_deg)
     last_step_m = math.inf
     for iteration in range(max_iter + 1):
-        values, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m, elements)
+        if iteration == 0 and at_prior is not None and step_m is None:
+            values, gradient = at_prior
+        else:
+            values, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m, elements)
         residual = elements.difference(values, target)
         residual_norm = math.hypot(*residual)
         condition = _condition_2x2(gradient)

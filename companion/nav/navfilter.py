@@ -375,11 +375,13 @@ class NavigationFilter:
 
     def update_elements(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                         ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
-                        standard_errors: np.ndarray | None = None) -> float:
+                        standard_errors: np.ndarray | None = None,
+                        at_centre: tuple[np.ndarray, np.ndarray] | None = None) -> float:
         """The averaged elements, referred to the window centre ``lag_en_m`` behind the current
         position, with their measured standard errors (:meth:`measurement_noise`); returns the
-        normalised innovation squared (NIS)."""
-        y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors)
+        normalised innovation squared (NIS). ``at_centre``: the model's elements and G at that
+        centre (:meth:`window_centre`) when the caller has evaluated them already."""
+        y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre)
         nis, whitened = self._update(y, h, r)
         self.last_nis = nis
         was_active = self.monitor.active
@@ -400,21 +402,31 @@ class NavigationFilter:
 
     def innovation_nis(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
-                       standard_errors: np.ndarray | None = None) -> float:
+                       standard_errors: np.ndarray | None = None,
+                       at_centre: tuple[np.ndarray, np.ndarray] | None = None) -> float:
         """The NIS ``y^T S^-1 y`` the element measurement would have, without updating: the gate
         judged in the filter's own uncertainty (a fix far from an estimate that knows it is
         uncertain is not a blunder)."""
-        y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors)
+        y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre)
         s = h @ self.kf.P @ h.T + r
         return float(y @ np.linalg.solve(s, y))
 
-    def _innovation(self, measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors):
-        """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate."""
+    def window_centre(self, lag_en_m: np.ndarray | None = None, ins_lat_deg: float = math.nan,
+                      ins_lon_deg: float = math.nan) -> tuple[float, float]:
+        """The window centre ``lag_en_m`` (east, north m) behind the estimate (degrees)."""
         lag = np.zeros(2) if lag_en_m is None else np.asarray(lag_en_m, dtype=float)
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         centre = offset_position(lat, lon, -float(lag[0]), -float(lag[1]))
-        c_lat, c_lon = float(centre[0]), float(centre[1])
-        values, g = element_values_and_gradient(self.model, self.elements, c_lat, c_lon, self.alt_m, self.year)
+        return float(centre[0]), float(centre[1])
+
+    def _innovation(self, measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre=None):
+        """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate."""
+        lat = self.position(ins_lat_deg, ins_lon_deg)[0]
+        if at_centre is None:
+            at_centre = element_values_and_gradient(self.model, self.elements,
+                                                    *self.window_centre(lag_en_m, ins_lat_deg, ins_lon_deg),
+                                                    self.alt_m, self.year)
+        values, g = at_centre
         h = self._h(g, lat)
         y = self.elements.difference(np.asarray(measured, dtype=float), values + self.bias)
         return y, h, self.measurement_noise(standard_errors)

@@ -18,10 +18,13 @@ from companion.nav.field import (
     PositionFixError,
     WorldMagneticModel,
     decl_incl_gradient,
+    element_fix,
+    element_values_and_gradient,
     geomagnetic_fix,
     load_wmm,
     model_for_date,
 )
+from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.geo import geodesic_direct, geodesic_distance_m, offset_position
 
 PAPER_EPOCH = 2024.36
@@ -372,6 +375,38 @@ def test_fix_without_the_report_at_the_fix_lands_on_the_same_position_one_evalua
             del wmm2020.ned_and_slopes
         assert (quick.lat_deg, quick.lon_deg, quick.iterations) == (full.lat_deg, full.lon_deg, full.iterations)
         assert calls["n"] == full_calls - 1
+
+
+def test_fix_given_the_model_at_its_prior_is_the_same_fix_one_evaluation_sooner(
+        wmm2020: WorldMagneticModel) -> None:
+    """``at_prior`` (what the estimator has already evaluated at the window centre): the same
+    fix, bit for bit, and one model evaluation fewer."""
+    rng = np.random.default_rng(11)
+    elements = ELEMENT_SETS[ElementSet.PAPER]
+    calls = {"n": 0}
+    counted = wmm2020.ned_and_slopes
+
+    def counting(*args):
+        calls["n"] += 1
+        return counted(*args)
+
+    for _ in range(20):
+        lat, lon = rng.uniform(*PACIFIC_BOX["lat"]), rng.uniform(*PACIFIC_BOX["lon"])
+        truth = elements.values(wmm2020.elements(lat, lon, 0.0, PAPER_EPOCH)) + rng.normal(0.0, 0.01, 2)
+        prior = geodesic_direct(lat, lon, rng.uniform(0.0, 2.0 * math.pi), rng.uniform(0.0, 30e3))
+        at_prior = element_values_and_gradient(wmm2020, elements, *prior, 0.0, PAPER_EPOCH)
+        wmm2020.ned_and_slopes, calls["n"] = counting, 0
+        try:
+            plain = element_fix(wmm2020, elements, truth, *prior, 0.0, PAPER_EPOCH, report_at_fix=False)
+            plain_calls, calls["n"] = calls["n"], 0
+            given = element_fix(wmm2020, elements, truth, *prior, 0.0, PAPER_EPOCH, report_at_fix=False,
+                                at_prior=at_prior)
+        finally:
+            del wmm2020.ned_and_slopes
+        assert (given.lat_deg, given.lon_deg, given.iterations, given.residual_deg, given.condition) == \
+            (plain.lat_deg, plain.lon_deg, plain.iterations, plain.residual_deg, plain.condition)
+        assert np.array_equal(given.gradient, plain.gradient)
+        assert calls["n"] == plain_calls - 1
 
 
 def test_fix_step_limit_bounds_each_move(wmm2020: WorldMagneticModel) -> None:
