@@ -351,30 +351,34 @@ def test_fix_recovers_true_position_from_a_prior_20_to_50_km_away(year: float) -
         assert 1.0 <= fix.condition < 1e3
 
 
+def _evaluations(model: WorldMagneticModel, call):
+    """``call()``'s result and how many times it evaluated the model's harmonic sums."""
+    counted, calls = model.ned_and_slopes, [0]
+
+    def counting(*args):
+        calls[0] += 1
+        return counted(*args)
+
+    model.ned_and_slopes = counting
+    try:
+        return call(), calls[0]
+    finally:
+        del model.ned_and_slopes
+
+
 def test_fix_without_the_report_at_the_fix_lands_on_the_same_position_one_evaluation_sooner(
         wmm2020: WorldMagneticModel) -> None:
     rng = np.random.default_rng(7)
-    calls = {"n": 0}
-    counted = wmm2020.ned_and_slopes
-
-    def counting(*args):
-        calls["n"] += 1
-        return counted(*args)
-
     for _ in range(20):
         lat, lon = rng.uniform(*PACIFIC_BOX["lat"]), rng.uniform(*PACIFIC_BOX["lon"])
         truth = wmm2020.elements(lat, lon, 0.0, PAPER_EPOCH)
         measured = (truth.decl_deg + rng.normal(0.0, 0.01), truth.incl_deg + rng.normal(0.0, 0.01))
         prior = geodesic_direct(lat, lon, rng.uniform(0.0, 2.0 * math.pi), rng.uniform(0.0, 30e3))
-        wmm2020.ned_and_slopes, calls["n"] = counting, 0
-        try:
-            full = geomagnetic_fix(wmm2020, *measured, *prior, 0.0, PAPER_EPOCH)
-            full_calls, calls["n"] = calls["n"], 0
-            quick = geomagnetic_fix(wmm2020, *measured, *prior, 0.0, PAPER_EPOCH, report_at_fix=False)
-        finally:
-            del wmm2020.ned_and_slopes
+        full, full_calls = _evaluations(wmm2020, lambda: geomagnetic_fix(wmm2020, *measured, *prior, 0.0, PAPER_EPOCH))
+        quick, quick_calls = _evaluations(wmm2020, lambda: geomagnetic_fix(wmm2020, *measured, *prior, 0.0,
+                                                                            PAPER_EPOCH, report_at_fix=False))
         assert (quick.lat_deg, quick.lon_deg, quick.iterations) == (full.lat_deg, full.lon_deg, full.iterations)
-        assert calls["n"] == full_calls - 1
+        assert quick_calls == full_calls - 1
 
 
 def test_fix_given_the_model_at_its_prior_is_the_same_fix_one_evaluation_sooner(
@@ -383,30 +387,21 @@ def test_fix_given_the_model_at_its_prior_is_the_same_fix_one_evaluation_sooner(
     fix, bit for bit, and one model evaluation fewer."""
     rng = np.random.default_rng(11)
     elements = ELEMENT_SETS[ElementSet.PAPER]
-    calls = {"n": 0}
-    counted = wmm2020.ned_and_slopes
-
-    def counting(*args):
-        calls["n"] += 1
-        return counted(*args)
-
     for _ in range(20):
         lat, lon = rng.uniform(*PACIFIC_BOX["lat"]), rng.uniform(*PACIFIC_BOX["lon"])
         truth = elements.values(wmm2020.elements(lat, lon, 0.0, PAPER_EPOCH)) + rng.normal(0.0, 0.01, 2)
         prior = geodesic_direct(lat, lon, rng.uniform(0.0, 2.0 * math.pi), rng.uniform(0.0, 30e3))
         at_prior = element_values_and_gradient(wmm2020, elements, *prior, 0.0, PAPER_EPOCH)
-        wmm2020.ned_and_slopes, calls["n"] = counting, 0
-        try:
-            plain = element_fix(wmm2020, elements, truth, *prior, 0.0, PAPER_EPOCH, report_at_fix=False)
-            plain_calls, calls["n"] = calls["n"], 0
-            given = element_fix(wmm2020, elements, truth, *prior, 0.0, PAPER_EPOCH, report_at_fix=False,
-                                at_prior=at_prior)
-        finally:
-            del wmm2020.ned_and_slopes
+
+        def fix(**given):
+            return element_fix(wmm2020, elements, truth, *prior, 0.0, PAPER_EPOCH, report_at_fix=False, **given)
+
+        plain, plain_calls = _evaluations(wmm2020, fix)
+        given, given_calls = _evaluations(wmm2020, lambda: fix(at_prior=at_prior))
         assert (given.lat_deg, given.lon_deg, given.iterations, given.residual_deg, given.condition) == \
             (plain.lat_deg, plain.lon_deg, plain.iterations, plain.residual_deg, plain.condition)
         assert np.array_equal(given.gradient, plain.gradient)
-        assert calls["n"] == plain_calls - 1
+        assert given_calls == plain_calls - 1
 
 
 def test_fix_step_limit_bounds_each_move(wmm2020: WorldMagneticModel) -> None:
