@@ -31,8 +31,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from companion.nav.elements import ElementSet
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient
+from companion.nav.field import (PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient,
+                                 fix_covariance)
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
+from companion.nav.heading import window_heading_rad
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.navfilter import (
     ONSET_STEPS,
@@ -43,23 +45,11 @@ from companion.nav.navfilter import (
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
-__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings", "window_heading_rad"]
+__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
 
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
 FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only outside this innovation ellipse
-
-
-def window_heading_rad(meas, vel_en_mps: np.ndarray | None = None, min_speed_mps: float = 0.5) -> float:
-    """The true heading held over the measured window (rad from north): the magnetometer's
-    levelled magnetic heading plus the measured declination, else the course of the velocity
-    flown when moving faster than ``min_speed_mps``, else NaN (not known)."""
-    heading = meas.mag_heading_deg + meas.decl_deg
-    if math.isfinite(heading):
-        return math.radians(heading)
-    if vel_en_mps is not None and math.hypot(*vel_en_mps) > min_speed_mps:
-        return math.atan2(float(vel_en_mps[0]), float(vel_en_mps[1]))
-    return math.nan
 
 
 class FusionModel:
@@ -120,7 +110,6 @@ class PositionEstimator:
         self.calibrate_start = True
         self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self._ins = (math.nan, math.nan)
-        self._fix_gradient = np.full((2, 2), np.nan)   # G of the last fix, element units per metre
         self._history: list = []
 
     @property
@@ -209,10 +198,11 @@ class PositionEstimator:
             self.consensus.clear()
             prior = f.position(*self._ins)
         # the model at the window centre, evaluated once: the fix's first iterate and the update
-        at_centre = element_values_and_gradient(self.model, self.measured, *f.window_centre(lag_en_m, *self._ins),
-                                                self.config.alt_m, self.config.year)
-        fix = self._fix(measured, prior, lag_en_m, at_centre)
-        fix_cov = self._fix_covariance(meas) if fix is not None else None
+        centre = f.window_centre(lag_en_m, *self._ins)
+        at_centre = element_values_and_gradient(self.model, self.measured, *centre, self.config.alt_m,
+                                                self.config.year)
+        fix, fix_gradient = self._fix(measured, centre, lag_en_m, at_centre)
+        fix_cov = self._fix_covariance(meas, fix_gradient) if fix is not None else None
         if fix is not None and geodesic_inverse(prior[0], prior[1], *fix)[0] > self.config.fix_gate_m \
                 and self._implausible(measured, lag_en_m, meas, at_centre):
             agreed = self.consensus.rejected(np.array(enu_offset(prior[0], prior[1], *fix))) \
@@ -228,19 +218,19 @@ class PositionEstimator:
         f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas), at_centre)
         return self._estimate(fix=fix, updated=True, fix_cov=fix_cov)
 
-    def _fix_covariance(self, meas) -> tuple[float, float, float] | None:
+    def _fix_covariance(self, meas, gradient: np.ndarray) -> tuple[float, float, float] | None:
         """East/north covariance (m^2) of the bias-corrected fix on the steering pair:
-        ``G^-1 C G^-T`` with C the uncertainty of the biases at this heading plus the noise
-        (:meth:`NavigationFilter.beyond_position_covariance`), G the fix's own (at its last
-        iterate); None where G is singular. With the heading states a fix right after a turn is
-        as uncertain as the bias there, and judged so (the companion's divergence check)."""
+        ``G^-1 C G^-T`` (:func:`companion.nav.field.fix_covariance`) with C the uncertainty of the
+        biases at this heading plus the noise (:meth:`NavigationFilter.beyond_position_covariance`)
+        and G the fix's own (at its last iterate); None where G is singular. With the heading
+        states a fix right after a turn is as uncertain as the bias there, and judged so (the
+        companion's divergence check)."""
         n = len(self.steering.names)
         c = self.filter.beyond_position_covariance(self.measured.standard_errors(meas))[:n, :n]
         try:
-            g_inv = np.linalg.inv(self._fix_gradient)
+            cov = fix_covariance(gradient, c)
         except np.linalg.LinAlgError:
             return None
-        cov = g_inv @ c @ g_inv.T
         return float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
 
     def _implausible(self, measured: np.ndarray, lag_en_m: np.ndarray, meas, at_centre=None) -> bool:
@@ -250,23 +240,21 @@ class PositionEstimator:
                                          at_centre)
         return not nis <= float(chi2.ppf(FIX_GATE_PROBABILITY, len(measured)))
 
-    def _fix(self, measured: np.ndarray, prior: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
-        """The bias-corrected geomagnetic fix on the steering pair from the prior, referred to the
-        end of the step like the estimate (None when it fails); ``at_centre``: the measured set's
-        elements and G at the window centre, the fix's first iterate."""
+    def _fix(self, measured: np.ndarray, start: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
+        """The bias-corrected geomagnetic fix on the steering pair from ``start`` (the window
+        centre behind the prior), referred to the end of the step like the estimate, and the
+        model's G there; (None, None) when it fails. ``at_centre``: the measured set's elements
+        and G at ``start``, the fix's first iterate."""
         n = len(self.steering.names)
         target = measured[:n] - self.filter.bias[:n]
-        start = offset_position(prior[0], prior[1], -float(lag_en_m[0]), -float(lag_en_m[1]))
         first = None if at_centre is None else (at_centre[0][:n], at_centre[1][:n])
         try:
-            fix = element_fix(self.model, self.steering, target, float(start[0]), float(start[1]),
-                              self.config.alt_m, self.config.year, report_at_fix=False,   # the position is all we use
-                              at_prior=first)
+            fix = element_fix(self.model, self.steering, target, *start, self.config.alt_m, self.config.year,
+                              report_at_fix=False, at_prior=first)   # the position is all we use
         except PositionFixError:
-            return None
-        self._fix_gradient = fix.gradient
+            return None, None
         moved = offset_position(fix.lat_deg, fix.lon_deg, float(lag_en_m[0]), float(lag_en_m[1]))
-        return float(moved[0]), float(moved[1])
+        return (float(moved[0]), float(moved[1])), fix.gradient
 
     def _estimate(self, fix=None, updated: bool = False, position=None, fix_cov=None) -> Estimate:
         f = self.filter

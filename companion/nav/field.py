@@ -10,7 +10,7 @@ modules, one idea each, and is re-exported here so callers keep one import:
   copies shipped with pygeomag; validity span; :class:`FieldElements`), :func:`load_wmm`,
   :func:`model_for_date`;
 * :mod:`companion.nav.fix`: :func:`decl_incl_gradient` / :func:`element_gradient` (G in element
-  units per metre) and :func:`geomagnetic_fix` / :func:`element_fix` (eq. 49, Newton from a prior).
+  units per metre) and :func:`geomagnetic_fix` / :func:`element_fix` (eq. 49, Newton from a prior), :func:`fix_covariance`.
 """
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from companion.nav.fix import (
     element_fix,
     element_gradient,
     element_values_and_gradient,
+    fix_covariance,
     geomagnetic_fix,
 )
 from companion.nav.harmonics import WMM_DEGREE, schmidt_polynomials
@@ -43,6 +44,7 @@ __all__ = [
     "element_fix",
     "element_gradient",
     "element_values_and_gradient",
+    "fix_covariance",
     "geomagnetic_fix",
     "load_wmm",
     "model_for_date",

@@ -19,7 +19,7 @@ from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.geo import offset_position, radii_of_curvature_m
 from companion.nav.wmm import WorldMagneticModel
 
-__all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient",
+__all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient", "fix_covariance",
            "element_values_and_gradient", "geomagnetic_fix"]
 
 
@@ -277,3 +277,12 @@ def element_fix(
         f"no convergence within {max_iter} iterations: {where}, last Newton step {last_step_m:.3g} m "
         f"(target {elements.label} = {tuple(float(v) for v in target)})"
     )
+
+
+def fix_covariance(gradient: np.ndarray, element_covariance: np.ndarray) -> np.ndarray:
+    """East/north covariance (m^2) of a fix from its element errors through the gradient ``G``
+    (element units per metre): ``G^-1 C G^-T``, C given as the variances (its diagonal, 1-D) or
+    whole (2-D). Raises numpy's LinAlgError for a singular G."""
+    inverse = np.linalg.inv(np.asarray(gradient, dtype=float))
+    c = np.asarray(element_covariance, dtype=float)
+    return (inverse * c) @ inverse.T if c.ndim == 1 else inverse @ c @ inverse.T

@@ -32,7 +32,7 @@ import numpy as np
 
 from companion.frames import Vector3
 
-__all__ = ["flown_velocity_en", "levelled_heading_deg"]
+__all__ = ["flown_velocity_en", "levelled_heading_deg", "window_heading_rad"]
 
 
 def levelled_heading_deg(mag_body_nt: Vector3, force_body_mps2: Vector3) -> float:
@@ -71,3 +71,16 @@ def flown_velocity_en(commanded_en_mps: np.ndarray, mag_heading_deg: float, decl
         return commanded
     course = math.radians(heading)
     return np.array([speed * math.sin(course), speed * math.cos(course)])
+
+
+def window_heading_rad(meas, vel_en_mps: np.ndarray | None = None, min_speed_mps: float = 0.5) -> float:
+    """The true heading held over a measured window (rad from north) for the navigation filter's
+    heading states: ``meas.mag_heading_deg`` plus the window's measured declination
+    ``meas.decl_deg``, else the course of the velocity flown (east, north m/s) when faster than
+    ``min_speed_mps``, else NaN (not known)."""
+    heading = meas.mag_heading_deg + meas.decl_deg
+    if math.isfinite(heading):
+        return math.radians(heading)
+    if vel_en_mps is not None and math.hypot(*vel_en_mps) > min_speed_mps:
+        return math.atan2(float(vel_en_mps[0]), float(vel_en_mps[1]))
+    return math.nan

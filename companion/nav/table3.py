@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.nav.elements import ElementSet
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, fix_covariance
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, geodesic_inverse, offset_position
 from companion.nav.navfilter import BiasSpec, measured_variance
@@ -53,7 +53,7 @@ from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 from companion.params import NavConfig
 
-__all__ = ["F_NT_PER_DEG", "ModelError", "Table3Estimator", "fix_covariance"]
+__all__ = ["F_NT_PER_DEG", "ModelError", "Table3Estimator"]
 
 F_NT_PER_DEG = 360.0   # automatic bounds and the fusion gate: a degree of D or I counts as 360 nT of F
 
@@ -74,13 +74,6 @@ class ModelError:
         if distance_m is None:
             return point
         return 2.0 * point * (1.0 - math.exp(-max(distance_m, 0.0) / self.length_m))
-
-
-def fix_covariance(gradient: np.ndarray, element_variance: np.ndarray) -> np.ndarray:
-    """East/north covariance (m^2) of a fix from the element errors' variances through the
-    gradient ``G`` (element units per metre): ``G^-1 diag(variance) G^-T``."""
-    inverse = np.linalg.inv(np.asarray(gradient, dtype=float))
-    return (inverse * np.asarray(element_variance, dtype=float)) @ inverse.T
 
 
 class Table3Estimator:

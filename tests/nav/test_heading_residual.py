@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from companion.nav.elements import ELEMENT_SETS, ElementSet
-from companion.nav.estimator import window_heading_rad
 from companion.nav.field import model_for_date
+from companion.nav.heading import window_heading_rad
 from companion.nav.navfilter import HARMONIC_TERMS, BiasSpec, FilterSettings, NavigationFilter, harmonic_row
 from companion.nav.process import DeadReckoningProcess
 from companion.nav.step_io import Measurement

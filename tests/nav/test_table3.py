@@ -13,7 +13,8 @@ from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import element_fix, model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.process import DeadReckoningSpec
-from companion.nav.table3 import ModelError, Table3Estimator, fix_covariance
+from companion.nav.fix import fix_covariance
+from companion.nav.table3 import ModelError, Table3Estimator
 from tests.nav.test_mission import nav_config
 
 HEADING_FREE = ELEMENT_SETS[ElementSet.HEADING_FREE]
