@@ -27,7 +27,7 @@ from typing import Callable, NoReturn
 from companion.params import ParamError, validate
 
 __all__ = ["EXIT_USAGE", "EXIT_INTERRUPTED", "USER_ERRORS", "UsageError", "ArgumentParser", "one_line",
-           "param_items", "run_main", "user_error"]
+           "param_items", "positive_int", "run_main", "user_error"]
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130          # 128 + SIGINT, what a shell reports for Ctrl-C
@@ -73,6 +73,17 @@ def run_main(prog: str, body: Callable[[], int], user_errors: tuple[type[BaseExc
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
+
+
+def positive_int(text: str) -> int:
+    """An argparse ``type``: a whole number >= 1 (argparse's one-line error names it so)."""
+    value = int(text)
+    if value < 1:
+        raise ValueError(text)
+    return value
+
+
+positive_int.__name__ = "integer >= 1"     # argparse names the type in its one-line error
 
 
 def param_items(items: list[str], option: str = "--param") -> dict[str, float | int]:

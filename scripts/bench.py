@@ -19,7 +19,6 @@ the tests.
 """
 from __future__ import annotations
 
-import argparse
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -32,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from companion.cli import ArgumentParser, run_main
+from companion.cli import ArgumentParser, positive_int, run_main
 from companion.nav.field import decl_incl_gradient, geomagnetic_fix, load_wmm
 from companion.nav.mission import Measurement, Mission
 from companion.nav.mpc import MpcController, MpcSettings
@@ -213,7 +212,7 @@ def bench_companion() -> list[Row]:
 def _run(argv: list[str] | None) -> int:
     parser = ArgumentParser(prog="fcmpc-bench", description="fcmpc benchmarks (medians)")
     parser.add_argument("--quick", action="store_true", help="skip the Monte Carlo and the closed-loop parts")
-    parser.add_argument("--repeat", type=_positive_int, default=1,
+    parser.add_argument("--repeat", type=positive_int, default=1,
                         help="run each part N times in a row and print, per row, the median run and the range "
                              "(a shared machine's speed moves between runs minutes apart)")
     args = parser.parse_args(argv)
@@ -235,16 +234,6 @@ def _run(argv: list[str] | None) -> int:
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")
     return 0
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"needs a whole number >= 1, got {text!r}")
-    return value
 
 
 _LEADING_NUMBER = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)")

@@ -29,7 +29,7 @@ import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from companion.cli import ArgumentParser, UsageError, param_items, run_main
+from companion.cli import ArgumentParser, UsageError, param_items, positive_int, run_main
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
 from montecarlo.batch import run_montecarlo
 from montecarlo.budget import format_budget, realistic_counterpart, run_budget
@@ -40,23 +40,13 @@ from sitl.scenario import ScenarioError, load_scenario
 CONTROLLER_KEYS = {"lti": Controller.LTI, "ltv": Controller.LTV, "fc": Controller.FC}
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise ValueError(text)
-    return value
-
-
-_positive_int.__name__ = "integer >= 1"     # argparse names the type in its one-line error
-
-
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(prog="fcmpc-montecarlo", description=__doc__.split("\n")[0])
     parser.add_argument("--scenario", default="pacific", help="bundled name or TOML path; default pacific")
-    parser.add_argument("--runs", type=_positive_int, default=50, help="runs per controller (and cell); default 50")
+    parser.add_argument("--runs", type=positive_int, default=50, help="runs per controller (and cell); default 50")
     parser.add_argument("--controllers", default=None,
                         help="comma list of lti,ltv,fc; default all three (ltv,fc for storm scenarios)")
-    parser.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+    parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                         help="worker processes (or a local cluster's workers); default one per core")
     parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local process pool (default), dask (pip install -e '.[cluster]') or ray")

@@ -62,8 +62,7 @@ def _partition_median(values: np.ndarray) -> float:
 
 
 def mad_standard_error(values: np.ndarray) -> float:
-    """``1.4826 MAD / sqrt(n)`` of a 1-D array: :func:`robust_standard_error` for arrays (NaN
-    below two values or with a NaN among them).
+    """``1.4826 MAD / sqrt(n)`` of a 1-D array (NaN below two values or with a NaN among them).
 
     >>> mad_standard_error(np.array([1.0, 2.0, 3.0, 4.0]))   # MAD 1
     0.741301109252801
@@ -74,25 +73,16 @@ def mad_standard_error(values: np.ndarray) -> float:
     return MAD_TO_SIGMA * _partition_median(np.abs(v - _partition_median(v))) / math.sqrt(v.size)
 
 
-def _median(values: list[float]) -> float:
-    ordered = sorted(values)
-    mid = len(ordered) // 2
-    return ordered[mid] if len(ordered) % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
-
-
 def robust_standard_error(values: Sequence[float]) -> float:
-    """``1.4826 MAD / sqrt(n)``: the standard error of the mean of ``values`` (NaN below 2 values).
+    """``1.4826 MAD / sqrt(n)``: the standard error of the mean of ``values`` (NaN below 2 values
+    or with a NaN among them), :func:`mad_standard_error` for any sequence.
 
     >>> robust_standard_error([1.0, 2.0, 3.0, 4.0])   # MAD 1
     0.741301109252801
     >>> robust_standard_error([0.0, 1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, -1.0, 500.0]) < 0.5
     True
     """
-    n = len(values)
-    if n < 2:
-        return math.nan
-    centre = _median(list(values))
-    return MAD_TO_SIGMA * _median([abs(v - centre) for v in values]) / math.sqrt(n)
+    return mad_standard_error(np.asarray(list(values), dtype=float))
 
 
 def ratio_inclination_deg(dots, mag_ned, force_ned) -> tuple[float, float]:
