@@ -227,13 +227,11 @@ def element_fix(
     A year outside the model's span raises the model's ValueError.
     """
     target = np.asarray(target, dtype=float)
-    inputs = {
-        **dict(zip(elements.names, (float(v) for v in target))), "prior_lat_deg": prior_lat_deg,
-        "prior_lon_deg": prior_lon_deg, "alt_m": alt_m, "year": year,
-    }
-    bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
-    if bad:
-        raise PositionFixError(f"geomagnetic fix needs finite inputs, got {bad}")
+    if not math.isfinite(sum(target.tolist()) + prior_lat_deg + prior_lon_deg + alt_m + year):
+        inputs = {**dict(zip(elements.names, target.tolist())), "prior_lat_deg": prior_lat_deg,
+                  "prior_lon_deg": prior_lon_deg, "alt_m": alt_m, "year": year}
+        bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
+        raise PositionFixError(f"geomagnetic fix needs finite inputs, got {bad or inputs}")
     if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and (step_m is None or step_m > 0.0)):
         raise ValueError(
             f"need max_iter >= 1 and positive tol_m, max_step_m, step_m; got {max_iter}, {tol_m}, "
@@ -254,11 +252,9 @@ def element_fix(
         residual = elements.difference(values, target)
         residual_norm = math.hypot(*residual)
         condition = _condition_2x2(gradient)
-        where = f"at ({lat:.6f}, {lon:.6f}) deg after {iteration} iterations, residual {residual_norm:.3g}"
         if not condition <= max_condition:  # also catches NaN
-            raise PositionFixError(
-                f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) {where}"
-            )
+            raise PositionFixError(f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) "
+                                   f"{_where(lat, lon, iteration, residual_norm)}")
         if last_step_m < tol_m:
             return PositionFix(lat, lon, iteration, residual_norm, condition, gradient)
         if iteration == max_iter:
@@ -268,15 +264,22 @@ def element_fix(
         if last_step_m > max_step_m:
             step *= max_step_m / last_step_m
         new_lat, new_lon = offset_position(lat, lon, step[0], step[1])
-        lat, lon = float(new_lat), float(new_lon)
+        prev_lat, prev_lon, lat, lon = lat, lon, float(new_lat), float(new_lon)
         if abs(lat) > _MAX_FIX_LAT_DEG:
-            raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; {where}")
+            raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; "
+                                   f"{_where(prev_lat, prev_lon, iteration, residual_norm)}")
         if not report_at_fix and last_step_m < tol_m:
             return PositionFix(lat, lon, iteration + 1, residual_norm, condition, gradient)
     raise PositionFixError(
-        f"no convergence within {max_iter} iterations: {where}, last Newton step {last_step_m:.3g} m "
+        f"no convergence within {max_iter} iterations: {_where(lat, lon, iteration, residual_norm)}, "
+        f"last Newton step {last_step_m:.3g} m "
         f"(target {elements.label} = {tuple(float(v) for v in target)})"
     )
+
+
+def _where(lat: float, lon: float, iteration: int, residual_norm: float) -> str:
+    """Where a fix failed, for its error message (formatted only when one is raised)."""
+    return f"at ({lat:.6f}, {lon:.6f}) deg after {iteration} iterations, residual {residual_norm:.3g}"
 
 
 def fix_covariance(gradient: np.ndarray, element_covariance: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ integration of the same continuous equations.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -84,29 +85,45 @@ class InsErrorSpec:
 def error_dynamics(lat_deg: float, vel_east_mps: float, vel_north_mps: float, markov_tau_s: float) -> np.ndarray:
     """The 15 x 15 continuous error-dynamics matrix F at this latitude and velocity (ENU)."""
     lat = math.radians(lat_deg)
-    m, n = (float(r) for r in radii_of_curvature_m(lat_deg))
+    m, n = radii_of_curvature_m(lat_deg)
     sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
     ve, vn = vel_east_mps, vel_north_mps
-    w_ie = np.array([0.0, EARTH_RATE_RADPS * cl, EARTH_RATE_RADPS * sl])
-    w_en = np.array([-vn / m, ve / n, ve * tl / n])
-    f = np.zeros((N_INS, N_INS))
-    f[ATT, ATT] = -_skew(w_ie + w_en)
+    w_ie = (0.0, EARTH_RATE_RADPS * cl, EARTH_RATE_RADPS * sl)
+    w_en = (-vn / m, ve / n, ve * tl / n)
+    f = _constant_dynamics(markov_tau_s).copy()    # then the entries that move with lat and v
+    _set_minus_skew(f, 0, 0, [a + b for a, b in zip(w_ie, w_en)])
     # dw_in: the transport and Earth rates computed with the wrong velocity and latitude
     f[0, 4] = -1.0 / m
     f[1, 3] = 1.0 / n
     f[2, 3] = tl / n
     f[1, LAT] = -EARTH_RATE_RADPS * sl
     f[2, LAT] = EARTH_RATE_RADPS * cl + ve / (n * cl * cl)
-    f[ATT, _BIAS] = -np.eye(3)
-    f[ATT, _MARKOV] = -np.eye(3)
-    f[VEL, ATT] = _skew(np.array([0.0, 0.0, GRAVITY_MPS2]))     # f^n x phi: the Schuler loop
-    f[VEL, VEL] = -_skew(2.0 * w_ie + w_en)
-    f[5, :] = 0.0                                                # vertical channel held
+    _set_minus_skew(f, 3, 3, [2.0 * a + b for a, b in zip(w_ie, w_en)])
+    f[5, 3:6] = 0.0                                              # vertical channel held
     f[LAT, 4] = 1.0 / m
     f[LON, 3] = 1.0 / (n * cl)
     f[LON, LAT] = ve * tl / (n * cl)
-    f[_MARKOV, _MARKOV] = -np.eye(3) / markov_tau_s
     return f
+
+
+@functools.lru_cache(maxsize=8)
+def _constant_dynamics(markov_tau_s: float) -> np.ndarray:
+    """The entries of F that depend on neither latitude nor velocity (read-only; copied)."""
+    f = np.zeros((N_INS, N_INS))
+    f[ATT, _BIAS] = -np.eye(3)
+    f[ATT, _MARKOV] = -np.eye(3)
+    f[VEL, ATT] = _skew(np.array([0.0, 0.0, GRAVITY_MPS2]))     # f^n x phi: the Schuler loop
+    f[5, :] = 0.0                                                # vertical channel held
+    f[_MARKOV, _MARKOV] = -np.eye(3) / markov_tau_s
+    f.setflags(write=False)
+    return f
+
+
+def _set_minus_skew(f: np.ndarray, row: int, col: int, v: list[float]) -> None:
+    """``f[row:row+3, col:col+3] = -skew(v)`` (the rate cross-product terms), entry by entry."""
+    f[row, col + 1], f[row, col + 2] = v[2], -v[1]
+    f[row + 1, col], f[row + 1, col + 2] = -v[2], v[0]
+    f[row + 2, col], f[row + 2, col + 1] = v[1], -v[0]
 
 
 def process_noise_density(spec: InsErrorSpec) -> np.ndarray:

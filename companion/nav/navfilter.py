@@ -248,6 +248,11 @@ class NavigationFilter:
                                  np.eye(self.nb)[:, :self.nl], np.zeros((self.nb, self.nh))])
         self.heading_known = False
         self.kf = kf
+        # predict's block-diagonal Phi and Q_d: the bias and heading states are constants (the
+        # identity; the heading states have no noise), the rest is filled in each step
+        self._transition, self._noise = np.eye(n), np.zeros((n, n))
+        first = process.n + np.arange(self.nb)
+        self._bias_diag, self._local_diag = (first, first), (first + self.nb, first + self.nb)
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
@@ -323,19 +328,15 @@ class NavigationFilter:
             return
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         q = self._bias_qa * self.qa_scale if self.monitor.active else self._bias_q
-        k, nb = self.process.n, self.nb
-        size = k + nb + self.nl + self.nh
-        transition, noise = np.zeros((size, size)), np.zeros((size, size))   # block diagonals
+        k = self.process.n
+        transition, noise = self._transition, self._noise   # block diagonals, the constant blocks kept
         transition[:k, :k], noise[:k, :k] = phi, q_d
-        transition[k:k + nb, k:k + nb] = np.eye(nb)
         distance_km = math.hypot(*vel_en_mps) * dt_s / 1000.0
-        noise[k:k + nb, k:k + nb] = np.diag(q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km)
+        noise[self._bias_diag] = q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
-            transition[k + nb:k + nb + self.nl, k + nb:k + nb + self.nl] = np.eye(self.nl) * decay
-            noise[k + nb:k + nb + self.nl, k + nb:k + nb + self.nl] = np.diag(self._local_sigma ** 2 * (1.0 - decay ** 2))
-        if self.nh:   # constants: the residual sits in the body frame
-            transition[k + nb + self.nl:, k + nb + self.nl:] = np.eye(self.nh)
+            transition[self._local_diag] = decay
+            noise[self._local_diag] = self._local_sigma ** 2 * (1.0 - decay ** 2)
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
