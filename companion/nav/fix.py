@@ -17,20 +17,21 @@ from numpy.typing import ArrayLike
 
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.geo import offset_position, radii_of_curvature_m
+from companion.nav.small import inverse2, solve2
 from companion.nav.wmm import WorldMagneticModel
 
 __all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient", "fix_covariance",
            "element_values_and_gradient", "geomagnetic_fix"]
 
 
-def _element_values_and_slopes(names: tuple[str, ...], ned: np.ndarray,
-                               slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _element_values_and_slopes(names: tuple[str, ...], ned: list[float],
+                               slopes: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
     """The elements ``names`` from (X, Y, Z) in nT and their derivatives from those of (X, Y, Z)
-    (``slopes``: 3 x 2, columns east, north), by the chain rule of eq. 1-2:
+    (``slopes``: (east, north) per component), by the chain rule of eq. 1-2:
     ``dD = (X dY - Y dX) / H^2``, ``dI = (H dZ - Z dH) / F^2``, ``dH = (X dX + Y dY) / H``,
     ``dF = (X dX + Y dY + Z dZ) / F``; angles in degrees."""
-    x, y, z = ned.tolist()
-    (dxe, dxn), (dye, dyn), (dze, dzn) = slopes.tolist()
+    x, y, z = ned
+    (dxe, dxn), (dye, dyn), (dze, dzn) = slopes
     h = math.hypot(x, y)
     f = math.hypot(h, z)
     dhe, dhn = (x * dxe + y * dye) / h, (x * dxn + y * dyn) / h
@@ -78,8 +79,9 @@ def _elements_and_gradient(
     if step_m is None:
         ned, d_lat, d_lon = model.ned_and_slopes(lat_deg, lon_deg, alt_m, year)
         meridian, prime_vertical = radii_of_curvature_m(float(lat_deg))
-        per_metre = np.stack([d_lon / (prime_vertical * math.cos(math.radians(lat_deg))), d_lat / meridian], axis=1)
-        return _element_values_and_slopes(elements.names, ned, per_metre)
+        east_m_per_rad = prime_vertical * math.cos(math.radians(lat_deg))
+        per_metre = [(e / east_m_per_rad, n / meridian) for e, n in zip(d_lon.tolist(), d_lat.tolist())]
+        return _element_values_and_slopes(elements.names, ned.tolist(), per_metre)
     east = np.array([0.0, step_m, -step_m, 0.0, 0.0])
     north = np.array([0.0, 0.0, 0.0, step_m, -step_m])
     lats, lons = offset_position(lat_deg, lon_deg, east, north)
@@ -259,7 +261,7 @@ def element_fix(
             return PositionFix(lat, lon, iteration, residual_norm, condition, gradient)
         if iteration == max_iter:
             break
-        step = np.linalg.solve(gradient, -residual)
+        step = solve2(gradient, -residual)
         last_step_m = math.hypot(*step)
         if last_step_m > max_step_m:
             step *= max_step_m / last_step_m
@@ -286,6 +288,6 @@ def fix_covariance(gradient: np.ndarray, element_covariance: np.ndarray) -> np.n
     """East/north covariance (m^2) of a fix from its element errors through the gradient ``G``
     (element units per metre): ``G^-1 C G^-T``, C given as the variances (its diagonal, 1-D) or
     whole (2-D). Raises numpy's LinAlgError for a singular G."""
-    inverse = np.linalg.inv(np.asarray(gradient, dtype=float))
+    inverse = inverse2(gradient)
     c = np.asarray(element_covariance, dtype=float)
     return (inverse * c) @ inverse.T if c.ndim == 1 else inverse @ c @ inverse.T

@@ -49,6 +49,7 @@ from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
+from companion.nav.small import solve2
 from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
@@ -77,7 +78,7 @@ def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
     b = np.asarray(b, dtype=float)
     xi = np.asarray(xi, dtype=float)
     try:
-        return np.linalg.solve(b, -xi)
+        return solve2(b, -xi)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(b, -xi, rcond=None)[0]
 
@@ -314,7 +315,7 @@ class Mission:
             target = self.s_dest - xi                      # = S + G * to_aim
         else:
             try:
-                to_dest = np.linalg.solve(g, self.elements.difference(self.s_dest, s))
+                to_dest = solve2(g, self.elements.difference(self.s_dest, s))
                 remaining = float(np.hypot(*to_dest))
             except np.linalg.LinAlgError:
                 remaining = math.inf
@@ -353,7 +354,7 @@ class Mission:
         """Reference governor: pull the target to within ``reach_units`` of input (one step at
         full speed) along the linearised path, so the optimum stays inside the input bounds."""
         try:
-            needed = np.linalg.solve(b, target_qp - s_qp)    # input that reaches the target in one step
+            needed = solve2(b, target_qp - s_qp)    # input that reaches the target in one step
         except np.linalg.LinAlgError:
             return target_qp
         size = float(np.hypot(*needed))

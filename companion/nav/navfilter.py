@@ -77,6 +77,7 @@ from companion.nav.field import WorldMagneticModel, element_gradient, element_va
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.process import DeadReckoningSpec, ProcessModel
+from companion.nav.small import whiten
 
 __all__ = [
     "ACTIVE_OFF",
@@ -469,6 +470,6 @@ class NavigationFilter:
     def _update(self, y: np.ndarray, h: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
         z = (y + h @ self.x).reshape(-1, 1)
         self.kf.update(z, R=r, H=h)
-        whitened = np.linalg.solve(np.linalg.cholesky(self.kf.S), y)
+        whitened = whiten(self.kf.S, y)
         self.kf.x = self.process.reset(self.x).reshape(-1, 1)
         return float(whitened @ whitened), whitened
