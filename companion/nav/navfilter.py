@@ -77,7 +77,7 @@ from companion.nav.field import WorldMagneticModel, element_gradient, element_va
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.ins_error import InsErrorSpec
 from companion.nav.process import DeadReckoningSpec, ProcessModel
-from companion.nav.small import whiten
+from companion.nav.small import inverse2, whiten
 
 __all__ = [
     "ACTIVE_OFF",
@@ -240,6 +240,8 @@ class NavigationFilter:
         self._r = np.diag(self._r_declared ** 2)
         n = process.n + self.nb + self.nl + self.nh
         kf = KalmanFilter(dim_x=n, dim_z=self.nb)
+        if self.nb == 2:
+            kf.inv = inverse2   # S^-1 of a pair in closed form (filterpy's documented hook)
         kf.x = np.zeros((n, 1))
         kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2),
                           np.diag(self._heading_sigma ** 2))
