@@ -24,6 +24,7 @@ fixes, and the gate stands.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -50,6 +51,13 @@ __all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filt
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
 FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only outside this innovation ellipse
+
+
+@functools.lru_cache(maxsize=8)
+def _gate_nis(dof: int) -> float:
+    """The NIS beyond which a far fix is implausible (``FIX_GATE_PROBABILITY``, chi-square);
+    scipy's ppf costs ~100 us, the answer depends on the element count only."""
+    return float(chi2.ppf(FIX_GATE_PROBABILITY, dof))
 
 
 class FusionModel:
@@ -238,7 +246,7 @@ class PositionEstimator:
         ``FIX_GATE_PROBABILITY``: a far fix is a blunder only if the filter is sure it is far."""
         nis = self.filter.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas),
                                          at_centre)
-        return not nis <= float(chi2.ppf(FIX_GATE_PROBABILITY, len(measured)))
+        return not nis <= _gate_nis(len(measured))
 
     def _fix(self, measured: np.ndarray, start: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
         """The bias-corrected geomagnetic fix on the steering pair from ``start`` (the window
