@@ -11,19 +11,16 @@ pymavlink. Signing is not supported (the simulator does not sign).
 from __future__ import annotations
 
 import math
-import struct
+import operator
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 try:
-    from fastcrc.crc16 import mcrf4xx as _crc
-
-    def _checksum(data: bytes) -> int:
-        return _crc(data, 0xFFFF)
+    from fastcrc.crc16 import mcrf4xx as _crc   # _crc(data, 0xFFFF): the MAVLink checksum in C
 except ImportError:  # pragma: no cover - fastcrc is a dependency
     from pymavlink.generator.mavcrc import x25crc
 
-    def _checksum(data: bytes) -> int:
+    def _crc(data: bytes, initial: int) -> int:   # x25crc starts at 0xFFFF, the only initial used here
         return x25crc(data).crc
 
 __all__ = ["INT16_MAX", "FrameEncoder", "int16", "int16_truncated"]
@@ -53,21 +50,22 @@ def int16_truncated(value: float) -> int:
     return INT16_MAX if v > INT16_MAX else (-INT16_MAX - 1 if v < -INT16_MAX - 1 else v)
 
 
-_HEADER = struct.Struct("<BBBBBBBHB")
+_SLOW = object()   # a message class with arrays or strings: pymavlink packs it
 
 
 class _Spec:
-    __slots__ = ("packer", "order", "msgid_lo", "msgid_hi", "crc_extra", "name", "nfields")
+    """What one scalar message class needs per frame, worked out once."""
+
+    __slots__ = ("pack", "reorder", "msgid", "crc_extra", "nfields")
 
     def __init__(self, cls) -> None:
-        self.packer = cls.unpacker  # the wire struct, fields in wire order
+        self.pack = cls.unpacker.pack  # the wire struct, fields in wire order
         index = {name: i for i, name in enumerate(cls.fieldnames)}
         order = [index[name] for name in cls.ordered_fieldnames]
-        self.order = None if order == list(range(len(order))) else order
-        self.msgid_lo = cls.id & 0xFFFF
-        self.msgid_hi = cls.id >> 16
+        # the *_encode order -> wire order (larger types first); None when they agree
+        self.reorder = None if order == list(range(len(order))) else operator.itemgetter(*order)
+        self.msgid = cls.id.to_bytes(3, "little")
         self.crc_extra = bytes([cls.crc_extra])
-        self.name = cls.msgname
         self.nfields = len(cls.fieldnames)
 
 
@@ -86,35 +84,43 @@ class FrameEncoder:
     """
 
     def __init__(self, sysid: int, compid: int) -> None:
-        self.sysid = sysid
-        self.compid = compid
+        self._sysid = sysid
+        self._compid = compid
+        self._source = bytes((sysid, compid))   # header bytes 5-6, after the sequence number
         self.seq = 0
-        self._specs: dict[type, _Spec | None] = {}
+        self._specs: dict[type, _Spec | object] = {}
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
 
-    def _spec(self, cls) -> _Spec | None:
-        try:
-            return self._specs[cls]
-        except KeyError:
-            spec = _Spec(cls) if _scalar(cls) else None
-            self._specs[cls] = spec
-            return spec
+    @property
+    def sysid(self) -> int:
+        return self._sysid
+
+    @property
+    def compid(self) -> int:
+        return self._compid
 
     def frame(self, cls, *fields) -> bytes:
         """The frame of message class ``cls`` with ``fields`` in the order of its ``*_encode`` arguments."""
-        spec = self._spec(cls)
+        return self.frame_of(cls, fields)
+
+    def frame_of(self, cls, fields: tuple) -> bytes:
+        """:meth:`frame` with the fields as one tuple (the outbox's call: no second tuple per message)."""
+        spec = self._specs.get(cls)
         if spec is None:
+            spec = self._specs[cls] = _Spec(cls) if _scalar(cls) else _SLOW
+        if spec is _SLOW:
             return self.pack(cls(*fields))
         if len(fields) < spec.nfields:  # extension fields left out: zeros, as pymavlink's defaults
             fields = fields + (0,) * (spec.nfields - len(fields))
-        values = fields if spec.order is None else [fields[i] for i in spec.order]
-        payload = spec.packer.pack(*values).rstrip(b"\x00") or b"\x00"
-        header = _HEADER.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid, spec.msgid_lo,
-                              spec.msgid_hi)
-        self.seq = (self.seq + 1) & 0xFF
-        body = header + payload
-        crc = _checksum(body[1:] + spec.crc_extra)
-        return body + crc.to_bytes(2, "little")
+        if spec.reorder is not None:
+            fields = spec.reorder(fields)
+        payload = spec.pack(*fields).rstrip(b"\x00") or b"\x00"   # MAVLink 2 truncation
+        seq = self.seq
+        self.seq = (seq + 1) & 0xFF
+        # the header after the magic byte: length, incompat/compat flags (0), seq, source, message id
+        body = bytes((len(payload), 0, 0, seq)) + self._source + spec.msgid + payload
+        crc = _crc(body + spec.crc_extra, 0xFFFF)
+        return b"\xfd" + body + crc.to_bytes(2, "little")
 
     def pack(self, msg) -> bytes:
         """Frame of a pymavlink message object (slow path), sharing the sequence counter."""

@@ -42,6 +42,7 @@ class Outbox:
     def __init__(self, encoder: FrameEncoder, clock: SimClock, counters: Counters, faults, link_rng,
                  start_unix_us: int, batch: bool = True, quiet: bool = False, hold: bool = False) -> None:
         self.encoder = encoder
+        self._frame_of = encoder.frame_of
         self.clock = clock
         self.counters = counters
         self.faults = faults            # reads .loss, .dup, .delay_us
@@ -60,9 +61,10 @@ class Outbox:
 
     def emit(self, cls, *fields) -> None:
         """Queue one message (class and ``*_encode`` arguments) for the end of this iteration."""
-        self._out.append(self.encoder.frame(cls, *fields))
+        self._out.append(self._frame_of(cls, fields))
+        counts = self.tx_by_type
         name = cls.msgname
-        self.tx_by_type[name] = self.tx_by_type.get(name, 0) + 1
+        counts[name] = counts.get(name, 0) + 1
 
     def say(self, key: str | None, severity: int, text: str) -> None:
         """STATUSTEXT (at most one per ``key`` per 5 s of simulated time when ``key`` is given)."""
