@@ -104,11 +104,9 @@ class VehicleSim:
         s, truth = self.state, self.truth
         t = self.clock.time_s
         alt = self.scenario.alt_m
-        ned = truth.field_ned_nt(s.lat_deg, s.lon_deg, alt, t)
-        self.field = (float(ned[0]), float(ned[1]), float(ned[2]))
+        self.field, main = truth.point_ned_nt(s.lat_deg, s.lon_deg, alt, t)
         if truth.disturbance is not None and truth.storm_scale != 0.0:   # the storm's part, for the truth log
-            wmm = truth.model.elements(s.lat_deg, s.lon_deg, alt, truth.year)
-            self.dist = (self.field[0] - wmm.x_nt, self.field[1] - wmm.y_nt, self.field[2] - wmm.z_nt)
+            self.dist = (self.field[0] - main[0], self.field[1] - main[1], self.field[2] - main[2])
         else:
             self.dist = (0.0, 0.0, 0.0)
         self.field_us = self.clock.t_us

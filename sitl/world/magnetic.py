@@ -84,6 +84,23 @@ class TruthField:
             ned = ned + storm
         return ned
 
+    def point_ned_nt(self, lat_deg: float, lon_deg: float, alt_m: float,
+                     elapsed_s: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """:meth:`field_ned_nt` at one point as floats, and the main field's part of it, from one
+        evaluation of the main field (the simulator's per-step call: without crust or storm no
+        array is built, with them the same array sums as :meth:`field_ned_nt`)."""
+        main = self.model.elements(lat_deg, lon_deg, alt_m, self.year)
+        main_ned = (float(main.x_nt), float(main.y_nt), float(main.z_nt))
+        storm = self.storm_ned_nt(lat_deg, lon_deg, elapsed_s)
+        if self.crustal is None and storm is None:
+            return main_ned, main_ned
+        ned = np.array(main_ned)
+        if self.crustal is not None:
+            ned = ned + self.crustal.ned_nt(lat_deg, lon_deg, alt_m)
+        if storm is not None:
+            ned = ned + storm
+        return (float(ned[0]), float(ned[1]), float(ned[2])), main_ned
+
     def decl_incl_deg(self, lat_deg, lon_deg, alt_m, elapsed_s) -> tuple[np.ndarray, np.ndarray]:
         """True (D, I) in degrees."""
         ned = self.field_ned_nt(lat_deg, lon_deg, alt_m, elapsed_s)

@@ -185,6 +185,28 @@ def test_truth_main_field_is_igrf_not_the_navigators_wmm():
     assert truth.model.name == "IGRF14" and truth.crustal is not None
 
 
+class _LinearStorm:
+    """A disturbance that varies with place and time (float32, as a storm file's values may be)."""
+
+    def disturbance_ned_nt(self, lat_deg, lon_deg, time_s):
+        lat, lon, t = (np.asarray(v, float) for v in (lat_deg, lon_deg, time_s))
+        return tuple(np.float32(k) * (lat - 30.0) + lon * 1e-2 + t * 1e-3 for k in (3.0, -7.0, 11.0))
+
+
+@pytest.mark.parametrize("name", ["pacific", "pacific_real"])
+@pytest.mark.parametrize("storm_scale", [None, 0.0, 1.7])
+def test_point_field_is_the_array_field_bit_for_bit(name, storm_scale):
+    truth = build_truth_field(load_scenario(name), seed=3)
+    if storm_scale is not None:
+        truth = replace(truth, disturbance=_LinearStorm(), storm_scale=storm_scale)
+    rng = np.random.default_rng(5)
+    for lat, lon, t in zip(rng.uniform(25.0, 35.0, 20), rng.uniform(150.0, 160.0, 20), rng.uniform(0, 9e4, 20)):
+        field, main = truth.point_ned_nt(float(lat), float(lon), 0.0, float(t))
+        assert field == tuple(truth.field_ned_nt(float(lat), float(lon), 0.0, float(t)).tolist())
+        assert main == tuple(truth.main_ned_nt(float(lat), float(lon), 0.0).tolist())
+        assert all(type(v) is float for v in field + main)
+
+
 def test_crustal_field_has_the_stated_rms_and_correlation_length():
     config = CrustalConfig(enabled=True)
     sigma, length = config.rms_down_nt, config.correlation_length_m
