@@ -49,25 +49,21 @@ TRUTH_COLUMNS = (
     "decl_deg", "incl_deg", "distance_m", "remaining_m", "est_lat_deg", "est_lon_deg", "faults", "boot_s",
 )
 
+# printf-style formats per column (default %.3f): ``%`` formats a float as str.format's "{:.3f}"
+# does, at about half the cost
 _FORMATS = {
-    "time_s": "{:.3f}", "boot_s": "{:.3f}", "lat_deg": "{:.8f}", "lon_deg": "{:.8f}", "fc_lat_deg": "{:.8f}", "fc_lon_deg": "{:.8f}",
-    "est_lat_deg": "{:.8f}", "est_lon_deg": "{:.8f}", "course_deg": "{:.4f}", "cmd_course_deg": "{:.4f}",
-    "decl_deg": "{:.5f}", "incl_deg": "{:.5f}", "roll_deg": "{:.3f}", "pitch_deg": "{:.3f}",
+    "time_s": "%.3f", "boot_s": "%.3f", "lat_deg": "%.8f", "lon_deg": "%.8f", "fc_lat_deg": "%.8f", "fc_lon_deg": "%.8f",
+    "est_lat_deg": "%.8f", "est_lon_deg": "%.8f", "course_deg": "%.4f", "cmd_course_deg": "%.4f",
+    "decl_deg": "%.5f", "incl_deg": "%.5f", "roll_deg": "%.3f", "pitch_deg": "%.3f",
 }
-
-
-def _fmt(name: str, value) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            return "nan"
-        return _FORMATS.get(name, "{:.3f}").format(value)
-    return str(value)
+_COLUMN_FORMATS = tuple((name, _FORMATS.get(name, "%.3f")) for name in TRUTH_COLUMNS)
 
 
 class TruthLog:
-    """CSV writer of :data:`TRUTH_COLUMNS` rows (dicts); flushed on close."""
+    """CSV writer of :data:`TRUTH_COLUMNS` rows (dicts); flushed on close.
+
+    A cell is empty for a missing value or None, ``nan`` for a non-finite float, the column's
+    format for a float, ``str`` of anything else."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -78,7 +74,18 @@ class TruthLog:
         self.rows = 0
 
     def write(self, row: dict) -> None:
-        self._writer.writerow([_fmt(name, row.get(name)) for name in TRUTH_COLUMNS])
+        cells = []
+        cell = cells.append
+        isfinite = math.isfinite
+        for name, fmt in _COLUMN_FORMATS:   # one loop, no call per cell: a row is written every second
+            value = row.get(name)
+            if value is None:
+                cell("")
+            elif isinstance(value, float):
+                cell(fmt % value if isfinite(value) else "nan")
+            else:
+                cell(str(value))
+        self._writer.writerow(cells)
         self.rows += 1
 
     def flush(self) -> None:
