@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
 
-from companion.frames import ned_to_body
+from companion.frames import Matrix3, Vector3, mat_nb_from_euler
 from companion.nav.geo import radii_of_curvature_m
 from sitl.scenario import SensorModel
 from sitl.world.attitude import AttitudeErrors, compass_yaw_rad
@@ -74,6 +75,21 @@ class Attitude:
     roll_rate_radps: float = 0.0
     pitch_rate_radps: float = 0.0
     yaw_rate_radps: float = 0.0
+
+    @cached_property
+    def mat_nb(self) -> Matrix3:
+        """Body -> NED rotation of these angles, computed once: the magnetometer and the IMU
+        sample of one instant rotate by the same true attitude."""
+        return mat_nb_from_euler(self.roll_rad, self.pitch_rad, self.yaw_rad)
+
+    def ned_to_body(self, vec_n: Vector3) -> Vector3:
+        """``companion.frames.ned_to_body(vec_n, roll, pitch, yaw)``, the same products in the same
+        order, with :attr:`mat_nb`."""
+        m = self.mat_nb
+        n, e, d = vec_n
+        return (m[0][0] * n + m[1][0] * e + m[2][0] * d,
+                m[0][1] * n + m[1][1] * e + m[2][1] * d,
+                m[0][2] * n + m[1][2] * e + m[2][2] * d)
 
     def body_rates(self) -> tuple[float, float, float]:
         """(p, q, r) body angular rates in rad/s from the Euler angle rates."""
@@ -179,7 +195,7 @@ class SensorSuite:
         the stand-in puts into HIGHRES_IMU and truncates into RAW_IMU/SCALED_IMU as the firmware
         does (the companion takes a truncated count at its midpoint: the same error statistics)."""
         m = self.model
-        bx, by, bz = ned_to_body(field_ned_nt, attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad)
+        bx, by, bz = attitude.ned_to_body(field_ned_nt)
         if self.mag_errors is not None:
             bx, by, bz = (float(v) for v in self.mag_errors.apply((bx, by, bz), time_s))
         self.mag_clean_nt = (bx, by, bz)
@@ -206,8 +222,7 @@ class SensorSuite:
         m = self.model
         normal = self._normal
         an, ae, ad = accel_ned_mps2
-        fx, fy, fz = ned_to_body((an, ae, ad - GRAVITY_MPS2), attitude.roll_rad, attitude.pitch_rad,
-                                 attitude.yaw_rad)
+        fx, fy, fz = attitude.ned_to_body((an, ae, ad - GRAVITY_MPS2))
         sa = m.accel_noise_mps2
         self.accel_mps2 = (fx + sa * normal(), fy + sa * normal(), fz + sa * normal())
         p, q, r = attitude.body_rates()
@@ -255,6 +270,9 @@ class NavSolution:
         self.ins: InsErrorModel | None = None
         self._ins_time_s = 0.0
         self._radii = (6.4e6, 6.4e6)
+        # the INS state's velocity and position errors as floats (dv_e, dv_n, dlat, dlon), taken
+        # after each propagation: read at every instant, they cost a numpy scalar per operation
+        self._ins_errors = (0.0, 0.0, 0.0, 0.0)
 
     @property
     def inertial(self) -> bool:
@@ -270,12 +288,18 @@ class NavSolution:
             self.ins = InsErrorModel(self.ins_config, self._rng, lat_deg)
             self._ins_time_s = time_s
             self._radii = tuple(float(r) for r in radii_of_curvature_m(lat_deg))
+            self._take_ins_errors()
             return
         dt = time_s - self._ins_time_s
         if dt >= self.ins_step_s:
             self.ins.propagate(dt, lat_deg, vel_east_mps, vel_north_mps)
             self._ins_time_s = time_s
             self._radii = tuple(float(r) for r in radii_of_curvature_m(lat_deg))
+            self._take_ins_errors()
+
+    def _take_ins_errors(self) -> None:
+        state = self.ins.state
+        self._ins_errors = (float(state[3]), float(state[4]), float(state[6]), float(state[7]))
 
     def position(self, time_s: float, lat_deg: float, lon_deg: float) -> tuple[float, float]:
         """Indicated (lat_deg, lon_deg) at ``time_s`` for the true position."""
@@ -284,11 +308,11 @@ class NavSolution:
             north = self.aided_noise_m * self._normal()
             return (lat_deg + math.degrees(north / 6.378e6),
                     lon_deg + math.degrees(east / (6.378e6 * max(1e-6, math.cos(math.radians(lat_deg))))))
-        state = self.ins.state
+        dv_e, dv_n, dlat0, dlon0 = self._ins_errors
         tau = time_s - self._ins_time_s
         m, n = self._radii
-        dlat = state[6] + state[4] * tau / m
-        dlon = state[7] + state[3] * tau / (n * math.cos(math.radians(lat_deg)))
+        dlat = dlat0 + dv_n * tau / m
+        dlon = dlon0 + dv_e * tau / (n * math.cos(math.radians(lat_deg)))
         return lat_deg + math.degrees(dlat), (lon_deg + math.degrees(dlon) + 180.0) % 360.0 - 180.0
 
     def velocity(self, vel_east_mps: float, vel_north_mps: float) -> tuple[float, float]:
@@ -296,7 +320,8 @@ class NavSolution:
         if self.ins is None:
             s = self.aided_vel_noise_mps
             return vel_east_mps + s * self._normal(), vel_north_mps + s * self._normal()
-        return self.ins.indicated_velocity(vel_east_mps, vel_north_mps)
+        dv_e, dv_n = self._ins_errors[:2]   # InsErrorModel.indicated_velocity, on the floats
+        return vel_east_mps + dv_e, vel_north_mps + dv_n
 
     def error_m(self, time_s: float, lat_deg: float, lon_deg: float) -> tuple[float, float]:
         """(east, north) error of the inertial solution in metres; (0, 0) while aided."""
