@@ -141,7 +141,9 @@ class Outbox:
             for link in self.links:
                 link.flush()
             return
-        if self.batch:
+        if self.batch and sum(map(len, frames)) <= MAX_DATAGRAM_BYTES:
+            chunks = [b"".join(frames)]   # an instant's frames fit one datagram (the usual case)
+        elif self.batch:
             chunks, current, size = [], [], 0
             for frame in frames:
                 if size + len(frame) > MAX_DATAGRAM_BYTES and current:

@@ -213,8 +213,7 @@ class SitlServer:
 
     def _next_event_us(self) -> int:
         nxt = self._next
-        t = min(nxt["mag"], nxt["imu"], nxt["field"], nxt["log"], nxt["physics"], nxt["init"], self.faults.next_us,
-                self.stepper.next_us)
+        t = min(*nxt.values(), self.faults.next_us, self.stepper.next_us)   # mag, imu, field, log, physics, init
         t = self.streams.next_due_us(t)
         delayed = self.out.delayed
         if delayed and delayed[0][0] < t:

@@ -89,7 +89,8 @@ class StreamScheduler:
             rates[name.upper()] = float(hz)
         self.default_rates = dict(rates)
         self.streams = {name: Stream(name, rates[name], senders[name]) for name in DEFAULT_RATES_HZ}
-        self._list = list(self.streams.values())
+        self._on: list[Stream] = []     # the streams with a rate, in the order above (see _rates_changed)
+        self._rates_changed()
         self.clock = clock
         self.out = out
         self.counters = counters
@@ -98,16 +99,22 @@ class StreamScheduler:
         """After a reboot: every stream back to its start-up rate (requested intervals are not kept)."""
         for name, stream in self.streams.items():
             stream.set_rate(self.default_rates[name], self.clock.t_us)
+        self._rates_changed()
+
+    def _rates_changed(self) -> None:
+        """After any rate change: the loop's two scans per instant skip the streams that are off
+        (due never, they could neither be the next event nor be sent)."""
+        self._on = [stream for stream in self.streams.values() if stream.interval_us]
 
     def next_due_us(self, t_us: int) -> int:
         """The earliest due time of any stream, or ``t_us`` when none is earlier."""
-        for stream in self._list:
+        for stream in self._on:
             if stream.next_us < t_us:
                 t_us = stream.next_us
         return t_us
 
     def run_due(self, now: int) -> None:
-        for stream in self._list:
+        for stream in self._on:
             if stream.next_us <= now:
                 stream.next_us += stream.interval_us
                 if stream.next_us <= now:   # after a rate change or a long step: no burst
@@ -129,6 +136,7 @@ class StreamScheduler:
         else:
             rate = US_PER_S / interval_us
         stream.set_rate(rate, self.clock.t_us)
+        self._rates_changed()
         return MAV_RESULT_ACCEPTED
 
     def get_message_interval(self, msg_id: float) -> int:
@@ -148,3 +156,4 @@ class StreamScheduler:
         rate = float(msg.req_message_rate) if msg.start_stop else 0.0
         for name in names:
             self.streams[name].set_rate(rate, self.clock.t_us)
+        self._rates_changed()
