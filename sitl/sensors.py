@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -51,6 +50,9 @@ class Normals:
     >>> a = Normals(np.random.default_rng(7)); b = Normals(np.random.default_rng(7))
     >>> [a() for _ in range(3)] == [b() for _ in range(3)]
     True
+    >>> c = Normals(np.random.default_rng(7), block=4); d = Normals(np.random.default_rng(7), block=4)
+    >>> [c.three() for _ in range(5)] == [(d(), d(), d()) for _ in range(5)]   # across block refills
+    True
     """
 
     def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
@@ -64,6 +66,13 @@ class Normals:
             self._buffer.reverse()
         return self._buffer.pop()
 
+    def three(self) -> tuple[float, float, float]:
+        """Three draws, the same as three calls in a row (one call for a vector's noise)."""
+        buffer = self._buffer
+        if len(buffer) >= 3:
+            return buffer.pop(), buffer.pop(), buffer.pop()
+        return self(), self(), self()
+
 
 @dataclass(frozen=True)
 class Attitude:
@@ -76,11 +85,16 @@ class Attitude:
     pitch_rate_radps: float = 0.0
     yaw_rate_radps: float = 0.0
 
-    @cached_property
+    @property
     def mat_nb(self) -> Matrix3:
         """Body -> NED rotation of these angles, computed once: the magnetometer and the IMU
-        sample of one instant rotate by the same true attitude."""
-        return mat_nb_from_euler(self.roll_rad, self.pitch_rad, self.yaw_rad)
+        sample of one instant rotate by the same true attitude. (Kept in the instance dict as
+        functools.cached_property does, without the lock its first access takes in 3.11.)"""
+        memo = self.__dict__
+        m = memo.get("_mat_nb")
+        if m is None:
+            m = memo["_mat_nb"] = mat_nb_from_euler(self.roll_rad, self.pitch_rad, self.yaw_rad)
+        return m
 
     def ned_to_body(self, vec_n: Vector3) -> Vector3:
         """``companion.frames.ned_to_body(vec_n, roll, pitch, yaw)``, the same products in the same
@@ -201,10 +215,9 @@ class SensorSuite:
         self.mag_clean_nt = (bx, by, bz)
         sigma, lsb = m.mag_noise_nt, m.mag_lsb_nt
         bias = m.mag_bias_nt
-        normal = self._normal
-        raw = (bx + bias[0] + sigma * normal() + extra_nt,
-               by + bias[1] + sigma * normal() + extra_nt,
-               bz + bias[2] + sigma * normal() + extra_nt)
+        wx, wy, wz = self._normal.three()
+        raw = (bx + bias[0] + sigma * wx + extra_nt, by + bias[1] + sigma * wy + extra_nt,
+               bz + bias[2] + sigma * wz + extra_nt)
         self.mag_float_nt = raw
         if lsb > 0.0:
             raw = (round(raw[0] / lsb) * lsb, round(raw[1] / lsb) * lsb, round(raw[2] / lsb) * lsb)
@@ -224,15 +237,18 @@ class SensorSuite:
         an, ae, ad = accel_ned_mps2
         fx, fy, fz = attitude.ned_to_body((an, ae, ad - GRAVITY_MPS2))
         sa = m.accel_noise_mps2
-        self.accel_mps2 = (fx + sa * normal(), fy + sa * normal(), fz + sa * normal())
+        wx, wy, wz = normal.three()
+        self.accel_mps2 = (fx + sa * wx, fy + sa * wy, fz + sa * wz)
         p, q, r = attitude.body_rates()
         sg = m.gyro_noise_radps
-        self.gyro_radps = (p + sg * normal(), q + sg * normal(), r + sg * normal())
+        wx, wy, wz = normal.three()
+        self.gyro_radps = (p + sg * wx, q + sg * wy, r + sg * wz)
         sat = math.radians(m.attitude_noise_deg)
         errors = self.attitude_errors
         if errors is None:
-            self.attitude_est = Attitude(attitude.roll_rad + sat * normal(), attitude.pitch_rad + sat * normal(),
-                                         attitude.yaw_rad + sat * normal(), p, q, r)
+            wx, wy, wz = normal.three()
+            self.attitude_est = Attitude(attitude.roll_rad + sat * wx, attitude.pitch_rad + sat * wy,
+                                         attitude.yaw_rad + sat * wz, p, q, r)
             return
         d_roll, d_pitch, d_yaw = errors.slow_errors_rad(time_s, attitude.yaw_rad, ins)
         roll = attitude.roll_rad + d_roll + sat * normal()
