@@ -54,10 +54,10 @@ FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only o
 
 
 @functools.lru_cache(maxsize=8)
-def _gate_nis(dof: int) -> float:
-    """The NIS beyond which a far fix is implausible (``FIX_GATE_PROBABILITY``, chi-square);
-    scipy's ppf costs ~100 us, the answer depends on the element count only."""
-    return float(chi2.ppf(FIX_GATE_PROBABILITY, dof))
+def _gate_nis(probability: float, dof: int) -> float:
+    """The NIS beyond which a far fix is implausible (chi-square quantile): cached, scipy's ppf
+    costs ~100 us and the answer depends on the gate and the element count only."""
+    return float(chi2.ppf(probability, dof))
 
 
 class FusionModel:
@@ -246,7 +246,7 @@ class PositionEstimator:
         ``FIX_GATE_PROBABILITY``: a far fix is a blunder only if the filter is sure it is far."""
         nis = self.filter.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas),
                                          at_centre)
-        return not nis <= _gate_nis(len(measured))
+        return not nis <= _gate_nis(FIX_GATE_PROBABILITY, len(measured))
 
     def _fix(self, measured: np.ndarray, start: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
         """The bias-corrected geomagnetic fix on the steering pair from ``start`` (the window
