@@ -7,17 +7,21 @@ from __future__ import annotations
 import math
 import pickle
 from dataclasses import replace
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
+import pygeomag
 import pytest
 from pymavlink import mavutil
 
 from companion.app import AppOptions, CompanionApp, State
 from companion.io.sensors.base import SampleKind
-from companion.nav.field import model_for_date
-from companion.nav.mission import Mission
+from companion.nav.field import WorldMagneticModel, load_wmm, model_for_date
+from companion.nav.geo import offset_position
+from companion.nav.mission import Measurement, Mission
 from companion.params import NavConfig, default_values
-from companion.process.resume import RESUME_MAX_AGE_S, NavStateStore
+from companion.process.resume import RESUME_MAX_AGE_S, SNAPSHOT_VERSION, NavSnapshot, NavStateStore, dumps
 from tests.companion.process.rig import ARMED_GUIDED, _free_port, _msg, _sent
 
 
@@ -133,3 +137,57 @@ def test_the_state_of_an_ended_mission_is_not_resumed(tmp_path):
     finally:
         app.close()
         fc.close()
+
+
+def _cruising_mission(model=None) -> tuple[NavSnapshot, Mission, Callable[[], Measurement]]:
+    """The real-vehicle defaults' core after its probes (its snapshot, the core) and the noiseless
+    measurement once its last command is flown."""
+    config = NavConfig.from_values(default_values())
+    mission = Mission(config, model)
+    field = mission.model
+    state = {"lat": config.start_lat_deg, "lon": config.start_lon_deg, "t": 0.0}
+
+    def measure(cmd=None) -> Measurement:
+        if cmd is not None:
+            flown = cmd.speed_mps * config.period_s
+            lat, lon = offset_position(state["lat"], state["lon"], flown * math.sin(cmd.course_rad),
+                                       flown * math.cos(cmd.course_rad))
+            state.update(lat=float(lat), lon=float(lon), t=state["t"] + config.period_s)
+        e = field.elements(state["lat"], state["lon"], config.alt_m, config.year)
+        return Measurement(state["t"], float(e.decl_deg), float(e.incl_deg), f_nt=float(e.f_nt),
+                           h_nt=float(e.h_nt), z_nt=float(e.z_nt))
+
+    cmd = mission.step(measure())
+    for _ in range(4):
+        cmd = mission.step(measure(cmd))
+    snapshot = NavSnapshot(SNAPSHOT_VERSION, "id", 1, 0, state["t"], state["t"], state["t"] + config.period_s, cmd,
+                           config.elements, None, False, mission.snapshot())
+    return snapshot, mission, lambda: measure(cmd)
+
+
+def test_a_shipped_field_model_is_saved_by_its_name_and_the_core_flies_on_the_same(tmp_path):
+    """The filters' field model is not state: saved as the name it loads by, it comes back as the
+    very model (not a 239 kB copy in every file), and the core restored from the file steps bit
+    for bit as one restored from the whole pickle did."""
+    snapshot, mission, measurement = _cruising_mission()
+    store = NavStateStore(tmp_path / "deep" / "s.navstate")   # (its folder made on the first save)
+    store.save(snapshot)
+    whole = pickle.dumps(snapshot, protocol=pickle.HIGHEST_PROTOCOL)
+    saved = store.path.read_bytes()
+    assert len(saved) < len(whole) - len(pickle.dumps(mission.model)) // 2
+    by_name, loaded = store.load()[0].mission(), pickle.loads(whole).mission()
+    assert by_name.estimator.model is by_name.model is load_wmm(mission.model.name)
+    meas = measurement()
+    for _ in range(3):
+        a, b = by_name.step(meas), loaded.step(meas)
+        assert replace(a, solver_time_s=0.0) == replace(b, solver_time_s=0.0)
+        meas = replace(meas, time_s=meas.time_s + mission.config.period_s)
+
+
+def test_any_other_field_model_is_saved_whole(tmp_path):
+    model = WorldMagneticModel.from_cof(Path(pygeomag.__file__).parent / "wmm" / "WMM_2020.COF",
+                                        allow_extrapolation=True)
+    snapshot, _, _ = _cruising_mission(model)
+    back = pickle.loads(dumps(snapshot)).mission_state["estimator"].model
+    assert back is not model and back.allow_extrapolation and back.name == model.name
+    assert np.array_equal(back._sums._coeffs, model._sums._coeffs)
