@@ -61,7 +61,7 @@ from companion.nav.field import WorldMagneticModel, element_gradient
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
 __all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge",
-           "navigator_bias"]
+           "navigator_bias", "smallest_singular_value"]
 
 MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
 
@@ -142,6 +142,24 @@ def element_noise(elements: ElementSet, incl_deg: float, f_nt: float, se: dict[s
     return np.array([v if math.isfinite(v) else 0.0 for v in values])
 
 
+def smallest_singular_value(matrix: np.ndarray) -> float:
+    """The smallest singular value of ``matrix``; a finite 2 x 2 one in closed form, ``|det| / sigma_max``
+    with ``sigma_max^2 = (|M|_F^2 + sqrt(|M|_F^4 - 4 det^2)) / 2`` (no cancellation in the small one),
+    anything else by :func:`numpy.linalg.svd` (which raises on NaN). In the control step LAPACK's SVD
+    of the 2 x 2 gradient took ~85 us, a fifth of the judgement.
+
+    >>> smallest_singular_value(np.array([[3.0, 0.0], [0.0, -0.5]])), smallest_singular_value(np.zeros((2, 2)))
+    (0.5, 0.0)
+    """
+    if matrix.shape != (2, 2) or not np.all(np.isfinite(matrix)):
+        return float(np.linalg.svd(matrix, compute_uv=False)[-1])
+    (a, b), (c, d) = matrix.tolist()
+    det = abs(a * d - b * c)
+    frobenius2 = a * a + b * b + c * c + d * d
+    largest = math.sqrt(0.5 * (frobenius2 + math.sqrt(max(frobenius2 * frobenius2 - 4.0 * det * det, 0.0))))
+    return det / largest if largest > 0.0 else 0.0
+
+
 def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, measured: np.ndarray,
           f_nt: float, bias: np.ndarray, pred_lat_deg: float, pred_lon_deg: float, sigma_m: float,
           flown_m: float, limits: PlausibilityLimits = PlausibilityLimits(),
@@ -173,7 +191,7 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     residual = elements.difference(np.asarray(measured, dtype=float) - removed, elements.values(field))
     gradient = element_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
     bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
-    if np.linalg.svd(gradient, compute_uv=False)[-1] < MIN_GRADIENT_SV:
+    if smallest_singular_value(gradient) < MIN_GRADIENT_SV:
         return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
     inverse = np.linalg.inv(gradient)
     noise_m = 0.0

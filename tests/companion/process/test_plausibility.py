@@ -9,18 +9,20 @@ import pytest
 
 from companion.io.records import read_steps_csv
 from companion.nav.elements import ELEMENT_SETS, ElementSet
-from companion.nav.field import model_for_date
+from companion.nav.field import element_gradient, model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.magnetometer import decl_incl_deg
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
 from companion.process.plausibility import (
+    MIN_GRADIENT_SV,
     Judgement,
     MagPlausibility,
     PlausibilityLimits,
     element_noise,
     judge,
     navigator_bias,
+    smallest_singular_value,
 )
 from tests.companion.process.rig import _sent
 
@@ -110,6 +112,26 @@ def test_element_noise_maps_f_and_i_into_h_and_z_and_knows_nothing_as_zero():
     assert h == pytest.approx(math.hypot(30.0 * math.cos(math.radians(incl)), f * math.sin(math.radians(incl)) * s_i))
     assert z == pytest.approx(math.hypot(30.0 * math.sin(math.radians(incl)), f * math.cos(math.radians(incl)) * s_i))
     assert element_noise(SETS[0], incl, f, {"decl_deg": math.nan}).tolist() == [0.0, 0.0]
+
+
+def test_the_closed_form_singular_value_is_lapacks_and_the_gate_falls_alike():
+    """The weak-gradient gate's smallest singular value in closed form: LAPACK's to 1e-9 relative
+    over random, near-singular and real gradients, so the gate opens and closes as before."""
+    rng = np.random.default_rng(0)
+    model = model_for_date(2024.36)
+    real = [element_gradient(model, e, lat, lon, 0.0, 2024.36) for e in SETS for lat, lon in
+            zip(rng.uniform(-70.0, 70.0, 50), rng.uniform(-180.0, 180.0, 50))]
+    random = [rng.normal(0.0, 1.0, (2, 2)) * 10.0 ** rng.uniform(-8, 2) for _ in range(300)]
+    near = [np.outer(rng.normal(size=2), rng.normal(size=2)) * 1e-5 + rng.normal(0.0, 1.0, (2, 2)) * 10.0 ** -k
+            for k in range(6, 16) for _ in range(20)]
+    for g in real + random + near:
+        exact = float(np.linalg.svd(g, compute_uv=False)[-1])
+        assert smallest_singular_value(g) == pytest.approx(exact, rel=1e-9, abs=1e-12 * np.abs(g).max())
+        if abs(exact / MIN_GRADIENT_SV - 1.0) > 1e-6:
+            assert (smallest_singular_value(g) < MIN_GRADIENT_SV) == (exact < MIN_GRADIENT_SV)
+    with pytest.raises(np.linalg.LinAlgError):   # a NaN gradient as before
+        smallest_singular_value(np.array([[math.nan, 1.0], [0.0, 1.0]]))
+    assert smallest_singular_value(np.ones((3, 2))) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_the_start_up_calibration_is_taken_out_before_judging():
