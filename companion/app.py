@@ -55,6 +55,12 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("MAVLINK20", "1")
+# One BLAS thread, set before numpy loads it: the navigation's matrices are 2 x 2 to 30 x 30,
+# where a second OpenBLAS thread only adds its hand-off (the 30 x 30 matrix exponential
+# 0.2 -> 2.5 ms, the control step about twice as long on a 2-core board). The simulator, the
+# benchmarks and the Monte Carlo set the same.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 import argparse
 import signal

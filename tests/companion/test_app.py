@@ -120,3 +120,14 @@ def test_refused_tcp_connection_names_the_address(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in err
     assert err.strip().splitlines()[-1] == (f"fcmpc-companion: cannot connect to tcp:127.0.0.1:{port}: "
                                             f"Connection refused")
+
+
+def test_the_companion_process_runs_one_blas_thread():
+    """fcmpc-companion's numpy loads BLAS with one thread whatever the machine's default (a second
+    thread doubled the control step on 2 cores); the variables must be set before numpy loads."""
+    probe = ("import companion.app, json, threadpoolctl, numpy; "
+             "print(json.dumps([i['num_threads'] for i in threadpoolctl.threadpool_info() if i['user_api'] == 'blas']))")
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) and set(json.loads(done.stdout)) == {1}
