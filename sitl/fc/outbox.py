@@ -10,7 +10,15 @@ the frames of each instant, faults applied and tlog written at that instant, are
 at the next lockstep boundary (:meth:`Outbox.flush` with ``release``): the companion's answers are
 only read at the boundaries anyway, so it sees the same frames in the same order, in one burst
 of datagrams per boundary instead of one per 0.1 s instant (each a wake-up of the companion; a
-third of the lockstep mission's system time went to them).
+third of the lockstep mission's system time went to them). With ``coalesce`` (free-run,
+``--speedup 0``: no wall clock to keep, nobody waited for) consecutive instants share a
+datagram, whole instants while they fit ``MAX_DATAGRAM_BYTES``: an instant's frames are about
+180 bytes at the default 10 Hz streams, so about seven instants share a datagram (the
+benchmark's hour: 5,041 datagrams instead of 36,001, each a ``sendto`` of ~4 us and a wake-up of
+the reader). What must not wait leaves at the end of its instant with everything before it
+(``urgent``: a STATUSTEXT, anything queued while input was handled, i.e. every reply), and
+:meth:`Outbox.send_coalesced` sends the rest before a forwarded frame and at the end of the run.
+The frames, their order and their tlog stamps are those of a run without coalescing.
 :class:`Counters` is the run's tally of events, reported in the summary.
 """
 from __future__ import annotations
@@ -58,6 +66,10 @@ class Outbox:
         self.delayed: list[tuple[int, bytes]] = []
         self._out: list[bytes] = []
         self._last_say: dict[str, float] = {}
+        self.coalesce = False           # free-run: instants share datagrams (set by the server)
+        self.urgent = False             # what this instant queued must not wait for later ones (read when coalescing)
+        self._coalesced: list[bytes] = []
+        self._coalesced_bytes = 0
 
     def emit(self, cls, *fields) -> None:
         """Queue one message (class and ``*_encode`` arguments) for the end of this iteration."""
@@ -78,6 +90,7 @@ class Outbox:
         if not self.quiet and os.environ.get("FCMPC_SITL_ECHO"):
             print(f"[{now:10.1f}] {text}", file=sys.stderr)
         self.emit(mavlink.MAVLink_statustext_message, severity, text.encode("ascii", "replace")[:50])
+        self.urgent = True              # an announcement is news: not held for a coalesced datagram
 
     def relay_events(self, source) -> None:
         """Announce (and clear) the ``(severity, text)`` events a part such as Guidance collected."""
@@ -119,7 +132,8 @@ class Outbox:
 
     def flush(self, release: bool = True) -> None:
         """Send what this instant queued (after the link faults) to every link; with ``hold``, only
-        when ``release`` (a lockstep boundary), together with what earlier instants held back."""
+        when ``release`` (a lockstep boundary), together with what earlier instants held back; with
+        ``coalesce`` (free-run), into the datagram being filled (:meth:`_coalesce`)."""
         frames, self._out = self._out, []
         faults = self.faults
         if faults.loss or faults.dup:
@@ -137,6 +151,9 @@ class Outbox:
             if not release:
                 return
             frames, self._held = self._held, []
+        if self.coalesce:
+            self._coalesce(frames)
+            return
         if not frames:
             for link in self.links:
                 link.flush()
@@ -157,3 +174,35 @@ class Outbox:
         for link in self.links:
             for chunk in chunks:
                 link.send(chunk)
+
+    def _coalesce(self, frames: list[bytes]) -> None:
+        """Free-run: add this instant's frames to the datagram being filled; send it when they would
+        not fit, or at once when ``urgent``. An instant always stays whole in one datagram if it fits."""
+        if frames:
+            size = sum(map(len, frames))
+            if self._coalesced_bytes + size > MAX_DATAGRAM_BYTES:
+                self.send_coalesced()
+            if size <= MAX_DATAGRAM_BYTES:
+                self._coalesced += frames
+                self._coalesced_bytes += size
+            else:   # larger than a datagram (a parameter list): chunked at frame boundaries, as without coalescing
+                for frame in frames:
+                    if self._coalesced_bytes + len(frame) > MAX_DATAGRAM_BYTES:
+                        self.send_coalesced()
+                    self._coalesced.append(frame)
+                    self._coalesced_bytes += len(frame)
+        if self.urgent:
+            self.urgent = False
+            self.send_coalesced()
+        elif not frames:
+            for link in self.links:
+                link.flush()
+
+    def send_coalesced(self) -> None:
+        """Send the frames coalesced so far as one datagram (free-run): before anything that must
+        not overtake them (a forwarded frame) and at the end of the run."""
+        if self._coalesced:
+            data = b"".join(self._coalesced)
+            self._coalesced, self._coalesced_bytes = [], 0
+            for link in self.links:
+                link.send(data)

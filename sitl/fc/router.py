@@ -134,6 +134,9 @@ class Router:
         if src == (self.sysid, self.compid):
             self.counters.add("rx_own_echo")
             return
+        # a reply (COMMAND_ACK, PARAM_VALUE, mission protocol) leaves at the end of this instant,
+        # not in a later coalesced datagram of a free run
+        self.out.urgent = True
         name = msg.get_type()
         self.counters.add("rx_messages")
         self.rx_by_type[name] = self.rx_by_type.get(name, 0) + 1
@@ -144,6 +147,7 @@ class Router:
         for_us = (target_sys in (None, 0, self.sysid)) and (target_comp in (None, 0, self.compid))
         if self.routing and (target_sys != self.sysid or target_comp not in (self.compid,)) and \
                 (len(self.links) > 1 or link.peer_count() > 1):
+            self.out.send_coalesced()   # a forwarded frame does not overtake ours sent before it
             for other in self.links:
                 other.send(frame, exclude=peer if other is link else None)
             self.counters.add("rx_routed")

@@ -12,6 +12,14 @@ holds modes, arming and setpoint guidance.
 The loop jumps from one event to the next in integer microseconds of simulated time
 (sensor samples, field and physics steps, streams, faults, log rows, lockstep boundaries):
 wait for the instant (pace), update the command, move the vehicle, run what is due, send.
+Paced (``--speedup N``) each instant leaves as its own datagram, and in lockstep at the
+boundary. Free-running (``--speedup 0``) nobody is waited for and no wall deadline is kept, so
+consecutive instants share datagrams of up to ``MAX_DATAGRAM_BYTES`` (:class:`Outbox`; a
+STATUSTEXT or a reply is not held), about seven instants per ``sendto`` and per wake-up of the
+reader at the default streams. The links are still read every instant, so a command takes
+effect at the same simulated instant as when every instant had its datagram: a ``select(0)``
+costs under 1 us (about 1.5 % of the loop), and reading only every fourth instant saved no time
+measurable on this machine.
 """
 from __future__ import annotations
 
@@ -103,6 +111,9 @@ class SitlServer:
         if speedup is None:
             speedup = 0.0 if config.lockstep else DEFAULT_SPEEDUP
         self.pacer = Pacer(speedup)
+        # free-run: no wall clock to keep and nobody waited for, so instants share datagrams (Outbox)
+        free_run = self.pacer.speedup is None and not config.lockstep
+        self.out.coalesce = free_run and config.batch
         self.gate = LockstepGate(config.lockstep_period_s, config.lockstep_timeout_s,
                                  config.lockstep_start_timeout_s, config.lockstep_peer,
                                  config.lockstep_slack) if config.lockstep else None
@@ -286,6 +297,7 @@ class SitlServer:
               f"records {self.log_dir if self.records.enabled else 'off'}", file=sys.stderr, flush=True)
 
     def _finish(self) -> None:
+        self.out.send_coalesced()
         self.records.finish(self.vehicle, self.guidance, self.faults)
         self._close_links(self.links)
         wall = max(self.wall_end - self.wall_start, 1e-9)
