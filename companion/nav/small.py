@@ -10,7 +10,8 @@ answers, to rounding, for plain floats:
   for m > 3.
 
 Singular input raises numpy's ``LinAlgError``, as numpy does (an exactly zero determinant; a
-non-positive pivot of S). Cramer's rule is forward-stable on 2 x 2 systems to a few ulps times
+non-positive pivot of S). For entries whose products underflow (below ~1e-154) the determinant
+rounds to zero: far outside the navigator's matrices (G ~1e-6 deg/m, B in QP units ~1-1e3). Cramer's rule is forward-stable on 2 x 2 systems to a few ulps times
 the condition number, which the fix bounds (``max_condition`` 1e6); tested against numpy on
 random and near-singular matrices (``tests/nav/test_small.py``).
 """

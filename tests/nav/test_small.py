@@ -8,7 +8,10 @@ from hypothesis import strategies as st
 
 from companion.nav.small import inverse2, solve2, whiten
 
-finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
+# the navigator's 2 x 2 matrices: G ~1e-6 deg/m, B = G T in QP units ~1e0-1e3; products of
+# entries below ~1e-154 underflow (numpy's LU then calls a subnormal matrix singular, Cramer's
+# determinant rounds to zero): outside what the closed forms are for
+finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False).filter(lambda v: v == 0.0 or abs(v) > 1e-100)
 
 
 @settings(max_examples=300, deadline=None)
