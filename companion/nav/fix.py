@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike
 
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.geo import offset_position, radii_of_curvature_m
-from companion.nav.small import inverse2, solve2
+from companion.nav.small import condition2, inverse2, solve2
 from companion.nav.wmm import WorldMagneticModel
 
 __all__ = ["PositionFix", "PositionFixError", "decl_incl_gradient", "element_fix", "element_gradient", "fix_covariance",
@@ -157,18 +157,6 @@ class PositionFix:
     gradient: np.ndarray | None = None
 
 
-def _condition_2x2(g: np.ndarray) -> float:
-    """2-norm condition number of a 2x2 matrix (closed form; inf when singular, NaN propagates)."""
-    a, b, c, d = (float(v) for v in g.ravel())
-    frobenius2 = a * a + b * b + c * c + d * d
-    det = abs(a * d - b * c)
-    if det == 0.0:
-        return math.inf
-    # sigma_max / sigma_min from sigma1^2 + sigma2^2 = |G|_F^2 and sigma1 * sigma2 = |det G|
-    ratio = frobenius2 / (2.0 * det)
-    return ratio + math.sqrt(max(ratio * ratio - 1.0, 0.0))
-
-
 # Beyond this latitude the local east/north plane (and the +-step gradient) degenerates.
 _MAX_FIX_LAT_DEG = 89.5
 
@@ -253,7 +241,7 @@ def element_fix(
             values, gradient = _elements_and_gradient(model, lat, lon, alt_m, year, step_m, elements)
         residual = elements.difference(values, target)
         residual_norm = math.hypot(*residual)
-        condition = _condition_2x2(gradient)
+        condition = condition2(gradient)
         if not condition <= max_condition:  # also catches NaN
             raise PositionFixError(f"gradient ill-conditioned (condition {condition:.3g} > {max_condition:.3g}) "
                                    f"{_where(lat, lon, iteration, residual_norm)}")

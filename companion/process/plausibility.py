@@ -59,9 +59,10 @@ import numpy as np
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
+from companion.nav.small import smallest_singular_value
 
 __all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge",
-           "navigator_bias", "smallest_singular_value"]
+           "navigator_bias"]
 
 MIN_GRADIENT_SV = 1e-9    # deg (or nT-scaled) per metre: below, the linearised fix is not judged
 
@@ -140,24 +141,6 @@ def element_noise(elements: ElementSet, incl_deg: float, f_nt: float, se: dict[s
     derived = {"h_nt": math.hypot(c * s_f, f_nt * s * s_i), "z_nt": math.hypot(s * s_f, f_nt * c * s_i)}
     values = [derived[n] if n in derived else known(n) for n in elements.names]
     return np.array([v if math.isfinite(v) else 0.0 for v in values])
-
-
-def smallest_singular_value(matrix: np.ndarray) -> float:
-    """The smallest singular value of ``matrix``; a finite 2 x 2 one in closed form, ``|det| / sigma_max``
-    with ``sigma_max^2 = (|M|_F^2 + sqrt(|M|_F^4 - 4 det^2)) / 2`` (no cancellation in the small one),
-    anything else by :func:`numpy.linalg.svd` (which raises on NaN). In the control step LAPACK's SVD
-    of the 2 x 2 gradient took ~85 us, a fifth of the judgement.
-
-    >>> smallest_singular_value(np.array([[3.0, 0.0], [0.0, -0.5]])), smallest_singular_value(np.zeros((2, 2)))
-    (0.5, 0.0)
-    """
-    if matrix.shape != (2, 2) or not np.all(np.isfinite(matrix)):
-        return float(np.linalg.svd(matrix, compute_uv=False)[-1])
-    (a, b), (c, d) = matrix.tolist()
-    det = abs(a * d - b * c)
-    frobenius2 = a * a + b * b + c * c + d * d
-    largest = math.sqrt(0.5 * (frobenius2 + math.sqrt(max(frobenius2 * frobenius2 - 4.0 * det * det, 0.0))))
-    return det / largest if largest > 0.0 else 0.0
 
 
 def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, measured: np.ndarray,

@@ -13,6 +13,7 @@ from companion.nav.field import element_gradient, model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.magnetometer import decl_incl_deg
 from companion.nav.mission import Mission
+from companion.nav.small import smallest_singular_value
 from companion.params import NavConfig, default_values
 from companion.process.plausibility import (
     MIN_GRADIENT_SV,
@@ -22,7 +23,6 @@ from companion.process.plausibility import (
     element_noise,
     judge,
     navigator_bias,
-    smallest_singular_value,
 )
 from tests.companion.process.rig import _sent
 
