@@ -166,14 +166,18 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
                                avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
                                avg.z_se_nt, avg.mag_heading_deg), avg
-        # analytic path: the path's points after the start knot (the start alone at step 0)
-        path = slice(1, None) if len(knots) > 1 else slice(0, 1)
-        ned = truth.field_ned_nt(lats[path], lons[path], nav.alt_m, time_s)
+        # analytic path: the time average over the period's path, by the trapezoid rule over its
+        # knots (the start alone at step 0). Its centre is the period's midpoint, as for the
+        # companion's evenly spaced samples; the knots after the start alone would put it half
+        # a sub-step late (15 s, ~200 m along the track at 50 km/h). A storm is averaged over the
+        # period's times too, as the samples would see it.
+        ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
         n, e, d = ned[..., 0], ned[..., 1], ned[..., 2]
         h = np.hypot(n, e)
-        decl = float(np.mean(np.degrees(np.arctan2(e, n)))) + noise_rng.normal(0.0, sigma_d)
-        incl = float(np.mean(np.degrees(np.arctan2(d, h)))) + noise_rng.normal(0.0, sigma_i)
-        fn, hn, zn = (float(np.mean(v)) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
+        weights = trapezoid_weights(len(knots))
+        decl = float(weights @ np.degrees(np.arctan2(e, n))) + noise_rng.normal(0.0, sigma_d)
+        incl = float(weights @ np.degrees(np.arctan2(d, h))) + noise_rng.normal(0.0, sigma_i)
+        fn, hn, zn = (float(weights @ v) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
         # the standard errors as the period's scatter would measure them (D, I, F, H, Z)
         se = np.array([sigma_d, sigma_i, sigma_f, sigma_f, sigma_f]) * np.maximum(
             0.0, 1.0 + se_spread * se_rng.standard_normal(5))
@@ -217,6 +221,16 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         est_cov_en_m2=np.array(covs, dtype=float),
         process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
     )
+
+
+def trapezoid_weights(count: int) -> np.ndarray:
+    """Weights of the trapezoid rule's time average over ``count`` evenly spaced knots (ends
+    halved; one knot: itself). They sum to 1 and are exact for a quantity linear in time."""
+    if count == 1:
+        return np.ones(1)
+    weights = np.full(count, 1.0 / (count - 1))
+    weights[[0, -1]] *= 0.5
+    return weights
 
 
 def gravity_referenced(avg: AveragedElements) -> AveragedElements:
