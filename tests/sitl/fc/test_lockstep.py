@@ -84,3 +84,37 @@ def test_lockstep_closed_loop_is_bit_reproducible(sitl, tmp_path, slack):
         assert server.state.distance_m > 150.0
         logs.append((folder / "truth.csv").read_bytes())
     assert logs[0] == logs[1]
+
+
+def test_a_lockstep_run_ending_off_a_boundary_sends_every_frame_it_logged(tmp_path):
+    """Frames held after the last boundary (duration 1.3 s, period 0.2 s) still leave at the end of the run:
+    what a reader receives on its socket is exactly the tlog, and as many frames as tx_messages."""
+    import socket
+
+    from sitl.fc.config import ServerConfig
+    from sitl.fc.server import SitlServer
+    from tests.sitl.conftest import read_tlog
+    from tests.sitl.fc.test_outbox import frames_of
+
+    reader = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    reader.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+    reader.bind(("127.0.0.1", 0))
+    try:
+        server = SitlServer(ServerConfig(outs=(f"udp:127.0.0.1:{reader.getsockname()[1]}",), lockstep=True,
+                                         lockstep_period_s=0.2, lockstep_timeout_s=0.02,
+                                         lockstep_start_timeout_s=0.02, duration_s=1.3, init_s=0.2, seed=3,
+                                         quiet=True, log_dir=str(tmp_path / "run"), tlog=""))
+        summary = server.run()                  # nobody answers: each boundary times out
+        reader.setblocking(False)
+        received = []
+        while True:
+            try:
+                received += frames_of(reader.recv(65536))
+            except BlockingIOError:
+                break
+    finally:
+        reader.close()
+    logged = [m.get_msgbuf() for m in read_tlog(tmp_path / "run" / "sitl.tlog")]
+    assert summary["sim_s"] == pytest.approx(1.3) and summary["lockstep_timeouts"] >= 6
+    assert len(logged) == summary["tx_messages"] > 0
+    assert b"".join(received) == b"".join(logged), f"{len(received)} frames received, {len(logged)} logged"
