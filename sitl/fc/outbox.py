@@ -7,7 +7,7 @@ duplication drawn from the seeded link generator; a delay is a FIFO, so no frame
 delayed one), writes the tlog, and packs the frames into datagrams of at most
 ``MAX_DATAGRAM_BYTES`` (``batch``) before sending them to every link. With ``hold`` (lockstep)
 the frames of each instant, faults applied and tlog written at that instant, are held and sent
-at the next lockstep boundary (:meth:`Outbox.flush` with ``release``): the companion's answers are
+at the next lockstep boundary or the end of the run (:meth:`Outbox.flush` with ``release``): the companion's answers are
 only read at the boundaries anyway, so it sees the same frames in the same order, in one burst
 of datagrams per boundary instead of one per 0.1 s instant (each a wake-up of the companion; a
 third of the lockstep mission's system time went to them). With ``coalesce`` (free-run,

@@ -297,6 +297,8 @@ class SitlServer:
               f"records {self.log_dir if self.records.enabled else 'off'}", file=sys.stderr, flush=True)
 
     def _finish(self) -> None:
+        if self.out.hold:               # lockstep: what was held since the last boundary (a run ending off one)
+            self.out.flush(release=True)
         self.out.send_coalesced()
         self.records.finish(self.vehicle, self.guidance, self.faults)
         self._close_links(self.links)
