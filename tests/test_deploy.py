@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tests.ports import free_port
+
 REPO = Path(__file__).resolve().parents[1]
 UNIT = REPO / "deploy" / "fcmpc-companion.service"
 
@@ -36,9 +38,7 @@ def test_the_running_companion_says_ready_and_feeds_the_watchdog(tmp_path):
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(path)
     sock.settimeout(60.0)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_port()
     env = dict(os.environ, PYTHONPATH=str(REPO), NOTIFY_SOCKET=path, WATCHDOG_USEC="400000")
     proc = subprocess.Popen([sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}",
                              "--params", str(tmp_path / "c.parm"), "--params-create", "--log-dir",

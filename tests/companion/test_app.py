@@ -4,27 +4,21 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from tests.ports import free_port
 from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0) -> tuple[dict, dict]:
     """Simulator (lockstep, ``sim_s`` simulated seconds) and companion; their summaries."""
-    port = _free_port()
+    port = free_port()
     parm = tmp_path / "companion.parm"
     parm.write_text(parm_text, encoding="utf-8")
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
@@ -93,7 +87,7 @@ def test_missing_params_file_is_refused_not_replaced_by_the_default_mission(tmp_
 
 
 def test_params_create_starts_from_the_defaults(tmp_path):
-    port = _free_port()
+    port = free_port()
     proc = _companion(tmp_path, "--params", str(tmp_path / "new.parm"), "--params-create",
                       "--connect", f"udp:127.0.0.1:{port}", "--max-wall-s", "30")
     try:
@@ -112,9 +106,7 @@ def test_params_create_starts_from_the_defaults(tmp_path):
 
 
 def test_refused_tcp_connection_names_the_address(tmp_path):
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:   # a port nobody listens on
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()   # a port nobody listens on
     proc = _companion(tmp_path, "--connect", f"tcp:127.0.0.1:{port}")
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2 and "Traceback" not in err

@@ -18,7 +18,6 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -27,15 +26,10 @@ from pathlib import Path
 import pytest
 
 from companion.params import REGISTRY, read_parm_file
+from tests.ports import free_port
 from tests.processes import Lines, wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for_companion_heartbeat(port: int, timeout_s: float) -> None:
@@ -60,7 +54,7 @@ def vehicle(tmp_path):
     """Companion + simulator (real time x5) processes; yields (gcs_port, parm_path) once the
     companion's heartbeat reaches the ground-station port, so a client's first parameter
     download already finds component 191."""
-    companion_port, gcs_port = _free_port(), _free_port()
+    companion_port, gcs_port = free_port(), free_port()
     parm = tmp_path / "companion.parm"
     parm.write_text("LINK_GCS_ID2 245\n", encoding="utf-8")   # MAVSDK's ground-station id (MAVProxy's is 255)
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")

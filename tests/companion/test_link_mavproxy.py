@@ -15,7 +15,8 @@ import pytest
 
 from companion.io.link.signing import passphrase_key, write_key_file
 from companion.params import REGISTRY, read_parm_file
-from tests.companion.test_ground_station import Console, _free_port
+from tests.companion.test_ground_station import Console
+from tests.ports import free_port
 from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,7 +48,7 @@ def _quit(console: Console) -> None:
 
 
 def test_mavproxy_with_the_key_sets_parameters_without_it_cannot(tmp_path):
-    port = _free_port()
+    port = free_port()
     parm = tmp_path / "companion.parm"
     key_file = write_key_file(tmp_path / "signing.key", passphrase_key(PASSPHRASE))
     companion = subprocess.Popen(

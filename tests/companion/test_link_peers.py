@@ -12,14 +12,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from companion.io.link import MavlinkLink, mavlink
+from tests.ports import free_port
 
 AUTOPILOT = dict(type=11, autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode=0, custom_mode=4, system_status=3)
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _encoder(sysid: int, compid: int) -> mavlink.MAVLink:
@@ -74,7 +69,7 @@ def _pump(link: MavlinkLink, until, timeout_s: float = 5.0) -> list:
 
 @pytest.fixture
 def link():
-    port = _free_port()
+    port = free_port()
     lk = MavlinkLink(f"udpin:127.0.0.1:{port}", peer_capacity=16)
     lk.open()
     lk.port = port
@@ -168,7 +163,7 @@ def test_fc_pinned_second_autopilot_reported_impostor_dropped(link):
 
 
 def test_fc_sysid_given_on_the_command_line_is_the_only_one_followed():
-    port = _free_port()
+    port = free_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{port}", sysid=3, fc_compid=1)
     link.open()
     first, wanted = Sender(port, 1, 1), Sender(port, 3, 1)
@@ -184,7 +179,7 @@ def test_fc_sysid_given_on_the_command_line_is_the_only_one_followed():
 
 
 def test_speed_ceiling_caps_setpoints_whatever_the_caller_says():
-    port = _free_port()
+    port = free_port()
     receiver = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     link = MavlinkLink(f"udpout:127.0.0.1:{port}", speed_ceiling_mps=10.0)
     link.open()

@@ -27,16 +27,11 @@ from companion.io.link.signing import (
     write_key_file,
 )
 from companion.io.param_server import ParamServer
+from tests.ports import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 KEY = passphrase_key("correct horse battery staple")
 OTHER_KEY = passphrase_key("not the key")
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_key_file_is_private_and_its_content_never_in_an_error(tmp_path):
@@ -79,7 +74,7 @@ class Rig:
     """A signing link serving parameters; a GCS (255) with the key, and a stranger's pymavlink."""
 
     def __init__(self, tmp_path: Path) -> None:
-        self.port = _free_port()
+        self.port = free_port()
         key_file = write_key_file(tmp_path / "signing.key", KEY)
         self.link = MavlinkLink(f"udpin:127.0.0.1:{self.port}", signing=Signing.from_file(key_file, link_id=7))
         self.link.open()

@@ -17,6 +17,7 @@ from companion.io.mavlink_link import (  # noqa: E402
 )
 from companion.io.sensors.base import SampleFlag, SampleKind  # noqa: E402
 from companion.io.sensors.mavlink_source import MavlinkDecoder  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 NAN, INF = math.nan, math.inf
 
@@ -39,15 +40,9 @@ def test_guard_velocity_components_and_yaw_wrap():
     assert guard_setpoint(0.0, 13.9 * (1 + 1e-12), 13.9).vn_mps == 13.9              # rounding is clipped
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_bad_setpoints_never_reach_the_wire(tmp_path):
     """Over a real UDP socket: refused setpoints are not sent, a good one is, with the right fields."""
-    port = _free_port()
+    port = free_port()
     receiver = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     link = MavlinkLink(f"udpout:127.0.0.1:{port}", tlog_path=tmp_path / "c.tlog")
     link.open()
@@ -82,7 +77,7 @@ def test_bad_setpoints_never_reach_the_wire(tmp_path):
 
 
 def test_heartbeat_identity_over_udp():
-    port = _free_port()
+    port = free_port()
     receiver = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}")
     link = MavlinkLink(f"udpout:127.0.0.1:{port}")
     link.open()

@@ -4,7 +4,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -20,21 +19,16 @@ from pymavlink import mavutil  # noqa: E402
 from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
 from companion.io.param_server import ParamServer, decode_value, encode_value  # noqa: E402
 from companion.params import REGISTRY, SPEC_BY_NAME, default_values, read_parm_file, write_parm_file  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Served:
     """A ParamServer on its own MavlinkLink, pumped by a thread; a GCS-like pymavlink client."""
 
     def __init__(self, parm: Path, encoding: str = "auto") -> None:
-        port = _free_port()
+        port = free_port()
         self.link = MavlinkLink(f"udpin:127.0.0.1:{port}")
         self.link.open()
         self.changes: list[tuple[str, float]] = []

@@ -12,7 +12,6 @@ import itertools
 import math
 import os
 import signal
-import socket
 import threading
 import time
 
@@ -26,6 +25,7 @@ from pymavlink import mavutil  # noqa: E402
 from companion.app import CompanionApp, State, build_parser, main, options_from_args  # noqa: E402
 from companion.io.mavlink_link import mavlink  # noqa: E402
 from companion.io.sensors.base import SampleKind  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 # dronecan's own driver still passes python-can the deprecated 'bustype' keyword.
 pytestmark = pytest.mark.filterwarnings("ignore:The 'bustype' argument is deprecated:DeprecationWarning")
@@ -43,17 +43,11 @@ FC_FIELD_MG = (100, -200, 400)                    # the FC's own magnetometer: D
 _channels = itertools.count()
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Rig:
     """The companion's run loop in a thread, a MAVLink FC peer and a DroneCAN magnetometer node."""
 
     def __init__(self, tmp_path, channel: str) -> None:
-        port = _free_port()
+        port = free_port()
         self.channel = channel
         self.fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
         # this FC peer serves no parameters: declare the heading instead of waiting for EK3_SRC1_YAW
@@ -213,7 +207,7 @@ def test_can_magnetometer_going_silent_is_a_failsafe(rig: Rig) -> None:
 def test_bad_source_exits_with_2(tmp_path, capsys, spec: str, expected: str) -> None:
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        code = main(["--connect", f"udpout:127.0.0.1:{_free_port()}", "--log-dir", str(tmp_path), "--quiet",
+        code = main(["--connect", f"udpout:127.0.0.1:{free_port()}", "--log-dir", str(tmp_path), "--quiet",
                      "--no-tlog", "--sensors", spec])
     finally:
         for s, h in handlers.items():

@@ -22,6 +22,7 @@ import pytest
 from companion.params import REGISTRY, read_parm_file
 from sitl.firmware.px4 import read_qgc_params
 from tests.firmware.conftest import assert_forward_on, moving_pairs
+from tests.ports import free_port
 
 OFFBOARD = 6 << 16                    # PX4 custom_mode: main mode in bits 16-23
 AUTO_LOITER = (4 << 16) | (3 << 24)   # AUTO (4), sub mode LOITER (3): the rover's Hold
@@ -194,7 +195,7 @@ class _GcsRelay(threading.Thread):
         self.hello = hello
         self.sdk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sdk.bind(("127.0.0.1", 0))
-        self.sdk_port = _free_udp_port()
+        self.sdk_port = free_port()
         self.stop = threading.Event()
 
     def run(self) -> None:
@@ -213,12 +214,6 @@ class _GcsRelay(threading.Thread):
                     self.sdk.sendto(data, ("127.0.0.1", self.sdk_port))
                 else:
                     self.px4.send(data)
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_mavsdk_lists_and_sets_companion_parameters_through_px4(px4_factory):

@@ -1,7 +1,7 @@
 """Helpers of the simulator tests: a SITL on real loopback sockets and a pymavlink client.
 
 ``sitl`` (fixture) starts :class:`sitl.server.SitlServer` in a background thread with its
-UDP output pointed at a pymavlink ``udpin`` socket on a free port; ``run_cli`` runs
+UDP output pointed at a pymavlink ``udpin`` socket on a port of :mod:`tests.ports`; ``run_cli`` runs
 ``python -m sitl.server`` as a subprocess. Everything is bounded in wall time.
 """
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -23,6 +24,7 @@ import pytest  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 from sitl.server import ServerConfig, SitlServer  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 COMPANION = (1, 191)  # the companion computer's system/component
@@ -97,10 +99,14 @@ def sim_ms(msg) -> int | None:
 
 
 def open_client() -> tuple[Client, int]:
-    conn = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=COMPANION[0],
+    """A udpin client on a port of :func:`tests.ports.free_port`. Not ``udpin:...:0``: pymavlink sets
+    SO_REUSEADDR, with which Linux may bind port 0 to a port another such socket holds (another
+    test's client or ground station), and the newer socket then gets that port's datagrams."""
+    port = free_port()
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=COMPANION[0],
                                       source_component=COMPANION[1], dialect="ardupilotmega")
-    conn.port.setsockopt(__import__("socket").SOL_SOCKET, __import__("socket").SO_RCVBUF, 4 << 20)
-    return Client(conn), conn.port.getsockname()[1]
+    conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+    return Client(conn), port
 
 
 @pytest.fixture

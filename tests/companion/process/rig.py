@@ -6,7 +6,6 @@ read back from the wire. The ``rig`` fixture (conftest.py) gives an app armed in
 from __future__ import annotations
 
 import os
-import socket
 import time
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -17,6 +16,7 @@ from companion.io.mavlink_link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.nav.mission import Command
 from companion.params import NavConfig, default_values
+from tests.ports import free_port
 
 ARMED_GUIDED = dict(type=11, autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
                     base_mode=mavlink.MAV_MODE_FLAG_SAFETY_ARMED | mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
@@ -27,12 +27,6 @@ def _msg(name: str, **fields):
     msg = getattr(mavlink, f"MAVLink_{name.lower()}_message")(**fields)
     msg.pack(mavlink.MAVLink(None, 1, 1))
     return msg
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class FakeMission:
@@ -58,7 +52,7 @@ GOOD = Command(time_s=360.0, step=5, phase="cruise", course_rad=2.3, speed_mps=1
 
 
 def make_rig(tmp_path):
-    port = _free_port()
+    port = free_port()
     fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     app = CompanionApp(AppOptions(connect=f"udpout:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
                                   log_dir=str(tmp_path / "log"), quiet=True, tlog=False))

@@ -10,6 +10,7 @@ from companion.io.mavlink_link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.process.mode_commands import MODE_CONFIRM_S
 from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _sent
+from tests.ports import free_port
 
 
 def test_flight_controller_reboot_continues_the_mission(rig):
@@ -177,15 +178,11 @@ def test_px4s_messages_read_before_its_first_heartbeat_do_not_start_the_companio
     FC while the batch is parsed. Nothing before that heartbeat is kept, so the companion starts on
     PX4's conventions (CI, 2026-12-02: it said "ArduPilot FC sysid 3 detected", asked for the wrong
     magnetometer messages and excluded every step)."""
-    import socket as socket_module
-
     from pymavlink import mavutil
 
     from companion.app import AppOptions, CompanionApp
 
-    with socket_module.socket(socket_module.AF_INET, socket_module.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     app = CompanionApp(AppOptions(connect=f"udpin:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
                                   log_dir=str(tmp_path / "log"), quiet=True, tlog=False))
     app.open()

@@ -22,11 +22,12 @@ from companion.nav.geo import offset_position
 from companion.nav.mission import Measurement, Mission
 from companion.params import NavConfig, default_values
 from companion.process.resume import RESUME_MAX_AGE_S, SNAPSHOT_VERSION, NavSnapshot, NavStateStore, dumps
-from tests.companion.process.rig import ARMED_GUIDED, _free_port, _msg, _sent
+from tests.companion.process.rig import ARMED_GUIDED, _msg, _sent
+from tests.ports import free_port
 
 
 def _app(tmp_path, name: str):
-    port = _free_port()
+    port = free_port()
     fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     app = CompanionApp(AppOptions(connect=f"udpout:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
                                   log_dir=str(tmp_path / name), quiet=True, tlog=False))

@@ -25,12 +25,12 @@ from fcmpc_fly.runner import (
     REPO,
     _commands,
     _env,
-    _free_udp_port,
     _stop,
     prepare,
     write_short_scenario,
 )
 from tests.companion.test_closed_loop import ISSUE_MISS_M
+from tests.ports import free_port
 from tests.processes import wait_for_file
 
 HANG_S = 800.0          # a hung-run guard, not a pace
@@ -51,7 +51,7 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
     scenario_arg = str(write_short_scenario(scenario, dest, tmp_path / "short.toml"))
     parm = tmp_path / "fly.parm"
     write_parm_file(parm, values)
-    companion_cmd, sitl_cmd = _commands(options, scenario, tmp_path, parm, scenario_arg, _free_udp_port())
+    companion_cmd, sitl_cmd = _commands(options, scenario, tmp_path, parm, scenario_arg, free_port())
     env = _env()
     first = subprocess.Popen(companion_cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     second = sitl = None

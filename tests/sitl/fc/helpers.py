@@ -1,10 +1,11 @@
 """Helpers of the stand-in's socket tests: mode numbers, setpoint masks, arming and setpoint streams through a pymavlink client."""
 from __future__ import annotations
 
-import socket
 import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from tests.ports import free_port
 
 ARM, DO_SET_MODE = mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_CMD_DO_SET_MODE
 SET_INTERVAL, GET_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL
@@ -48,9 +49,6 @@ def stream_velocity(client, until_ms: int, vn: float, ve: float, **kw) -> None:
 
 
 def closed_udp_port() -> int:
-    """A loopback UDP port nobody listens on (the simulator sends there without a reader)."""
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
-    return port
+    """A loopback UDP port nobody listens on (the simulator sends there without a reader); from
+    :func:`tests.ports.free_port`, so no other socket of this run is given it."""
+    return free_port()

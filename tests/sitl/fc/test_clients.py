@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
 import threading
 import time
 
@@ -11,6 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.server import ServerConfig, SitlServer
+from tests.ports import free_port
 from tests.sitl.conftest import gps_scenario
 
 PX4_OFFBOARD, PX4_LOITER = 6 << 16, (4 << 16) | (3 << 24)
@@ -34,14 +34,6 @@ def test_px4_offboard_requires_streaming_and_falls_back_to_hold(sitl):
     assert "Hold" in text.text
     client.wait_mode(PX4_LOITER)
     assert server.guidance.mode == "AUTO.LOITER"
-
-
-def _free_udp_port() -> int:
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
-    return port
 
 
 async def _fly_with_mavsdk(port: int, server: SitlServer) -> dict:
@@ -85,7 +77,7 @@ async def _fly_with_mavsdk(port: int, server: SitlServer) -> dict:
 @pytest.mark.parametrize("autopilot", ["ardupilot", pytest.param("px4", marks=pytest.mark.slow)])
 def test_mavsdk_connects_reads_telemetry_and_flies_offboard(tmp_path, autopilot):
     pytest.importorskip("mavsdk")
-    port = _free_udp_port()
+    port = free_port()
     server = SitlServer(ServerConfig(scenario=str(gps_scenario(tmp_path)), outs=(f"udp:127.0.0.1:{port}",),
                                      speedup=8.0, autopilot=autopilot, quiet=True, log_dir=str(tmp_path / "log"),
                                      duration_s=600.0))

@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import math
-import socket
 import time
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from tests.ports import free_port
 from tests.sitl.fc.helpers import ARM, DO_SET_MODE, HOLD, SET_INTERVAL, send_velocity
 
 
@@ -57,10 +57,7 @@ def test_tcp_master_like_ardupilot_sitl(tmp_path):
     from pymavlink import mavutil
     from sitl.server import ServerConfig, SitlServer
 
-    probe = socket.socket()
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
+    port = free_port()
     server = SitlServer(ServerConfig(masters=(f"tcp:127.0.0.1:{port}",), speedup=20.0, quiet=True,
                                      log_dir=str(tmp_path), init_s=0.2))
     thread = threading.Thread(target=server.run, daemon=True)
@@ -90,10 +87,7 @@ def test_tcp_master_like_ardupilot_sitl(tmp_path):
 def test_routing_between_links(sitl):
     from pymavlink import mavutil
 
-    probe = socket.socket()
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
+    port = free_port()
     server, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
     client.time_ms()
     gcs = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190)
