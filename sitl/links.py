@@ -171,7 +171,8 @@ class UdpInLink(Link):
     def __init__(self, endpoint: Endpoint, index: int) -> None:
         super().__init__(endpoint, index)
         self.sock = _udp_socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        # no SO_REUSEADDR: UDP has no TIME_WAIT to wait out, and with it Linux lets a second socket
+        # bind a port in use (the newer one silently takes its datagrams): a port in use is EADDRINUSE
         self.sock.bind((endpoint.host, endpoint.port))
         self.peers: list[tuple[str, int]] = []
 

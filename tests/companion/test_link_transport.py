@@ -1,8 +1,9 @@
 """The UDP transport's batching, over real loopback sockets: the frames of one pass of the
 companion's loop leave packed, whole and in order, into datagrams a MAVLink receiver parses as a
-byte stream; outside a batch each frame is its own datagram."""
+byte stream; outside a batch each frame is its own datagram. A port in use is refused, not shared."""
 from __future__ import annotations
 
+import errno
 import os
 import socket
 
@@ -11,7 +12,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.io.link.transport import BATCH_DATAGRAM_BYTES, UdpTransport
+from companion.io.link.transport import BATCH_DATAGRAM_BYTES, UdpTransport  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 
 def _receiver() -> socket.socket:
@@ -92,3 +94,18 @@ def test_outside_a_batch_each_frame_is_its_own_datagram(pair):
     while len(got) < 3:
         got += _datagrams(rx)
     assert got == frames
+
+
+def test_a_port_in_use_is_refused_not_shared():
+    """Another socket holds the port (pymavlink's udpin sets SO_REUSEADDR): listening there is
+    EADDRINUSE; with SO_REUSEADDR on both, Linux let the bind succeed and the newer socket took
+    every datagram sent to the port."""
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    holder.bind(("127.0.0.1", free_port()))
+    try:
+        with pytest.raises(OSError) as err:
+            UdpTransport("127.0.0.1", holder.getsockname()[1], listen=True)
+        assert err.value.errno == errno.EADDRINUSE
+    finally:
+        holder.close()

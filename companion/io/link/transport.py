@@ -48,8 +48,10 @@ class UdpTransport:
 
     def __init__(self, host: str, port: int, listen: bool,
                  destinations: Callable[[], list[Hashable]] | None = None) -> None:
+        # no SO_REUSEADDR: UDP has no TIME_WAIT to wait out, and with it Linux lets another socket
+        # bind (or pick as its port 0) a port this one holds, then takes its datagrams: a port in
+        # use must be EADDRINUSE, not a silently shared port
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
         except OSError:  # pragma: no cover - platform limits

@@ -1,10 +1,13 @@
 """sitl.fc.router over real sockets: malformed input, a TCP master like ArduPilot SITL, routing between links."""
 from __future__ import annotations
 
+import errno
 import math
+import socket
 import time
 
 import numpy as np
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from tests.ports import free_port
@@ -104,3 +107,19 @@ def test_routing_between_links(sitl):
     finally:
         gcs.close()
     assert server.counters.get("rx_routed", 0) >= 2
+
+
+def test_udpin_on_a_port_in_use_is_refused_not_shared():
+    """A ``--master udpin:`` port another socket holds (pymavlink's udpin sets SO_REUSEADDR):
+    EADDRINUSE, instead of a second socket that silently takes the port's datagrams."""
+    from sitl.links import open_link, parse_endpoint
+
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    holder.bind(("127.0.0.1", free_port()))
+    try:
+        with pytest.raises(OSError) as err:
+            open_link(parse_endpoint(f"udpin:127.0.0.1:{holder.getsockname()[1]}"), 0)
+        assert err.value.errno == errno.EADDRINUSE
+    finally:
+        holder.close()
