@@ -114,6 +114,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_MERR_KM", float, 25.0, 0.01, 1e5, "km", "Table 3's uncertainty: correlation length of the field model's error (how far the start-up calibration holds)"),
     _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
     _p("NAV_DR_HDG", int, 1, 0, 1, "", "dead reckoning between fixes (no independent INS position) on 0 the commanded course, 1 the heading measured over the period (magnetometer levelled by the accelerometer, plus the model's D) where it is measured"),
+    _p("NAV_KP", float, -1.0, -1.0, 9.0, "", "planetary geomagnetic index Kp now, from a space-weather service via the ground station (GFZ, NOAA SWPC; update it every 3 h): at or above FUS_KP_ON the navigator takes a storm as on from the first step; -1 unknown (the innovations alone decide)"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -161,7 +162,12 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
     _p("FUS_BH_DEG", float, 0.1, 0.0, 5.0, "deg", "prior 1-sigma of each heading harmonic (cos, sin of psi and 2 psi) of the D/I calibration residual: a body-frame hard/soft-iron residual changes D and I when the vehicle turns; 0: no such states (before 2026-12-02)"),
     _p("FUS_BH_NT", float, 200.0, 0.0, 5000.0, "nT", "prior 1-sigma of each heading harmonic of the F/H/Z calibration residual; 0: no such states (before 2026-12-02)"),
-    _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while a disturbance is active: 1 (default) the bias states walk at FUS_BQA_* scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),
+    _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while the innovations (not a Kp) say a disturbance is active: 1 (default) the bias states walk at FUS_BQA_DEG/NT scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),
+    _p("FUS_BQA_MODE", int, 1, 0, 1, "", "how the bias states walk while a Kp declares a storm (FUS_KP_ON): 1 (default) along the field components at FUS_BQA_N/E/Z through the elements' Jacobian, on top of the quiet walk (a storm moves H, so I and F together, and D less); 0 per element at FUS_BQA_DEG/NT. A disturbance only the innovations found walks per element, FUS_BQA_ADAPT"),
+    _p("FUS_BQA_N", float, 70.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's north component while active (10 May 2024 main phase along the Pacific route, real time)"),
+    _p("FUS_BQA_E", float, 45.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's east component while active"),
+    _p("FUS_BQA_Z", float, 35.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's down component while active"),
+    _p("FUS_KP_ON", float, 5.0, 0.0, 9.0, "", "a Kp (NAV_KP, or the simulated world's space-weather feed) at or above this declares a storm: the bias states walk as FUS_BQA_MODE says from that step on, and the innovations cannot end it while it lasts (5: a G1 storm on NOAA's scale)"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
     _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled"),
@@ -397,6 +403,12 @@ class NavConfig(_FromRegistry):
     bias_qa_deg: float = _from("FUS_BQA_DEG")
     bias_qa_nt: float = _from("FUS_BQA_NT")
     bias_qa_adapt: int = _from("FUS_BQA_ADAPT")
+    bias_qa_mode: int = _from("FUS_BQA_MODE")
+    bias_qa_n_nt: float = _from("FUS_BQA_N")
+    bias_qa_e_nt: float = _from("FUS_BQA_E")
+    bias_qa_z_nt: float = _from("FUS_BQA_Z")
+    kp_on: float = _from("FUS_KP_ON")
+    space_weather_kp: float = _from("NAV_KP")
     bias_heading_deg: float = _from("FUS_BH_DEG")
     bias_heading_nt: float = _from("FUS_BH_NT")
     local_err_deg: float = _from("FUS_GM_DEG")

@@ -31,18 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from companion.nav.disturbance import COMPONENT_WALK, ONSET_STEPS, storm_declared
 from companion.nav.elements import ElementSet
 from companion.nav.field import (PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient,
                                  fix_covariance)
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import window_heading_rad
 from companion.nav.ins_error import InsErrorSpec
-from companion.nav.navfilter import (
-    ONSET_STEPS,
-    BiasSpec,
-    FilterSettings,
-    NavigationFilter,
-)
+from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 
@@ -96,7 +92,8 @@ def filter_settings(config) -> FilterSettings:
         bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
                       config.bias_qa_deg, config.bias_qa_nt, config.local_err_deg, config.local_err_nt,
                       config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
-                      bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt),
+                      bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt,
+                      config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt)),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps))
@@ -125,6 +122,20 @@ class PositionEstimator:
         return self.filter.process.name if self.filter is not None else ""
 
     @property
+    def storm_declared(self) -> bool:
+        """A space-weather index declares a storm at this step (:mod:`companion.nav.disturbance`)."""
+        return self.filter is not None and self.filter.monitor.declared
+
+    @property
+    def storm_walk(self) -> str:
+        """How the bias states walk while a storm is declared, in words."""
+        c = self.config
+        if c.bias_qa_mode == COMPONENT_WALK:
+            return (f"bias states walk along the field components N {c.bias_qa_n_nt:g}, E {c.bias_qa_e_nt:g}, "
+                    f"Z {c.bias_qa_z_nt:g} nT/rt(h)")
+        return f"bias states walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT /rt(h)"
+
+    @property
     def dead_reckons(self) -> bool:
         """The position has no independent source between fixes (the dead-reckoning process):
         only then do agreeing rejected fixes mean the estimate is wrong. With an INS they mean
@@ -149,6 +160,7 @@ class PositionEstimator:
         else:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
         self.filter = NavigationFilter(process, self.measured, self.settings, self.model, c.alt_m, c.year)
+        self.filter.monitor.declare(storm_declared(meas.kp, c.kp_on))
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         self.filter.set_heading(window_heading_rad(meas))
         if start_sigma_m is not None:
@@ -192,7 +204,8 @@ class PositionEstimator:
         f = self.filter
         have_ins = meas.has_ins
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
-        f.predict(dt_s, vel_en_mps, lat_now)
+        f.monitor.declare(storm_declared(meas.kp, self.config.kp_on))
+        f.predict(dt_s, vel_en_mps, lat_now, f.position(*self._ins))
         f.set_heading(window_heading_rad(meas, vel_en_mps))
         if isinstance(f.process, InsProcess):
             if not have_ins:   # no INS this step: keep the covariance honest, steer on dead reckoning

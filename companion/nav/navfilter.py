@@ -42,23 +42,15 @@ described as it is instead of as declared; ``r_min`` (FUS_RMIN_DEG, FUS_RMIN_NT)
 what the scatter cannot show. The declared ``r_deg``, ``r_nt`` (FUS_R_DEG, FUS_R_NT) are used
 where no standard error is measured, and always with ``r_source`` 0.
 
-Disturbance-gated bias noise: the biases' random walk is ``q`` per sqrt(hour) while the
-innovations are consistent with their covariance, and ``q_a`` while a disturbance is
-active: an exponential average (weight ``NIS_ALPHA``) of the normalised innovation squared
-``NIS / m`` above ``ACTIVE_ON`` for ``ONSET_STEPS`` steps switches it on; it switches off only after ``RELEASE_STEPS``
-steps in a row below ``ACTIVE_OFF``. ``ACTIVE_ON`` is set for a false-alarm rate: with
-innovations exactly as large as the filter says (chi-square NIS, what measured standard errors
-give), 0.4 % of 200-step missions on two elements switch on without a disturbance (simulated;
-2.3 % at 3.0, 16 % at 2.5, 66 % at the former 2.0, which needed the noise declared
-conservatively to stay quiet). Once a disturbance has been recognised in the mission, the
-threshold to switch on again after a release is ``REACTIVE_ON`` (2.0): the test's threshold
-follows the prior odds, and after a storm's onset another loud stretch is far more likely a
-storm than noise. A quiet mission keeps
-the small ``q``, so it is not made worse by a storm setting. Defaults: quiet 0.002 deg (2 nT)
-per sqrt(h) (the paper's ideal world declares 0.0002 deg, 0.2 nT: about what the main-field
-model's error changes along a route, when nothing else does); active 0.05 deg
-(40 nT) per sqrt(h), the order of the 10 May 2024 storm's change of I near the Pacific route
-(up to 0.25 deg within hours).
+Bias noise: the biases walk at ``q`` per sqrt(hour) while quiet (0.002 deg, 2 nT by default;
+the paper's ideal world declares 0.0002 deg, 0.2 nT: about what the main-field model's error
+changes along a route, when nothing else does) plus ``q_d`` per sqrt(km) travelled, and, while a
+disturbance is active, the active walk of :mod:`companion.nav.disturbance` on top: per element,
+or along the field components through the elements' Jacobian (the default), optionally scaled by
+covariance matching. Whether a disturbance is active is that module's
+:class:`~companion.nav.disturbance.DisturbanceMonitor`'s to say (the innovations, or a declared
+space-weather index). A quiet mission keeps the small ``q``, so it is not made worse by a
+storm setting.
 
 Covariances use filterpy's Joseph-form update; the predicted measurement is handed to filterpy
 as ``z = y + H x`` so its ``z - H x`` is our innovation.
@@ -72,6 +64,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
+from companion.nav.disturbance import (ADAPT_GAIN, COMPONENT_WALK, ELEMENT_WALK, HOUR_S, DisturbanceMonitor,
+                                        component_walk_covariance, field_jacobian)
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
@@ -80,35 +74,15 @@ from companion.nav.process import DeadReckoningSpec, ProcessModel
 from companion.nav.small import inverse2, whiten
 
 __all__ = [
-    "ACTIVE_OFF",
-    "ACTIVE_ON",
-    "REACTIVE_ON",
-    "NIS_ALPHA",
-    "ONSET_STEPS",
-    "RELEASE_STEPS",
     "HARMONIC_TERMS",
     "BiasSpec",
-    "DisturbanceMonitor",
     "FilterSettings",
     "NavigationFilter",
     "harmonic_row",
     "measured_variance",
 ]
 
-HOUR_S = 3600.0
 HARMONIC_TERMS = 4   # heading states per element: cos, sin of the heading and of twice it
-NIS_ALPHA = 0.3      # weight of the newest step in the averaged NIS: about 3 steps of memory
-ACTIVE_ON = 3.5      # averaged NIS / m above this: a disturbance is active (see the module docstring)
-REACTIVE_ON = 2.0    # ... once one has been recognised in this mission: storms last hours, so the
-                     # prior odds of one are high, and a late re-detection costs (short storm, seeds 2, 3:
-                     # 30 and 36 km re-detecting at 3.5, 26 and 23 km at 2.0)
-ONSET_STEPS = 2      # ... for this many steps in a row (one high NIS is noise: with 1, 3 of 8
-                     # quiet Pacific missions raised the bias noise and ended 1.8-3.5 km off)
-ACTIVE_OFF = 1.2     # ... and below this for RELEASE_STEPS steps in a row it is over
-RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias let go too early
-                     # is absorbed into the INS error states (measured: long storm 52 km without
-                     # the hold, 14 km with it, 4 seeds)
-ADAPT_GAIN = 0.5     # covariance matching: the active noise's scale moves by (NIS / m)^ADAPT_GAIN a step
 
 
 @dataclass(frozen=True)
@@ -121,7 +95,10 @@ class BiasSpec:
     ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0); and
     the calibration residual's dependence on the heading: prior 1-sigma ``heading_deg`` /
     ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
-    the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0)."""
+    the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
+    disturbance is active the biases walk per element at ``qa_*_rth`` (``qa_mode`` 0) or along
+    the field components at ``qa_ned_nt_rth`` (N, E, Z, nT per sqrt(hour); ``qa_mode`` 1), see
+    :mod:`companion.nav.disturbance`."""
 
     sigma0_deg: float = 0.5
     sigma0_nt: float = 500.0
@@ -137,6 +114,8 @@ class BiasSpec:
     qa_adapt: bool = True
     heading_deg: float = 0.0
     heading_nt: float = 0.0
+    qa_mode: int = ELEMENT_WALK
+    qa_ned_nt_rth: tuple[float, float, float] = (70.0, 45.0, 35.0)
 
     @property
     def has_local(self) -> bool:
@@ -181,37 +160,6 @@ class FilterSettings:
     dead_reckoning: DeadReckoningSpec = field(default_factory=DeadReckoningSpec)
 
 
-class DisturbanceMonitor:
-    """Averaged normalised innovation squared, and whether a disturbance is active."""
-
-    def __init__(self) -> None:
-        self.average = 1.0
-        self.active = False
-        self.quiet_steps = 0
-        self.loud_steps = 0
-        self.activations = 0
-
-    def observe(self, whitened: np.ndarray) -> bool:
-        """One update's whitened innovation ``L^-1 y`` (``S = L L^T``); returns whether active."""
-        w = np.asarray(whitened, dtype=float)
-        self.average = (1.0 - NIS_ALPHA) * self.average + NIS_ALPHA * float(w @ w) / len(w)
-        self.quiet_steps = self.quiet_steps + 1 if self.average < ACTIVE_OFF else 0
-        threshold = ACTIVE_ON if self.activations == 0 else REACTIVE_ON
-        self.loud_steps = self.loud_steps + 1 if self.average > threshold else 0
-        if self.active and self.quiet_steps >= RELEASE_STEPS:
-            self.active = False
-        elif not self.active and self.loud_steps >= ONSET_STEPS:
-            self.active = True
-            self.activations += 1
-        return self.active
-
-    def snapshot(self) -> tuple:
-        return self.average, self.active, self.quiet_steps, self.loud_steps, self.activations
-
-    def restore(self, state: tuple) -> None:
-        self.average, self.active, self.quiet_steps, self.loud_steps, self.activations = state
-
-
 class NavigationFilter:
     """Error-state filter over ``process`` plus one bias state per element of ``elements``, and
     one local model-error state per element when ``settings.bias.has_local``."""
@@ -230,6 +178,7 @@ class NavigationFilter:
         self._bias_q = b.per_element(names, b.q_deg_rth, b.q_nt_rth)
         self._bias_qa = b.per_element(names, b.qa_deg_rth, b.qa_nt_rth)
         self._bias_qd = b.per_element(names, b.qd_deg_rkm, b.qd_nt_rkm)
+        self._bias_qa_ned = np.array(b.qa_ned_nt_rth, dtype=float)
         self.nl = self.nb if b.has_local else 0
         self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
         heading_sigma = b.per_element(names, b.heading_deg, b.heading_nt)
@@ -255,7 +204,9 @@ class NavigationFilter:
         # identity; the heading states have no noise), the rest is filled in each step
         self._transition, self._noise = np.eye(n), np.zeros((n, n))
         first = process.n + np.arange(self.nb)
-        self._bias_diag, self._local_diag = (first, first), (first + self.nb, first + self.nb)
+        self._bias_block = slice(process.n, process.n + self.nb)
+        self._local_diag = (first + self.nb, first + self.nb)
+        self._field_position: tuple[float, float] | None = None   # where the active walk's Jacobian is taken
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
@@ -325,23 +276,51 @@ class NavigationFilter:
         self.monitor.restore(monitor)
 
     # --- predict ------------------------------------------------------------------------------
-    def predict(self, dt_s: float, vel_en_mps: np.ndarray, lat_deg: float) -> None:
-        """Propagate over ``dt_s`` with the (commanded) velocity at latitude ``lat_deg``."""
+    def predict(self, dt_s: float, vel_en_mps: np.ndarray, lat_deg: float,
+                position_deg: tuple[float, float] | None = None) -> None:
+        """Propagate over ``dt_s`` with the (commanded) velocity at latitude ``lat_deg``.
+        ``position_deg``: where the vehicle is believed to be (lat, lon), for the field the
+        active walk along the components is taken at (the last one given when None)."""
         if dt_s <= 0.0:
             return
+        if position_deg is not None:
+            self._field_position = (float(position_deg[0]), float(position_deg[1]))
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
-        q = self._bias_qa * self.qa_scale if self.monitor.active else self._bias_q
         k = self.process.n
         transition, noise = self._transition, self._noise   # block diagonals, the constant blocks kept
         transition[:k, :k], noise[:k, :k] = phi, q_d
         distance_km = math.hypot(*vel_en_mps) * dt_s / 1000.0
-        noise[self._bias_diag] = q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km
+        noise[self._bias_block, self._bias_block] = self._bias_walk(dt_s, distance_km)
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
             transition[self._local_diag] = decay
             noise[self._local_diag] = self._local_sigma ** 2 * (1.0 - decay ** 2)
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
+
+    def _bias_walk(self, dt_s: float, distance_km: float) -> np.ndarray:
+        """Covariance of the bias states' walk over one step (element units squared): the quiet
+        walk in time and the walk in distance, and while a disturbance is active the active walk
+        (:mod:`companion.nav.disturbance`). A storm a space-weather index declares walks as
+        declared, along the field components (``qa_mode`` 1, on top of the quiet walk) or per
+        element; a disturbance only the innovations found, of a nature not known, walks per
+        element, scaled by covariance matching (``qa_adapt``), in place of the quiet walk."""
+        quiet = self._bias_q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km
+        if not self.monitor.active:
+            return np.diag(quiet)
+        if self.monitor.declared and self.settings.bias.qa_mode == COMPONENT_WALK:
+            return np.diag(quiet) + component_walk_covariance(self._field_jacobian(), self._bias_qa_ned, dt_s)
+        q = self._bias_qa * (1.0 if self.monitor.declared else self.qa_scale)
+        return np.diag(q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km)
+
+    def _field_jacobian(self) -> np.ndarray:
+        """The measured elements' ``d / d(N, E, Z)`` at the model's field where the vehicle is
+        believed to be (:meth:`predict`'s ``position_deg``)."""
+        if self._field_position is None:
+            raise ValueError("the active walk along the field components needs a position: "
+                             "predict(..., position_deg=(lat, lon)) or calibrate first")
+        field = self.model.elements(*self._field_position, self.alt_m, self.year)
+        return field_jacobian(self.elements.names, float(field.x_nt), float(field.y_nt), float(field.z_nt))
 
     # --- updates ------------------------------------------------------------------------------
     def measurement_noise(self, standard_errors: np.ndarray | None = None) -> np.ndarray:
@@ -450,6 +429,7 @@ class NavigationFilter:
         calibration, not the crust under the start. Then the usual update.
         Returns the NIS of the calibration measurement."""
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
+        self._field_position = (float(lat), float(lon))
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         r2 = np.diag(self.measurement_noise(standard_errors))

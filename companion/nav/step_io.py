@@ -40,6 +40,10 @@ class Measurement:
     ``mag_heading_deg``: the magnetic heading the vehicle held over the period, from its own
     magnetometer levelled by its accelerometer (:mod:`companion.nav.heading`), NaN when not
     measured; with ``NAV_DR_HDG`` 1 the mission dead-reckons the period on it plus the model's D.
+
+    ``kp``: the planetary geomagnetic index Kp (0-9) a space-weather service gives for now, NaN
+    when none reaches the vehicle; at or above ``FUS_KP_ON`` the navigation filter takes a
+    storm as on (:mod:`companion.nav.disturbance`).
     """
 
     time_s: float
@@ -57,6 +61,7 @@ class Measurement:
     h_se_nt: float = math.nan
     z_se_nt: float = math.nan
     mag_heading_deg: float = math.nan
+    kp: float = math.nan
 
     @property
     def has_ins(self) -> bool:

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from companion.nav.disturbance import ACTIVE_ON, ONSET_STEPS, REACTIVE_ON, DisturbanceMonitor
 from companion.nav.elements import ELEMENT_SETS, ElementSet, element_set, hz_standard_errors
 from companion.nav.field import element_fix, element_gradient, model_for_date
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
-from companion.nav.navfilter import (ACTIVE_ON, ONSET_STEPS, REACTIVE_ON, BiasSpec, DisturbanceMonitor, FilterSettings,
-                                     NavigationFilter)
+from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.params import NavConfig, validate_all
 from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step

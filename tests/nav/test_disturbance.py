@@ -1,0 +1,152 @@
+"""The disturbance model of the bias states (companion/nav/disturbance.py): when a disturbance is
+active (the innovations, or a declared Kp), and how a declared storm walks the bias states along
+the field components."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, DisturbanceMonitor,
+                                       component_walk_covariance, field_jacobian, storm_declared)
+from companion.nav.elements import ELEMENT_SETS, ElementSet
+from companion.nav.field import model_for_date
+from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
+from companion.nav.process import DeadReckoningProcess
+
+YEAR, ALT = 2024.36, 0.0
+START = (33.0, 152.0)
+NAMES = ("decl_deg", "incl_deg", "f_nt", "h_nt", "z_nt")
+
+
+def _elements(ned: np.ndarray) -> np.ndarray:
+    n, e, z = ned
+    h = math.hypot(n, e)
+    return np.array([math.degrees(math.atan2(e, n)), math.degrees(math.atan2(z, h)), math.hypot(h, z), h, z])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-60000, 60000), st.floats(-60000, 60000), st.floats(-70000, 70000))
+def test_field_jacobian_is_the_derivative_of_the_elements(n, e, z):
+    """Against central differences of D, I, F, H, Z over 0.01 nT, wherever the field is magnetic
+    (|H| at least 1000 nT: the navigator's range; near a magnetic pole D has no meaning)."""
+    if math.hypot(n, e) < 1000.0:
+        return
+    ned = np.array([n, e, z])
+    jac = field_jacobian(NAMES, n, e, z)
+    step = 0.01
+    def central(unit: np.ndarray) -> np.ndarray:
+        diff = _elements(ned + step * unit) - _elements(ned - step * unit)
+        diff[0] = (diff[0] + 180.0) % 360.0 - 180.0     # D wraps at +-180 deg
+        return diff / (2 * step)
+    numeric = np.stack([central(unit) for unit in np.eye(3)], axis=1)
+    np.testing.assert_allclose(jac, numeric, rtol=1e-5, atol=1e-9)
+
+
+def test_field_jacobian_refuses_a_field_without_horizontal_part():
+    with pytest.raises(ValueError, match="no horizontal field"):
+        field_jacobian(("decl_deg",), 0.0, 0.0, 50000.0)
+
+
+def test_component_walk_is_j_q_jt_per_hour_by_hand():
+    """One field (30000, 0, 40000) nT, (I, F), dN walking 60 and dZ 20 nT per sqrt(hour), over
+    half an hour, written out: dI/dN = -Z/F^2, dI/dZ = H/F^2 (rad), dF/dN = N/F, dF/dZ = Z/F."""
+    jac = field_jacobian(("incl_deg", "f_nt"), 30000.0, 0.0, 40000.0)
+    cov = component_walk_covariance(jac, np.array([60.0, 0.0, 20.0]), 1800.0)
+    rad = 180.0 / math.pi
+    di_dn, di_dz = -40000.0 / 50000.0 ** 2 * rad, 30000.0 / 50000.0 ** 2 * rad
+    df_dn, df_dz = 0.6, 0.8
+    by_hand = 0.5 * np.array([[di_dn ** 2 * 3600 + di_dz ** 2 * 400, di_dn * df_dn * 3600 + di_dz * df_dz * 400],
+                              [0.0, df_dn ** 2 * 3600 + df_dz ** 2 * 400]])
+    by_hand[1, 0] = by_hand[0, 1]
+    np.testing.assert_allclose(cov, by_hand, rtol=1e-12)
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0)
+
+
+@pytest.mark.parametrize("kp, kp_on, expected", [(8.667, 5.0, True), (5.0, 5.0, True), (4.667, 5.0, False),
+                                                 (math.nan, 5.0, False), (-1.0, 0.0, False), (0.0, 0.0, True)])
+def test_a_kp_declares_a_storm_at_or_above_the_threshold(kp, kp_on, expected):
+    """NaN and -1 (NAV_KP's 'unknown') declare nothing, whatever the threshold."""
+    assert storm_declared(kp, kp_on) is expected
+
+
+def test_a_declared_storm_is_on_at_once_and_the_innovations_cannot_end_it():
+    monitor = DisturbanceMonitor()
+    assert monitor.declare(True) and monitor.activations == 1
+    quiet = np.zeros(2)
+    assert all(monitor.observe(quiet) for _ in range(3 * RELEASE_STEPS))     # quiet innovations: still on
+    assert monitor.declare(False)                                           # Kp falls: the innovations decide,
+    assert not monitor.observe(quiet)        # and they have been quiet for longer than RELEASE_STEPS: over
+    assert monitor.declare(True) and monitor.activations == 2               # a new declared storm
+    state = monitor.snapshot()
+    monitor.declare(False)
+    monitor.restore(state)
+    assert monitor.declared and monitor.active
+
+
+def test_undeclared_the_innovations_still_decide():
+    """Kp below the threshold (declared False) leaves today's innovation test: loud steps switch on."""
+    monitor = DisturbanceMonitor()
+    monitor.declare(False)
+    loud = np.full(2, 2.0 * math.sqrt(ACTIVE_ON))
+    flags = [monitor.observe(loud) for _ in range(ONSET_STEPS + 2)]
+    assert not flags[0] and flags[-1]
+
+
+def _filter(model, mode: int, names_code: int = ElementSet.WEIGHTED) -> NavigationFilter:
+    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_mode=mode,
+                    qa_ned_nt_rth=(60.0, 10.0, 10.0))
+    settings_ = FilterSettings(bias=spec)
+    process = DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0)
+    return NavigationFilter(process, ELEMENT_SETS[names_code], settings_, model, ALT, YEAR)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return model_for_date(YEAR)
+
+
+def test_a_declared_storm_walks_the_biases_along_the_field_components(model):
+    """(D, I, F), a storm declared, standing still for an hour: the bias states' covariance grows
+    by the quiet walk plus J diag(q^2) J^T at the model's field there, so I and F move together
+    (dN lowers H: I up, F down) and D hardly at all; undeclared (the innovations' disturbance)
+    they walk per element, independently."""
+    flt = _filter(model, mode=1)
+    k = flt.process.n
+    flt.monitor.declare(True)
+    before = flt.kf.P[k:k + 3, k:k + 3].copy()
+    flt.predict(3600.0, np.zeros(2), START[0], START)
+    grown = flt.kf.P[k:k + 3, k:k + 3] - before
+    field = model.elements(*START, ALT, YEAR)
+    jac = field_jacobian(flt.elements.names, float(field.x_nt), float(field.y_nt), float(field.z_nt))
+    quiet = np.diag([0.002 ** 2, 0.002 ** 2, 2.0 ** 2])
+    np.testing.assert_allclose(grown, quiet + jac @ np.diag([3600.0, 100.0, 100.0]) @ jac.T, rtol=1e-9)
+    corr = grown[1, 2] / math.sqrt(grown[1, 1] * grown[2, 2])
+    assert corr < -0.9                                           # I up where F goes down
+    assert math.sqrt(grown[0, 0]) < 0.5 * math.sqrt(grown[1, 1])  # D walks slower than I
+
+    per_element = _filter(model, mode=1)
+    per_element.monitor.active, per_element.monitor.activations = True, 1   # found by the innovations
+    before = per_element.kf.P[k:k + 3, k:k + 3].copy()
+    per_element.predict(3600.0, np.zeros(2), START[0], START)
+    np.testing.assert_allclose(per_element.kf.P[k:k + 3, k:k + 3] - before, np.diag([0.05 ** 2, 0.05 ** 2, 40.0 ** 2]),
+                               rtol=1e-9, atol=1e-15)
+
+
+def test_quiet_the_walk_does_not_depend_on_the_storm_form(model):
+    """No disturbance: the two forms predict the same covariance, bit for bit (a quiet mission is
+    not changed by how a storm would walk)."""
+    a, b = _filter(model, mode=0), _filter(model, mode=1)
+    for flt in (a, b):
+        flt.predict(360.0, np.array([10.0, -9.0]), START[0], START)
+    assert np.array_equal(a.kf.P, b.kf.P)
+
+
+def test_the_component_walk_needs_a_position(model):
+    flt = _filter(model, mode=1)
+    flt.monitor.declare(True)
+    with pytest.raises(ValueError, match="needs a position"):
+        flt.predict(360.0, np.zeros(2), START[0])
