@@ -30,6 +30,9 @@ error directly, the scatter estimate is drawn from its own sampling distribution
 1.166 z / sqrt(n))`` with ``n`` the period's samples (the MAD-based estimate's asymptotic
 relative standard deviation, ``sqrt(1.36 / n)``: 2 % at 3600 samples).
 
+Each step's measurement also carries the world's space-weather index (:meth:`TruthField.kp`: the
+storm's own Kp at its storm time, NaN without a storm), as a ground station would set ``NAV_KP``.
+
 Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams: [0] INS errors,
 [1] measurement noise (analytic D, I or the samples), [2] attitude errors, [3] calibration
 residuals, [4] the analytic F/H/Z noise, [5] the analytic standard errors' scatter; the crustal field is drawn from ``seed`` by
@@ -165,7 +168,7 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
                 avg = gravity_referenced(avg)   # the companion's I for a heading-free set, and its H, Z
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
                                avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
-                               avg.z_se_nt, avg.mag_heading_deg), avg
+                               avg.z_se_nt, avg.mag_heading_deg, truth.kp(time_s)), avg
         # analytic path: the time average over the period's path, by the trapezoid rule over its
         # knots (the start alone at step 0). Its centre is the period's midpoint, as for the
         # companion's evenly spaced samples; the knots after the start alone would put it half
@@ -183,7 +186,8 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
             0.0, 1.0 + se_spread * se_rng.standard_normal(5))
         avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)),
                                *(float(v) for v in se))
-        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg)), avg
+        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg),
+                           kp=truth.kp(time_s)), avg
 
     time_s = 0.0
     lats, lons = [state.lat_deg], [state.lon_deg]

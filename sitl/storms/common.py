@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ACKNOWLEDGEMENT", "DEFAULT_STATIONS", "FloatArray", "LONG_STORM", "QUIET_BASELINE", "SHORT_STORM",
+__all__ = ["ACKNOWLEDGEMENT", "DEFAULT_STATIONS", "FloatArray", "KP_FILE", "LONG_STORM", "QUIET_BASELINE", "SHORT_STORM",
            "SUDDEN_COMMENCEMENT_S", "StormDataError", "StormWindow", "default_data_dir", "utc_s"]
 
 FloatArray = NDArray[np.float64]
@@ -89,6 +89,9 @@ SUDDEN_COMMENCEMENT_S: float = utc_s("2024-05-10T17:07")
 QUIET_BASELINE = StormWindow("quiet baseline", utc_s("2024-05-10T12:00"), utc_s("2024-05-10T17:00"))
 
 #: Paper's long event, 02:00-08:00 Beijing time 11 May 2024 = 18:00-24:00 UTC 10 May (main phase).
+#: The GFZ Kp excerpt under ``<data>/storms/`` (:func:`sitl.storms.read_gfz_kp`).
+KP_FILE = "gfz_Kp_ap_Ap_SN_F107_2024-04-21_to_2024-06-30_excerpt.txt"
+
 LONG_STORM = StormWindow("long storm", utc_s("2024-05-10T18:00"), utc_s("2024-05-11T00:00"))
 
 #: Stand-in for the paper's short event (6 May 2024 13:13-14:46 Beijing time, 93 min, no data

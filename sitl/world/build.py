@@ -16,6 +16,11 @@ with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm dis
     paper's use). Without an explicit value the expected duration is the geodesic length of
     the mission divided by the companion's default cruise speed (``NAV_SPEED_KMH``).
 
+With the storm comes its space-weather feed: the planetary Kp of the storm time (GFZ's
+definitive values, :data:`sitl.storms.KP_FILE`), what a service would give the vehicle
+(:meth:`TruthField.kp`); without the file there is no feed. :func:`storm_component_rates` is how
+fast the disturbance moves along the route, the walk a navigator set up for this world declares.
+
 Mission elapsed seconds are the simulator's time since boot. Past the end of the storm
 data the disturbance holds its last value (``outside="hold"``), so a mission that runs
 longer than expected keeps a finite field instead of stopping the simulator.
@@ -35,7 +40,8 @@ from sitl.world.fc_tables import ardupilot_tables
 from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
-__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model"]
+__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
+           "storm_component_rates", "storm_kp_at_start"]
 
 
 class StormUnavailableError(RuntimeError):
@@ -102,4 +108,32 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
         window = storms.StormWindow(f"{scenario.name} storm", start_s, end_s)
         duration = expected_duration_s if expected_duration_s is not None else expected_mission_duration_s(scenario)
         time_map = storms.StormTimeMap.compress(window, duration)
-    return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale)
+    kp_path = folder / "storms" / storms.KP_FILE
+    space_weather = storms.read_gfz_kp(kp_path).kp_at if kp_path.exists() else None
+    return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale,
+                   space_weather=space_weather)
+
+
+def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> float:
+    """The Kp a space-weather service gives at the mission's start in this world (NaN without a
+    storm, or when its data cannot be loaded): what a ground station sets as ``NAV_KP``."""
+    if not scenario.storm.enabled:
+        return float("nan")
+    try:
+        return build_truth_field(scenario, data_dir).kp(0.0)
+    except StormUnavailableError:
+        return float("nan")
+
+
+def storm_component_rates(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> tuple[float, ...]:
+    """rms change per sqrt(hour) of the scenario's storm disturbance (dN, dE, dZ; nT), along its
+    route at the cruise speed, in mission time (:func:`sitl.storms.component_rates`): what a
+    navigator set up for this world declares as ``FUS_BQA_N``, ``FUS_BQA_E``, ``FUS_BQA_Z``."""
+    from sitl import storms
+    truth = build_truth_field(scenario, data_dir)
+    if truth.disturbance is None:
+        raise ValueError(f"scenario {scenario.name!r} has no storm")
+    rates = storms.component_rates(truth.storm_ned_nt, (scenario.start_lat_deg, scenario.start_lon_deg),
+                                   (scenario.dest_lat_deg, scenario.dest_lon_deg),
+                                   expected_mission_duration_s(scenario))
+    return tuple(float(r) for r in rates)

@@ -8,6 +8,7 @@ each part changes what either sees in the same way.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -42,7 +43,9 @@ class TruthField:
     ``storm_time_s`` maps mission elapsed seconds onto the disturbance's own time axis (POSIX
     UTC seconds); ``storm_scale`` multiplies the disturbance. ``crustal_config`` and
     ``crustal_origin`` describe the anomaly field; ``crustal`` is its realisation for one seed
-    (:meth:`for_seed`).
+    (:meth:`for_seed`). ``space_weather``: the planetary Kp at a storm time (POSIX seconds ->
+    Kp, :meth:`sitl.storms.KpRecord.kp_at`), what a space-weather service reports while the
+    storm is on (:meth:`kp`).
     """
 
     model: WorldMagneticModel
@@ -53,6 +56,16 @@ class TruthField:
     crustal_config: CrustalConfig = CrustalConfig()
     crustal_origin: tuple[float, float] = (0.0, 0.0)
     crustal: CrustalField | None = None
+    space_weather: object = None  # callable POSIX seconds -> Kp, or None
+
+    def kp(self, elapsed_s: float) -> float:
+        """The planetary Kp a space-weather service gives at this mission time: the storm's own
+        (at its storm time, whatever ``storm_scale``), NaN without a storm or without Kp data (no
+        feed reaches the vehicle, and the navigator's innovations alone decide)."""
+        if self.disturbance is None or self.storm_scale == 0.0 or self.space_weather is None:
+            return math.nan
+        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
+        return float(self.space_weather(t))
 
     def for_seed(self, seed: int) -> TruthField:
         """The same field with the crustal anomaly drawn for ``seed`` (itself when there is none)."""
