@@ -46,6 +46,7 @@ from fcmpc_fly.results import (REST_WINDOW_S, STATUS_EXIT, FlyResult, TruthTrack
                                read_truth_track,
                                write_result)
 from sitl.scenario import Scenario, load_scenario
+from sitl.world.build import storm_kp_at_start
 
 __all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
            "REPO", "SHORT_KM"]
@@ -225,6 +226,9 @@ def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
             raise ValueError(f"--short-km {options.short_km:g}: must be > 0")
         dest = short_destination(scenario, options.short_km)
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1}
+    kp = storm_kp_at_start(scenario, options.data_dir)
+    if math.isfinite(kp):   # the ground station tells the companion the storm's Kp, as in-process the world does
+        values["NAV_KP"] = kp
     if options.lockstep:
         values["COMP_SP_RATE_HZ"] = SETPOINT_RATE_HZ
     values = validate_all({**values, **options.extra_params})

@@ -91,8 +91,10 @@ class ControlStep:
         incl_se = app.preparation.inclination_se(avg)
         # measured standard errors: the filter's measurement noise (FUS_R_SRC 1) and the plausibility bound
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
+        # the space-weather index the ground station set (NAV_KP; negative: none)
+        kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 else math.nan
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
-                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg)
+                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
         self.judgement = None
         if self.excluded(t_k, meas, se):

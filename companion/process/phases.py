@@ -194,6 +194,9 @@ class Phases:
         estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
+        if estimator is not None and estimator.storm_declared:
+            app.out.say(f"FcMPC: storm declared: NAV_KP {config.space_weather_kp:g} >= FUS_KP_ON {config.kp_on:g}, "
+                        f"{estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING)
         trim = app.comp_cfg.trim_max_deg
         app.out.say(f"FcMPC: steering: the measured heading, course trimmed by the FC's yaw error up to {trim:g} deg"
                     if trim > 0.0 else "FcMPC: steering: the FC's yaw (COMP_TRIM_DEG 0)")
