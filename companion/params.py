@@ -167,6 +167,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQA_N", float, 70.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's north component while active (10 May 2024 main phase along the Pacific route, real time)"),
     _p("FUS_BQA_E", float, 45.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's east component while active"),
     _p("FUS_BQA_Z", float, 35.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's down component while active"),
+    _p("FUS_BQA_TN", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the disturbance's north component, which is then Gauss-Markov (a state of the filter) wandering at FUS_BQA_N over short lags; 0 (default) a random walk"),
+    _p("FUS_BQA_TE", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the east component (0: random walk)"),
+    _p("FUS_BQA_TZ", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the down component (0: random walk)"),
     _p("FUS_KP_ON", float, 5.0, 0.0, 9.0, "", "a Kp (NAV_KP, or the simulated world's space-weather feed) at or above this declares a storm: the bias states walk as FUS_BQA_MODE says from that step on, and the innovations cannot end it while it lasts (5: a G1 storm on NOAA's scale)"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
@@ -407,6 +410,9 @@ class NavConfig(_FromRegistry):
     bias_qa_n_nt: float = _from("FUS_BQA_N")
     bias_qa_e_nt: float = _from("FUS_BQA_E")
     bias_qa_z_nt: float = _from("FUS_BQA_Z")
+    bias_qa_tn_h: float = _from("FUS_BQA_TN")
+    bias_qa_te_h: float = _from("FUS_BQA_TE")
+    bias_qa_tz_h: float = _from("FUS_BQA_TZ")
     kp_on: float = _from("FUS_KP_ON")
     space_weather_kp: float = _from("NAV_KP")
     bias_heading_deg: float = _from("FUS_BH_DEG")

@@ -42,17 +42,31 @@ A storm a space-weather index declares is known to be a storm, and walks as decl
   intensity (the Dst index is that change), which moves I and F together and D hardly at all,
   while D, the east's measure on the Pacific route, moves only with the smaller dE. Per element,
   D's bias walked as fast as I's and the east was lost with it;
+  A component may instead be first-order Gauss-Markov with correlation time ``tau``
+  (``FUS_BQA_TN``, ``FUS_BQA_TE``, ``FUS_BQA_TZ`` hours; 0, the default, is the random walk):
+  ``c' = exp(-dt / tau) c + w``, stationary variance ``q^2 tau / 2``, so it wanders at ``q`` over
+  lags short against ``tau`` and stays within ``sqrt(q^2 tau / 2)`` over longer ones. That needs
+  memory: each such component is a state of the filter (its column in H is its row of J), which
+  starts a declared storm at its stationary variance (the storm is on at the start-up calibration
+  too: what the calibration sees of it is not a constant), keeps walking while the storm is
+  declared and fades without noise after. A random-walk component needs no state: its walk is
+  process noise on the bias states, ``J diag(q^2) J^T dt``. Why a Gauss-Markov component: the
+  east component of a storm comes from field-aligned and ionospheric currents that come and go,
+  and where it does (the ideal storm worlds, whose rms east change stops growing after 2-4 h), a
+  random walk lets D's bias wander without bound and the east with it;
 * per element (0) at ``FUS_BQA_DEG``, ``FUS_BQA_NT``, unscaled.
 
 The defaults are how fast the 10 May 2024 storm moved along the Pacific route in real time
 (:func:`sitl.storms.component_rates`; 16 h from 18 UTC: 72, 36, 33 nT per sqrt(hour); its main
 phase 18-24 UTC: 67, 46, 33), rounded: ``dN`` 70, ``dE`` 45, ``dZ`` 35. A scenario that
 compresses a storm window onto the mission slows it down, and its navigator declares its own
-(README "Storms").
+(README "Storms declared by Kp").
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -67,9 +81,13 @@ __all__ = [
     "ONSET_STEPS",
     "REACTIVE_ON",
     "RELEASE_STEPS",
+    "BiasWalk",
     "DisturbanceMonitor",
+    "StormWalk",
     "component_walk_covariance",
     "field_jacobian",
+    "gauss_markov_step",
+    "stationary_variance",
     "storm_declared",
 ]
 
@@ -174,3 +192,116 @@ def component_walk_covariance(jacobian: np.ndarray, q_ned_nt_rth: np.ndarray, dt
     ``J diag(q^2) J^T dt / 1 h``."""
     scaled = jacobian * np.asarray(q_ned_nt_rth, dtype=float)
     return scaled @ scaled.T * (dt_s / HOUR_S)
+
+
+def gauss_markov_step(q_rth: np.ndarray, tau_s: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """One step of first-order Gauss-Markov processes that wander at ``q_rth`` per sqrt(hour) over
+    short lags, with correlation times ``tau_s``: the decay ``exp(-dt / tau)`` and the driving
+    noise's variance ``q^2 tau / 2 (1 - decay^2)`` (its stationary variance is ``q^2 tau / 2``)."""
+    tau = np.asarray(tau_s, dtype=float)
+    decay = np.exp(-dt_s / tau)
+    return decay, stationary_variance(q_rth, tau) * (1.0 - decay * decay)
+
+
+def stationary_variance(q_rth: np.ndarray, tau_s: np.ndarray) -> np.ndarray:
+    """``q^2 tau / 2``: the variance a Gauss-Markov process of short-lag rate ``q_rth`` (per
+    sqrt(hour)) and correlation time ``tau_s`` settles at (units of q squared)."""
+    return np.asarray(q_rth, dtype=float) ** 2 * (np.asarray(tau_s, dtype=float) / HOUR_S) / 2.0
+
+
+@dataclass(frozen=True)
+class StormWalk:
+    """How a declared storm's field components walk: short-lag rate ``q_rth`` (N, E, Z; nT per
+    sqrt(hour)) and correlation time ``tau_h`` (hours; 0: a random walk, no state needed)."""
+
+    q_rth: tuple[float, float, float]
+    tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def states(self) -> np.ndarray:
+        """The components that are Gauss-Markov, each a state of the filter (indices into N, E, Z)."""
+        return np.flatnonzero(np.asarray(self.tau_h) > 0.0)
+
+    @property
+    def walks(self) -> np.ndarray:
+        """The random-walk components, process noise on the bias states."""
+        return np.flatnonzero(np.asarray(self.tau_h) <= 0.0)
+
+    def bias_noise(self, jacobian: np.ndarray, dt_s: float) -> np.ndarray:
+        """The random-walk components' covariance on the bias states over ``dt_s``."""
+        walks = self.walks
+        return component_walk_covariance(jacobian[:, walks], np.asarray(self.q_rth)[walks], dt_s)
+
+    def state_step(self, dt_s: float, declared: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Decay and driving-noise variance of the Gauss-Markov states over ``dt_s``: driven while
+        the storm is declared, fading without noise after."""
+        states = self.states
+        decay, var = gauss_markov_step(np.asarray(self.q_rth)[states], np.asarray(self.tau_h)[states] * HOUR_S,
+                                       dt_s)
+        return decay, var if declared else np.zeros_like(var)
+
+    def initial_variance(self) -> np.ndarray:
+        """The Gauss-Markov states' stationary variance, where a declared storm starts them (nT^2)."""
+        states = self.states
+        return stationary_variance(np.asarray(self.q_rth)[states], np.asarray(self.tau_h)[states] * HOUR_S)
+
+
+class BiasWalk:
+    """The bias states' walk over one step (element units squared, one row per element of
+    ``names``): the quiet walk ``quiet_rth`` per sqrt(hour) and ``distance_rkm`` per sqrt(km), and
+    while a disturbance is active the active walk. A storm a space-weather index declares walks as
+    declared: along the field components (``storm`` given: its random-walk components here, its
+    Gauss-Markov ones as filter states) on top of the quiet walk, or per element at
+    ``active_rth``; a disturbance only the innovations found, of a nature not known, walks per
+    element at ``active_rth`` times the covariance-matching scale, in place of the quiet walk.
+    ``field_ned(lat, lon)``: the model's (N, E, Z) in nT, for the elements' Jacobian where the
+    vehicle is believed to be (:attr:`position`)."""
+
+    def __init__(self, names: tuple[str, ...], quiet_rth: np.ndarray, distance_rkm: np.ndarray,
+                 active_rth: np.ndarray, storm: StormWalk | None,
+                 field_ned: Callable[[float, float], tuple[float, float, float]]) -> None:
+        self.names = names
+        self.quiet_rth, self.distance_rkm, self.active_rth = quiet_rth, distance_rkm, active_rth
+        self.storm = storm
+        self.field_ned = field_ned
+        self.position: tuple[float, float] | None = None
+        # covariance matching goes down to the quiet walk, never below
+        self.scale_floor = float(np.max(quiet_rth / np.maximum(active_rth, 1e-300)))
+
+    @property
+    def states(self) -> np.ndarray:
+        """The storm's Gauss-Markov components, each a filter state (indices into N, E, Z)."""
+        return self.storm.states if self.storm is not None else np.zeros(0, dtype=int)
+
+    def along_components(self, monitor: DisturbanceMonitor) -> bool:
+        """A declared storm walks along the field components."""
+        return monitor.declared and self.storm is not None
+
+    def jacobian(self) -> np.ndarray:
+        """The elements' ``d / d(N, E, Z)`` at the model's field at :attr:`position`."""
+        if self.position is None:
+            raise ValueError("the active walk along the field components needs a position: "
+                             "predict(..., position_deg=(lat, lon)) or calibrate first")
+        return field_jacobian(self.names, *self.field_ned(*self.position))
+
+    def noise(self, dt_s: float, distance_km: float, monitor: DisturbanceMonitor, scale: float,
+              jacobian: np.ndarray | None = None) -> np.ndarray:
+        """The covariance of one step; ``jacobian`` (:meth:`jacobian`) for a walk along the
+        components, ``scale`` the covariance-matching scale of an innovation-found disturbance."""
+        quiet = self.quiet_rth ** 2 * dt_s / HOUR_S + self.distance_rkm ** 2 * distance_km
+        if not monitor.active:
+            return np.diag(quiet)
+        if self.along_components(monitor):
+            return np.diag(quiet) + self.storm.bias_noise(jacobian if jacobian is not None else self.jacobian(), dt_s)
+        q = self.active_rth * (1.0 if monitor.declared else scale)
+        return np.diag(q ** 2 * dt_s / HOUR_S + self.distance_rkm ** 2 * distance_km)
+
+    def matched_scale(self, scale: float, monitor: DisturbanceMonitor, was_active: bool) -> float:
+        """Covariance matching of an active walk: a disturbance starts at the declared walk; then
+        each step its scale moves by ``(NIS / m)^ADAPT_GAIN`` of the monitor's averaged NIS, so
+        innovations larger than the filter predicts raise it and smaller ones (a walk so loose
+        that the bias absorbs every measurement) lower it, between the quiet walk and the
+        declared one."""
+        if not was_active:
+            return 1.0
+        return min(1.0, max(self.scale_floor, scale * monitor.average ** ADAPT_GAIN))

@@ -93,7 +93,8 @@ def filter_settings(config) -> FilterSettings:
                       config.bias_qa_deg, config.bias_qa_nt, config.local_err_deg, config.local_err_nt,
                       config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
                       bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt,
-                      config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt)),
+                      config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt),
+                      (config.bias_qa_tn_h, config.bias_qa_te_h, config.bias_qa_tz_h)),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps))
@@ -131,8 +132,10 @@ class PositionEstimator:
         """How the bias states walk while a storm is declared, in words."""
         c = self.config
         if c.bias_qa_mode == COMPONENT_WALK:
-            return (f"bias states walk along the field components N {c.bias_qa_n_nt:g}, E {c.bias_qa_e_nt:g}, "
-                    f"Z {c.bias_qa_z_nt:g} nT/rt(h)")
+            parts = [f"{name} {q:g}" + (f" (tau {tau:g} h)" if tau > 0.0 else "")
+                     for name, q, tau in zip("NEZ", (c.bias_qa_n_nt, c.bias_qa_e_nt, c.bias_qa_z_nt),
+                                             (c.bias_qa_tn_h, c.bias_qa_te_h, c.bias_qa_tz_h))]
+            return "bias states walk along the field components " + ", ".join(parts) + " nT/rt(h)"
         return f"bias states walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT /rt(h)"
 
     @property

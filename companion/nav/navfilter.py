@@ -64,8 +64,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
-from companion.nav.disturbance import (ADAPT_GAIN, COMPONENT_WALK, ELEMENT_WALK, HOUR_S, DisturbanceMonitor,
-                                        component_walk_covariance, field_jacobian)
+from companion.nav.disturbance import COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
@@ -97,7 +96,8 @@ class BiasSpec:
     ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
     the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
     disturbance is active the biases walk per element at ``qa_*_rth`` (``qa_mode`` 0) or along
-    the field components at ``qa_ned_nt_rth`` (N, E, Z, nT per sqrt(hour); ``qa_mode`` 1), see
+    the field components at ``qa_ned_nt_rth`` (N, E, Z, nT per sqrt(hour); ``qa_mode`` 1), each a
+    random walk or, with a correlation time ``qa_ned_tau_h`` (hours), Gauss-Markov; see
     :mod:`companion.nav.disturbance`."""
 
     sigma0_deg: float = 0.5
@@ -116,6 +116,12 @@ class BiasSpec:
     heading_nt: float = 0.0
     qa_mode: int = ELEMENT_WALK
     qa_ned_nt_rth: tuple[float, float, float] = (70.0, 45.0, 35.0)
+    qa_ned_tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def storm_walk(self) -> StormWalk:
+        """How a declared storm walks along the field components (``qa_mode`` 1)."""
+        return StormWalk(self.qa_ned_nt_rth, self.qa_ned_tau_h)
 
     @property
     def has_local(self) -> bool:
@@ -175,10 +181,11 @@ class NavigationFilter:
         self.nb = len(names)
         b = settings.bias
         self._bias_sigma0 = b.per_element(names, b.sigma0_deg, b.sigma0_nt)
-        self._bias_q = b.per_element(names, b.q_deg_rth, b.q_nt_rth)
-        self._bias_qa = b.per_element(names, b.qa_deg_rth, b.qa_nt_rth)
-        self._bias_qd = b.per_element(names, b.qd_deg_rkm, b.qd_nt_rkm)
-        self._bias_qa_ned = np.array(b.qa_ned_nt_rth, dtype=float)
+        self._walk = BiasWalk(names, b.per_element(names, b.q_deg_rth, b.q_nt_rth),
+                              b.per_element(names, b.qd_deg_rkm, b.qd_nt_rkm),
+                              b.per_element(names, b.qa_deg_rth, b.qa_nt_rth),
+                              b.storm_walk if b.qa_mode == COMPONENT_WALK else None, self._field_ned)
+        self.ns = len(self._walk.states)   # the storm's Gauss-Markov components, states
         self.nl = self.nb if b.has_local else 0
         self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
         heading_sigma = b.per_element(names, b.heading_deg, b.heading_nt)
@@ -187,17 +194,20 @@ class NavigationFilter:
         self._r_declared = b.per_element(names, settings.r_deg, settings.r_nt)
         self._r_min = b.per_element(names, settings.r_min_deg, settings.r_min_nt)
         self._r = np.diag(self._r_declared ** 2)
-        n = process.n + self.nb + self.nl + self.nh
+        n = process.n + self.nb + self.nl + self.nh + self.ns
         kf = KalmanFilter(dim_x=n, dim_z=self.nb)
         if self.nb == 2:
             kf.inv = inverse2   # S^-1 of a pair in closed form (filterpy's documented hook)
         kf.x = np.zeros((n, 1))
         kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2),
-                          np.diag(self._heading_sigma ** 2))
+                          np.diag(self._heading_sigma ** 2), np.zeros((self.ns, self.ns)))
         # measured minus model beyond the position, from the state: the bias plus the local error
-        # plus the heading harmonics (their columns follow the heading: set_heading)
+        # plus the heading harmonics (their columns follow the heading: set_heading) plus the
+        # storm's Gauss-Markov components (their columns are J's: _storm_columns)
         self._total = np.hstack([np.zeros((self.nb, process.n)), np.eye(self.nb),
-                                 np.eye(self.nb)[:, :self.nl], np.zeros((self.nb, self.nh))])
+                                 np.eye(self.nb)[:, :self.nl], np.zeros((self.nb, self.nh)),
+                                 np.zeros((self.nb, self.ns))])
+        self._storm_states = slice(n - self.ns, n)
         self.heading_known = False
         self.kf = kf
         # predict's block-diagonal Phi and Q_d: the bias and heading states are constants (the
@@ -206,11 +216,9 @@ class NavigationFilter:
         first = process.n + np.arange(self.nb)
         self._bias_block = slice(process.n, process.n + self.nb)
         self._local_diag = (first + self.nb, first + self.nb)
-        self._field_position: tuple[float, float] | None = None   # where the active walk's Jacobian is taken
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
-        self._qa_floor = float(np.max(self._bias_q / np.maximum(self._bias_qa, 1e-300)))   # ... down to the quiet walk
 
     # --- state --------------------------------------------------------------------------------
     @property
@@ -243,7 +251,7 @@ class NavigationFilter:
         return j @ self.kf.P @ j.T
 
     def _j(self, lat_deg: float) -> np.ndarray:
-        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh))])
+        return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh + self.ns))])
 
     def set_heading(self, heading_rad: float) -> None:
         """The vehicle's true heading over the window measured next (rad; NaN: not known). The
@@ -284,13 +292,20 @@ class NavigationFilter:
         if dt_s <= 0.0:
             return
         if position_deg is not None:
-            self._field_position = (float(position_deg[0]), float(position_deg[1]))
+            self._walk.position = (float(position_deg[0]), float(position_deg[1]))
         phi, q_d = self.process.transition(dt_s, lat_deg, np.asarray(vel_en_mps, dtype=float))
         k = self.process.n
         transition, noise = self._transition, self._noise   # block diagonals, the constant blocks kept
         transition[:k, :k], noise[:k, :k] = phi, q_d
         distance_km = math.hypot(*vel_en_mps) * dt_s / 1000.0
-        noise[self._bias_block, self._bias_block] = self._bias_walk(dt_s, distance_km)
+        along_components = self._walk.along_components(self.monitor)
+        jacobian = self._storm_columns() if along_components else None
+        noise[self._bias_block, self._bias_block] = self._walk.noise(dt_s, distance_km, self.monitor, self.qa_scale,
+                                                                     jacobian)
+        if self.ns:   # the storm's Gauss-Markov components: driven while declared, fading after
+            decay, driven = self._walk.storm.state_step(dt_s, along_components)
+            transition[self._storm_states, self._storm_states] = np.diag(decay)
+            noise[self._storm_states, self._storm_states] = np.diag(driven)
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
             transition[self._local_diag] = decay
@@ -298,29 +313,17 @@ class NavigationFilter:
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
-    def _bias_walk(self, dt_s: float, distance_km: float) -> np.ndarray:
-        """Covariance of the bias states' walk over one step (element units squared): the quiet
-        walk in time and the walk in distance, and while a disturbance is active the active walk
-        (:mod:`companion.nav.disturbance`). A storm a space-weather index declares walks as
-        declared, along the field components (``qa_mode`` 1, on top of the quiet walk) or per
-        element; a disturbance only the innovations found, of a nature not known, walks per
-        element, scaled by covariance matching (``qa_adapt``), in place of the quiet walk."""
-        quiet = self._bias_q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km
-        if not self.monitor.active:
-            return np.diag(quiet)
-        if self.monitor.declared and self.settings.bias.qa_mode == COMPONENT_WALK:
-            return np.diag(quiet) + component_walk_covariance(self._field_jacobian(), self._bias_qa_ned, dt_s)
-        q = self._bias_qa * (1.0 if self.monitor.declared else self.qa_scale)
-        return np.diag(q ** 2 * dt_s / HOUR_S + self._bias_qd ** 2 * distance_km)
+    def _storm_columns(self) -> np.ndarray:
+        """The elements' d / d(N, E, Z) where the vehicle is believed to be; the Gauss-Markov
+        storm states' measurement columns are set from it."""
+        jacobian = self._walk.jacobian()
+        if self.ns:
+            self._total[:, self._storm_states] = jacobian[:, self._walk.states]
+        return jacobian
 
-    def _field_jacobian(self) -> np.ndarray:
-        """The measured elements' ``d / d(N, E, Z)`` at the model's field where the vehicle is
-        believed to be (:meth:`predict`'s ``position_deg``)."""
-        if self._field_position is None:
-            raise ValueError("the active walk along the field components needs a position: "
-                             "predict(..., position_deg=(lat, lon)) or calibrate first")
-        field = self.model.elements(*self._field_position, self.alt_m, self.year)
-        return field_jacobian(self.elements.names, float(field.x_nt), float(field.y_nt), float(field.z_nt))
+    def _field_ned(self, lat_deg: float, lon_deg: float) -> tuple[float, float, float]:
+        field = self.model.elements(lat_deg, lon_deg, self.alt_m, self.year)
+        return float(field.x_nt), float(field.y_nt), float(field.z_nt)
 
     # --- updates ------------------------------------------------------------------------------
     def measurement_noise(self, standard_errors: np.ndarray | None = None) -> np.ndarray:
@@ -368,20 +371,9 @@ class NavigationFilter:
         nis, whitened = self._update(y, h, r)
         self.last_nis = nis
         was_active = self.monitor.active
-        if self.monitor.observe(whitened) and self.settings.bias.qa_adapt:
-            self._match_active_noise(was_active)
+        if self.monitor.observe(whitened) and self.settings.bias.qa_adapt:   # covariance matching
+            self.qa_scale = self._walk.matched_scale(self.qa_scale, self.monitor, was_active)
         return nis
-
-    def _match_active_noise(self, was_active: bool) -> None:
-        """Covariance matching of the active bias noise: a disturbance starts at the configured
-        ``q_a``; then each step its scale moves by ``(NIS / m)^ADAPT_GAIN`` of the monitor's
-        averaged NIS, so innovations larger than the filter predicts raise it and smaller ones
-        (a random walk so loose that the bias absorbs every measurement) lower it, between the
-        quiet ``q`` and ``q_a`` itself."""
-        if not was_active:
-            self.qa_scale = 1.0
-            return
-        self.qa_scale = min(1.0, max(self._qa_floor, self.qa_scale * self.monitor.average ** ADAPT_GAIN))
 
     def innovation_nis(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,
                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
@@ -426,20 +418,28 @@ class NavigationFilter:
         (a calibration residual, crust, model error) is taken almost whole. The local model-error
         states keep their stationary variance and the bias takes the rest,
         ``var_b = clip(y^2 - r^2 - sigma_local^2, ...)``: what is carried from the start is the
-        calibration, not the crust under the start. Then the usual update.
+        calibration, not the crust under the start. A storm declared at the start is treated
+        alike: its Gauss-Markov components start at their stationary variance, and the bias takes
+        what is left. Then the usual update.
         Returns the NIS of the calibration measurement."""
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
-        self._field_position = (float(lat), float(lon))
+        self._walk.position = (float(lat), float(lon))
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         r2 = np.diag(self.measurement_noise(standard_errors))
         local = np.zeros(self.nb)
         local[:self.nl] = self._local_sigma ** 2     # the local error at the start is part of y
-        var = np.clip(y ** 2 - r2 - local, r2 / 100.0, self._bias_sigma0 ** 2)
+        storm = np.zeros(self.ns)
+        beyond = local.copy()
+        if self.ns and self.monitor.declared:   # so is a declared storm's Gauss-Markov part
+            storm = self._walk.storm.initial_variance()
+            columns = self._storm_columns()[:, self._walk.states]
+            beyond += np.einsum("ij,j,ij->i", columns, storm, columns)
+        var = np.clip(y ** 2 - r2 - beyond, r2 / 100.0, self._bias_sigma0 ** 2)
         k = self.process.n
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
-        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2]))
+        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2, storm]))
         return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
 
     def innovation_covariance(self, lat_deg: float, lon_deg: float,

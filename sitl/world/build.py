@@ -18,7 +18,7 @@ with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm dis
 
 With the storm comes its space-weather feed: the planetary Kp of the storm time (GFZ's
 definitive values, :data:`sitl.storms.KP_FILE`), what a service would give the vehicle
-(:meth:`TruthField.kp`); without the file there is no feed. :func:`storm_component_rates` is how
+(:meth:`TruthField.kp`); without the file there is no feed. :func:`storm_component_walks` is how
 fast the disturbance moves along the route, the walk a navigator set up for this world declares.
 
 Mission elapsed seconds are the simulator's time since boot. Past the end of the storm
@@ -41,7 +41,7 @@ from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
 __all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
-           "storm_component_rates", "storm_kp_at_start"]
+           "storm_component_walks", "storm_kp_at_start"]
 
 
 class StormUnavailableError(RuntimeError):
@@ -125,15 +125,17 @@ def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
         return float("nan")
 
 
-def storm_component_rates(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> tuple[float, ...]:
-    """rms change per sqrt(hour) of the scenario's storm disturbance (dN, dE, dZ; nT), along its
-    route at the cruise speed, in mission time (:func:`sitl.storms.component_rates`): what a
-    navigator set up for this world declares as ``FUS_BQA_N``, ``FUS_BQA_E``, ``FUS_BQA_Z``."""
+def storm_component_walks(scenario: Scenario,
+                          data_dir: str | os.PathLike[str] | None = None) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """How the scenario's storm disturbance (dN, dE, dZ) moves along its route at the cruise speed,
+    in mission time (:func:`sitl.storms.component_walks`): the short-lag rates (nT per sqrt(hour))
+    and correlation times (hours, 0: random walk) a navigator set up for this world declares as
+    ``FUS_BQA_N/E/Z`` and ``FUS_BQA_TN/TE/TZ``."""
     from sitl import storms
     truth = build_truth_field(scenario, data_dir)
     if truth.disturbance is None:
         raise ValueError(f"scenario {scenario.name!r} has no storm")
-    rates = storms.component_rates(truth.storm_ned_nt, (scenario.start_lat_deg, scenario.start_lon_deg),
-                                   (scenario.dest_lat_deg, scenario.dest_lon_deg),
-                                   expected_mission_duration_s(scenario))
-    return tuple(float(r) for r in rates)
+    q, tau = storms.component_walks(truth.storm_ned_nt, (scenario.start_lat_deg, scenario.start_lon_deg),
+                                    (scenario.dest_lat_deg, scenario.dest_lon_deg),
+                                    expected_mission_duration_s(scenario))
+    return tuple(float(v) for v in q), tuple(float(v) for v in tau)

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, DisturbanceMonitor,
-                                       component_walk_covariance, field_jacobian, storm_declared)
+                                       component_walk_covariance, field_jacobian, gauss_markov_step,
+                                       stationary_variance, storm_declared)
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
 from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
@@ -150,3 +151,61 @@ def test_the_component_walk_needs_a_position(model):
     flt.monitor.declare(True)
     with pytest.raises(ValueError, match="needs a position"):
         flt.predict(360.0, np.zeros(2), START[0])
+
+
+def test_gauss_markov_step_keeps_the_stationary_variance():
+    """Driving noise and decay of one step leave the stationary variance q^2 tau / 2 where it is,
+    for any step; over a step short against tau the process wanders like a random walk at q."""
+    q, tau_s = np.array([30.0]), np.array([1.5 * 3600.0])
+    for dt in (1.0, 360.0, 7200.0):
+        decay, driven = gauss_markov_step(q, tau_s, dt)
+        stationary = stationary_variance(q, tau_s)
+        np.testing.assert_allclose(decay ** 2 * stationary + driven, stationary, rtol=1e-12)
+    _, driven = gauss_markov_step(q, tau_s, 1.0)
+    np.testing.assert_allclose(driven, q ** 2 / 3600.0, rtol=1e-3)
+
+
+def _walk_filter(model, tau_h: tuple[float, float, float]) -> NavigationFilter:
+    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_ned_nt_rth=(60.0, 30.0, 10.0), qa_ned_tau_h=tau_h)
+    settings_ = FilterSettings(bias=spec)
+    process = DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0)
+    return NavigationFilter(process, ELEMENT_SETS[ElementSet.WEIGHTED], settings_, model, ALT, YEAR)
+
+
+def test_a_gauss_markov_component_is_a_state_that_walks_like_the_random_walk_over_a_short_step(model):
+    """The east with a correlation time is one more state; over a step far shorter than it, the
+    elements' bias covariance (bias states plus the storm state through J) grows as with the
+    east a random walk on the bias states."""
+    walk, markov = _walk_filter(model, (0.0, 0.0, 0.0)), _walk_filter(model, (0.0, 1e6, 0.0))
+    assert markov.ns == 1 and walk.ns == 0 and markov.kf.x.shape[0] == walk.kf.x.shape[0] + 1
+    grown = []
+    for flt in (walk, markov):
+        flt.monitor.declare(True)
+        before = flt.beyond_position_covariance()
+        flt.predict(360.0, np.zeros(2), START[0], START)
+        grown.append(flt.beyond_position_covariance() - before)
+    np.testing.assert_allclose(grown[1], grown[0], rtol=1e-6)
+
+
+def test_a_declared_storm_starts_its_gauss_markov_states_stationary_and_they_fade_after(model):
+    """Calibrated under a declared storm, the east state starts at its stationary q^2 tau / 2 (the
+    storm is on then too) and the bias takes what is left of the innovation: a D innovation within
+    the storm's spread (0.02 deg against 26 nT x 0.0019 deg/nT = 0.05 deg) is the storm's east,
+    not a bias carried through the mission; one far beyond it (1 deg) is a bias. Once the storm is
+    no longer declared the state decays with no noise: its variance falls by decay^2 a step."""
+    taken = {}
+    for offset in (0.02, 1.0):
+        flt = _walk_filter(model, (0.0, 1.5, 0.0))
+        flt.monitor.declare(True)
+        s_true = flt.elements.values(model.elements(*START, ALT, YEAR))
+        flt.calibrate(s_true + np.array([offset, 0.0, 0.0]), standard_errors=np.array([0.002, 0.002, 2.0]))
+        state = flt.kf.P.shape[0] - 1
+        east = flt.x[state] * flt._total[0, state]          # the storm's share of the D innovation, deg
+        taken[offset] = (east / offset, flt.x[flt.process.n] / offset)
+    assert taken[0.02][0] > 0.9 and abs(taken[0.02][1]) < 0.1       # small: the storm's east
+    assert taken[1.0][1] > 0.9                                         # large: a bias
+    flt.monitor.declare(False)
+    flt.monitor.active = False
+    before = flt.kf.P[state, state]
+    flt.predict(3600.0, np.zeros(2), START[0], START)
+    assert flt.kf.P[state, state] == pytest.approx(before * math.exp(-2.0 / 1.5), rel=1e-9)

@@ -1,5 +1,5 @@
 """The storm worlds' space-weather feed, and the storm walk their navigators declare: derived from
-the world's own disturbance (sitl.world.build.storm_component_rates), not tuned."""
+the world's own disturbance (sitl.world.build.storm_component_walks), not tuned."""
 from __future__ import annotations
 
 import math
@@ -11,19 +11,45 @@ import pytest
 from companion.params import NavConfig, validate_all
 from sitl.inprocess import fly_in_process
 from sitl.scenario import load_scenario
-from sitl.storms import component_rates
-from sitl.world.build import build_truth_field, storm_component_rates
+from sitl.storms import component_rates, component_walks
+from sitl.world.build import build_truth_field, storm_component_walks
 
 
 @pytest.mark.parametrize("name", ["long_storm", "short_storm"])
-def test_declared_storm_walk_is_the_worlds_own_rate(shared_data, name):
-    """The [navigator] table's FUS_BQA_N/E/Z are the rms hourly change of the scenario's storm
-    along its route in mission time, to the 0.1 nT/rt(h) they are written with."""
+def test_declared_storm_walk_is_the_worlds_own(shared_data, name):
+    """The [navigator] table's FUS_BQA_N/E/Z and FUS_BQA_TN/TE/TZ are how the scenario's storm moves
+    along its route in mission time (storm_component_walks), to the 0.1 nT/rt(h) and 0.01 h they
+    are written with."""
     scenario = load_scenario(name)
     declared = dict(scenario.navigator)
-    rates = storm_component_rates(scenario, shared_data)
-    assert [declared["FUS_BQA_N"], declared["FUS_BQA_E"], declared["FUS_BQA_Z"]] == \
-        pytest.approx(rates, abs=0.051)
+    q, tau = storm_component_walks(scenario, shared_data)
+    assert [declared.get(f"FUS_BQA_{c}", math.nan) for c in "NEZ"] == pytest.approx(q, abs=0.051)
+    assert [declared.get(f"FUS_BQA_T{c}", 0.0) for c in "NEZ"] == pytest.approx(tau, abs=0.0051)
+    assert tau[0] == tau[2] == 0.0 and tau[1] > 0.0   # the east reverts within the mission in both
+
+
+def test_a_gauss_markov_component_is_fitted_back_and_a_random_walk_is_not_taken_for_one():
+    """A Gauss-Markov east (q 30 nT/rt(h), tau 1.5 h) and random-walk north and down (20, 10)
+    over 400 h: the east's q and tau come back within 10 %, the others stay random walks at their
+    hourly rate; a random-walk east is not fitted as Gauss-Markov."""
+    rng = np.random.default_rng(4)
+    minutes = 400 * 60
+    dt_h, tau_h = 1.0 / 60.0, 1.5
+    decay = math.exp(-dt_h / tau_h)
+    east = np.zeros(minutes + 1)
+    drive = rng.standard_normal(minutes) * 30.0 * math.sqrt(tau_h / 2.0 * (1.0 - decay ** 2))
+    for k in range(minutes):
+        east[k + 1] = decay * east[k] + drive[k]
+    walks = np.cumsum(rng.standard_normal((minutes + 1, 2)) * np.array([20.0, 10.0]) * math.sqrt(dt_h), axis=0)
+    field = np.stack([walks[:, 0], east, walks[:, 1]], axis=-1)
+    q, tau = component_walks(lambda lat, lon, t: field[np.round(t / 60.0).astype(int)], (30.0, 150.0),
+                             (29.0, 151.0), minutes * 60.0)
+    assert q[1] == pytest.approx(30.0, rel=0.1) and tau[1] == pytest.approx(1.5, rel=0.1)
+    assert tau[0] == tau[2] == 0.0 and q[0] == pytest.approx(20.0, rel=0.05) and q[2] == pytest.approx(10.0, rel=0.05)
+    field[:, 1] = walks[:, 0]
+    _, tau = component_walks(lambda lat, lon, t: field[np.round(t / 60.0).astype(int)], (30.0, 150.0),
+                             (29.0, 151.0), minutes * 60.0)
+    assert tau[1] == 0.0
 
 
 def test_component_rates_of_a_random_walk_recover_its_rate():
