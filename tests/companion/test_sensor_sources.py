@@ -157,8 +157,9 @@ def test_dronecan_magnetometer_replaces_the_fcs(rig: Rig) -> None:
     assert 10 < st.samples <= rig.can_sent - 3 and st.accepted >= 10 and st.spikes == 0 and st.non_finite == 0
     assert st.accepted + st.no_attitude + st.paused >= st.samples - 2
     assert app.invalid_mag == 0
-    # the mapped CAN sample times sit on message time
-    assert abs(app.now - app.last_valid[SampleKind.MAG]) < 0.5
+    # the mapped CAN sample times sit on message time (a wrong mapping is off by the CAN clock's
+    # epoch; under load the last sample lags the FC's newest message by up to a second or two)
+    assert abs(app.now - app.last_valid[SampleKind.MAG]) < 5.0
     summary = app.summary()["sensors"]
     assert summary["kinds"] == ["mag"] and summary["dropped_no_fc_clock"] == 3 and summary["samples"] >= 10
     assert "FAILSAFE" not in rig.texts()
