@@ -86,6 +86,8 @@ class FlyOptions:
     progress_s: float | None = 10.0      # wall seconds between progress lines on stderr; None: none
     fc: str = "sim"                      # sim: our stand-in; ardupilot: real ArduPilot Rover SITL (fcmpc_fly.firmware)
     fc_instance: int = 0                 # ArduPilot SITL -I (TCP 5760 + 10 i)
+    nice: int = 0                        # niceness added to both children (os.nice): a lockstep run keeps no
+                                         # wall pace, so beside wall-paced work (real firmware) it can yield
 
 
 def short_destination(scenario: Scenario, distance_km: float = SHORT_KM) -> tuple[float, float]:
@@ -174,6 +176,13 @@ def _env() -> dict:
     env = dict(os.environ, MAVLINK20="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
     env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
+
+
+def _niceness(increment: int) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that lowers a child's scheduling priority by ``increment`` (None: keep it)."""
+    if increment <= 0:
+        return None
+    return lambda: os.nice(increment)
 
 
 def _stop(proc: subprocess.Popen | None, grace_s: float = 10.0) -> None:
@@ -313,8 +322,9 @@ def fly(options: FlyOptions, stderr: TextIO | None = None) -> FlyResult:
     with _Interrupts() as interrupts:
         try:
             env = _env()
+            yield_cpu = _niceness(options.nice)
             companion = subprocess.Popen(companion_cmd, env=env, cwd=REPO, stdout=companion_log,
-                                         stderr=subprocess.STDOUT)
+                                         stderr=subprocess.STDOUT, preexec_fn=yield_cpu)
             bound = out / "companion" / "steps.csv"      # created right after the link is open
             deadline = time.monotonic() + BIND_TIMEOUT_S
             while not bound.exists() and companion.poll() is None and not interrupts.signum:
@@ -322,7 +332,8 @@ def fly(options: FlyOptions, stderr: TextIO | None = None) -> FlyResult:
                     break
                 time.sleep(POLL_S)
             if bound.exists() and companion.poll() is None and not interrupts.signum:
-                sitl = subprocess.Popen(sitl_cmd, env=env, cwd=REPO, stdout=sitl_log, stderr=subprocess.STDOUT)
+                sitl = subprocess.Popen(sitl_cmd, env=env, cwd=REPO, stdout=sitl_log, stderr=subprocess.STDOUT,
+                                        preexec_fn=yield_cpu)
                 if options.progress_s is not None:
                     say(f"fcmpc-fly: flying {scenario.name}{' (short)' if options.short else ''}, seed "
                         f"{options.seed}; records in {out}")

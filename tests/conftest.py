@@ -20,15 +20,16 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--run-slow", action="store_true", help="also run tests marked slow")
 
 
-# The longest modules go first (measured in a full run on this 2-core machine, 2026-12-02, 3 workers:
-# PX4's GPS-lost flight 419 s, the PX4 module ~300 s (its quadrant cases with the 30 s start-up), the
-# ArduPilot module 292 s, the short and long storms 234 and 160 s, the full Pacific 153 s), then the
-# other slow ones: parallel workers (pytest-xdist, one module at a time) take modules in this order,
-# so the long ones start at once instead of last on a worker while the others idle. xdist's
-# loadscope would reorder modules by their number of tests (most first, so these single-test modules
-# last): setup.cfg turns that off with --no-loadscope-reorder.
-LONGEST_MODULES = ("test_px4_gps_lost.py", "test_px4.py", "test_ardupilot.py", "test_short_storm_mission_slow.py",
-                   "test_storm_missions_slow.py", "test_missions_slow.py")
+# The longest modules go first: PX4's GPS-lost flight (paced in wall time, 419-428 s), the full Pacific
+# mission closed loop (CPU-bound, 153 s on 2026-12-02, 641 s on the 3-4x slower machine of 2026-12-03;
+# it runs at a lower priority, so it fills what the wall-paced firmware leaves), the PX4 module (its
+# quadrant cases with the 30 s start-up), the ArduPilot module, the storm missions; then the other
+# slow ones: parallel workers (pytest-xdist, one module at a time) take modules in this order, so the
+# long ones start at once instead of last on a worker while the others idle. xdist's loadscope would
+# reorder modules by their number of tests (most first, so these single-test modules last): setup.cfg
+# turns that off with --no-loadscope-reorder.
+LONGEST_MODULES = ("test_px4_gps_lost.py", "test_missions_slow.py", "test_px4.py", "test_ardupilot.py",
+                   "test_storm_missions_slow.py")
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:

@@ -119,6 +119,8 @@ def test_gps_lost_after_start_up_guided_kept_and_on_course(rig_factory):
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
     mon.pump(lambda m: m.truth[-1].time_s >= t_lost + 1800.0 or m.mode != GUIDED, 6 * WALL_S, "30 minutes without GPS")
+    assert mon.mode == GUIDED and mon.armed, (f"left GUIDED (mode {mon.mode}, armed {mon.armed}) "
+                                              f"{mon.time_s - t_lost:.0f} s after the GPS loss: {mon.texts[-8:]}")
     after = [s for s in mon.truth if s.time_s >= t_lost]
     assert all(s.mode == GUIDED and s.armed for s in after), \
         f"left GUIDED at {next(s.time_s for s in after if s.mode != GUIDED or not s.armed) - t_lost:.0f} s"

@@ -138,3 +138,14 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
     assert "INTERRUPTED" in title and f"{result.rest_remaining_m / 1000.0:.2f} km" in title
     path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "pacific")
     assert path.stat().st_size > 20_000
+
+
+def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it():
+    """``FlyOptions.nice``: the children's ``preexec_fn`` adds the increment to their niceness."""
+    from fcmpc_fly.runner import _niceness
+
+    probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
+    own = os.nice(0)
+    assert _niceness(0) is None
+    lowered = subprocess.run(probe, preexec_fn=_niceness(3), capture_output=True, text=True, check=True)
+    assert int(lowered.stdout) == min(own + 3, 19)
