@@ -102,9 +102,12 @@ class PeriodKnots:
 def rotation_nb(roll, pitch, yaw) -> np.ndarray:
     """Body -> NED rotation matrices (..., 3, 3) of ZYX Euler angles (``companion.frames``)."""
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy], -1),
-                     np.stack([cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], -1),
-                     np.stack([-sp, sr * cp, cr * cp], -1)], -2)
+    c = np.empty(np.broadcast(cr, cp, cy).shape + (3, 3))    # filled in place: nested np.stack copied it twice
+    srsp, crsp = sr * sp, cr * sp        # the products in the order they had: results bit for bit
+    c[..., 0, 0], c[..., 0, 1], c[..., 0, 2] = cp * cy, srsp * cy - cr * sy, crsp * cy + sr * sy
+    c[..., 1, 0], c[..., 1, 1], c[..., 1, 2] = cp * sy, srsp * sy + cr * cy, crsp * sy - sr * cy
+    c[..., 2, 0], c[..., 2, 1], c[..., 2, 2] = -sp, sr * cp, cr * cp
+    return c
 
 
 STANDARD_GRAVITY = 9.80665
