@@ -3,8 +3,8 @@
 **The first STORM_ROUTE_KM of the route**, the whole storm window compressed onto them (the
 ``compress`` rule spreads it over the shortened mission, in-process as closed loop): the storm
 paths of the closed loop (the ground station's ``NAV_KP``, the declared storm's walk, rewinds and
-exclusions) are the same on a shorter route, and the whole route is flown closed loop by
-``test_missions_slow.py``. Three whole-route missions were half the CPU of a CI run (one loaded
+exclusions) are the same on a shorter route and under either storm (the short one is flown), and
+the whole route is flown closed loop by ``test_missions_slow.py``. Three whole-route missions were half the CPU of a CI run (one loaded
 run: 716, 716 and 678 s; two 300 km storms still 291 and 275 s). The simulator's storm clock is its
 time since boot, which includes the companion's stationary start-up (one control period), so the
 storm is seen slightly earlier along the track than in-process.
@@ -68,6 +68,9 @@ def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scenario", ["short_storm", "long_storm"])
-def test_storm_mission(tmp_path, shared_data, scenario):
-    fly_storm_and_compare(tmp_path, shared_data, scenario)
+def test_short_storm_mission(tmp_path, shared_data):
+    """The short storm only: the long storm's closed loop (the same NAV_KP, walk and rewind paths)
+    wandered to 55 steps over 150 km and took 380 s of a loaded CI run; its accuracy and honesty
+    are judged in-process (``tests/sitl/test_storm_mission.py``) and ``fly_storm_and_compare``
+    flies it on demand."""
+    fly_storm_and_compare(tmp_path, shared_data, "short_storm")
