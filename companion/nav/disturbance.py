@@ -232,18 +232,20 @@ class StormWalk:
         walks = self.walks
         return component_walk_covariance(jacobian[:, walks], np.asarray(self.q_rth)[walks], dt_s)
 
+    def _gauss_markov(self) -> tuple[np.ndarray, np.ndarray]:
+        """The Gauss-Markov components' short-lag rates (nT per sqrt(hour)) and correlation times (s)."""
+        states = self.states
+        return np.asarray(self.q_rth)[states], np.asarray(self.tau_h)[states] * HOUR_S
+
     def state_step(self, dt_s: float, declared: bool) -> tuple[np.ndarray, np.ndarray]:
         """Decay and driving-noise variance of the Gauss-Markov states over ``dt_s``: driven while
         the storm is declared, fading without noise after."""
-        states = self.states
-        decay, var = gauss_markov_step(np.asarray(self.q_rth)[states], np.asarray(self.tau_h)[states] * HOUR_S,
-                                       dt_s)
+        decay, var = gauss_markov_step(*self._gauss_markov(), dt_s)
         return decay, var if declared else np.zeros_like(var)
 
     def initial_variance(self) -> np.ndarray:
         """The Gauss-Markov states' stationary variance, where a declared storm starts them (nT^2)."""
-        states = self.states
-        return stationary_variance(np.asarray(self.q_rth)[states], np.asarray(self.tau_h)[states] * HOUR_S)
+        return stationary_variance(*self._gauss_markov())
 
 
 class BiasWalk:

@@ -65,8 +65,11 @@ def component_walks(storm_ned_nt: Callable, start_deg: tuple[float, float], dest
     tau``. Where the fitted ``tau`` is not below a quarter of the mission the component does not
     revert on the mission's scale: a random walk at its hourly rate (:func:`component_rates`)."""
     lags_h = np.array([lag for lag in FIT_LAGS_H if lag * 3600.0 <= duration_s * 2.0 / 3.0])
-    d = structure_function(storm_ned_nt, start_deg, dest_deg, duration_s, lags_h * 3600.0)
-    hourly = component_rates(storm_ned_nt, start_deg, dest_deg, duration_s)
+    _check_lag(duration_s, RATE_LAG_S)
+    # the fit's lags and the hourly rate's from one sampling of the route
+    d_all = structure_function(storm_ned_nt, start_deg, dest_deg, duration_s,
+                               np.append(lags_h * 3600.0, RATE_LAG_S))
+    d, hourly = d_all[:-1], np.sqrt(d_all[-1]) / np.sqrt(RATE_LAG_S / 3600.0)
     q, tau = np.array(hourly, dtype=float), np.zeros(3)
     grid = np.geomspace(0.05, 10.0 * duration_s / 3600.0, 400)   # up to ten missions: a random walk fits there
     for c in np.flatnonzero(may_revert):
@@ -87,13 +90,11 @@ def component_rates(storm_ned_nt: Callable, start_deg: tuple[float, float], dest
     ``start_deg`` to ``dest_deg`` (lat, lon) flown in ``duration_s`` mission seconds;
     ``storm_ned_nt(lat, lon, elapsed_s)`` is the disturbance, shape ``(..., 3)``, at mission time
     (:meth:`sitl.world.magnetic.TruthField.storm_ned_nt`)."""
+    _check_lag(duration_s, lag_s)
+    d = structure_function(storm_ned_nt, start_deg, dest_deg, duration_s, np.array([lag_s]), sample_s)[0]
+    return np.sqrt(d) / np.sqrt(lag_s / 3600.0)
+
+
+def _check_lag(duration_s: float, lag_s: float) -> None:
     if not duration_s > lag_s:
         raise ValueError(f"component_rates: a {duration_s:g} s mission is no longer than the {lag_s:g} s lag")
-    t = np.arange(0.0, duration_s + 0.5 * sample_s, sample_s)
-    frac = t / duration_s
-    lat = start_deg[0] + frac * (dest_deg[0] - start_deg[0])
-    lon = start_deg[1] + frac * (dest_deg[1] - start_deg[1])
-    ned = np.asarray(storm_ned_nt(lat, lon, t), dtype=float)
-    k = int(round(lag_s / sample_s))
-    change = ned[k:] - ned[:-k]
-    return np.sqrt(np.mean(change ** 2, axis=0)) / np.sqrt(lag_s / 3600.0)
