@@ -170,7 +170,8 @@ def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callab
         yaw_est = compass_yaw_rad(clean, roll_est, pitch_est, knots.decl_table_deg[index]) + sat * noise[:, 5]
     else:
         yaw_est = yaw + slow[:, 2] + sat * noise[:, 5]
-    ned = np.einsum("nij,nj->ni", rotation_nb(roll_est, pitch_est, yaw_est), meas)
+    c_nb_est = rotation_nb(roll_est, pitch_est, yaw_est)
+    ned = np.einsum("nij,nj->ni", c_nb_est, meas)
     # the gravity samples as the companion takes them: the period's steady part, the specific force
     # f = -g times the body's down axis (the waves' accelerations average out) plus white noise
     steady = t >= t0 + SETTLE_S if t1 - t0 > 2.0 * SETTLE_S else np.ones(count, dtype=bool)
@@ -178,7 +179,7 @@ def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callab
     if settings.accel_noise_mps2 > 0.0 and accel_rng is not None:
         force = force + settings.accel_noise_mps2 * accel_rng.standard_normal(force.shape)
     mag = meas[steady]
-    force_ned = np.einsum("nij,nj->ni", rotation_nb(roll_est[steady], pitch_est[steady], yaw_est[steady]), force)
+    force_ned = np.einsum("nij,nj->ni", c_nb_est[steady], force)
     incl_grav, incl_grav_se = ratio_inclination_deg(np.einsum("ni,ni->n", mag, force), ned[steady], force_ned)
     return replace(elements_from_ned(ned, t1), mag_heading_deg=levelled_heading_deg(mag.mean(axis=0), force.mean(axis=0)),
                    incl_grav_deg=incl_grav, incl_grav_se_deg=incl_grav_se)
