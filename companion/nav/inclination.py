@@ -46,19 +46,37 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["MAD_TO_SIGMA", "mad_standard_error", "ratio_inclination_deg", "robust_standard_error"]
+__all__ = ["MAD_TO_SIGMA", "mad_standard_error", "mad_standard_errors", "ratio_inclination_deg",
+           "robust_standard_error"]
 
 MAD_TO_SIGMA = 1.482602218505602   # 1 / Phi^-1(3/4): the MAD of a normal sample is 0.6745 sigma
 
 
-def _partition_median(values: np.ndarray) -> float:
-    """np.median of a 1-D array without NaN, by np.partition: the same number without median's
-    per-call checks (a quarter of a period's averaging went there)."""
-    mid = values.size // 2
-    if values.size % 2:
-        return float(np.partition(values, mid)[mid])
-    part = np.partition(values, (mid - 1, mid))
-    return float((part[mid - 1] + part[mid]) / 2.0)
+def _partition_medians(values: np.ndarray) -> np.ndarray:
+    """np.median along the last axis of an array without NaN, by np.partition: the same numbers
+    without median's per-call checks (a quarter of a period's averaging went there)."""
+    mid = values.shape[-1] // 2
+    if values.shape[-1] % 2:
+        return np.partition(values, mid, axis=-1)[..., mid]
+    part = np.partition(values, (mid - 1, mid), axis=-1)
+    return (part[..., mid - 1] + part[..., mid]) / 2.0
+
+
+def mad_standard_errors(rows: np.ndarray) -> np.ndarray:
+    """:func:`mad_standard_error` of each row of a 2-D array, in one partition per median (the
+    same numbers, bit for bit, as row by row); NaN for a row with a NaN, all NaN below two columns.
+
+    >>> mad_standard_errors(np.array([[1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 2.0, math.nan]]))
+    array([0.74130111,        nan])
+    """
+    r = np.asarray(rows, dtype=float)
+    if r.ndim != 2:
+        raise ValueError(f"mad_standard_errors needs a 2-D array of rows, got shape {r.shape}")
+    if r.shape[1] < 2:
+        return np.full(r.shape[0], math.nan)
+    out = MAD_TO_SIGMA * _partition_medians(np.abs(r - _partition_medians(r)[:, None])) / math.sqrt(r.shape[1])
+    out[np.isnan(r).any(axis=1)] = math.nan     # partition sorted the NaN last: that row's median is not one
+    return out
 
 
 def mad_standard_error(values: np.ndarray) -> float:
@@ -70,7 +88,8 @@ def mad_standard_error(values: np.ndarray) -> float:
     v = np.asarray(values, dtype=float).reshape(-1)
     if v.size < 2 or np.isnan(v).any():
         return math.nan
-    return MAD_TO_SIGMA * _partition_median(np.abs(v - _partition_median(v))) / math.sqrt(v.size)
+    return float(MAD_TO_SIGMA * float(_partition_medians(np.abs(v - float(_partition_medians(v)))))
+                 / math.sqrt(v.size))
 
 
 def robust_standard_error(values: Sequence[float]) -> float:

@@ -47,7 +47,7 @@ import numpy as np
 
 from companion.frames import Matrix3, Vector3, body_to_ned
 from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import mad_standard_error, ratio_inclination_deg
+from companion.nav.inclination import mad_standard_errors, ratio_inclination_deg
 from companion.nav.steering import YawOffsetTracker
 
 __all__ = [
@@ -323,10 +323,10 @@ class PeriodAverager:
         body = grav & np.all(np.isfinite(a[:, 11:17]), axis=1)
         heading = levelled_heading_deg(a[body, 11:14].mean(axis=0), a[body, 14:17].mean(axis=0)) \
             if body.any() else math.nan
+        se_d, se_i, se_f = mad_standard_errors(a[:, (1, 2, 6)].T).tolist()
         return AveragedDI(d, float(means[2]), n, float(means[0]), float(a[0, 0]), float(a[-1, 0]),
                           (float(means[3]), float(means[4]), float(means[5])), float(means[6]), incl_grav,
-                          int(grav.sum()), mad_standard_error(a[:, 1]), mad_standard_error(a[:, 2]),
-                          mad_standard_error(a[:, 6]), incl_grav_se, heading)
+                          int(grav.sum()), se_d, se_i, se_f, incl_grav_se, heading)
 
     def drop_before(self, time_s: float) -> None:
         rows = self._rows[:self._count]

@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import mad_standard_error, ratio_inclination_deg
+from companion.nav.inclination import mad_standard_errors, ratio_inclination_deg
 from sitl.world.attitude import compass_yaw_rad
 
 __all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "robust_standard_errors",
@@ -117,7 +117,7 @@ SETTLE_S = 60.0     # the companion's gravity samples wait this long after a new
 def robust_standard_errors(values: np.ndarray) -> np.ndarray:
     """``1.4826 MAD / sqrt(n)`` of each column of ``values`` (N, k), the companion's own
     :func:`companion.nav.inclination.mad_standard_error`; NaN below two samples."""
-    return np.array([mad_standard_error(np.ascontiguousarray(column)) for column in np.asarray(values).T])
+    return mad_standard_errors(np.ascontiguousarray(np.asarray(values, dtype=float).T))
 
 
 def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.nav.inclination import MAD_TO_SIGMA, mad_standard_error, robust_standard_error
+from companion.nav.inclination import MAD_TO_SIGMA, mad_standard_error, mad_standard_errors, robust_standard_error
 from companion.nav.magnetometer import (
     AttitudeState, MagProcessor, PeriodAverager, gravity_inclination_deg,
 )
@@ -155,6 +155,18 @@ def test_mad_standard_error_is_numpys_median_formula_to_the_bit(values):
     assert mad_standard_error(v) == expected
     assert mad_standard_error(v) == robust_standard_error(values) or \
         math.isclose(mad_standard_error(v), robust_standard_error(values), rel_tol=1e-12, abs_tol=1e-300)
+
+
+@given(st.integers(1, 4), st.integers(0, 40), st.data())
+def test_mad_standard_errors_of_rows_are_each_rows_to_the_bit(rows, columns, data):
+    """Row-wise (the simulator's and the period average's several elements at once) is the 1-D
+    function on each row, bit for bit, NaN rows included."""
+    values = np.array(data.draw(st.lists(st.lists(st.floats(-1e6, 1e6) | st.just(math.nan), min_size=columns,
+                                                  max_size=columns), min_size=rows, max_size=rows)))
+    values = values.reshape(rows, columns)
+    got = mad_standard_errors(values)
+    expected = np.array([mad_standard_error(row) for row in values])
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_mad_standard_error_is_nan_with_a_nan_or_fewer_than_two_values():
