@@ -198,13 +198,19 @@ class WorldMagneticModel:
         positions give NaN elements; a latitude beyond +-90 degrees or a year outside the model's
         span raises ValueError.
         """
+        return _elements_from_ned(*self.ned(lat_deg, lon_deg, alt_m, year))
+
+    def ned(
+        self, lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike, year: ArrayLike
+    ) -> tuple[float | np.ndarray, float | np.ndarray, float | np.ndarray]:
+        """(X, Y, Z) in nT, north/east/down: :meth:`elements`' first three, without the others
+        (the simulator's truth field wants the vector alone); the same arguments and errors."""
         scalar_alt_year = isinstance(alt_m, _SCALAR_TYPES) and isinstance(year, _SCALAR_TYPES)
         if scalar_alt_year and isinstance(lat_deg, _SCALAR_TYPES) and isinstance(lon_deg, _SCALAR_TYPES):
             if abs(lat_deg) > 90.0:
                 raise ValueError(f"latitude {lat_deg} deg outside [-90, 90]")
             self._check_year(float(year))
-            return _elements_from_ned(*self._sums.ned_scalar(float(lat_deg), float(lon_deg), float(alt_m),
-                                                             float(year) - self.epoch))
+            return self._sums.ned_scalar(float(lat_deg), float(lon_deg), float(alt_m), float(year) - self.epoch)
         if (scalar_alt_year and isinstance(lat_deg, np.ndarray) and isinstance(lon_deg, np.ndarray)
                 and lat_deg.ndim == 1 and lat_deg.shape == lon_deg.shape and 0 < lat_deg.size <= _BLOCK):
             # a few points at one altitude and date (the fix's stencil): one block, no broadcasting
@@ -212,7 +218,7 @@ class WorldMagneticModel:
             if np.abs(lat).max() > 90.0:
                 raise ValueError(f"latitude outside [-90, 90]: {lat[np.abs(lat) > 90.0][0]} deg")
             self._check_year(float(year))
-            return _elements_from_ned(*self._sums.ned(lat, lon, float(alt_m), float(year) - self.epoch))
+            return self._sums.ned(lat, lon, float(alt_m), float(year) - self.epoch)
 
         lat, lon, alt, yr = np.broadcast_arrays(
             *(np.asarray(v, dtype=float) for v in (lat_deg, lon_deg, alt_m, year))
@@ -226,7 +232,7 @@ class WorldMagneticModel:
         for start in range(0, lat.size, _BLOCK):
             block = slice(start, start + _BLOCK)
             x[block], y[block], z[block] = self._sums.ned(lat[block], lon[block], alt[block], yr[block] - self.epoch)
-        return _elements_from_ned(x.reshape(shape), y.reshape(shape), z.reshape(shape))
+        return x.reshape(shape), y.reshape(shape), z.reshape(shape)
 
 
 def _elements_from_ned(x: float | np.ndarray, y: float | np.ndarray, z: float | np.ndarray) -> FieldElements:

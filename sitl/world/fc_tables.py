@@ -63,6 +63,11 @@ class FlightControllerTables:
             values = tuple(float(v) for v in values)
         return FieldElements(*values)
 
+    def ned(self, lat_deg, lon_deg, alt_m=0.0, year=None):
+        """(X, Y, Z) in nT: :meth:`elements`' first three (the truth field's interface)."""
+        e = self.elements(lat_deg, lon_deg, alt_m, year)
+        return e.x_nt, e.y_nt, e.z_nt
+
 
 @lru_cache(maxsize=1)
 def ardupilot_tables() -> FlightControllerTables:

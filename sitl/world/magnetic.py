@@ -76,8 +76,7 @@ class TruthField:
 
     def main_ned_nt(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
         """The main-field model alone (..., 3) north/east/down in nT."""
-        main = self.model.elements(lat_deg, lon_deg, alt_m, self.year)
-        return np.stack(np.broadcast_arrays(main.x_nt, main.y_nt, main.z_nt), axis=-1).astype(float)
+        return np.stack(np.broadcast_arrays(*self.model.ned(lat_deg, lon_deg, alt_m, self.year)), axis=-1)
 
     def storm_ned_nt(self, lat_deg, lon_deg, elapsed_s) -> np.ndarray | None:
         """The disturbance's part (..., 3) in nT, or None when there is none."""
@@ -102,8 +101,8 @@ class TruthField:
         """:meth:`field_ned_nt` at one point as floats, and the main field's part of it, from one
         evaluation of the main field (the simulator's per-step call: without crust or storm no
         array is built, with them the same array sums as :meth:`field_ned_nt`)."""
-        main = self.model.elements(lat_deg, lon_deg, alt_m, self.year)
-        main_ned = (float(main.x_nt), float(main.y_nt), float(main.z_nt))
+        x, y, z = self.model.ned(lat_deg, lon_deg, alt_m, self.year)
+        main_ned = (float(x), float(y), float(z))
         storm = self.storm_ned_nt(lat_deg, lon_deg, elapsed_s)
         if self.crustal is None and storm is None:
             return main_ned, main_ned

@@ -182,6 +182,20 @@ def test_broadcasting_and_return_types(wmm2020: WorldMagneticModel) -> None:
     assert np.isnan(wmm2020.elements(np.array([np.nan, 30.0]), 150.0, 0.0, PAPER_EPOCH).z_nt[0])
 
 
+@pytest.mark.parametrize("lat, lon", [(34.0, 165.0), (np.array([27.0, 30.5, 34.0]), np.array([145.0, 150.0, 160.0])),
+                                      (np.array([[27.0], [30.0]]), np.array([145.0, 165.0])),
+                                      (np.linspace(-60.0, 60.0, 300), np.linspace(-170.0, 170.0, 300))])
+def test_ned_is_the_elements_vector_on_every_path(wmm2020: WorldMagneticModel, lat, lon) -> None:
+    """``ned`` (scalar, one block, broadcast, several blocks) gives the very X, Y, Z of ``elements``."""
+    x, y, z = wmm2020.ned(lat, lon, 1000.0, PAPER_EPOCH)
+    full = wmm2020.elements(lat, lon, 1000.0, PAPER_EPOCH)
+    for got, want in ((x, full.x_nt), (y, full.y_nt), (z, full.z_nt)):
+        assert type(got) is type(want)
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="latitude"):
+        wmm2020.ned(91.0, 0.0, 0.0, PAPER_EPOCH)
+
+
 def test_year_outside_model_span_raises(wmm2020: WorldMagneticModel, wmm2025: WorldMagneticModel) -> None:
     with pytest.raises(ValueError, match=r"WMM2020 is valid for decimal years"):
         wmm2020.elements(33.0, 152.0, 0.0, 2025.0)
