@@ -3,8 +3,8 @@
 A :class:`RunSpec` names everything a run depends on: the scenario (a bundled name, a TOML path
 or a :class:`~sitl.scenario.Scenario`), changes to the scenario's fields (a sweep's scenario
 keys, e.g. ``sensors.mag_noise_nt``), every registry parameter's value, the seed and whether the
-storm is on. :func:`run_spec` flies it in-process (:func:`sitl.inprocess.fly_in_process`) and
-measures it (:func:`companion.nav.metrics.track_metrics`). Nothing else enters: no clock but the
+storm is on. :func:`run_specs` flies a batch of them in-process (:func:`sitl.inprocess.fly_batch`) and
+measures each (:func:`companion.nav.metrics.track_metrics`). Nothing else enters: no clock but the
 run's own wall time (reported, never used), no shared random state, so the same spec gives the
 same numbers bit for bit in any process of any engine (tested against the local pool).
 
@@ -28,7 +28,7 @@ import numpy as np
 
 from companion.nav.metrics import track_metrics
 from companion.params import NavConfig
-from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
+from sitl.inprocess import CHI2_95_2DOF, InProcessFlight, RunResult, fly_batch, nees_per_step
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import TruthField, decl_incl_from_ned
@@ -165,12 +165,26 @@ def _snr_db(truth: TruthField, lat: np.ndarray, lon: np.ndarray, period_s: float
 
 
 def run_spec(spec: RunSpec) -> RunOutput:
-    """Fly one run and measure it (the function every engine maps)."""
-    scenario, truth = _world(spec)
-    nav = NavConfig.from_values(dict(spec.values))
+    """Fly one run and measure it."""
+    return run_specs([(0, spec)])[0][1]
+
+
+def run_specs(batch: list[tuple[int, RunSpec]]) -> list[tuple[int, RunOutput]]:
+    """A batch of (index, spec): one task of an engine (the function every engine maps), so small
+    runs do not pay one round trip each. Its runs fly side by side (:func:`sitl.inprocess.fly_batch`:
+    each as it would alone, bit for bit); each run's ``wall_s`` is its share of the batch's."""
+    worlds = [_world(spec) for _, spec in batch]
+    navs = [NavConfig.from_values(dict(spec.values)) for _, spec in batch]
     started = time.perf_counter()
-    result = fly_in_process(nav, scenario, spec.seed, truth)
-    wall = time.perf_counter() - started
+    results = fly_batch([InProcessFlight(nav, scenario, spec.seed, truth)
+                         for (_, spec), nav, (scenario, truth) in zip(batch, navs, worlds)])
+    wall = (time.perf_counter() - started) / max(1, len(batch))
+    return [(index, _output(spec, nav, result, truth, wall))
+            for (index, spec), nav, result, (_, truth) in zip(batch, navs, results, worlds)]
+
+
+def _output(spec: RunSpec, nav: NavConfig, result: RunResult, truth: TruthField, wall: float) -> RunOutput:
+    """One run's row of metrics and its track."""
     start, dest = (nav.start_lat_deg, nav.start_lon_deg), (nav.dest_lat_deg, nav.dest_lon_deg)
     m = track_metrics(result.true_lat_deg, result.true_lon_deg, start, dest, result.iterations)
     nees = nees_per_step(result)
@@ -183,8 +197,3 @@ def run_spec(spec: RunSpec) -> RunOutput:
                  float(nees[-1] <= CHI2_95_2DOF) if len(nees) and math.isfinite(nees[-1]) else math.nan,
                  math.sqrt(0.5 * (end[0] + end[2])) / 1e3)
     return RunOutput(row, result.true_lat_deg, result.true_lon_deg)
-
-
-def run_specs(batch: list[tuple[int, RunSpec]]) -> list[tuple[int, RunOutput]]:
-    """A batch of (index, spec): one task of an engine, so small runs do not pay one round trip each."""
-    return [(index, run_spec(spec)) for index, spec in batch]

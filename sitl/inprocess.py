@@ -52,12 +52,12 @@ from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
 from sitl.sensors import WaveMotion, make_error_models
-from sitl.world.ins import InsErrorModel
+from sitl.world.ins import InsErrorModel, propagate_together
 from sitl.world.magnetic import TruthField
 from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
 from sitl.world.vehicle import MotionErrors, VehicleState, step_vehicle
 
-__all__ = ["RunResult", "fly_in_process", "nees_per_step", "CHI2_95_2DOF"]
+__all__ = ["CHI2_95_2DOF", "InProcessFlight", "RunResult", "fly_batch", "fly_in_process", "nees_per_step"]
 
 
 CHI2_95_2DOF = 5.991464547107979   # chi-square 95 % quantile, 2 degrees of freedom: the 95 % ellipse
@@ -106,65 +106,162 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
     ``nav_model`` is the navigator's field model; by default ``truth.model`` when the truth's
     main field is the navigator's WMM (the ideal world), else the model ``NavConfig`` names.
     """
-    # (spawn by index: a new stream leaves the older ones, and so every older draw, as they were)
-    ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed = \
-        np.random.SeedSequence(seed).spawn(8)
-    accel_rng = np.random.default_rng(accel_seed)
-    if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
-        nav = nav.replace(elements=resolve_elements(nav.elements, compass_derived=True))
-    heading_free = element_set(nav.elements or ElementSet.PAPER).heading_free
-    noise_rng = np.random.default_rng(noise_seed)
-    fhz_rng = np.random.default_rng(fhz_seed)
-    se_rng = np.random.default_rng(se_seed)
-    ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
-    truth = truth.for_seed(seed)
-    if nav_model is None and scenario.field_model.main == "wmm":
-        nav_model = truth.model
-    mission = Mission(nav, nav_model)
-    # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)
-    mission.set_start_fix(nav.gps_sigma_m)
-    state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
-    sensors = scenario.sensors
-    sampled = sensors.inprocess_samples
-    substeps = max(1, int(round(nav.period_s / substep_s)))
-    dt = nav.period_s / substeps
-    errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
-    motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed))
-    if not sampled:
-        start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
-        sigma_d, sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
-                                                         float(start_field.f_nt))
-        samples = max(1.0, sensors.mag_rate_hz * nav.period_s)
-        sigma_f = sensors.mag_noise_nt / math.sqrt(samples)
-        se_spread = MAD_SE_RELATIVE_SD / math.sqrt(samples)
-    settings = SampleSettings(sensors.mag_rate_hz, sensors.mag_noise_nt, sensors.mag_lsb_nt, sensors.mag_bias_nt,
-                              sensors.attitude_noise_deg, scenario.heading_source, sensors.accel_noise_mps2)
-    wave = WaveMotion()
-    mag_apply = errors.mag.apply if errors.mag is not None else None
+    return fly_batch([InProcessFlight(nav, scenario, seed, truth, substep_s, keep_commands, nav_model)])[0]
 
-    def slow_errors(time_s: float, s: VehicleState) -> tuple[tuple[float, float, float], float]:
+
+def fly_batch(flights: list[InProcessFlight]) -> list[RunResult]:
+    """Fly several missions side by side to their ends, each exactly as :func:`fly_in_process`
+    flies it alone (bit for bit: every flight keeps its own random streams, and the INS of the
+    flights that move together propagate as one stacked computation,
+    :func:`sitl.world.ins.propagate_together`, which gives each model's own numbers). Per
+    sub-step, the Python overhead of the INS's small matrix products is paid once for all of them:
+    the Monte Carlo flies its batches so."""
+    active = [f for f in flights if not f.done]
+    while active:
+        longest = max(f.substeps for f in active)
+        for f in active:
+            f.begin_period()
+        for index in range(longest):
+            moving = [f for f in active if index < f.substeps]
+            for f in moving:
+                f.move()
+            propagate_together([f.ins for f in moving], [f.dt_s for f in moving], [f.state for f in moving])
+            for f in moving:
+                f.record_knot(index)
+        for f in active:
+            f.end_period()
+        active = [f for f in active if not f.done]
+    return [f.result() for f in flights]
+
+
+class InProcessFlight:
+    """One seeded mission between its control steps: the simulated world (vehicle, INS, sensors,
+    truth field) and the navigator. Built at the start (the start-up measurement and first
+    step taken); :func:`fly_batch` moves it sub-step by sub-step and ends each period."""
+
+    def __init__(self, nav: NavConfig, scenario: Scenario, seed: int, truth: TruthField,
+                 substep_s: float = 30.0, keep_commands: bool = False, nav_model=None) -> None:
+        # (spawn by index: a new stream leaves the older ones, and so every older draw, as they were)
+        ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed = \
+            np.random.SeedSequence(seed).spawn(8)
+        self.accel_rng = np.random.default_rng(accel_seed)
+        if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
+            nav = nav.replace(elements=resolve_elements(nav.elements, compass_derived=True))
+        self.nav, self.scenario, self.seed, self.keep_commands = nav, scenario, seed, keep_commands
+        self.heading_free = element_set(nav.elements or ElementSet.PAPER).heading_free
+        self.noise_rng = np.random.default_rng(noise_seed)
+        self.fhz_rng = np.random.default_rng(fhz_seed)
+        self.se_rng = np.random.default_rng(se_seed)
+        self.ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
+        self.truth = truth = truth.for_seed(seed)
+        if nav_model is None and scenario.field_model.main == "wmm":
+            nav_model = truth.model
+        self.mission = Mission(nav, nav_model)
+        # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)
+        self.mission.set_start_fix(nav.gps_sigma_m)
+        self.state = state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
+        sensors = scenario.sensors
+        self.sampled = sensors.inprocess_samples
+        self.substeps = max(1, int(round(nav.period_s / substep_s)))
+        self.dt_s = nav.period_s / self.substeps
+        self.errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
+        self.motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed))
+        if not self.sampled:
+            start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
+            self.sigma_d, self.sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
+                                                                       float(start_field.f_nt))
+            samples = max(1.0, sensors.mag_rate_hz * nav.period_s)
+            self.sigma_f = sensors.mag_noise_nt / math.sqrt(samples)
+            self.se_spread = MAD_SE_RELATIVE_SD / math.sqrt(samples)
+        self.settings = SampleSettings(sensors.mag_rate_hz, sensors.mag_noise_nt, sensors.mag_lsb_nt,
+                                       sensors.mag_bias_nt, sensors.attitude_noise_deg, scenario.heading_source,
+                                       sensors.accel_noise_mps2)
+        self.wave = WaveMotion()
+        self.mag_apply = self.errors.mag.apply if self.errors.mag is not None else None
+
+        self.time_s = 0.0
+        self.lats, self.lons = [state.lat_deg], [state.lon_deg]
+        self.ins_err = [math.hypot(*self.ins.position_error_m(state.lat_deg))]
+        measurement, avg = self._measure(0.0, [(0.0, state, *self._slow_errors(0.0, state))], 0.0)
+        self.command = command = self.mission.step(measurement)
+        self.commands, self.elements = [command], [avg]
+        self.est_lats, self.est_lons = [command.est_lat_deg], [command.est_lon_deg]
+        self.covs = [command.est_cov_en_m2]
+        self.knots: list = []
+
+    @property
+    def done(self) -> bool:
+        return self.command.done
+
+    # --- one period, sub-step by sub-step ---------------------------------------------------------
+    def begin_period(self) -> None:
+        self.knots = [(self.time_s, self.state, *self._slow_errors(self.time_s, self.state))]
+
+    def move(self) -> None:
+        """The vehicle's next sub-step on the last command (the INS follows: :func:`fly_batch`)."""
+        self.state = step_vehicle(self.state, self.dt_s, self.command.course_rad, self.command.speed_mps,
+                                  self.scenario.vehicle, self.motion)
+
+    def record_knot(self, index: int) -> None:
+        t = self.time_s + (index + 1) * self.dt_s
+        self.knots.append((t, self.state, *self._slow_errors(t, self.state)))
+
+    def end_period(self) -> None:
+        """The period's measurement and the navigator's step on it."""
+        nav, state = self.nav, self.state
+        self.time_s += nav.period_s
+        measurement, avg = self._measure(self.time_s, self.knots, nav.period_s)
+        self.command = command = self.mission.step(measurement)
+        self.elements.append(avg)
+        if self.keep_commands:
+            self.commands.append(command)
+        self.lats.append(state.lat_deg)
+        self.lons.append(state.lon_deg)
+        self.est_lats.append(command.est_lat_deg)
+        self.est_lons.append(command.est_lon_deg)
+        self.covs.append(command.est_cov_en_m2)
+        self.ins_err.append(math.hypot(*self.ins.position_error_m(state.lat_deg)))
+
+    def result(self) -> RunResult:
+        nav, state, command, mission = self.nav, self.state, self.command, self.mission
+        return RunResult(
+            controller=Controller.NAMES[nav.controller], seed=self.seed, phase=command.phase, reason=command.reason,
+            iterations=command.step, true_lat_deg=np.array(self.lats), true_lon_deg=np.array(self.lons),
+            est_lat_deg=np.array(self.est_lats), est_lon_deg=np.array(self.est_lons),
+            remaining_m=geodesic_distance_m(state.lat_deg, state.lon_deg, nav.dest_lat_deg, nav.dest_lon_deg),
+            length_m=state.distance_m, duration_s=self.time_s, ins_error_m=np.array(self.ins_err),
+            commands=tuple(self.commands) if self.keep_commands else (), elements=tuple(self.elements),
+            est_cov_en_m2=np.array(self.covs, dtype=float),
+            process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
+        )
+
+    # --- the world's side -------------------------------------------------------------------------
+    def _slow_errors(self, time_s: float, s: VehicleState) -> tuple[tuple[float, float, float], float]:
         """The attitude's slow errors and the FC's table declination at a sub-step."""
+        errors = self.errors
         slow = (0.0, 0.0, 0.0)
         if errors.attitude is not None:
-            slow = errors.attitude.slow_errors_rad(time_s, s.course_rad, ins)
+            slow = errors.attitude.slow_errors_rad(time_s, s.course_rad, self.ins)
         decl = math.nan
         if errors.decl_table_deg is not None:
-            decl = float(errors.decl_table_deg(*ins.indicated_position(s.lat_deg, s.lon_deg)))
+            decl = float(errors.decl_table_deg(*self.ins.indicated_position(s.lat_deg, s.lon_deg)))
         return slow, decl
 
-    def measure(time_s: float, knots: list, window_s: float) -> tuple[Measurement, AveragedElements]:
+    def _measure(self, time_s: float, knots: list, window_s: float) -> tuple[Measurement, AveragedElements]:
         """``knots``: (time, state, slow errors, table declination) from the period's start."""
+        nav, truth, ins, state = self.nav, self.truth, self.ins, self.state
         lats = np.array([k[1].lat_deg for k in knots])
         lons = np.array([k[1].lon_deg for k in knots])
         times = np.array([k[0] for k in knots])
-        ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg) if scenario.ins.onboard \
+        ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg) if self.scenario.ins.onboard \
             else (math.nan, math.nan)
-        if sampled:
+        if self.sampled:
             ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
-            avg = sample_period(period, settings, wave.tilt_rad, mag_apply, noise_rng, accel_rng)
-            if heading_free and math.isfinite(avg.incl_grav_deg):
+            avg = sample_period(period, self.settings, self.wave.tilt_rad, self.mag_apply, self.noise_rng,
+                                self.accel_rng)
+            if self.heading_free and math.isfinite(avg.incl_grav_deg):
                 avg = gravity_referenced(avg)   # the companion's I for a heading-free set, and its H, Z
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
                                avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
@@ -174,57 +271,21 @@ def fly_in_process(nav: NavConfig, scenario: Scenario, seed: int, truth: TruthFi
         # companion's evenly spaced samples; the knots after the start alone would put it half
         # a sub-step late (15 s, ~200 m along the track at 50 km/h). A storm is averaged over the
         # period's times too, as the samples would see it.
+        sigma_d, sigma_i, sigma_f = self.sigma_d, self.sigma_i, self.sigma_f
         ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
         n, e, d = ned[..., 0], ned[..., 1], ned[..., 2]
         h = np.hypot(n, e)
         weights = trapezoid_weights(len(knots))
-        decl = float(weights @ np.degrees(np.arctan2(e, n))) + noise_rng.normal(0.0, sigma_d)
-        incl = float(weights @ np.degrees(np.arctan2(d, h))) + noise_rng.normal(0.0, sigma_i)
-        fn, hn, zn = (float(weights @ v) + sigma_f * fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
+        decl = float(weights @ np.degrees(np.arctan2(e, n))) + self.noise_rng.normal(0.0, sigma_d)
+        incl = float(weights @ np.degrees(np.arctan2(d, h))) + self.noise_rng.normal(0.0, sigma_i)
+        fn, hn, zn = (float(weights @ v) + sigma_f * self.fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
         # the standard errors as the period's scatter would measure them (D, I, F, H, Z)
         se = np.array([sigma_d, sigma_i, sigma_f, sigma_f, sigma_f]) * np.maximum(
-            0.0, 1.0 + se_spread * se_rng.standard_normal(5))
-        avg = AveragedElements(time_s, decl, incl, fn, hn, zn, int(round(sensors.mag_rate_hz * nav.period_s)),
-                               *(float(v) for v in se))
+            0.0, 1.0 + self.se_spread * self.se_rng.standard_normal(5))
+        avg = AveragedElements(time_s, decl, incl, fn, hn, zn,
+                               int(round(self.scenario.sensors.mag_rate_hz * nav.period_s)), *(float(v) for v in se))
         return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg),
                            kp=truth.kp(time_s)), avg
-
-    time_s = 0.0
-    lats, lons = [state.lat_deg], [state.lon_deg]
-    ins_err = [math.hypot(*ins.position_error_m(state.lat_deg))]
-    measurement, avg = measure(time_s, [(0.0, state, *slow_errors(0.0, state))], 0.0)
-    command = mission.step(measurement)
-    commands, elements = [command], [avg]
-    est_lats, est_lons, covs = [command.est_lat_deg], [command.est_lon_deg], [command.est_cov_en_m2]
-    while not command.done:
-        knots = [(time_s, state, *slow_errors(time_s, state))]
-        for index in range(substeps):
-            state = step_vehicle(state, dt, command.course_rad, command.speed_mps, scenario.vehicle, motion)
-            ins.propagate(dt, state.lat_deg, state.vel_east_mps, state.vel_north_mps)
-            t = time_s + (index + 1) * dt
-            knots.append((t, state, *slow_errors(t, state)))
-        time_s += nav.period_s
-        measurement, avg = measure(time_s, knots, nav.period_s)
-        command = mission.step(measurement)
-        elements.append(avg)
-        if keep_commands:
-            commands.append(command)
-        lats.append(state.lat_deg)
-        lons.append(state.lon_deg)
-        est_lats.append(command.est_lat_deg)
-        est_lons.append(command.est_lon_deg)
-        covs.append(command.est_cov_en_m2)
-        ins_err.append(math.hypot(*ins.position_error_m(state.lat_deg)))
-    return RunResult(
-        controller=Controller.NAMES[nav.controller], seed=seed, phase=command.phase, reason=command.reason,
-        iterations=command.step, true_lat_deg=np.array(lats), true_lon_deg=np.array(lons),
-        est_lat_deg=np.array(est_lats), est_lon_deg=np.array(est_lons),
-        remaining_m=geodesic_distance_m(state.lat_deg, state.lon_deg, nav.dest_lat_deg, nav.dest_lon_deg),
-        length_m=state.distance_m, duration_s=time_s, ins_error_m=np.array(ins_err),
-        commands=tuple(commands) if keep_commands else (), elements=tuple(elements),
-        est_cov_en_m2=np.array(covs, dtype=float),
-        process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
-    )
 
 
 def trapezoid_weights(count: int) -> np.ndarray:

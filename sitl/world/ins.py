@@ -30,12 +30,13 @@ before) is off by up to 1e-6 of it (tests), at 2.3 times the cost.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from companion.nav.geo import radii_of_curvature_m
 
-__all__ = ["InsErrorConfig", "InsErrorModel", "expm_times"]
+__all__ = ["InsErrorConfig", "InsErrorModel", "expm_times", "expm_times_stacked", "propagate_together"]
 
 TAYLOR_TERMS = 8
 TAYLOR_PIECE_S = 30.0
@@ -56,6 +57,48 @@ def expm_times(f: np.ndarray, dt_s: float, x: np.ndarray) -> np.ndarray:
             np.add(x, term, out=y)
         x = y
     return x
+
+
+
+def expm_times_stacked(f: np.ndarray, dt_s: float, x: np.ndarray) -> np.ndarray:
+    """:func:`expm_times` of a stack: ``f`` (K, 15, 15), ``x`` (K, 15), one ``dt_s``; the same
+    operations per slice (``np.matmul`` of a stack is the matrix-vector product of each slice,
+    bit for bit ``np.dot``'s here: tested), in K times fewer numpy calls."""
+    pieces = max(1, math.ceil(dt_s / TAYLOR_PIECE_S))
+    a = f * (dt_s / pieces)
+    term = np.empty_like(x)
+    term_column = term[..., None]
+    for _ in range(pieces):
+        y = x.copy()
+        for k in range(TAYLOR_TERMS, 0, -1):
+            np.matmul(a, y[..., None], out=term_column)
+            term *= 1.0 / k
+            np.add(x, term, out=y)
+        x = y
+    return x
+
+
+def propagate_together(models: Sequence[InsErrorModel], dt_s: Sequence[float], states: Sequence) -> None:
+    """:meth:`InsErrorModel.propagate` of several models along their tracks (``states``: each
+    vehicle's, with ``lat_deg``, ``vel_east_mps``, ``vel_north_mps``), the exponentials of equal
+    steps as one stack (:func:`expm_times_stacked`); each model ends bit for bit where its own
+    ``propagate`` would (its random draws stay in its own stream). One model: ``propagate``."""
+    if len(models) == 1:
+        s = states[0]
+        models[0].propagate(dt_s[0], s.lat_deg, s.vel_east_mps, s.vel_north_mps)
+        return
+    groups: dict[float, list[int]] = {}
+    for index, dt in enumerate(dt_s):
+        if dt > 0.0:
+            groups.setdefault(float(dt), []).append(index)
+    for dt, members in groups.items():
+        f = np.stack([models[i]._dynamics(states[i].lat_deg, states[i].vel_east_mps, states[i].vel_north_mps)
+                      for i in members])
+        moved = expm_times_stacked(f, dt, np.stack([models[i].state for i in members]))
+        for row, i in enumerate(members):
+            models[i].state = moved[row]
+            models[i]._drive_markov(dt)
+
 
 EARTH_RATE_RADPS = 7.292115e-5
 GRAVITY_MPS2 = 9.7803
@@ -150,6 +193,10 @@ class InsErrorModel:
         if dt_s <= 0.0:
             return
         self.state = expm_times(self._dynamics(lat_deg, vel_east_mps, vel_north_mps), dt_s, self.state)
+        self._drive_markov(dt_s)
+
+    def _drive_markov(self, dt_s: float) -> None:
+        """The random part of a step: the Markov drift's driving noise (after the exponential)."""
         # exact discrete noise of the Markov drift: variance sigma^2 (1 - exp(-2 dt / tau))
         sigma = self.config.gyro_markov_degph * DEG_PER_HOUR
         decay = math.exp(-2.0 * dt_s / self.config.gyro_markov_tau_s)
