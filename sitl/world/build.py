@@ -101,28 +101,43 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     except (OSError, ValueError) as err:
         raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load storm data from {folder}: {err} "
                                     "(set FCMPC_DATA_DIR or --data-dir)") from err
-    if storm.time_map == "utc":
-        time_map = storms.StormTimeMap.utc(scenario.start_posix)
-    else:
-        start_s, end_s = storm.window_posix
-        window = storms.StormWindow(f"{scenario.name} storm", start_s, end_s)
-        duration = expected_duration_s if expected_duration_s is not None else expected_mission_duration_s(scenario)
-        time_map = storms.StormTimeMap.compress(window, duration)
-    kp_path = folder / "storms" / storms.KP_FILE
-    space_weather = storms.read_gfz_kp(kp_path).kp_at if kp_path.exists() else None
+    time_map = _storm_time_map(scenario, expected_duration_s)
     return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale,
-                   space_weather=space_weather)
+                   space_weather=_space_weather(folder))
+
+
+def _storm_time_map(scenario: Scenario, expected_duration_s: float | None = None):
+    """Mission time -> storm time of the scenario's ``[storm] time_map`` (utc, or its window
+    compressed onto the expected mission)."""
+    from sitl import storms
+    storm = scenario.storm
+    if storm.time_map == "utc":
+        return storms.StormTimeMap.utc(scenario.start_posix)
+    start_s, end_s = storm.window_posix
+    window = storms.StormWindow(f"{scenario.name} storm", start_s, end_s)
+    duration = expected_duration_s if expected_duration_s is not None else expected_mission_duration_s(scenario)
+    return storms.StormTimeMap.compress(window, duration)
+
+
+def _space_weather(folder: Path):
+    """Kp at a storm time (POSIX s -> Kp) from the GFZ file in ``folder``, or None without one."""
+    from sitl import storms
+    kp_path = folder / "storms" / storms.KP_FILE
+    return storms.read_gfz_kp(kp_path).kp_at if kp_path.exists() else None
 
 
 def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> float:
-    """The Kp a space-weather service gives at the mission's start in this world (NaN without a
-    storm, or when its data cannot be loaded): what a ground station sets as ``NAV_KP``."""
-    if not scenario.storm.enabled:
+    """The Kp a space-weather service gives at the mission's start in this world, what a ground
+    station sets as ``NAV_KP``: :meth:`TruthField.kp` at 0 of :func:`build_truth_field`'s field,
+    from the Kp file alone (the stations' records, the costly part of a truth field, are not
+    read). NaN without a storm, with a zero storm scale, or without the Kp file."""
+    storm = scenario.storm
+    if not storm.enabled or storm.scale == 0.0:
         return float("nan")
-    try:
-        return build_truth_field(scenario, data_dir).kp(0.0)
-    except StormUnavailableError:
+    space_weather = _space_weather(Path(data_dir) if data_dir is not None else default_data_dir())
+    if space_weather is None:
         return float("nan")
+    return float(space_weather(_storm_time_map(scenario).storm_time_s(0.0)))
 
 
 def storm_component_walks(scenario: Scenario,
