@@ -85,11 +85,7 @@ def mad_standard_error(values: np.ndarray) -> float:
     >>> mad_standard_error(np.array([1.0, 2.0, 3.0, 4.0]))   # MAD 1
     0.741301109252801
     """
-    v = np.asarray(values, dtype=float).reshape(-1)
-    if v.size < 2 or np.isnan(v).any():
-        return math.nan
-    return float(MAD_TO_SIGMA * float(_partition_medians(np.abs(v - float(_partition_medians(v)))))
-                 / math.sqrt(v.size))
+    return float(mad_standard_errors(np.asarray(values, dtype=float).reshape(1, -1))[0])
 
 
 def robust_standard_error(values: Sequence[float]) -> float:

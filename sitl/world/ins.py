@@ -45,32 +45,22 @@ TAYLOR_PIECE_S = 30.0
 def expm_times(f: np.ndarray, dt_s: float, x: np.ndarray) -> np.ndarray:
     """``expm(F dt) x`` for the INS error dynamics: Horner's form of the Taylor series,
     ``x + A (x + A/2 (x + ... (x + A/8 x)))`` with ``A = F dt / pieces``, applied ``pieces`` times
-    (``dt / pieces`` at most :data:`TAYLOR_PIECE_S`); see the module docstring for its accuracy."""
-    pieces = max(1, math.ceil(dt_s / TAYLOR_PIECE_S))
-    a = f * (dt_s / pieces)
-    term = np.empty_like(x)
-    for _ in range(pieces):
-        y = x.copy()
-        for k in range(TAYLOR_TERMS, 0, -1):     # in place: the same operations, no temporaries
-            np.dot(a, y, out=term)
-            term *= 1.0 / k
-            np.add(x, term, out=y)
-        x = y
-    return x
-
+    (``dt / pieces`` at most :data:`TAYLOR_PIECE_S`); see the module docstring for its accuracy.
+    One model is a stack of one (:func:`expm_times_stacked`)."""
+    return expm_times_stacked(f[None], dt_s, x[None])[0]
 
 
 def expm_times_stacked(f: np.ndarray, dt_s: float, x: np.ndarray) -> np.ndarray:
-    """:func:`expm_times` of a stack: ``f`` (K, 15, 15), ``x`` (K, 15), one ``dt_s``; the same
-    operations per slice (``np.matmul`` of a stack is the matrix-vector product of each slice,
-    bit for bit ``np.dot``'s here: tested), in K times fewer numpy calls."""
+    """:func:`expm_times` of a stack: ``f`` (K, 15, 15), ``x`` (K, 15), one ``dt_s``: each slice's
+    own numbers (``np.matmul`` of a stack is each slice's matrix-vector product; tested), in K times
+    fewer numpy calls."""
     pieces = max(1, math.ceil(dt_s / TAYLOR_PIECE_S))
     a = f * (dt_s / pieces)
     term = np.empty_like(x)
     term_column = term[..., None]
     for _ in range(pieces):
         y = x.copy()
-        for k in range(TAYLOR_TERMS, 0, -1):
+        for k in range(TAYLOR_TERMS, 0, -1):     # in place: the same operations, no temporaries
             np.matmul(a, y[..., None], out=term_column)
             term *= 1.0 / k
             np.add(x, term, out=y)
@@ -82,11 +72,7 @@ def propagate_together(models: Sequence[InsErrorModel], dt_s: Sequence[float], s
     """:meth:`InsErrorModel.propagate` of several models along their tracks (``states``: each
     vehicle's, with ``lat_deg``, ``vel_east_mps``, ``vel_north_mps``), the exponentials of equal
     steps as one stack (:func:`expm_times_stacked`); each model ends bit for bit where its own
-    ``propagate`` would (its random draws stay in its own stream). One model: ``propagate``."""
-    if len(models) == 1:
-        s = states[0]
-        models[0].propagate(dt_s[0], s.lat_deg, s.vel_east_mps, s.vel_north_mps)
-        return
+    ``propagate`` would (its random draws stay in its own stream)."""
     groups: dict[float, list[int]] = {}
     for index, dt in enumerate(dt_s):
         if dt > 0.0:

@@ -4,8 +4,9 @@
 ``compress`` rule spreads it over the shortened mission, in-process as closed loop): the storm
 paths of the closed loop (the ground station's ``NAV_KP``, the declared storm's walk, rewinds and
 exclusions) are the same on a shorter route and under either storm (the short one is flown), and
-the whole route is flown closed loop by ``test_missions_slow.py``. Three whole-route missions were half the CPU of a CI run (one loaded
-run: 716, 716 and 678 s; two 300 km storms still 291 and 275 s). The simulator's storm clock is its
+the whole route is flown closed loop by ``test_missions_slow.py``. Three whole-route missions were
+half the CPU of a CI run (one loaded run: 716, 716 and 678 s; two 300 km storms still 291 and
+275 s). The simulator's storm clock is its
 time since boot, which includes the companion's stationary start-up (one control period), so the
 storm is seen slightly earlier along the track than in-process.
 
@@ -37,7 +38,8 @@ SPREAD_SEEDS = range(8)     # in-process, 1-5 s each
 STORM_ROUTE_KM = 150.0
 # The simulator's seed 0 draws a 3.5-sigma INS azimuth error (-1748 arcsec against Table 1's 500):
 # its INS drifts 60 km in 6.6 h, beyond the worst of 150 other draws (50 km), and under a storm the
-# filter cannot tell that drift from the storm's bias (over 300 km: 35 km off, in-process seeds 16-25 km). Seed 2's draws are within 1 sigma: the closed loop is judged on a typical INS.
+# filter cannot tell that drift from the storm's bias (over 300 km: 35 km off, in-process seeds
+# 16-25 km). Seed 2's draws are within 1 sigma: the closed loop is judged on a typical INS.
 CLOSED_LOOP_SEED = 2
 
 
