@@ -24,21 +24,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Iterable, Mapping
 
-__all__ = [
-    "ParamSpec",
-    "ParamError",
-    "REGISTRY",
-    "SPEC_BY_NAME",
-    "default_values",
-    "validate",
-    "validate_all",
-    "read_parm_file",
-    "write_parm_file",
-    "NavConfig",
-    "CompanionConfig",
-    "Controller",
-    "registry_parm_text",
-]
+__all__ = ["ParamSpec", "ParamError", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate", "validate_all",
+           "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller", "registry_parm_text"]
 
 MAX_NAME_LEN = 16  # MAVLink PARAM_VALUE.param_id is char[16]
 
@@ -115,6 +102,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
     _p("NAV_DR_HDG", int, 1, 0, 1, "", "dead reckoning between fixes (no independent INS position) on 0 the commanded course, 1 the heading measured over the period (magnetometer levelled by the accelerometer, plus the model's D) where it is measured"),
     _p("NAV_KP", float, -1.0, -1.0, 9.0, "", "planetary geomagnetic index Kp now, from a space-weather service via the ground station (GFZ, NOAA SWPC; update it every 3 h): at or above FUS_KP_ON the navigator takes a storm as on from the first step; -1 unknown (the innovations alone decide)"),
+    _p("NAV_SYMH", float, 99999.0, -3000.0, 99999.0, "nT", "the ring-current index SYM-H now, from a space-weather service via the ground station (Kyoto WDC, NASA OMNI; one value a minute, update it every few minutes): the navigator removes the ring current's change since the start from every measurement (FUS_SYMH_K); 99999 (OMNI's fill value) unknown"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -171,6 +159,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQA_TE", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the east component (0: random walk)"),
     _p("FUS_BQA_TZ", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the down component (0: random walk)"),
     _p("FUS_KP_ON", float, 5.0, 0.0, 9.0, "", "a Kp (NAV_KP, or the simulated world's space-weather feed) at or above this declares a storm: the bias states walk as FUS_BQA_MODE says from that step on, and the innovations cannot end it while it lasts (5: a G1 storm on NOAA's scale)"),
+    _p("FUS_SYMH_K", float, 1.0, 0.0, 3.0, "", "the ring current's change of H at the vehicle per nT of SYM-H change (NAV_SYMH): subtracted from each measurement along the local horizontal field; 0 never (measured 1.02 along the Pacific route, 10 May 2024)"),
+    _p("FUS_SYMH_N", float, 70.0, 0.0, 1e4, "nT/rt(h)", "with a SYM-H correction: the north component's residual, in place of FUS_BQA_N: its short-lag walk (10 May 2024 along the Pacific route, real time: 71)"),
+    _p("FUS_SYMH_TN", float, 0.9, 0.0, 1000.0, "h", "with a SYM-H correction: the north residual's correlation time, in place of FUS_BQA_TN (Gauss-Markov: the prediction's error comes and goes; real time 0.88 h; 0 a random walk)"),
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
     _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled"),
@@ -415,6 +406,10 @@ class NavConfig(_FromRegistry):
     bias_qa_tz_h: float = _from("FUS_BQA_TZ")
     kp_on: float = _from("FUS_KP_ON")
     space_weather_kp: float = _from("NAV_KP")
+    space_weather_symh_nt: float = _from("NAV_SYMH")
+    symh_ratio: float = _from("FUS_SYMH_K")
+    symh_residual_n_nt: float = _from("FUS_SYMH_N")
+    symh_residual_tn_h: float = _from("FUS_SYMH_TN")
     bias_heading_deg: float = _from("FUS_BH_DEG")
     bias_heading_nt: float = _from("FUS_BH_NT")
     local_err_deg: float = _from("FUS_GM_DEG")

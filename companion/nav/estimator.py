@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -41,6 +41,7 @@ from companion.nav.ins_error import InsErrorSpec
 from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
+from companion.nav.ring_current import ring_current_change_nt, ring_current_elements, symh_value
 
 __all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
 
@@ -117,6 +118,8 @@ class PositionEstimator:
         self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self._ins = (math.nan, math.nan)
         self._history: list = []
+        self.symh_reference_nt = math.nan   # SYM-H at the start: the ring current's reference (NaN: none)
+        self._symh_last = math.nan          # the last SYM-H received, held while the feed is silent
 
     @property
     def process_name(self) -> str:
@@ -132,11 +135,32 @@ class PositionEstimator:
         """How the bias states walk while a storm is declared, in words."""
         c = self.config
         if c.bias_qa_mode == COMPONENT_WALK:
+            removed = self.ring_current_removed
+            north = (c.symh_residual_n_nt, c.symh_residual_tn_h) if removed else (c.bias_qa_n_nt, c.bias_qa_tn_h)
             parts = [f"{name} {q:g}" + (f" (tau {tau:g} h)" if tau > 0.0 else "")
-                     for name, q, tau in zip("NEZ", (c.bias_qa_n_nt, c.bias_qa_e_nt, c.bias_qa_z_nt),
-                                             (c.bias_qa_tn_h, c.bias_qa_te_h, c.bias_qa_tz_h))]
-            return "bias states walk along the field components " + ", ".join(parts) + " nT/rt(h)"
+                     for name, q, tau in zip("NEZ", (north[0], c.bias_qa_e_nt, c.bias_qa_z_nt),
+                                             (north[1], c.bias_qa_te_h, c.bias_qa_tz_h))]
+            return ("bias states walk along the field components " + ", ".join(parts) + " nT/rt(h)"
+                    + (", N after the SYM-H ring current" if removed else ""))
         return f"bias states walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT /rt(h)"
+
+    @property
+    def ring_current_removed(self) -> bool:
+        """The ring current predicted from SYM-H is taken out of every measurement: a SYM-H came
+        with the start and ``FUS_SYMH_K`` > 0 (:mod:`companion.nav.ring_current`)."""
+        return math.isfinite(self.symh_reference_nt)
+
+    def ring_current_share(self, meas, position: tuple[float, float]) -> np.ndarray:
+        """The predicted ring current's share of each measured element at ``position`` (deg),
+        zero without a correction; a SYM-H missing this step holds the last one."""
+        if not self.ring_current_removed:
+            return np.zeros(len(self.measured.names))
+        symh = symh_value(meas.symh_nt)
+        if math.isfinite(symh):
+            self._symh_last = symh
+        delta_h = ring_current_change_nt(self.config.symh_ratio, self._symh_last, self.symh_reference_nt)
+        north, east, down = self.model.ned(position[0], position[1], self.config.alt_m, self.config.year)
+        return ring_current_elements(self.measured.names, north, east, down, delta_h)
 
     @property
     def dead_reckons(self) -> bool:
@@ -162,8 +186,17 @@ class PositionEstimator:
             self.reason = "INS error model: an independent INS position is available"
         else:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
-        self.filter = NavigationFilter(process, self.measured, self.settings, self.model, c.alt_m, c.year)
+        self.symh_reference_nt = symh_value(meas.symh_nt) if c.symh_ratio > 0.0 else math.nan
+        self._symh_last = self.symh_reference_nt
+        settings = self.settings
+        if self.ring_current_removed:   # what the prediction misses walks as the storm's north
+            b = settings.bias
+            settings = replace(settings, bias=replace(
+                b, qa_ned_nt_rth=(c.symh_residual_n_nt, *b.qa_ned_nt_rth[1:]),
+                qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:])))
+        self.filter = NavigationFilter(process, self.measured, settings, self.model, c.alt_m, c.year)
         self.filter.monitor.declare(storm_declared(meas.kp, c.kp_on))
+        measured = measured - self.ring_current_share(meas, (c.start_lat_deg, c.start_lon_deg))
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         self.filter.set_heading(window_heading_rad(meas))
         if start_sigma_m is not None:
@@ -186,14 +219,14 @@ class PositionEstimator:
         extrapolated, for the rest of the mission."""
         f = self.filter
         inputs = (meas, measured, dt_s, vel_en_mps, lag_en_m, fallback, shift)
-        self._history.append((f.snapshot(), self._ins, inputs, list(self.consensus.offsets)))
+        self._history.append((f.snapshot(), (self._ins, self._symh_last), inputs, list(self.consensus.offsets)))
         del self._history[:-REWIND_STEPS]
         was_active = f.monitor.active
         estimate = self._step(*inputs)
         if f.monitor.active and not was_active:
             back = min(len(self._history), f.monitor.loud_steps + REWIND_EXTRA)
             replay = self._history[-back:]
-            state, self._ins, _, offsets = replay[0]
+            state, (self._ins, self._symh_last), _, offsets = replay[0]
             self.consensus.offsets = list(offsets)
             activations = f.monitor.activations
             f.restore(state)
@@ -223,6 +256,7 @@ class PositionEstimator:
             prior = f.position(*self._ins)
         # the model at the window centre, evaluated once: the fix's first iterate and the update
         centre = f.window_centre(lag_en_m, *self._ins)
+        measured = measured - self.ring_current_share(meas, centre)
         at_centre = element_values_and_gradient(self.model, self.measured, *centre, self.config.alt_m,
                                                 self.config.year)
         fix, fix_gradient = self._fix(measured, centre, lag_en_m, at_centre)

@@ -43,7 +43,9 @@ class Measurement:
 
     ``kp``: the planetary geomagnetic index Kp (0-9) a space-weather service gives for now, NaN
     when none reaches the vehicle; at or above ``FUS_KP_ON`` the navigation filter takes a
-    storm as on (:mod:`companion.nav.disturbance`).
+    storm as on (:mod:`companion.nav.disturbance`). ``symh_nt``: the ring-current index SYM-H
+    (nT) over the period, NaN when none reaches the vehicle; the filter removes the ring current's
+    change since the start from the elements (:mod:`companion.nav.ring_current`).
     """
 
     time_s: float
@@ -62,6 +64,7 @@ class Measurement:
     z_se_nt: float = math.nan
     mag_heading_deg: float = math.nan
     kp: float = math.nan
+    symh_nt: float = math.nan
 
     @property
     def has_ins(self) -> bool:

@@ -93,8 +93,10 @@ class ControlStep:
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
         # the space-weather index the ground station set (NAV_KP; negative: none)
         kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 else math.nan
+        # ... and the ring-current index (NAV_SYMH; its 99999 default: none, judged by the core)
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
-                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp)
+                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp,
+                           mission.config.space_weather_symh_nt)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
         self.judgement = None
         if self.excluded(t_k, meas, se):

@@ -197,6 +197,9 @@ class Phases:
         if estimator is not None and estimator.storm_declared:
             app.out.say(f"FcMPC: storm declared: NAV_KP {config.space_weather_kp:g} >= FUS_KP_ON {config.kp_on:g}, "
                         f"{estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING)
+        if estimator is not None and estimator.ring_current_removed:
+            app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "
+                        f"its change x FUS_SYMH_K {config.symh_ratio:g} along H"[:200])
         trim = app.comp_cfg.trim_max_deg
         app.out.say(f"FcMPC: steering: the measured heading, course trimmed by the FC's yaw error up to {trim:g} deg"
                     if trim > 0.0 else "FcMPC: steering: the FC's yaw (COMP_TRIM_DEG 0)")

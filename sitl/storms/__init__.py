@@ -62,7 +62,7 @@ from __future__ import annotations
 #   timemap      StormTimeMap and sharpest_window
 #   plot         plot_disturbance (matplotlib, lazily)
 #   rates        component_rates, component_walks: how the disturbance moves along a route (a navigator's declared walk)
-from sitl.storms.common import (ACKNOWLEDGEMENT, DEFAULT_STATIONS, KP_FILE, LONG_STORM, QUIET_BASELINE, SHORT_STORM,
+from sitl.storms.common import (ACKNOWLEDGEMENT, DEFAULT_STATIONS, KP_FILE, LONG_STORM, OMNI_FILE, QUIET_BASELINE, SHORT_STORM,
                                 SUDDEN_COMMENCEMENT_S, StormDataError, StormWindow, default_data_dir, utc_s)
 from sitl.storms.deviation import (StationDeviation, di_shift_deg, eq64_dbh_nt, quiet_baseline,
                                    station_deviation)
@@ -79,6 +79,7 @@ __all__ = [
     "DEFAULT_STATIONS",
     "KP_FILE",
     "LONG_STORM",
+    "OMNI_FILE",
     "QUIET_BASELINE",
     "SHORT_STORM",
     "SUDDEN_COMMENCEMENT_S",

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ACKNOWLEDGEMENT", "DEFAULT_STATIONS", "FloatArray", "KP_FILE", "LONG_STORM", "QUIET_BASELINE", "SHORT_STORM",
+__all__ = ["ACKNOWLEDGEMENT", "DEFAULT_STATIONS", "FloatArray", "KP_FILE", "LONG_STORM", "OMNI_FILE", "QUIET_BASELINE", "SHORT_STORM",
            "SUDDEN_COMMENCEMENT_S", "StormDataError", "StormWindow", "default_data_dir", "utc_s"]
 
 FloatArray = NDArray[np.float64]
@@ -91,6 +91,8 @@ QUIET_BASELINE = StormWindow("quiet baseline", utc_s("2024-05-10T12:00"), utc_s(
 #: Paper's long event, 02:00-08:00 Beijing time 11 May 2024 = 18:00-24:00 UTC 10 May (main phase).
 #: The GFZ Kp excerpt under ``<data>/storms/`` (:func:`sitl.storms.read_gfz_kp`).
 KP_FILE = "gfz_Kp_ap_Ap_SN_F107_2024-04-21_to_2024-06-30_excerpt.txt"
+#: The OMNI 1-minute AE and SYM-H excerpt under ``<data>/storms/`` (:func:`sitl.storms.read_omni_symh`).
+OMNI_FILE = "omni_hro2_1min_20240509-13_symh_ae.csv"
 
 LONG_STORM = StormWindow("long storm", utc_s("2024-05-10T18:00"), utc_s("2024-05-11T00:00"))
 

@@ -31,6 +31,15 @@ class OmniIndices:
     symh_nt: FloatArray
     source: Path
 
+    def symh_at(self, posix_s: float) -> float:
+        """SYM-H (nT) at a POSIX time, linear between the bins' centres (each stamp is a bin's
+        start); NaN outside the record or next to a fill value."""
+        centres = self.time_s + 30.0
+        t = float(posix_s)
+        if not centres[0] <= t <= centres[-1]:
+            return float("nan")
+        return float(np.interp(t, centres, self.symh_nt))
+
 
 def read_omni_symh(path: str | os.PathLike[str]) -> OmniIndices:
     """Read the CDAWeb OMNI CSV: ``#`` comment lines, one column header line, then rows.

@@ -31,6 +31,8 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from companion.nav.field import model_for_date
 from companion.nav.geo import geodesic_distance_m
 from companion.params import SPEC_BY_NAME
@@ -103,7 +105,7 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
                                     "(set FCMPC_DATA_DIR or --data-dir)") from err
     time_map = _storm_time_map(scenario, expected_duration_s)
     return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale,
-                   space_weather=_space_weather(folder))
+                   space_weather=_space_weather(folder), ring_current=_ring_current(folder))
 
 
 def _storm_time_map(scenario: Scenario, expected_duration_s: float | None = None):
@@ -126,6 +128,13 @@ def _space_weather(folder: Path):
     return storms.read_gfz_kp(kp_path).kp_at if kp_path.exists() else None
 
 
+def _ring_current(folder: Path):
+    """SYM-H at a storm time (POSIX s -> nT) from the OMNI file in ``folder``, or None without one."""
+    from sitl import storms
+    path = folder / "storms" / storms.OMNI_FILE
+    return storms.read_omni_symh(path).symh_at if path.exists() else None
+
+
 def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> float:
     """The Kp a space-weather service gives at the mission's start in this world, what a ground
     station sets as ``NAV_KP``: :meth:`TruthField.kp` at 0 of :func:`build_truth_field`'s field,
@@ -140,17 +149,35 @@ def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     return float(space_weather(_storm_time_map(scenario).storm_time_s(0.0)))
 
 
-def storm_component_walks(scenario: Scenario,
-                          data_dir: str | os.PathLike[str] | None = None) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def storm_component_walks(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
+                          symh_ratio: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """How the scenario's storm disturbance (dN, dE, dZ) moves along its route at the cruise speed,
     in mission time (:func:`sitl.storms.component_walks`): the short-lag rates (nT per sqrt(hour))
     and correlation times (hours, 0: random walk) a navigator set up for this world declares as
-    ``FUS_BQA_N/E/Z`` and ``FUS_BQA_TN/TE/TZ``."""
+    ``FUS_BQA_N/E/Z`` and ``FUS_BQA_TN/TE/TZ``.
+
+    ``symh_ratio`` > 0: what is left once a navigator removes the ring current predicted from
+    SYM-H with that ratio (:mod:`companion.nav.ring_current`; along the main field's horizontal
+    direction, from the mission's start), whose north may revert (the prediction's error comes
+    and goes): the rates to declare as ``FUS_SYMH_N``, ``FUS_SYMH_TN`` and ``FUS_BQA_E/Z``."""
     from sitl import storms
     truth = build_truth_field(scenario, data_dir)
     if truth.disturbance is None:
         raise ValueError(f"scenario {scenario.name!r} has no storm")
-    q, tau = storms.component_walks(truth.storm_ned_nt, (scenario.start_lat_deg, scenario.start_lon_deg),
+    from sitl.storms.rates import MAY_REVERT
+    disturbance, may_revert = truth.storm_ned_nt, MAY_REVERT
+    if symh_ratio > 0.0:
+        reference = truth.symh(0.0)
+
+        def disturbance(lat, lon, elapsed_s):
+            ned = np.array(truth.storm_ned_nt(lat, lon, elapsed_s), dtype=float)
+            main = truth.main_ned_nt(lat, lon, scenario.alt_m)
+            change = symh_ratio * (np.array([truth.symh(t) for t in np.atleast_1d(elapsed_s)]) - reference)
+            along_h = main[..., :2] / np.hypot(main[..., 0], main[..., 1])[..., None]
+            ned[..., :2] -= change[..., None] * along_h
+            return ned
+        may_revert = (True,) + tuple(MAY_REVERT[1:])
+    q, tau = storms.component_walks(disturbance, (scenario.start_lat_deg, scenario.start_lon_deg),
                                     (scenario.dest_lat_deg, scenario.dest_lon_deg),
-                                    expected_mission_duration_s(scenario))
+                                    expected_mission_duration_s(scenario), may_revert)
     return tuple(float(v) for v in q), tuple(float(v) for v in tau)

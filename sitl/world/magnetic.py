@@ -45,7 +45,7 @@ class TruthField:
     ``crustal_origin`` describe the anomaly field; ``crustal`` is its realisation for one seed
     (:meth:`for_seed`). ``space_weather``: the planetary Kp at a storm time (POSIX seconds ->
     Kp, :meth:`sitl.storms.KpRecord.kp_at`), what a space-weather service reports while the
-    storm is on (:meth:`kp`).
+    storm is on (:meth:`kp`); ``ring_current`` the SYM-H index likewise (:meth:`symh`).
     """
 
     model: WorldMagneticModel
@@ -57,6 +57,7 @@ class TruthField:
     crustal_origin: tuple[float, float] = (0.0, 0.0)
     crustal: CrustalField | None = None
     space_weather: object = None  # callable POSIX seconds -> Kp, or None
+    ring_current: object = None   # callable POSIX seconds -> SYM-H nT, or None
 
     def kp(self, elapsed_s: float) -> float:
         """The planetary Kp a space-weather service gives at this mission time: the storm's own
@@ -66,6 +67,14 @@ class TruthField:
             return math.nan
         t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
         return float(self.space_weather(t))
+
+    def symh(self, elapsed_s: float) -> float:
+        """The ring-current index SYM-H (nT) a space-weather service gives at this mission time:
+        the storm's own at its storm time, NaN without a storm or without SYM-H data."""
+        if self.disturbance is None or self.storm_scale == 0.0 or self.ring_current is None:
+            return math.nan
+        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
+        return float(self.ring_current(t))
 
     def for_seed(self, seed: int) -> TruthField:
         """The same field with the crustal anomaly drawn for ``seed`` (itself when there is none)."""

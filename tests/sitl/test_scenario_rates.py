@@ -28,6 +28,36 @@ def test_declared_storm_walk_is_the_worlds_own(shared_data, name):
     assert tau[0] == tau[2] == 0.0 and tau[1] > 0.0   # the east reverts within the mission in both
 
 
+@pytest.mark.parametrize("name", ["long_storm", "short_storm"])
+def test_declared_north_residual_after_the_ring_current_is_the_worlds_own(shared_data, name):
+    """FUS_SYMH_N/TN are how the world's north moves once the ring current predicted from its SYM-H
+    is removed (storm_component_walks with ratio 1: Gauss-Markov, the prediction's error comes
+    and goes), to the 0.1 nT/rt(h) and 0.01 h they are written with."""
+    scenario = load_scenario(name)
+    declared = dict(scenario.navigator)
+    q, tau = storm_component_walks(scenario, shared_data, symh_ratio=1.0)
+    assert declared["FUS_SYMH_N"] == pytest.approx(q[0], abs=0.051)
+    assert declared["FUS_SYMH_TN"] == pytest.approx(tau[0], abs=0.0051) and tau[0] > 0.0
+
+
+def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_storm(shared_data):
+    """SYM-H is OMNI's at the storm time the mission maps to (the long storm's window starts at
+    18 UTC on 10 May 2024, SYM-H about -10 nT, and ends near -330 nT); the quiet world, a storm
+    switched off and a world without the OMNI file have none."""
+    from sitl.storms import OMNI_FILE, read_omni_symh
+    storm = load_scenario("long_storm")
+    truth = build_truth_field(storm, shared_data)
+    omni = read_omni_symh(shared_data / "storms" / OMNI_FILE)
+    for elapsed in (0.0, 5.0 * 3600.0, 15.0 * 3600.0):
+        t = truth.storm_time_s(elapsed)
+        bins = np.abs(omni.time_s + 30.0 - t) <= 60.0
+        assert omni.symh_nt[bins].min() <= truth.symh(elapsed) <= omni.symh_nt[bins].max()
+    assert -20.0 < truth.symh(0.0) < 0.0 and truth.symh(15.9 * 3600.0) < -250.0
+    off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
+    assert math.isnan(off.symh(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).symh(0.0))
+    assert math.isnan(replace(truth, ring_current=None).symh(0.0))
+
+
 def test_a_gauss_markov_component_is_fitted_back_and_a_random_walk_is_not_taken_for_one():
     """A Gauss-Markov east (q 30 nT/rt(h), tau 1.5 h) and random-walk north and down (20, 10)
     over 400 h: the east's q and tau come back within 10 %, the others stay random walks at their
