@@ -278,6 +278,8 @@ def _commands(options: FlyOptions, scenario: Scenario, out: Path, parm: Path, sc
         sitl += ["--fault", fault]
     if options.data_dir:
         sitl += ["--data-dir", options.data_dir]
+    if scenario.storm.enabled:   # the ground station keeps NAV_SYMH up to date, as in-process the world does
+        sitl.append("--symh-feed")
     return companion, sitl + list(options.sitl_extra)
 
 
@@ -428,10 +430,7 @@ def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[flo
     from sitl.world.build import build_truth_field
 
     scenario = load_scenario(scenario_arg)
-    # the ground station here sets NAV_KP once and plays no SYM-H feed (NAV_SYMH), so the closed
-    # loop flies without the ring-current correction, and so does its in-process twin
-    values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], "FUS_SYMH_K": 0.0,
-              **options.extra_params}
+    values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], **options.extra_params}
     nav = NavConfig.from_values(validate_all(values))
     truth = build_truth_field(scenario, options.data_dir)
     return [fly_in_process(nav, scenario, seed, truth) for seed in seeds]

@@ -78,6 +78,12 @@ class Outbox:
         name = cls.msgname
         counts[name] = counts.get(name, 0) + 1
 
+    def emit_from(self, encoder: FrameEncoder, cls, *fields) -> None:
+        """Queue one message another system sends through this flight controller (a ground
+        station behind its telemetry link): encoded with that system's ``encoder``."""
+        self._out.append(encoder.frame_of(cls, fields))
+        self.tx_by_type[cls.msgname] = self.tx_by_type.get(cls.msgname, 0) + 1
+
     def say(self, key: str | None, severity: int, text: str) -> None:
         """STATUSTEXT (at most one per ``key`` per 5 s of simulated time when ``key`` is given)."""
         now = self.clock.time_s

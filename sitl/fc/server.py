@@ -37,6 +37,7 @@ from sitl.clock import US_PER_S, LockstepGate, Pacer, SimClock
 from sitl.fc.commands import CommandHandler
 from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig, parse_fault
 from sitl.fc.faults import FaultInjector
+from sitl.fc.ground_station import FEED_PERIOD_S, SpaceWeatherFeed
 from sitl.fc.lockstep import Stepper
 from sitl.fc.outbox import Counters, Outbox
 from sitl.fc.param_table import ardupilot_params, heading_source_of, px4_params
@@ -105,8 +106,10 @@ class SitlServer:
         self._imu_interval_us = int(US_PER_S / sc.sensors.imu_rate_hz)
         self._field_interval_us = max(1, int(config.field_step_s * US_PER_S))
         self._log_interval_us = int(US_PER_S / config.log_rate_hz) if config.log_rate_hz > 0 else 0
+        self.gcs_feed = SpaceWeatherFeed(truth_full.symh, self.out, self.sysid) if config.symh_feed else None
         self._next = {"mag": 0, "imu": 0, "field": 0, "log": 0 if self._log_interval_us else NEVER_US,
-                      "physics": 0, "init": int(config.init_s * US_PER_S)}
+                      "physics": 0, "init": int(config.init_s * US_PER_S),
+                      "gcs": 0 if self.gcs_feed is not None else NEVER_US}
         speedup = config.speedup
         if speedup is None:
             speedup = 0.0 if config.lockstep else DEFAULT_SPEEDUP
@@ -224,7 +227,7 @@ class SitlServer:
 
     def _next_event_us(self) -> int:
         nxt = self._next
-        t = min(*nxt.values(), self.faults.next_us, self.stepper.next_us)   # mag, imu, field, log, physics, init
+        t = min(*nxt.values(), self.faults.next_us, self.stepper.next_us)   # mag, imu, field, log, physics, init, gcs
         t = self.streams.next_due_us(t)
         delayed = self.out.delayed
         if delayed and delayed[0][0] < t:
@@ -255,6 +258,9 @@ class SitlServer:
             nxt["imu"] = now + self._imu_interval_us
             v.sample_imu()
         self.streams.run_due(now)
+        if nxt["gcs"] <= now:
+            nxt["gcs"] = now + int(FEED_PERIOD_S * US_PER_S)
+            self.gcs_feed.send(self.clock.time_s)
         if nxt["log"] <= now:
             nxt["log"] = now + self._log_interval_us
             if self.records.truth_log is not None:
