@@ -112,12 +112,14 @@ class ParamServer:
 
     def __init__(self, link: MavlinkLink, parm_path: str | os.PathLike | None = None,
                  on_change: Callable[[str, float | int], None] | None = None, encoding: str = "auto",
-                 ceiling: SafetyCeiling | None = None) -> None:
+                 ceiling: SafetyCeiling | None = None, clock: Callable[[], float] | None = None) -> None:
         if encoding not in ENCODINGS:
             raise ValueError(f"parameter encoding {encoding!r} not one of {', '.join(ENCODINGS)}")
         self.link = link
         self.path = Path(parm_path) if parm_path else None
         self.on_change = on_change
+        self.clock = clock              # message time of each accepted set (age_s): live inputs such as NAV_SYMH
+        self.set_at_s: dict[str, float] = {}
         self.encoding = encoding
         self.values: dict[str, float | int] = default_values()
         self.load_error: str | None = None
@@ -255,11 +257,19 @@ class ParamServer:
         old = self.values.get(name)
         self.values[name] = value
         self.sets_accepted += 1
+        if self.clock is not None:   # a repeated value is news too: the sender is still there
+            self.set_at_s[name] = self.clock()
         if old == value and type(old) is type(value):
             return   # nothing changed: no rewrite, no fsync
         self.persist()
         if self.on_change is not None:
             self.on_change(name, value)
+
+    def age_s(self, name: str, now: float) -> float:
+        """Seconds of message time since ``name`` was last set over the link (or locally), inf
+        when it has not been since start: a value read from the file is not a live reading."""
+        at = self.set_at_s.get(name)
+        return math.inf if at is None else now - at
 
     def persist(self) -> bool:
         if self.path is None or self.load_error is not None:

@@ -75,7 +75,7 @@ class CompanionApp:
                                 signing=Signing.from_file(options.signing_key, options.signing_link_id)
                                 if options.signing_key else None)
         self.params = ParamServer(self.link, params_path, on_change=self._param_changed,
-                                  encoding=options.param_encoding)
+                                  encoding=options.param_encoding, clock=lambda: self.now)
         self.params.load()
         self.link.apply_ceiling(self.params.ceiling, tlog_max_bytes=int(self.params.values["LINK_TLOG_MB"] * 1e6))
         self.notifier = Notifier()   # systemd READY/WATCHDOG (a no-op outside systemd)

@@ -23,9 +23,14 @@ from companion.nav.steering import is_new_course
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
-__all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
+__all__ = ["SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
+# NAV_SYMH is a reading, not a setting: one not set over the link within this much message time
+# (SYM-H is published every minute) is none, and one read from the .parm file at start is none
+# until the ground station sets it: a value left there from another day, taken as the start's
+# reference, would shift every later measurement by the day's difference
+SYMH_MAX_AGE_S = 900.0
 
 
 class ControlStep:
@@ -93,10 +98,11 @@ class ControlStep:
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
         # the space-weather index the ground station set (NAV_KP; negative: none)
         kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 else math.nan
-        # ... and the ring-current index (NAV_SYMH; its 99999 default: none, judged by the core)
+        # ... and the ring-current index (NAV_SYMH, while the ground station keeps it fresh)
+        symh = mission.config.space_weather_symh_nt if app.params.age_s("NAV_SYMH", now) <= SYMH_MAX_AGE_S \
+            else math.nan
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
-                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp,
-                           mission.config.space_weather_symh_nt)
+                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp, symh)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
         self.judgement = None
         if self.excluded(t_k, meas, se):

@@ -27,13 +27,13 @@ REPO = Path(__file__).resolve().parents[2]
 class Served:
     """A ParamServer on its own MavlinkLink, pumped by a thread; a GCS-like pymavlink client."""
 
-    def __init__(self, parm: Path, encoding: str = "auto") -> None:
+    def __init__(self, parm: Path, encoding: str = "auto", clock=None) -> None:
         port = free_port()
         self.link = MavlinkLink(f"udpin:127.0.0.1:{port}")
         self.link.open()
         self.changes: list[tuple[str, float]] = []
         self.server = ParamServer(self.link, parm, on_change=lambda n, v: self.changes.append((n, v)),
-                                  encoding=encoding)
+                                  encoding=encoding, clock=clock)
         self.server.load()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._pump, daemon=True)
@@ -75,6 +75,27 @@ def served(tmp_path):
     s = Served(tmp_path / "companion.parm")
     yield s
     s.close()
+
+
+def test_a_live_reading_is_as_old_as_its_last_set_and_one_from_the_file_is_none(tmp_path):
+    """NAV_SYMH from the .parm file has no age (inf: not a live reading); each set over the link,
+    a repeated value too (no rewrite), makes it as old as the message time since."""
+    parm = tmp_path / "companion.parm"
+    write_parm_file(parm, {**default_values(), "NAV_SYMH": -300.0})
+    now = [100.0]
+    served = Served(parm, clock=lambda: now[0])
+    try:
+        assert served.server.values["NAV_SYMH"] == -300.0 and served.server.age_s("NAV_SYMH", 100.0) == math.inf
+        for at in (100.0, 160.0):   # the same value twice, a minute apart
+            now[0] = at
+            writes = served.server.writes
+            served.client.mav.param_set_send(1, 191, b"NAV_SYMH", -42.0, mavlink.MAV_PARAM_TYPE_REAL32)
+            assert served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SYMH") is not None
+            assert served.server.age_s("NAV_SYMH", at + 50.0) == pytest.approx(50.0)
+        assert served.server.writes == writes   # the repeat was not rewritten
+        assert served.server.age_s("NAV_KP", 200.0) == math.inf
+    finally:
+        served.close()
 
 
 def test_list_all_parameters(served):
