@@ -49,7 +49,8 @@ __all__ = ["RESUME_MAX_AGE_S", "SAVE_EVERY_S", "NavSnapshot", "NavStateStore", "
 
 RESUME_MAX_AGE_S = 300.0     # message time: the vehicle held this long at most (less than a control period)
 SAVE_EVERY_S = 30.0          # message time between saves while running (besides every step)
-SNAPSHOT_VERSION = 2          # 2: the filter measures its noise (FUS_R_SRC); a version-1 state is not resumed
+SNAPSHOT_VERSION = 3          # 3: the estimator keeps the ring current's SYM-H reference; 2: the filter measures its noise
+                              # (FUS_R_SRC). An older state is not resumed: its objects lack what this code reads
 
 
 @dataclass(frozen=True)
