@@ -20,17 +20,17 @@ INTERMAGNET observatories of the simulated world, 18-24 UTC compressed onto the 
 disturbance's north component is 1.02 times the SYM-H change, its east -0.13 times (a direction
 7 deg west of north, where the local D is 0-4 deg west and the dipole's north 7.5 deg east), its
 down 0.12 times. The north's rms offset from the start falls from 221 to 42 nT once the
-prediction is removed, and what is left wanders at about 58 nT per sqrt(hour) over short lags
-but stays within about 50 nT (Gauss-Markov, correlation time 1.4 h), where without the
+prediction is removed, and what is left wanders at about 61 nT per sqrt(hour) over short lags
+but stays within about 50 nT (Gauss-Markov, correlation time 1.3 h), where without the
 prediction it walked on to 350 nT. ``K`` 1: SYM-H is referred to the dipole equator, so a
 symmetric ring current gives ``cos(geomagnetic latitude)`` (0.90-0.93 on this route) of it; the
 measured 1.02 includes the night-side asymmetry and the Earth's induced currents. Z is left
 alone: the induced currents cancel most of the ring current's vertical field.
 
 **The feed.** A value of ``SYMH_UNKNOWN_ABOVE_NT`` or more is no value (the parameter's default,
-99999, is OMNI's own fill value); SYM-H has never gone below -2000 nT. Without a value at the
-start there is no reference and no correction all mission; a value missing later holds the
-last one (the ring current does not vanish with the feed).
+99999, is OMNI's own fill value); the deepest storms on record took SYM-H to about -700 nT.
+Without a value at the start there is no reference and no correction all mission; a value
+missing later holds the last one (the ring current does not vanish with the feed).
 
 >>> round(ring_current_change_nt(1.0, -250.0, -50.0), 1)
 -200.0
