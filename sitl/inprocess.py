@@ -32,8 +32,9 @@ relative standard deviation, ``sqrt(1.36 / n)``: 2 % at 3600 samples).
 
 Each step's measurement also carries the world's space-weather index (:meth:`TruthField.kp`: the
 storm's own Kp at its storm time, NaN without a storm), as a ground station would set ``NAV_KP``,
-and the ring-current index SYM-H at the period's middle (:meth:`TruthField.symh`), as it would
-keep ``NAV_SYMH`` up to date.
+and the ring-current index SYM-H at the step (:meth:`TruthField.symh`): the latest value, as the
+companion has it from a ground station that keeps ``NAV_SYMH`` up to date (not the period's
+average, which a vehicle is not told).
 
 Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams: [0] INS errors,
 [1] measurement noise (analytic D, I or the samples), [2] attitude errors, [3] calibration
@@ -268,7 +269,7 @@ class InProcessFlight:
             return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
                                avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
                                avg.z_se_nt, avg.mag_heading_deg, truth.kp(time_s),
-                               truth.symh(time_s - 0.5 * window_s)), avg
+                               truth.symh(time_s)), avg
         # analytic path: the time average over the period's path, by the trapezoid rule over its
         # knots (the start alone at step 0). Its centre is the period's midpoint, as for the
         # companion's evenly spaced samples; the knots after the start alone would put it half
@@ -288,7 +289,7 @@ class InProcessFlight:
         avg = AveragedElements(time_s, decl, incl, fn, hn, zn,
                                int(round(self.scenario.sensors.mag_rate_hz * nav.period_s)), *(float(v) for v in se))
         return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg),
-                           kp=truth.kp(time_s), symh_nt=truth.symh(time_s - 0.5 * window_s)), avg
+                           kp=truth.kp(time_s), symh_nt=truth.symh(time_s)), avg
 
 
 def trapezoid_weights(count: int) -> np.ndarray:
