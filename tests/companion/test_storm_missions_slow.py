@@ -11,7 +11,7 @@ time since boot, which includes the companion's stationary start-up (one control
 storm is seen slightly earlier along the track than in-process.
 
 **Judged against the in-process spread, not the same seed.** A storm's miss moves with the noise:
-over the first 150 km, in-process seeds 0-7 end 1.9-9.8 km off under the long storm and 1.8-8.1 km
+over the first 150 km, in-process seeds 0-7 end 3.5-12.4 km off under the long storm and 1.9-8.0 km
 under the short one; the closed loop (seed 2, 2026-12-03 evening, with the ring current predicted
 from the SYM-H the world's ground station feeds) ended 6.3 and 5.0 km off (before that correction:
 in-process 14.0-25.8 and 2.2-9.4 km, closed loop 18.6 and 6.0 km).
