@@ -159,8 +159,10 @@ class PositionEstimator:
         if math.isfinite(symh):
             self._symh_last = symh
         delta_h = ring_current_change_nt(self.config.symh_ratio, self._symh_last, self.symh_reference_nt)
-        north, east, down = self.model.ned(position[0], position[1], self.config.alt_m, self.config.year)
-        return ring_current_elements(self.measured.names, north, east, down, delta_h)
+        # the model's field with slopes, which the model keeps: the step's update asks for it at
+        # the same window centre next, and gets it without a second evaluation
+        ned, _, _ = self.model.ned_and_slopes(position[0], position[1], self.config.alt_m, self.config.year)
+        return ring_current_elements(self.measured.names, *(float(v) for v in ned), delta_h)
 
     @property
     def dead_reckons(self) -> bool:

@@ -70,7 +70,7 @@ def _started(estimator: PositionEstimator, symh_nt: float) -> PositionEstimator:
 def test_the_estimator_removes_the_change_since_the_start_and_holds_a_silent_feed():
     est = _started(_estimator(), -50.0)
     assert est.ring_current_removed and est.symh_reference_nt == -50.0
-    n, e, z = (float(v) for v in MODEL.ned(*START, 0.0, 2024.36))
+    n, e, z = (float(v) for v in MODEL.ned_and_slopes(*START, 0.0, 2024.36)[0])   # the model's field there
     expected = ring_current_elements(("decl_deg", "incl_deg"), n, e, z, -200.0)
     np.testing.assert_allclose(est.ring_current_share(_meas(-250.0, 360.0), START), expected)
     for silent in (math.nan, 99999.0):   # the last value holds: the ring current does not vanish with the feed
