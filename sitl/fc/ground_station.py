@@ -32,7 +32,6 @@ class SpaceWeatherFeed:
         self.outbox = outbox
         self.target_sysid = target_sysid
         self.encoder = FrameEncoder(GCS_SYSID, GCS_COMPID)
-        self.sent = 0
 
     def send(self, time_s: float) -> None:
         """The SYM-H at simulated time ``time_s`` as a PARAM_SET, when the world has one."""
@@ -41,4 +40,3 @@ class SpaceWeatherFeed:
             return
         self.outbox.emit_from(self.encoder, mavlink.MAVLink_param_set_message, self.target_sysid, COMPANION_COMPID,
                               b"NAV_SYMH", round(float(value), 1), mavlink.MAV_PARAM_TYPE_REAL32)
-        self.sent += 1

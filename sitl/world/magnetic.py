@@ -63,18 +63,23 @@ class TruthField:
         """The planetary Kp a space-weather service gives at this mission time: the storm's own
         (at its storm time, whatever ``storm_scale``), NaN without a storm or without Kp data (no
         feed reaches the vehicle, and the navigator's innovations alone decide)."""
-        if self.disturbance is None or self.storm_scale == 0.0 or self.space_weather is None:
-            return math.nan
-        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
-        return float(self.space_weather(t))
+        return self._storm_index(self.space_weather, elapsed_s)
 
     def symh(self, elapsed_s: float) -> float:
         """The ring-current index SYM-H (nT) a space-weather service gives at this mission time:
         the storm's own at its storm time, NaN without a storm or without SYM-H data."""
-        if self.disturbance is None or self.storm_scale == 0.0 or self.ring_current is None:
+        return self._storm_index(self.ring_current, elapsed_s)
+
+    def _storm_index(self, index, elapsed_s: float) -> float:
+        """``index`` (POSIX seconds -> value) at this mission time's storm time; NaN without a
+        storm (or one scaled to nothing) or without the index."""
+        if self.disturbance is None or self.storm_scale == 0.0 or index is None:
             return math.nan
-        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
-        return float(self.ring_current(t))
+        return float(index(self._storm_time(elapsed_s)))
+
+    def _storm_time(self, elapsed_s):
+        """The storm's own time (POSIX s) at mission time ``elapsed_s``."""
+        return self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
 
     def for_seed(self, seed: int) -> TruthField:
         """The same field with the crustal anomaly drawn for ``seed`` (itself when there is none)."""
@@ -91,8 +96,7 @@ class TruthField:
         """The disturbance's part (..., 3) in nT, or None when there is none."""
         if self.disturbance is None or self.storm_scale == 0.0:
             return None
-        t = self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
-        dn, de, dd = self.disturbance.disturbance_ned_nt(lat_deg, lon_deg, t)
+        dn, de, dd = self.disturbance.disturbance_ned_nt(lat_deg, lon_deg, self._storm_time(elapsed_s))
         return self.storm_scale * np.stack(np.broadcast_arrays(dn, de, dd), axis=-1)
 
     def field_ned_nt(self, lat_deg, lon_deg, alt_m, elapsed_s) -> np.ndarray:
