@@ -46,7 +46,6 @@ from fcmpc_fly.results import (REST_WINDOW_S, STATUS_EXIT, FlyResult, TruthTrack
                                read_truth_track,
                                write_result)
 from sitl.scenario import Scenario, load_scenario
-from sitl.world.build import storm_kp_at_start
 
 __all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
            "REPO", "SHORT_KM"]
@@ -235,9 +234,6 @@ def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
             raise ValueError(f"--short-km {options.short_km:g}: must be > 0")
         dest = short_destination(scenario, options.short_km)
     values = {**scenario.nav_overrides(), "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1}
-    kp = storm_kp_at_start(scenario, options.data_dir)
-    if math.isfinite(kp):   # the ground station tells the companion the storm's Kp, as in-process the world does
-        values["NAV_KP"] = kp
     if options.lockstep:
         values["COMP_SP_RATE_HZ"] = SETPOINT_RATE_HZ
     values = validate_all({**values, **options.extra_params})
@@ -278,8 +274,8 @@ def _commands(options: FlyOptions, scenario: Scenario, out: Path, parm: Path, sc
         sitl += ["--fault", fault]
     if options.data_dir:
         sitl += ["--data-dir", options.data_dir]
-    if scenario.storm.enabled:   # the ground station keeps NAV_SYMH up to date, as in-process the world does
-        sitl.append("--symh-feed")
+    if scenario.storm.enabled:   # the ground station keeps NAV_KP and NAV_SYMH up to date, as in-process the world does
+        sitl.append("--space-weather-feed")
     return companion, sitl + list(options.sitl_extra)
 
 

@@ -23,7 +23,7 @@ from companion.nav.steering import is_new_course
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
-__all__ = ["SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
+__all__ = ["KP_MAX_AGE_S", "SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
 # NAV_SYMH is a reading, not a setting: one not set over the link within this much message time
@@ -31,6 +31,10 @@ SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a
 # until the ground station sets it: a value left there from another day, taken as the start's
 # reference, would shift every later measurement by the day's difference
 SYMH_MAX_AGE_S = 900.0
+# NAV_KP likewise: Kp is a 3-hour index, so one not renewed within an index period and half an hour
+# of publication delay is none; a Kp left in the .parm file from another day would declare (or
+# deny) a storm for the whole flight
+KP_MAX_AGE_S = 3.5 * 3600.0
 
 
 class ControlStep:
@@ -96,9 +100,10 @@ class ControlStep:
         incl_se = app.preparation.inclination_se(avg)
         # measured standard errors: the filter's measurement noise (FUS_R_SRC 1) and the plausibility bound
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
-        # the space-weather index the ground station set (NAV_KP; negative: none)
-        kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 else math.nan
-        # ... and the ring-current index (NAV_SYMH, while the ground station keeps it fresh)
+        # the space-weather readings, while the ground station keeps them fresh: Kp (NAV_KP; negative:
+        # none) and the ring-current index (NAV_SYMH)
+        kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 \
+            and app.params.age_s("NAV_KP", now) <= KP_MAX_AGE_S else math.nan
         symh = mission.config.space_weather_symh_nt if app.params.age_s("NAV_SYMH", now) <= SYMH_MAX_AGE_S \
             else math.nan
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,

@@ -71,8 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--summary-json", default=None, help="write the run summary here (default <log-dir>/summary.json)")
     p.add_argument("--data-dir", default=None, help="real data folder for storms (default $FCMPC_DATA_DIR or "
                                                      "../shared/data)")
-    p.add_argument("--symh-feed", action="store_true",
-                   help="a ground station behind this FC sets the companion's NAV_SYMH to the world's SYM-H every minute")
+    p.add_argument("--space-weather-feed", action="store_true",
+                   help="a ground station behind this FC sets the companion's NAV_KP and NAV_SYMH to the world's "
+                        "Kp and SYM-H every minute")
     p.add_argument("--expected-duration", type=float, default=None,
                    help="mission seconds the 'compress' storm rule spreads the window over")
     p.add_argument("--field-step", type=float, default=1.0, help="simulated seconds between field evaluations (default 1)")
@@ -104,7 +105,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         cruise=cruise,
         log_dir=args.log_dir, truth_log=not args.no_truth_log, log_rate_hz=args.log_rate, tlog=args.tlog,
         faults=tuple(args.fault), rates=tuple(args.rate), field_step_s=args.field_step, ins_step_s=args.ins_step,
-        wave_roll_deg=args.wave_roll, wave_pitch_deg=args.wave_pitch, data_dir=args.data_dir, symh_feed=args.symh_feed,
+        wave_roll_deg=args.wave_roll, wave_pitch_deg=args.wave_pitch, data_dir=args.data_dir,
+        space_weather_feed=args.space_weather_feed,
         expected_duration_s=args.expected_duration, routing=not args.no_routing, batch=not args.no_batch,
         summary_json=args.summary_json, quiet=args.quiet)
 

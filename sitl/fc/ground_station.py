@@ -2,12 +2,18 @@
 
 A vehicle learns of a storm from its ground station, which sets the companion's parameters over
 the telemetry link the flight controller routes (ArduPilot and PX4 forward a ground station's
-PARAM_SET to the companion's component). This one keeps ``NAV_SYMH`` up to date: every
-``FEED_PERIOD_S`` of simulated time it sends the world's SYM-H
-(:meth:`sitl.world.magnetic.TruthField.symh`, OMNI's 1-minute index at the storm time) as a
-PARAM_SET from ground-station ids (255, 190: MAVProxy's), rounded to 0.1 nT as the index is
-published. A world without SYM-H sends nothing. ``NAV_KP`` is set once before the flight by the
-main job (``fcmpc_fly``), as Kp changes every three hours.
+PARAM_SET to the companion's component). This one keeps the two space-weather readings up to
+date: every ``FEED_PERIOD_S`` of simulated time it sends, as PARAM_SETs from ground-station ids
+(255, 190: MAVProxy's),
+
+* ``NAV_KP``: the world's planetary Kp (:meth:`sitl.world.magnetic.TruthField.kp`, the 3-hour
+  index at the storm time), to 0.001 (Kp is published in thirds: 8.667 is 9-);
+* ``NAV_SYMH``: the world's SYM-H (:meth:`~sitl.world.magnetic.TruthField.symh`, OMNI's 1-minute
+  index at the storm time), rounded to 0.1 nT as the index is published.
+
+An index the world lacks (a quiet world has neither) is not sent. The companion takes each only
+while it is renewed (``companion.process.control_step``), so a feed that stops is a feed lost,
+not a storm frozen at its last value.
 """
 from __future__ import annotations
 
@@ -25,18 +31,20 @@ COMPANION_COMPID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 
 
 class SpaceWeatherFeed:
-    """Sends ``NAV_SYMH`` to the companion of system ``target_sysid`` every ``FEED_PERIOD_S``."""
+    """Sends ``NAV_KP`` and ``NAV_SYMH`` to the companion of system ``target_sysid`` (:meth:`send`
+    every ``FEED_PERIOD_S``); ``kp_at`` and ``symh_at``: simulated seconds -> the index (NaN: none)."""
 
-    def __init__(self, symh_at, outbox, target_sysid: int) -> None:
-        self.symh_at = symh_at          # mission seconds -> SYM-H nT (NaN: none)
+    def __init__(self, kp_at, symh_at, outbox, target_sysid: int) -> None:
+        self.readings = ((b"NAV_KP", kp_at, 3), (b"NAV_SYMH", symh_at, 1))   # (name, source, decimals)
         self.outbox = outbox
         self.target_sysid = target_sysid
         self.encoder = FrameEncoder(GCS_SYSID, GCS_COMPID)
 
     def send(self, time_s: float) -> None:
-        """The SYM-H at simulated time ``time_s`` as a PARAM_SET, when the world has one."""
-        value = self.symh_at(time_s)
-        if not math.isfinite(value):
-            return
-        self.outbox.emit_from(self.encoder, mavlink.MAVLink_param_set_message, self.target_sysid, COMPANION_COMPID,
-                              b"NAV_SYMH", round(float(value), 1), mavlink.MAV_PARAM_TYPE_REAL32)
+        """Each index the world has at simulated time ``time_s`` as a PARAM_SET."""
+        for name, source, decimals in self.readings:
+            value = source(time_s)
+            if math.isfinite(value):
+                self.outbox.emit_from(self.encoder, mavlink.MAVLink_param_set_message, self.target_sysid,
+                                      COMPANION_COMPID, name, round(float(value), decimals),
+                                      mavlink.MAV_PARAM_TYPE_REAL32)

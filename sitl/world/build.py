@@ -43,7 +43,7 @@ from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
 __all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
-           "storm_component_walks", "storm_kp_at_start"]
+           "storm_component_walks"]
 
 
 class StormUnavailableError(RuntimeError):
@@ -133,20 +133,6 @@ def _ring_current(folder: Path):
     from sitl import storms
     path = folder / "storms" / storms.OMNI_FILE
     return storms.read_omni_symh(path).symh_at if path.exists() else None
-
-
-def storm_kp_at_start(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None) -> float:
-    """The Kp a space-weather service gives at the mission's start in this world, what a ground
-    station sets as ``NAV_KP``: :meth:`TruthField.kp` at 0 of :func:`build_truth_field`'s field,
-    from the Kp file alone (the stations' records, the costly part of a truth field, are not
-    read). NaN without a storm, with a zero storm scale, or without the Kp file."""
-    storm = scenario.storm
-    if not storm.enabled or storm.scale == 0.0:
-        return float("nan")
-    space_weather = _space_weather(Path(data_dir) if data_dir is not None else default_data_dir())
-    if space_weather is None:
-        return float("nan")
-    return float(space_weather(_storm_time_map(scenario).storm_time_s(0.0)))
 
 
 def storm_component_walks(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,

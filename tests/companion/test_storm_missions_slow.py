@@ -18,9 +18,9 @@ in-process 14.0-25.8 and 2.2-9.4 km, closed loop 18.6 and 6.0 km).
 The closed loop draws other noise than the in-process run of its seed (``test_closed_loop.py``),
 so the same seed is not the same draw. A closed loop that flies like the in-process mission ends
 inside that spread; a defect of the closed loop (a storm never declared or recognised, steps
-excluded, a stalled mission) ends outside it. The ground station's part, ``NAV_KP``, is set by
-``fcmpc_fly`` and ``NAV_SYMH`` by the simulator's ground station (``--symh-feed``); the companion
-must say it declared the storm and removes the ring current. The limit is 1.5x the worst of
+excluded, a stalled mission) ends outside it. The ground station's part, ``NAV_KP`` and
+``NAV_SYMH``, is sent every simulated minute by the simulator's ground station
+(``--space-weather-feed``); the companion must say it declared the storm and removes the ring current. The limit is 1.5x the worst of
 ``SPREAD_SEEDS`` in-process runs.
 """
 from __future__ import annotations
@@ -53,7 +53,7 @@ def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
                          data_dir=str(shared_data), short=True, short_km=STORM_ROUTE_KM, nice=YIELD_NICE)
     result = fly(options)
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
-    # the ground station (fcmpc_fly) set the storm's Kp: the companion declared the storm at start
+    # the world's ground station set the storm's Kp over the link: the companion declared the storm at start
     events = json.loads((Path(result.out_dir) / "companion" / "summary.json").read_text())["events"]
     assert any("storm declared: NAV_KP 8.667" in e for e in events), [e for e in events if "storm" in e]
     # ... and the world's ground station kept NAV_SYMH up to date: the companion removes the ring current

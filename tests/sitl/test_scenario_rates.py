@@ -12,7 +12,7 @@ from companion.params import NavConfig, validate_all
 from sitl.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.storms import component_rates, component_walks
-from sitl.world.build import build_truth_field, storm_component_walks, storm_kp_at_start
+from sitl.world.build import build_truth_field, storm_component_walks
 
 
 @pytest.mark.parametrize("name", ["long_storm", "short_storm"])
@@ -104,22 +104,6 @@ def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
     assert math.isnan(off.kp(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).kp(0.0))
     assert math.isnan(replace(truth, space_weather=None).kp(0.0))
     assert math.isnan(replace(truth, storm_scale=0.0).kp(0.0))
-
-
-@pytest.mark.parametrize("window, time_map", [(("2024-05-10T18:00:00Z", "2024-05-11T00:00:00Z"), "compress"),
-                                              (("2024-05-10T12:00:00Z", "2024-05-10T18:00:00Z"), "compress"),
-                                              (("2024-05-12T00:00:00Z", "2024-05-12T06:00:00Z"), "compress"),
-                                              (("2024-05-10T18:00:00Z", "2024-05-11T00:00:00Z"), "utc")])
-def test_the_ground_stations_kp_at_start_is_the_worlds_from_the_kp_file_alone(shared_data, window, time_map):
-    """What fcmpc-fly sets as NAV_KP (read from the Kp file, the stations' records left unread) is the
-    truth field's own Kp at the start (3.7, 8.7, 6.3: the windows differ); NaN without a storm, with
-    the storm scaled to zero, or without the Kp file."""
-    storm = load_scenario("long_storm")
-    scenario = replace(storm, storm=replace(storm.storm, window_utc=window, time_map=time_map))
-    assert storm_kp_at_start(scenario, shared_data) == build_truth_field(scenario, shared_data).kp(0.0)
-    assert math.isnan(storm_kp_at_start(load_scenario("pacific"), shared_data))
-    assert math.isnan(storm_kp_at_start(replace(storm, storm=replace(storm.storm, scale=0.0)), shared_data))
-    assert math.isnan(storm_kp_at_start(storm, shared_data / "no such folder"))
 
 
 def test_the_feed_reaches_the_navigator_as_a_declared_storm(shared_data):

@@ -128,3 +128,53 @@ def test_a_new_course_starts_the_trims_record_again(rig):
     _run_step(app, replace(cmd, course_rad=cmd.course_rad + 0.5))
     t = feed(t, 3.0, 9.0)
     assert math.degrees(tracker.offset_rad(t)) == pytest.approx(9.0, abs=1e-6)
+
+
+class _SeeingMission:
+    """The prepared core, keeping each measurement it was given (what the step took as Kp)."""
+
+    def __init__(self, command, kp: float) -> None:
+        from tests.companion.process.rig import FakeMission
+        self._inner = FakeMission(command)
+        self.config = replace(self._inner.config, space_weather_kp=kp)   # NAV_KP as the file or the link left it
+        self.k = command.step
+        self.seen = []
+
+    def step(self, meas):
+        self.seen.append(meas)
+        return self._inner.command
+
+    def reconfigure(self, new):
+        return []
+
+    def snapshot(self) -> dict:
+        return {}
+
+
+def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
+    """NAV_KP from the .parm file is no Kp at all (a value from another day would declare or deny a
+    storm all flight); set over the link (a ground station's PARAM_SET) it is the step's Kp until
+    KP_MAX_AGE_S of message time pass without a renewal."""
+    from companion.process.control_step import KP_MAX_AGE_S
+    app, fc = rig
+    mission = _SeeingMission(GOOD, 6.0)
+    app.mission = mission
+
+    def step_at(t_s: float) -> float:
+        for ms in range(int(app.now * 1000) + 5000, int(t_s * 1000), 5000):   # the FC's clock ticking there
+            app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
+        app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t_s * 1000)))
+        assert app.now == t_s
+        app.mag.averager.add(app.mission_time() - 0.5, 1.0, 50.0)
+        app.command = None    # each step as the first: no plausibility judgement (the core is prepared)
+        app.stepper.step(app.mission_time())
+        return mission.seen[-1].kp
+
+    assert math.isnan(step_at(10.0))                                   # the file's value: none
+    param_set = mavlink.MAVLink_param_set_message(1, app.link.component, b"NAV_KP", 6.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    param_set.pack(mavlink.MAVLink(None, 255, 190))                    # from the ground station
+    app.handle(param_set)
+    assert app.params.age_s("NAV_KP", app.now) == pytest.approx(0.0)
+    assert step_at(20.0) == 6.0                                        # set over the link: the step's Kp
+    assert step_at(10.0 + KP_MAX_AGE_S - 60.0) == 6.0                  # within an index period and the delay
+    assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 60.0))             # not renewed: none again
