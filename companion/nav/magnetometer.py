@@ -308,25 +308,33 @@ class PeriodAverager:
         self._ref_d = float(rows[0, 1]) if self._count else None
 
     def take(self, end_time_s: float) -> AveragedDI:
-        """Average the samples with ``time <= end_time_s``; later samples stay for the next period."""
+        """Average the samples with ``time <= end_time_s``; later samples stay for the next period.
+
+        The usual period (samples in time order, every one a gravity and heading sample) is read
+        through views of the rows, with no copies; the averages are the same numbers either way."""
         rows = self._rows[:self._count]
         due = rows[:, 0] <= end_time_s
-        a = rows[due]                    # (n, 17): every average a column operation
-        self._keep(rows[~due])
-        n = len(a)
+        n = int(np.count_nonzero(due))
+        a = rows[:n] if due[:n].all() else rows[due]      # (n, 17): every average a column operation
         if not n:
+            self._keep(rows[~due])
             return AveragedDI(math.nan, math.nan, 0, math.nan, math.nan, math.nan)
         means = a[:, :7].mean(axis=0)
         d = (float(means[1]) + 180.0) % 360.0 - 180.0
-        grav = np.isfinite(a[:, 7]) & np.all(np.isfinite(a[:, 8:11]), axis=1)
-        incl_grav, incl_grav_se = ratio_inclination_deg(a[grav, 7], a[grav, 3:6], a[grav, 8:11])
-        body = grav & np.all(np.isfinite(a[:, 11:17]), axis=1)
-        heading = levelled_heading_deg(a[body, 11:14].mean(axis=0), a[body, 14:17].mean(axis=0)) \
-            if body.any() else math.nan
+        # a gravity sample has m.f and the force in NED; a heading sample the body field and force too
+        # (a row sum is finite only if each value is: the values are far from overflow)
+        grav = np.isfinite(a[:, 7:11].sum(axis=1))
+        body = grav & np.isfinite(a[:, 11:17].sum(axis=1))
+        g = a if grav.all() else a[grav]
+        incl_grav, incl_grav_se = ratio_inclination_deg(g[:, 7], g[:, 3:6], g[:, 8:11])
+        h = a if body.all() else a[body]
+        heading = levelled_heading_deg(*h[:, 11:17].mean(axis=0).reshape(2, 3)) if len(h) else math.nan
         se_d, se_i, se_f = mad_standard_errors(a[:, (1, 2, 6)].T).tolist()
-        return AveragedDI(d, float(means[2]), n, float(means[0]), float(a[0, 0]), float(a[-1, 0]),
-                          (float(means[3]), float(means[4]), float(means[5])), float(means[6]), incl_grav,
-                          int(grav.sum()), se_d, se_i, se_f, incl_grav_se, heading)
+        result = AveragedDI(d, float(means[2]), n, float(means[0]), float(a[0, 0]), float(a[-1, 0]),
+                            (float(means[3]), float(means[4]), float(means[5])), float(means[6]), incl_grav,
+                            len(g), se_d, se_i, se_f, incl_grav_se, heading)
+        self._keep(rows[~due])    # after the averages: ``a`` may be a view of the rows kept over
+        return result
 
     def drop_before(self, time_s: float) -> None:
         rows = self._rows[:self._count]

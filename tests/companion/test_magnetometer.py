@@ -132,6 +132,48 @@ def test_averager_keeps_a_long_periods_later_samples_in_order_across_takes():
     assert not avg.take(600.0).valid
 
 
+@pytest.mark.parametrize("seed", range(12))
+def test_a_period_read_through_views_is_the_plain_definition_bit_for_bit(seed):
+    """``take`` reads the usual period (time-ordered, every sample a gravity and heading sample)
+    through views of its rows and any other through masked copies: both must give exactly the
+    numbers of the plain definition (the due rows selected by a mask, each average over them),
+    whatever mix of sample kinds and out-of-order times the period holds."""
+    from companion.nav.heading import levelled_heading_deg
+    from companion.nav.inclination import mad_standard_errors, ratio_inclination_deg
+    rng = np.random.default_rng(seed)
+    kinds = ("full", "mixed", "jittered", "no_gravity")[seed % 4]
+    avg, rows = PeriodAverager(), []
+    for k in range(int(rng.integers(2, 900))):
+        t = 0.1 * k + (float(rng.normal(0.0, 0.3)) if kinds == "jittered" else 0.0)
+        ned = tuple(float(v) for v in np.array([25000.0, -2000.0, 35000.0]) + rng.normal(0.0, 30.0, 3))
+        kind = {"full": 2, "no_gravity": 0}.get(kinds, int(rng.integers(0, 3)))
+        dot, force = (-343000.0 + float(rng.normal(0.0, 100.0)), (0.01, 0.02, -9.8)) if kind else (math.nan, (math.nan,) * 3)
+        body = ((20000.0 + float(rng.normal(0.0, 30.0)), 3000.0, 35000.0), (0.1, 0.0, -9.8)) if kind == 2 else \
+            ((math.nan,) * 3, (math.nan,) * 3)
+        d, i = -5.0 + float(rng.normal(0.0, 0.1)), 54.0 + float(rng.normal(0.0, 0.1))
+        avg.add(t, d, i, ned, dot, force, *body)
+        unwrapped = rows[0][1] + ((d - rows[0][1] + 180.0) % 360.0 - 180.0) if rows else d   # about the first D
+        rows.append((t, unwrapped, i, *ned, math.sqrt(sum(v * v for v in ned)), dot, *force, *body[0], *body[1]))
+    rows = np.array(rows)
+    end = float(np.median(rows[:, 0]))
+    got = avg.take(end)
+    a = rows[rows[:, 0] <= end]
+    means = a[:, :7].mean(axis=0)
+    grav = np.isfinite(a[:, 7]) & np.all(np.isfinite(a[:, 8:11]), axis=1)
+    body = grav & np.all(np.isfinite(a[:, 11:17]), axis=1)
+    incl_grav, incl_grav_se = ratio_inclination_deg(a[grav, 7], a[grav, 3:6], a[grav, 8:11])
+    heading = levelled_heading_deg(a[body, 11:14].mean(axis=0), a[body, 14:17].mean(axis=0)) if body.any() else math.nan
+    se = mad_standard_errors(a[:, (1, 2, 6)].T).tolist()
+    expected = (float((means[1] + 180.0) % 360.0 - 180.0), float(means[2]), len(a), float(means[0]), float(a[0, 0]),
+                float(a[-1, 0]), tuple(float(v) for v in means[3:6]), float(means[6]), incl_grav, int(grav.sum()),
+                *se, incl_grav_se, heading)
+    actual = (got.decl_deg, got.incl_deg, got.count, got.mean_time_s, got.first_time_s, got.last_time_s,
+              got.field_ned_nt, got.f_nt, got.incl_grav_deg, got.grav_count, got.decl_se_deg, got.incl_se_deg,
+              got.f_se_nt, got.incl_grav_se_deg, got.mag_heading_deg)
+    assert repr(actual) == repr(expected)        # bit for bit, NaN where the definition gives NaN
+    assert len(avg) == int((rows[:, 0] > end).sum())
+
+
 def test_attitude_propagation_with_body_rates():
     att = AttitudeState.from_body_rates(10.0, 0.0, 0.0, math.radians(90.0), 0.0, 0.0, math.radians(6.0))
     assert att.yaw_rate_radps == pytest.approx(math.radians(6.0))       # level: Euler rate = body rate
