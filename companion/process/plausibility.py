@@ -57,9 +57,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from companion.nav.elements import ElementSet
-from companion.nav.field import WorldMagneticModel, element_gradient
+from companion.nav.field import WorldMagneticModel, element_values_and_gradient
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
-from companion.nav.small import smallest_singular_value
+from companion.nav.small import inverse2, smallest_singular_value
 
 __all__ = ["Judgement", "MagPlausibility", "PlausibilityLimits", "element_noise", "f_offset_nt", "judge",
            "navigator_bias"]
@@ -96,13 +96,13 @@ class Judgement:
 
 
 def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: float, f_nt: float,
-                bias: np.ndarray, lat_deg: float, lon_deg: float, field=None) -> float:
+                bias: np.ndarray, lat_deg: float, lon_deg: float, model_f_nt: float | None = None) -> float:
     """``F_measured - bias_F - F_model(lat, lon)``, nT (``bias_F`` 0 when the set has no F);
-    ``field``: the model's elements there, when the caller has them already."""
+    ``model_f_nt``: the model's F there, when the caller has it already."""
     f_bias = bias[list(elements.names).index("f_nt")] if "f_nt" in elements.names else 0.0
-    if field is None:
-        field = model.elements(lat_deg, lon_deg, alt_m, year)
-    return float(f_nt - f_bias - float(field.f_nt))
+    if model_f_nt is None:
+        model_f_nt = float(model.elements(lat_deg, lon_deg, alt_m, year).f_nt)
+    return float(f_nt - f_bias - model_f_nt)
 
 
 def navigator_bias(mission) -> tuple[np.ndarray, np.ndarray]:
@@ -166,17 +166,19 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     ...       800.0, 5000.0).kind
     'f_band'
     """
-    field = model.elements(pred_lat_deg, pred_lon_deg, alt_m, year)
-    f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg, field) - f_reference_nt
+    # the model there, its elements and their gradient from one evaluation of the harmonic sums
+    values, gradient = element_values_and_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
+    model_f_nt = math.hypot(*model.ned_and_slopes(pred_lat_deg, pred_lon_deg, alt_m, year)[0].tolist())  # kept
+    f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg,
+                           model_f_nt) - f_reference_nt
     if not abs(f_offset) <= limits.f_band_nt:
         return Judgement(False, "f_band", f_offset_nt=f_offset)
     removed = bias if fix_bias is None else np.asarray(fix_bias, dtype=float)
-    residual = elements.difference(np.asarray(measured, dtype=float) - removed, elements.values(field))
-    gradient = element_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
+    residual = elements.difference(np.asarray(measured, dtype=float) - removed, values)
     bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
     if smallest_singular_value(gradient) < MIN_GRADIENT_SV:
         return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
-    inverse = np.linalg.inv(gradient)
+    inverse = inverse2(gradient) if gradient.shape == (2, 2) else np.linalg.inv(gradient)
     noise_m = 0.0
     if noise is not None:
         spread = inverse * np.asarray(noise, dtype=float)             # G^-1 diag(sigma): its Frobenius norm
