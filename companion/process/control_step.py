@@ -46,6 +46,7 @@ class ControlStep:
         self.step_latency_s: list[float] = []
         self.core_latency_s: list[float] = []
         self.judgement: Judgement | None = None                     # the last step's plausibility verdict
+        self.fresh: dict[str, bool] = {}                             # a space-weather reading fresh at the last step
 
     # ------------------------------------------------------------------ INS position
     def advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
@@ -102,10 +103,9 @@ class ControlStep:
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
         # the space-weather readings, while the ground station keeps them fresh: Kp (NAV_KP; negative:
         # none) and the ring-current index (NAV_SYMH)
-        kp = mission.config.space_weather_kp if mission.config.space_weather_kp >= 0.0 \
-            and app.params.age_s("NAV_KP", now) <= KP_MAX_AGE_S else math.nan
-        symh = mission.config.space_weather_symh_nt if app.params.age_s("NAV_SYMH", now) <= SYMH_MAX_AGE_S \
-            else math.nan
+        kp = self.reading("NAV_KP", mission.config.space_weather_kp, KP_MAX_AGE_S, now)
+        kp = kp if kp >= 0.0 else math.nan
+        symh = self.reading("NAV_SYMH", mission.config.space_weather_symh_nt, SYMH_MAX_AGE_S, now)
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
                            avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp, symh)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
@@ -147,6 +147,17 @@ class ControlStep:
             return
         app.next_step_m = t_k + mission.config.period_s
         app.resume.save()
+
+    def reading(self, name: str, value: float, max_age_s: float, now: float) -> float:
+        """The space-weather parameter ``name`` as this step's reading: ``value`` while the ground
+        station has set it within ``max_age_s`` of message time ``now``, else NaN. A reading that
+        lapses is said once (the operator's feed has stopped)."""
+        fresh = self.app.params.age_s(name, now) <= max_age_s
+        if self.fresh.get(name, False) and not fresh:
+            self.app.out.say(f"FcMPC: {name} not renewed for {max_age_s / 60.0:g} min: unknown until the ground "
+                             f"station sets it", mavlink.MAV_SEVERITY_WARNING)
+        self.fresh[name] = fresh
+        return value if fresh else math.nan
 
     def learn_f_reference(self, meas: Measurement) -> None:
         """At the first step, the start (a known position): learn the |F| level the band is judged

@@ -177,4 +177,9 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     assert app.params.age_s("NAV_KP", app.now) == pytest.approx(0.0)
     assert step_at(20.0) == 6.0                                        # set over the link: the step's Kp
     assert step_at(10.0 + KP_MAX_AGE_S - 60.0) == 6.0                  # within an index period and the delay
-    assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 60.0))             # not renewed: none again
+    _sent(fc)
+    assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 60.0))             # not renewed: none again, and said once
+    said = [m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT"]
+    assert [t for t in said if "NAV_KP not renewed for 210 min" in t] and not [t for t in said if "NAV_SYMH" in t]
+    assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 120.0))
+    assert not [m for m in _sent(fc) if m.get_type() == "STATUSTEXT" and "NAV_KP" in m.text]
