@@ -138,8 +138,14 @@ class HarmonicSums:
                                       np.maximum(m_idx - 2, 0), m_idx])
         self._u_q_rows = np.array([0, 1, 2, 0, 0, 1])
         self._slope_in_phase, self._slope_quadrature = _slope_matrices(m_idx.astype(float), n_idx.astype(float))
-        self._trig_orders = np.stack([self._m_float, self._m_float])
+        # cos and sin (cos of m lon - pi/2) per order m = 0..12, gathered to the 90 terms by m; powers
+        # of c and of a/r per exponent, gathered to the terms: each value computed once, not per term
+        orders = np.arange(WMM_DEGREE + 1, dtype=float)
+        self._orders_float = orders
+        self._trig_orders = np.stack([orders, orders])
         self._trig_phase = np.array([[0.0], [0.5 * math.pi]])
+        self._c_exponents = np.arange(WMM_DEGREE + 3)              # c^0 .. c^14 (the basis rows' m + 2 at most)
+        self._radial_exponents = np.arange(WMM_DEGREE + 3)         # (a/r)^0 .. (a/r)^14 (n + 2 at most)
         for array in (self._coeffs, self._q_poly_t, self._dq_poly_t, self._q_dq_poly_t, self._q_dq_ddq_poly_t,
                       self._slope_in_phase, self._slope_quadrature):
             array.setflags(write=False)
@@ -160,13 +166,14 @@ class HarmonicSums:
         g, h = self._coeffs[:2] + dt_years * self._coeffs[2:]
         q_and_dq = np.power(s, self._powers) @ self._q_dq_poly_t
         q, dq_ds = q_and_dq[: self._m.size], q_and_dq[self._m.size :]
-        m_p_over_c = self._m_float * np.power(c, self._m_minus_1) * q
-        p_nm = np.power(c, self._m) * q
-        dp_nm = np.power(c, self._m + 1) * dq_ds - s * m_p_over_c
+        c_powers = np.power(c, self._c_exponents)     # each power once, gathered to the terms
+        m_p_over_c = self._m_float * c_powers[self._m_minus_1] * q
+        p_nm = c_powers[self._m] * q
+        dp_nm = c_powers[self._m_plus_1] * dq_ds - s * m_p_over_c
 
-        radial = np.power(REFERENCE_RADIUS_M / r, self._radial_power)
-        angles = math.radians(lon_deg) * self._m_float
-        cos_ml, sin_ml = np.cos(angles), np.sin(angles)
+        radial = np.power(REFERENCE_RADIUS_M / r, self._radial_exponents)[self._radial_power]
+        angles = math.radians(lon_deg) * self._orders_float
+        cos_ml, sin_ml = np.cos(angles)[self._m], np.sin(angles)[self._m]
         in_phase = radial * (g * cos_ml + h * sin_ml)
         quadrature = radial * (g * sin_ml - h * cos_ml)
         x_prime = -float(in_phase @ dp_nm)
@@ -212,11 +219,12 @@ class HarmonicSums:
         sin_psi = s * cos_phi - c * sin_phi
 
         q_all = (np.power(s, self._powers) @ self._q_dq_ddq_poly_t).reshape(3, self._m.size)   # Q, Q', Q''
-        u = np.power(c, self._u_c_columns) * q_all[self._u_q_rows]                 # (6, 90)
-        trig = np.cos(math.radians(lon_deg) * self._trig_orders - self._trig_phase)   # cos, sin of m lon
+        u = np.power(c, self._c_exponents)[self._u_c_columns] * q_all[self._u_q_rows]   # (6, 90)
+        trig = np.cos(math.radians(lon_deg) * self._trig_orders - self._trig_phase)[:, self._m]  # cos, sin of m lon
         # in-phase (a/r)^(n+2) (g cos + h sin) and quadrature (a/r)^(n+2) (g sin - h cos)
-        factors = np.einsum("ijk,jk->ik", self._gh_matrix(dt_years), trig) * np.power(REFERENCE_RADIUS_M / r,
-                                                                                      self._radial_power)
+        gh = self._gh_matrix(dt_years)
+        factors = (gh[:, 0] * trig[0] + gh[:, 1] * trig[1]) * np.power(
+            REFERENCE_RADIUS_M / r, self._radial_exponents)[self._radial_power]
         a = (self._slope_in_phase @ (u * factors[0]).ravel()).reshape(3, -1)
         b = (self._slope_quadrature @ (u * factors[1]).ravel()).reshape(3, -1)
         ss = s * s
