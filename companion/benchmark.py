@@ -6,8 +6,9 @@ would, records included. Three measurements:
 
 ``step latency``
     closed loop in lockstep, cruising with NAV_PERIOD_S = 60 s (many steps per simulated hour):
-    wall time of each control step (average of the period's samples + navigation core +
-    outputs), median, 99th percentile and maximum, and of the core alone.
+    wall time of each control step (average of the period's samples + plausibility judgement +
+    navigation core + outputs), median, 99th percentile and maximum, and the medians of its
+    parts: the average, the judgement and the core.
 ``sustained input``
     the simulator free-running as fast as it can (no lockstep): messages the companion handled
     per wall second and the fraction lost (socket overflow is what falling behind looks like on
@@ -133,13 +134,15 @@ def run(step_sim_s: float = 6000.0, free_sim_s: float = 4000.0, timeout_s: float
         (workdir / "lockstep").mkdir()
         app, sitl = _fly_against_sitl(workdir / "lockstep", ["--lockstep", "--lockstep-period", "1.0", "--duration",
                                                              str(step_sim_s)], params, True, timeout_s)
-        lat = [v * 1e3 for v in app.stepper.step_latency_s]
-        core = [v * 1e3 for v in app.stepper.core_latency_s]
+        stepper = app.stepper
+        lat = [v * 1e3 for v in stepper.step_latency_s]
         if lat:
             out.update({"control_steps": len(lat), "step_latency_median_ms": round(statistics.median(lat), 3),
                         "step_latency_p99_ms": round(_percentile(lat, 0.99), 3),
-                        "step_latency_max_ms": round(max(lat), 3),
-                        "core_latency_median_ms": round(statistics.median(core), 3)})
+                        "step_latency_max_ms": round(max(lat), 3)})
+            for part, values in (("average", stepper.average_latency_s), ("judge", stepper.judge_latency_s),
+                                 ("core", stepper.core_latency_s)):
+                out[f"{part}_latency_median_ms"] = round(statistics.median(values) * 1e3, 3)
         out["lockstep_sim_speedup"] = sitl["speedup"]
         out["lockstep_msgs_per_s"] = round(app.messages_from_fc / max(sitl["wall_s"], 1e-9), 1)
         (workdir / "free").mkdir()

@@ -43,7 +43,11 @@ class ControlStep:
     def __init__(self, app) -> None:   # the CompanionApp wiring this part
         self.app = app
         self.dr: tuple[float, float, float] | None = None          # (time, lat, lon) dead reckoning
+        # wall seconds of each step that reached the core: the whole step (to the outputs sent), and
+        # its parts the benchmark splits it into: the period's average, the plausibility judgement, the core
         self.step_latency_s: list[float] = []
+        self.average_latency_s: list[float] = []
+        self.judge_latency_s: list[float] = []
         self.core_latency_s: list[float] = []
         self.judgement: Judgement | None = None                     # the last step's plausibility verdict
         self.fresh: dict[str, bool] = {}                             # a space-weather reading fresh at the last step
@@ -84,8 +88,10 @@ class ControlStep:
             app.apply_params()
         mission = app.mission
         period = mission.config.period_s
+        average0 = time.perf_counter()
         if avg is None:
             avg = app.mag.take(t_k)
+        average_latency = time.perf_counter() - average0
         if not avg.valid:
             # nothing to measure (should not happen: a silent magnetometer pauses the mission);
             # keep flying the command and measure again one period later (the core's dead
@@ -110,6 +116,7 @@ class ControlStep:
                            avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp, symh)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
         self.judgement = None
+        judge0 = time.perf_counter()
         if self.excluded(t_k, meas, se):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later
             return
@@ -124,6 +131,8 @@ class ControlStep:
             app.fc_view.feed.correct_to(now, cmd.est_lat_deg, cmd.est_lon_deg, app.out.feed_sigma())
         latency = time.perf_counter() - wall0
         self.step_latency_s.append(latency)
+        self.average_latency_s.append(average_latency)
+        self.judge_latency_s.append(core0 - judge0)
         self.core_latency_s.append(core_latency)
         app.reporting.record_step(cmd, meas, avg, ins_source, latency, "step", nav_fault or cmd.reason)
         if nav_fault:

@@ -183,3 +183,15 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     assert [t for t in said if "NAV_KP not renewed for 210 min" in t] and not [t for t in said if "NAV_SYMH" in t]
     assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 120.0))
     assert not [m for m in _sent(fc) if m.get_type() == "STATUSTEXT" and "NAV_KP" in m.text]
+
+
+def test_a_step_records_its_latency_and_the_parts_the_benchmark_splits_it_into(rig):
+    """Each step that reaches the core records its wall time and that of its average, judgement and
+    core (``fcmpc-bench`` prints their medians); the parts fit inside the whole."""
+    app, _ = rig
+    _run_step(app, GOOD)
+    s = app.stepper
+    assert len(s.step_latency_s) == len(s.average_latency_s) == len(s.judge_latency_s) == len(s.core_latency_s) == 1
+    parts = s.average_latency_s[0] + s.judge_latency_s[0] + s.core_latency_s[0]
+    assert 0.0 < parts <= s.step_latency_s[0]
+    assert all(v > 0.0 for v in (s.average_latency_s[0], s.judge_latency_s[0], s.core_latency_s[0]))
