@@ -200,7 +200,9 @@ class Mission:
     def reconfigure(self, new: NavConfig) -> list[str]:
         """Take a changed configuration at the next step; returns the registry names of changes
         kept for the next mission (the fields of :data:`FROZEN_IN_FLIGHT`). Weights, horizon,
-        bounds, speed, period, thresholds and the QP backend apply at once (the QP is rebuilt)."""
+        bounds, speed, period, thresholds and the QP backend apply at once (the QP is rebuilt
+        when its own settings changed; a new space-weather reading, every minute in a storm,
+        leaves it and its warm start as they are)."""
         from dataclasses import fields as dataclass_fields
 
         old = self.config
@@ -208,8 +210,11 @@ class Mission:
                     if f.name in FROZEN_IN_FLIGHT and getattr(new, f.name) != getattr(old, f.name)]
         merged = new.replace(**{name: getattr(old, name) for name in FROZEN_IN_FLIGHT})
         if merged != old:
+            before = mpc_settings(old, self.elements, self.s_lower, self.s_upper)
             self.config = self.table3.config = merged
-            self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
+            settings = mpc_settings(merged, self.elements, self.s_lower, self.s_upper)
+            if settings != before:
+                self.mpc = MpcController(settings)
         return deferred
 
     @property
