@@ -31,7 +31,7 @@ from companion.nav.field import model_for_date
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import WMM_NAMES, Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
-from companion.process.control_step import ControlStep
+from companion.process.control_step import READINGS, ControlStep
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
@@ -176,6 +176,8 @@ class CompanionApp:
         return HealthLimits(c.mag_timeout_s, c.att_timeout_s, c.heartbeat_timeout_s)
 
     def _param_changed(self, name: str, value) -> None:
+        if name in READINGS:   # a reading, not a setting: the control step reads it from the server
+            return
         self.params_dirty = True
         if self.state != State.RUNNING:
             self.apply_params()

@@ -23,7 +23,7 @@ from companion.nav.steering import is_new_course
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
-__all__ = ["KP_MAX_AGE_S", "SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
+__all__ = ["KP_MAX_AGE_S", "READINGS", "SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
 # NAV_SYMH is a reading, not a setting: one not set over the link within this much message time
@@ -35,6 +35,9 @@ SYMH_MAX_AGE_S = 900.0
 # of publication delay is none; a Kp left in the .parm file from another day would declare (or
 # deny) a storm for the whole flight
 KP_MAX_AGE_S = 3.5 * 3600.0
+# the parameters that are readings, with how long one lasts: the step reads them from the parameter
+# server, so a new value (every minute in a storm) rebuilds no configuration
+READINGS = {"NAV_KP": KP_MAX_AGE_S, "NAV_SYMH": SYMH_MAX_AGE_S}
 
 
 class ControlStep:
@@ -109,9 +112,9 @@ class ControlStep:
         h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
         # the space-weather readings, while the ground station keeps them fresh: Kp (NAV_KP; negative:
         # none) and the ring-current index (NAV_SYMH)
-        kp = self.reading("NAV_KP", mission.config.space_weather_kp, KP_MAX_AGE_S, now)
+        kp = self.reading("NAV_KP", now)
         kp = kp if kp >= 0.0 else math.nan
-        symh = self.reading("NAV_SYMH", mission.config.space_weather_symh_nt, SYMH_MAX_AGE_S, now)
+        symh = self.reading("NAV_SYMH", now)
         meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
                            avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp, symh)
         se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
@@ -157,16 +160,17 @@ class ControlStep:
         app.next_step_m = t_k + mission.config.period_s
         app.resume.save()
 
-    def reading(self, name: str, value: float, max_age_s: float, now: float) -> float:
-        """The space-weather parameter ``name`` as this step's reading: ``value`` while the ground
-        station has set it within ``max_age_s`` of message time ``now``, else NaN. A reading that
-        lapses is said once (the operator's feed has stopped)."""
+    def reading(self, name: str, now: float) -> float:
+        """The space-weather parameter ``name`` (:data:`READINGS`) as this step's reading: its value
+        while the ground station has set it within its lifetime of message time ``now``, else NaN.
+        A reading that lapses is said once (the operator's feed has stopped)."""
+        max_age_s = READINGS[name]
         fresh = self.app.params.age_s(name, now) <= max_age_s
         if self.fresh.get(name, False) and not fresh:
             self.app.out.say(f"FcMPC: {name} not renewed for {max_age_s / 60.0:g} min: unknown until the ground "
                              f"station sets it", mavlink.MAV_SEVERITY_WARNING)
         self.fresh[name] = fresh
-        return value if fresh else math.nan
+        return float(self.app.params.values[name]) if fresh else math.nan
 
     def learn_f_reference(self, meas: Measurement) -> None:
         """At the first step, the start (a known position): learn the |F| level the band is judged

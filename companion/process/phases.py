@@ -195,7 +195,7 @@ class Phases:
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
         if estimator is not None and estimator.storm_declared:
-            app.out.say(f"FcMPC: storm declared: NAV_KP {config.space_weather_kp:g} >= FUS_KP_ON {config.kp_on:g}, "
+            app.out.say(f"FcMPC: storm declared: NAV_KP {float(app.params.values['NAV_KP']):g} >= FUS_KP_ON {config.kp_on:g}, "
                         f"{estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING)
         if estimator is not None and estimator.ring_current_removed:
             app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "

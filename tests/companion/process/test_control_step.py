@@ -133,10 +133,10 @@ def test_a_new_course_starts_the_trims_record_again(rig):
 class _SeeingMission:
     """The prepared core, keeping each measurement it was given (what the step took as Kp)."""
 
-    def __init__(self, command, kp: float) -> None:
+    def __init__(self, command) -> None:
         from tests.companion.process.rig import FakeMission
         self._inner = FakeMission(command)
-        self.config = replace(self._inner.config, space_weather_kp=kp)   # NAV_KP as the file or the link left it
+        self.config = self._inner.config
         self.k = command.step
         self.seen = []
 
@@ -157,8 +157,9 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     KP_MAX_AGE_S of message time pass without a renewal."""
     from companion.process.control_step import KP_MAX_AGE_S
     app, fc = rig
-    mission = _SeeingMission(GOOD, 6.0)
+    mission = _SeeingMission(GOOD)
     app.mission = mission
+    app.params.values["NAV_KP"] = 6.0                                  # as if loaded from the .parm file
 
     def step_at(t_s: float) -> float:
         for ms in range(int(app.now * 1000) + 5000, int(t_s * 1000), 5000):   # the FC's clock ticking there
@@ -171,12 +172,13 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
         return mission.seen[-1].kp
 
     assert math.isnan(step_at(10.0))                                   # the file's value: none
-    param_set = mavlink.MAVLink_param_set_message(1, app.link.component, b"NAV_KP", 6.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    param_set = mavlink.MAVLink_param_set_message(1, app.link.component, b"NAV_KP", 7.0, mavlink.MAV_PARAM_TYPE_REAL32)
     param_set.pack(mavlink.MAVLink(None, 255, 190))                    # from the ground station
     app.handle(param_set)
     assert app.params.age_s("NAV_KP", app.now) == pytest.approx(0.0)
-    assert step_at(20.0) == 6.0                                        # set over the link: the step's Kp
-    assert step_at(10.0 + KP_MAX_AGE_S - 60.0) == 6.0                  # within an index period and the delay
+    assert not app.params_dirty              # a reading: no configuration is rebuilt for it
+    assert step_at(20.0) == 7.0                                        # set over the link: the step's Kp
+    assert step_at(10.0 + KP_MAX_AGE_S - 60.0) == 7.0                  # within an index period and the delay
     _sent(fc)
     assert math.isnan(step_at(10.0 + KP_MAX_AGE_S + 60.0))             # not renewed: none again, and said once
     said = [m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT"]
