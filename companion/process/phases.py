@@ -195,8 +195,9 @@ class Phases:
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
         if estimator is not None and estimator.storm_declared:
-            app.out.say(f"FcMPC: storm declared: NAV_KP {float(app.params.values['NAV_KP']):g} >= FUS_KP_ON {config.kp_on:g}, "
-                        f"{estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING)
+            kp = float(app.params.values["NAV_KP"])   # the reading that declared it (control_step.READINGS)
+            app.out.say(f"FcMPC: storm declared: NAV_KP {kp:g} >= FUS_KP_ON {config.kp_on:g}, {estimator.storm_walk}"[:200],
+                        mavlink.MAV_SEVERITY_WARNING)
         if estimator is not None and estimator.ring_current_removed:
             app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "
                         f"its change x FUS_SYMH_K {config.symh_ratio:g} along H"[:200])

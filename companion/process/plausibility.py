@@ -179,7 +179,7 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
     if smallest_singular_value(gradient) < MIN_GRADIENT_SV:
         return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
-    inverse = inverse2(gradient) if gradient.shape == (2, 2) else np.linalg.inv(gradient)
+    inverse = inverse2(gradient)
     noise_m = 0.0
     if noise is not None:
         spread = inverse * np.asarray(noise, dtype=float)             # G^-1 diag(sigma): its Frobenius norm
