@@ -3,7 +3,10 @@
 Every tunable value of the companion is declared once in :data:`REGISTRY` (name of at most
 16 characters for MAVLink, type, default, range, unit, description). From it come:
 
-* the frozen dataclasses the code reads (:class:`NavConfig`, :class:`CompanionConfig`),
+* the frozen dataclasses the code reads (:class:`NavConfig`, :class:`CompanionConfig`); the
+  *readings* (:data:`READINGS`: measurements a ground station keeps up to date, such as Kp) are
+  not settings and reach no dataclass: the companion's control step reads them from the server
+  while they are fresh,
 * ArduPilot-style ``.parm`` files (``NAME VALUE`` per line, ``#`` comments),
 * the MAVLink parameter server (``companion.io.param_server``).
 
@@ -24,8 +27,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Iterable, Mapping
 
-__all__ = ["ParamSpec", "ParamError", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate", "validate_all",
-           "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller", "registry_parm_text"]
+__all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate",
+           "validate_all", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller", "registry_parm_text"]
 
 MAX_NAME_LEN = 16  # MAVLink PARAM_VALUE.param_id is char[16]
 
@@ -46,6 +49,9 @@ class ParamSpec:
     unit: str
     doc: str
     boot_only: bool = False   # set only from the command line or the .parm file at start, never over the link
+    # a reading, not a setting: a measurement the ground station renews; its value counts only while
+    # set over the link within this many seconds of message time (one from the .parm file never does)
+    max_age_s: float | None = None
 
     def coerce(self, value: float) -> float | int:
         """The value as this parameter's type, or ParamError naming the parameter and range."""
@@ -75,6 +81,24 @@ def _boot(name: str, kind: type, default: float, minimum: float, maximum: float,
     return ParamSpec(name, kind, default, minimum, maximum, unit, doc + " (start-up only: --params file)", True)
 
 
+def _reading(name: str, default: float, minimum: float, maximum: float, unit: str, max_age_s: float,
+             doc: str) -> ParamSpec:
+    """A reading (a float): a value counts only while the ground station renews it within
+    ``max_age_s`` of message time, and the description says so."""
+    lifetime = f"{max_age_s / 3600.0:g} h" if max_age_s >= 3600.0 else f"{max_age_s / 60.0:g} min"
+    return ParamSpec(name, float, default, minimum, maximum, unit,
+                     f"{doc}, and so is a value not set over the link in the last {lifetime} (one left in the "
+                     ".parm file is none)", max_age_s=max_age_s)
+
+
+# Kp is a 3-hour index: one not renewed within an index period and half an hour of publication
+# delay is none; a Kp left in the .parm file from another day would declare (or deny) a storm for
+# the whole flight
+_KP_MAX_AGE_S = 3.5 * 3600.0
+# SYM-H is published every minute: one older than a quarter of an hour is none; one from another
+# day, taken as the start's reference, would shift every later measurement by the day's difference
+_SYMH_MAX_AGE_S = 900.0
+
 REGISTRY: tuple[ParamSpec, ...] = (
     # --- mission (Table 4, "Mission Settings") ---
     _p("NAV_START_LAT", float, 33.0, -89.0, 89.0, "deg", "start latitude (lambda_0, phi_0), WGS84"),
@@ -101,8 +125,8 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_MERR_KM", float, 25.0, 0.01, 1e5, "km", "Table 3's uncertainty: correlation length of the field model's error (how far the start-up calibration holds)"),
     _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
     _p("NAV_DR_HDG", int, 1, 0, 1, "", "dead reckoning between fixes (no independent INS position) on 0 the commanded course, 1 the heading measured over the period (magnetometer levelled by the accelerometer, plus the model's D) where it is measured"),
-    _p("NAV_KP", float, -1.0, -1.0, 9.0, "", "planetary geomagnetic index Kp now, from a space-weather service via the ground station (GFZ, NOAA SWPC; update it every 3 h): at or above FUS_KP_ON the navigator takes a storm as on from that step; -1 unknown (the innovations alone decide), and so is a value not set over the link in the last 3.5 h (one left in the .parm file is none)"),
-    _p("NAV_SYMH", float, 99999.0, -3000.0, 99999.0, "nT", "the ring-current index SYM-H now, from a space-weather service via the ground station (Kyoto WDC, NASA OMNI; one value a minute, update it every few minutes): the navigator removes the ring current's change since the start from every measurement (FUS_SYMH_K); 99999 (OMNI's fill value) unknown, and so is a value not set over the link in the last 15 min (one left in the .parm file is none)"),
+    _reading("NAV_KP", -1.0, -1.0, 9.0, "", _KP_MAX_AGE_S, "planetary geomagnetic index Kp now, from a space-weather service via the ground station (GFZ, NOAA SWPC; update it every 3 h): at or above FUS_KP_ON the navigator takes a storm as on from that step; -1 unknown (the innovations alone decide)"),
+    _reading("NAV_SYMH", 99999.0, -3000.0, 99999.0, "nT", _SYMH_MAX_AGE_S, "the ring-current index SYM-H now, from a space-weather service via the ground station (Kyoto WDC, NASA OMNI; one value a minute, update it every few minutes): the navigator removes the ring current's change since the start from every measurement (FUS_SYMH_K); 99999 (OMNI's fill value) unknown"),
     _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
     # --- gradient estimation (eq. 5-12) ---
     _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
@@ -199,6 +223,8 @@ REGISTRY: tuple[ParamSpec, ...] = (
 )
 
 SPEC_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in REGISTRY}
+# the readings, with how long one lasts after its last link set (s of message time)
+READINGS: dict[str, float] = {spec.name: spec.max_age_s for spec in REGISTRY if spec.max_age_s is not None}
 
 for _spec in REGISTRY:  # a registry error is a programming error: fail at import, loudly
     if len(_spec.name) > MAX_NAME_LEN or not _spec.minimum <= _spec.default <= _spec.maximum:
@@ -330,7 +356,8 @@ _KMH_TO_MPS = 1.0 / 3.6
 
 @dataclass(frozen=True)
 class NavConfig(_FromRegistry):
-    """What the pure navigation core needs: mission, gradient, MPC and fusion settings (SI)."""
+    """What the pure navigation core needs: mission, gradient, MPC and fusion settings (SI).
+    The space-weather readings (:data:`READINGS`) come with each step's measurement instead."""
 
     start_lat_deg: float = _from("NAV_START_LAT")
     start_lon_deg: float = _from("NAV_START_LON")
@@ -405,8 +432,6 @@ class NavConfig(_FromRegistry):
     bias_qa_te_h: float = _from("FUS_BQA_TE")
     bias_qa_tz_h: float = _from("FUS_BQA_TZ")
     kp_on: float = _from("FUS_KP_ON")
-    space_weather_kp: float = _from("NAV_KP")
-    space_weather_symh_nt: float = _from("NAV_SYMH")
     symh_ratio: float = _from("FUS_SYMH_K")
     symh_residual_n_nt: float = _from("FUS_SYMH_N")
     symh_residual_tn_h: float = _from("FUS_SYMH_TN")

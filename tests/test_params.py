@@ -10,6 +10,7 @@ import pytest
 
 from companion import params
 from companion.params import (
+    READINGS,
     REGISTRY,
     SPEC_BY_NAME,
     CompanionConfig,
@@ -170,10 +171,14 @@ def test_navconfig_defaults_match_the_registry_and_converts_units():
 
 
 def test_every_navigation_parameter_reaches_navconfig_exactly_once():
+    """Every navigation setting is a NavConfig field, once; the readings are none (they come with
+    each step's measurement: the companion's control step reads them from its parameter server)."""
     mapped = [f.metadata["param"] for f in fields(NavConfig) if "param" in f.metadata]
     assert len(mapped) == len(set(mapped))
     nav_params = [s.name for s in REGISTRY if s.name.split("_")[0] in ("NAV", "GRAD", "MPC", "FUS")]
-    assert sorted(mapped) == sorted(nav_params)
+    assert sorted(mapped) == sorted(set(nav_params) - set(READINGS))
+    assert set(READINGS) <= set(nav_params) and not set(READINGS) & set(mapped)
+
 
 
 def test_companionconfig_converts_units_and_collects_calibration():

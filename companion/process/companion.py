@@ -30,8 +30,8 @@ from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.field import model_for_date
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import WMM_NAMES, Command, Mission, Phase
-from companion.params import CompanionConfig, NavConfig
-from companion.process.control_step import READINGS, ControlStep
+from companion.params import READINGS, CompanionConfig, NavConfig
+from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State

@@ -20,24 +20,13 @@ from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.nav.steering import is_new_course
+from companion.params import READINGS
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
-__all__ = ["KP_MAX_AGE_S", "READINGS", "SETTLE_AFTER_COMMAND_S", "SYMH_MAX_AGE_S", "ControlStep"]
+__all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
-# NAV_SYMH is a reading, not a setting: one not set over the link within this much message time
-# (SYM-H is published every minute) is none, and one read from the .parm file at start is none
-# until the ground station sets it: a value left there from another day, taken as the start's
-# reference, would shift every later measurement by the day's difference
-SYMH_MAX_AGE_S = 900.0
-# NAV_KP likewise: Kp is a 3-hour index, so one not renewed within an index period and half an hour
-# of publication delay is none; a Kp left in the .parm file from another day would declare (or
-# deny) a storm for the whole flight
-KP_MAX_AGE_S = 3.5 * 3600.0
-# the parameters that are readings, with how long one lasts: the step reads them from the parameter
-# server, so a new value (every minute in a storm) rebuilds no configuration
-READINGS = {"NAV_KP": KP_MAX_AGE_S, "NAV_SYMH": SYMH_MAX_AGE_S}
 
 
 class ControlStep:
@@ -161,7 +150,8 @@ class ControlStep:
         app.resume.save()
 
     def reading(self, name: str, now: float) -> float:
-        """The space-weather parameter ``name`` (:data:`READINGS`) as this step's reading: its value
+        """The reading ``name`` (:data:`companion.params.READINGS`: read here, at the step, so a new
+        value rebuilds no configuration) as this step's: its value
         while the ground station has set it within its lifetime of message time ``now``, else NaN.
         A reading that lapses is said once (the operator's feed has stopped)."""
         max_age_s = READINGS[name]

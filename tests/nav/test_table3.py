@@ -102,17 +102,17 @@ def test_a_changed_gate_reaches_table3_in_flight(model):
     assert mission.table3.config.fix_gate_m == 20e3
 
 
-def test_a_new_space_weather_reading_keeps_the_qp_and_a_new_weight_rebuilds_it(model):
-    """The ground station sets NAV_SYMH every minute in a storm: the mission takes the reading at
-    once but keeps its QP (and OSQP's warm start); a changed weight or horizon rebuilds the QP (a
-    changed speed does not: the QP's input is a fraction of the cruise speed)."""
+def test_a_setting_outside_the_qp_keeps_the_qp_and_a_new_weight_rebuilds_it(model):
+    """A setting the QP does not hold (the fusion's storm threshold) is taken at once but keeps the
+    QP (and OSQP's warm start); a changed weight or horizon rebuilds the QP (a changed speed does
+    not: the QP's input is a fraction of the cruise speed)."""
     from companion.nav.mission import Mission
 
     config = nav_config()
     mission = Mission(config, model)
     qp = mission.mpc
-    assert mission.reconfigure(config.replace(space_weather_symh_nt=-250.0, space_weather_kp=7.0)) == []
-    assert mission.config.space_weather_symh_nt == -250.0 and mission.config.space_weather_kp == 7.0
+    assert mission.reconfigure(config.replace(kp_on=7.0)) == []
+    assert mission.config.kp_on == 7.0
     assert mission.mpc is qp
     mission.reconfigure(mission.config.replace(r_x=2.0 * config.r_x))
     assert mission.mpc is not qp and mission.mpc.settings.r[0] == 2.0 * config.r_x

@@ -9,7 +9,7 @@ import pytest
 from companion.app import State
 from companion.io.mavlink_link import mavlink
 from companion.nav.mission import Mission
-from companion.params import NavConfig, default_values
+from companion.params import READINGS, NavConfig, default_values
 from tests.companion.process.rig import GOOD, _msg, _run_step, _sent
 
 
@@ -154,9 +154,9 @@ class _SeeingMission:
 def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     """NAV_KP from the .parm file is no Kp at all (a value from another day would declare or deny a
     storm all flight); set over the link (a ground station's PARAM_SET) it is the step's Kp until
-    KP_MAX_AGE_S of message time pass without a renewal."""
-    from companion.process.control_step import KP_MAX_AGE_S
+    its lifetime (3.5 h) of message time passes without a renewal."""
     app, fc = rig
+    KP_MAX_AGE_S = READINGS["NAV_KP"]
     mission = _SeeingMission(GOOD)
     app.mission = mission
     app.params.values["NAV_KP"] = 6.0                                  # as if loaded from the .parm file
