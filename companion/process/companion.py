@@ -30,7 +30,7 @@ from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.field import model_for_date
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import WMM_NAMES, Command, Mission, Phase
-from companion.params import READINGS, CompanionConfig, NavConfig
+from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.intake import SampleIntake
@@ -44,6 +44,7 @@ from companion.process.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
 from companion.process.resume import Resume
+from companion.registry import READINGS
 from companion.sdnotify import Notifier
 
 __all__ = ["CompanionApp", "apply_live_config"]

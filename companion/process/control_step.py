@@ -20,7 +20,7 @@ from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.nav.steering import is_new_course
-from companion.params import READINGS
+from companion.registry import READINGS
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 
@@ -150,7 +150,7 @@ class ControlStep:
         app.resume.save()
 
     def reading(self, name: str, now: float) -> float:
-        """The reading ``name`` (:data:`companion.params.READINGS`: read here, at the step, so a new
+        """The reading ``name`` (:data:`companion.registry.READINGS`: read here, at the step, so a new
         value rebuilds no configuration) as this step's: its value
         while the ground station has set it within its lifetime of message time ``now``, else NaN.
         A reading that lapses is said once (the operator's feed has stopped)."""

@@ -9,7 +9,8 @@ import pytest
 from companion.app import State
 from companion.io.mavlink_link import mavlink
 from companion.nav.mission import Mission
-from companion.params import READINGS, NavConfig, default_values
+from companion.params import NavConfig, default_values
+from companion.registry import READINGS
 from tests.companion.process.rig import GOOD, _msg, _run_step, _sent
 
 

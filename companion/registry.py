@@ -1,0 +1,216 @@
+"""The parameter registry: every tunable value of the companion, declared once.
+
+Each :class:`ParamSpec` gives a name of at most 16 characters (MAVLink's ``param_id``), its
+type, default, range, unit and description. Three kinds: settings (``_p``), start-up-only
+settings the link cannot change (``_boot``: the safety ceiling and who may write), and
+*readings* (``_reading``: measurements a ground station keeps up to date, such as Kp, each with
+the lifetime after which a value not renewed over the link counts as none; :data:`READINGS`).
+What is derived from the registry (validation, ``.parm`` files, the configurations the code
+reads) lives in :mod:`companion.params`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["MAX_NAME_LEN", "READINGS", "REGISTRY", "SPEC_BY_NAME", "ParamError", "ParamSpec"]
+
+MAX_NAME_LEN = 16  # MAVLink PARAM_VALUE.param_id is char[16]
+
+
+class ParamError(ValueError):
+    """A parameter name or value that the registry refuses."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Declaration of one parameter: ``value`` must satisfy ``minimum <= value <= maximum``."""
+
+    name: str
+    kind: type  # int or float
+    default: float
+    minimum: float
+    maximum: float
+    unit: str
+    doc: str
+    boot_only: bool = False   # set only from the command line or the .parm file at start, never over the link
+    # a reading, not a setting: a measurement the ground station renews; its value counts only while
+    # set over the link within this many seconds of message time (one from the .parm file never does)
+    max_age_s: float | None = None
+
+    def coerce(self, value: float) -> float | int:
+        """The value as this parameter's type, or ParamError naming the parameter and range."""
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise ParamError(f"{self.name}: {value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise ParamError(f"{self.name}: {value!r} is not finite")
+        if self.kind is int:
+            if number != round(number):
+                raise ParamError(f"{self.name}: {value!r} is not an integer")
+            number = int(round(number))
+        if not self.minimum <= number <= self.maximum:
+            raise ParamError(
+                f"{self.name}: {value!r} is out of range [{self.minimum:g}, {self.maximum:g}] {self.unit}".rstrip()
+            )
+        return number
+
+
+def _p(name: str, kind: type, default: float, minimum: float, maximum: float, unit: str, doc: str) -> ParamSpec:
+    return ParamSpec(name, kind, default, minimum, maximum, unit, doc)
+
+
+def _boot(name: str, kind: type, default: float, minimum: float, maximum: float, unit: str, doc: str) -> ParamSpec:
+    """A start-up-only parameter: the parameter server serves it but refuses every PARAM_SET of it."""
+    return ParamSpec(name, kind, default, minimum, maximum, unit, doc + " (start-up only: --params file)", True)
+
+
+def _reading(name: str, default: float, minimum: float, maximum: float, unit: str, max_age_s: float,
+             doc: str) -> ParamSpec:
+    """A reading (a float): a value counts only while the ground station renews it within
+    ``max_age_s`` of message time, and the description says so."""
+    lifetime = f"{max_age_s / 3600.0:g} h" if max_age_s >= 3600.0 else f"{max_age_s / 60.0:g} min"
+    return ParamSpec(name, float, default, minimum, maximum, unit,
+                     f"{doc}, and so is a value not set over the link in the last {lifetime} (one left in the "
+                     ".parm file is none)", max_age_s=max_age_s)
+
+
+# Kp is a 3-hour index: one not renewed within an index period and half an hour of publication
+# delay is none; a Kp left in the .parm file from another day would declare (or deny) a storm for
+# the whole flight
+_KP_MAX_AGE_S = 3.5 * 3600.0
+# SYM-H is published every minute: one older than a quarter of an hour is none; one from another
+# day, taken as the start's reference, would shift every later measurement by the day's difference
+_SYMH_MAX_AGE_S = 900.0
+
+REGISTRY: tuple[ParamSpec, ...] = (
+    # --- mission (Table 4, "Mission Settings") ---
+    _p("NAV_START_LAT", float, 33.0, -89.0, 89.0, "deg", "start latitude (lambda_0, phi_0), WGS84"),
+    _p("NAV_START_LON", float, 152.0, -180.0, 180.0, "deg", "start longitude"),
+    _p("NAV_DEST_LAT", float, 28.0, -89.0, 89.0, "deg", "destination latitude (lambda_d, phi_d)"),
+    _p("NAV_DEST_LON", float, 158.0, -180.0, 180.0, "deg", "destination longitude"),
+    _p("NAV_ALT_M", float, 0.0, -500.0, 20000.0, "m", "altitude above the ellipsoid used for the field model"),
+    _p("NAV_YEAR", float, 2024.36, 2020.0, 2029.99, "year", "decimal year for the field model (paper: 2024.36)"),
+    _p("NAV_WMM", int, 0, 0, 2, "", "field model: 0 by date (WMM2020 before 2024.87), 1 WMM2020, 2 WMM2025"),
+    _p("NAV_SPEED_KMH", float, 50.0, 1.0, 300.0, "km/h", "cruise speed v (Table 4)"),
+    _p("NAV_PERIOD_S", float, 360.0, 1.0, 7200.0, "s", "control period T (Table 4 gives 10 without unit; see README)"),
+    _p("NAV_LOOKAHEAD_M", float, 10000.0, 0.0, 1e6, "m", "Fc-MPC aims this far ahead on the start-destination geodesic; 0 aims at the destination"),
+    _p("NAV_ARRIVE_M", float, 500.0, 10.0, 100000.0, "m", "arrival threshold epsilon on the estimated distance"),
+    _p("NAV_MAX_STEPS", int, 1000, 3, 100000, "", "give up after this many control steps"),
+    _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
+    _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
+    _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
+    _p("NAV_ELEMENTS", int, 0, 0, 4, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free, 3 (H, Z) heading-free, 4 (D, I, F) weighted"),
+    _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
+    _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
+    _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),
+    _p("NAV_MERR_DEG", float, 0.3, 0.0, 10.0, "deg", "Table 3's uncertainty: 1-sigma of the field model's D/I error at a point (crust, main-field model), uncorrelated beyond NAV_MERR_KM"),
+    _p("NAV_MERR_NT", float, 300.0, 0.0, 1e5, "nT", "Table 3's uncertainty: 1-sigma of the field model's F/H/Z error at a point"),
+    _p("NAV_MERR_KM", float, 25.0, 0.01, 1e5, "km", "Table 3's uncertainty: correlation length of the field model's error (how far the start-up calibration holds)"),
+    _p("NAV_REANCHOR_N", int, 0, 0, 100, "", "dead reckoning without an INS: after this many rejected fixes in a row that agree on where the vehicle is, the estimate re-anchors there; 0 never (default: in the realistic world agreeing rejected fixes were biased fixes)"),
+    _p("NAV_DR_HDG", int, 1, 0, 1, "", "dead reckoning between fixes (no independent INS position) on 0 the commanded course, 1 the heading measured over the period (magnetometer levelled by the accelerometer, plus the model's D) where it is measured"),
+    _reading("NAV_KP", -1.0, -1.0, 9.0, "", _KP_MAX_AGE_S, "planetary geomagnetic index Kp now, from a space-weather service via the ground station (GFZ, NOAA SWPC; update it every 3 h): at or above FUS_KP_ON the navigator takes a storm as on from that step; -1 unknown (the innovations alone decide)"),
+    _reading("NAV_SYMH", 99999.0, -3000.0, 99999.0, "nT", _SYMH_MAX_AGE_S, "the ring-current index SYM-H now, from a space-weather service via the ground station (Kyoto WDC, NASA OMNI; one value a minute, update it every few minutes): the navigator removes the ring current's change since the start from every measurement (FUS_SYMH_K); 99999 (OMNI's fill value) unknown"),
+    _p("NAV_SPEED_MODE", int, 0, 0, 1, "", "0 slow down to land on the destination, 1 constant cruise speed (paper)"),
+    # --- gradient estimation (eq. 5-12) ---
+    _p("GRAD_UPDATE", int, 0, 0, 2, "", "0 Broyden secant update, 1 eq. 10 as printed, 2 fresh estimate from last two moves"),
+    _p("GRAD_MIN_MOVE_M", float, 200.0, 1.0, 100000.0, "m", "skip a gradient update when the step moved less than this"),
+    # --- MPC (eq. 13-38) ---
+    _p("MPC_HORIZON", int, 2, 1, 20, "", "prediction horizon N"),
+    _p("MPC_Q_D", float, 1.0, 0.0, 1e9, "", "state weight Q on D (Table 4: Q = I)"),
+    _p("MPC_Q_I", float, 1.0, 0.0, 1e9, "", "state weight Q on I"),
+    _p("MPC_F_D", float, 1.0, 0.0, 1e9, "", "terminal weight F on D (Table 4: F = I)"),
+    _p("MPC_F_I", float, 1.0, 0.0, 1e9, "", "terminal weight F on I"),
+    _p("MPC_R_X", float, 10.0, 1e-9, 1e9, "", "input weight R on v_x (Table 4: R = 10 I)"),
+    _p("MPC_R_Y", float, 10.0, 1e-9, 1e9, "", "input weight R on v_y"),
+    _p("MPC_UNITS", int, 0, 0, 1, "", "units the weights apply to: 0 scaled (arcsec, U/v), 1 paper (deg, km/h)"),
+    _p("MPC_U_BOUNDS", int, 0, 0, 1, "", "0 symmetric |v_x|,|v_y| <= v, 1 paper U in [0, 40]^2 km/h, signs by quadrant"),
+    _p("MPC_U_MAX_KMH", float, 40.0, 1.0, 300.0, "km/h", "per-axis input bound U_max for MPC_U_BOUNDS = 1 (Table 4)"),
+    _p("MPC_S_MIN_D", float, -10.0, -180.0, 180.0, "deg", "state bound S_min on D (Table 4)"),
+    _p("MPC_S_MIN_I", float, 10.0, -90.0, 90.0, "deg", "state bound S_min on I (Table 4)"),
+    _p("MPC_S_MAX_D", float, 100.0, -180.0, 180.0, "deg", "state bound S_max on D (Table 4)"),
+    _p("MPC_S_MAX_I", float, 100.0, -90.0, 100.0, "deg", "state bound S_max on I (Table 4)"),
+    _p("MPC_S_MIN_F", float, 20000.0, 0.0, 100000.0, "nT", "state bound S_min on total intensity F (element set (I, F), MPC_S_AUTO = 0)"),
+    _p("MPC_S_MAX_F", float, 70000.0, 0.0, 100000.0, "nT", "state bound S_max on F"),
+    _p("MPC_S_AUTO", int, 1, 0, 1, "", "1 state bounds from the mission's start and destination field +- MPC_S_MARGIN; 0 the MPC_S_MIN_*/MAX_* values (Table 4)"),
+    _p("MPC_S_MARGIN", float, 10.0, 0.1, 90.0, "deg", "margin of the automatic state bounds for D and I (F: 360 nT per degree)"),
+    _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
+    # --- fusion (eq. 46-58, Table 3) ---
+    _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the fix is weak: smallest singular value of the model G"),
+    _p("FUS_QC_KM2", float, 0.05, 0.0, 1e6, "km^2", "process noise Q_c on the position error (Table 3)"),
+    _p("FUS_RC_KM2", float, 2.0, 1e-9, 1e6, "km^2", "measurement noise R_c of INS minus geomagnetic fix (Table 3)"),
+    _p("FUS_P0_KM2", float, 1.0, 1e-9, 1e6, "km^2", "initial covariance P_0 of the position error (Table 3)"),
+    _p("FUS_FEEDBACK", int, 0, 0, 1, "", "0 INS corrected by the estimated error, 1 eq. 58 as printed"),
+    # --- estimation filter (issue 14: companion/nav/navfilter.py) ---
+    _p("FUS_MODEL", int, 0, 0, 3, "", "position estimator: 0 auto (error-state filter with the INS process model when an independent INS position is there, else with dead reckoning), 1 Table 3 (paper: fix, fused only where weak), 2 error-state INS, 3 error-state dead reckoning"),
+    _p("FUS_R_DEG", float, 0.002, 1e-6, 10.0, "deg", "declared 1-sigma noise of an averaged D or I"),
+    _p("FUS_R_NT", float, 2.0, 1e-3, 10000.0, "nT", "declared 1-sigma noise of an averaged F, H or Z"),
+    _p("FUS_R_SRC", int, 1, 0, 1, "", "measurement noise of the error-state filter: 1 each period's measured standard errors with FUS_RMIN_* added in quadrature (FUS_R_DEG/FUS_R_NT where none is measured), 0 the declared FUS_R_DEG/FUS_R_NT"),
+    _p("FUS_RMIN_DEG", float, 0.0005, 0.0, 10.0, "deg", "floor added in quadrature to a measured D or I standard error (errors the period's scatter cannot show)"),
+    _p("FUS_RMIN_NT", float, 0.5, 0.0, 10000.0, "nT", "floor added in quadrature to a measured F, H or Z standard error"),
+    _p("FUS_B0_DEG", float, 0.5, 1e-6, 90.0, "deg", "prior 1-sigma of the D/I bias states (measured minus model)"),
+    _p("FUS_B0_NT", float, 500.0, 1e-3, 1e5, "nT", "prior 1-sigma of the F/H/Z bias states"),
+    _p("FUS_BQ_DEG", float, 0.002, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while quiet"),
+    _p("FUS_BQ_NT", float, 2.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while quiet"),
+    _p("FUS_BQD_DEG", float, 0.0075, 0.0, 1.0, "deg/rt(km)", "random walk of the D/I bias states per distance travelled: the main-field model's error against the start-up calibration grows with the distance from the start (0.2 deg in 800 km)"),
+    _p("FUS_BQD_NT", float, 7.5, 0.0, 1000.0, "nT/rt(km)", "random walk of the F/H/Z bias states per distance travelled (200 nT in 800 km)"),
+    _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
+    _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
+    _p("FUS_BH_DEG", float, 0.1, 0.0, 5.0, "deg", "prior 1-sigma of each heading harmonic (cos, sin of psi and 2 psi) of the D/I calibration residual: a body-frame hard/soft-iron residual changes D and I when the vehicle turns; 0: no such states (before 2026-12-02)"),
+    _p("FUS_BH_NT", float, 200.0, 0.0, 5000.0, "nT", "prior 1-sigma of each heading harmonic of the F/H/Z calibration residual; 0: no such states (before 2026-12-02)"),
+    _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while the innovations (not a Kp) say a disturbance is active: 1 (default) the bias states walk at FUS_BQA_DEG/NT scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),
+    _p("FUS_BQA_MODE", int, 1, 0, 1, "", "how the bias states walk while a Kp declares a storm (FUS_KP_ON): 1 (default) along the field components at FUS_BQA_N/E/Z through the elements' Jacobian, on top of the quiet walk (a storm moves H, so I and F together, and D less); 0 per element at FUS_BQA_DEG/NT. A disturbance only the innovations found walks per element, FUS_BQA_ADAPT"),
+    _p("FUS_BQA_N", float, 70.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's north component while active (10 May 2024 main phase along the Pacific route, real time)"),
+    _p("FUS_BQA_E", float, 45.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's east component while active"),
+    _p("FUS_BQA_Z", float, 35.0, 0.0, 1e4, "nT/rt(h)", "FUS_BQA_MODE 1: random walk of the disturbance's down component while active"),
+    _p("FUS_BQA_TN", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the disturbance's north component, which is then Gauss-Markov (a state of the filter) wandering at FUS_BQA_N over short lags; 0 (default) a random walk"),
+    _p("FUS_BQA_TE", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the east component (0: random walk)"),
+    _p("FUS_BQA_TZ", float, 0.0, 0.0, 1000.0, "h", "FUS_BQA_MODE 1: correlation time of the down component (0: random walk)"),
+    _p("FUS_KP_ON", float, 5.0, 0.0, 9.0, "", "a Kp (NAV_KP, or the simulated world's space-weather feed) at or above this declares a storm: the bias states walk as FUS_BQA_MODE says from that step on, and the innovations cannot end it while it lasts (5: a G1 storm on NOAA's scale)"),
+    _p("FUS_SYMH_K", float, 1.0, 0.0, 3.0, "", "the ring current's change of H at the vehicle per nT of SYM-H change (NAV_SYMH): subtracted from each measurement along the local horizontal field; 0 never (measured 1.02 along the Pacific route, 10 May 2024)"),
+    _p("FUS_SYMH_N", float, 70.0, 0.0, 1e4, "nT/rt(h)", "with a SYM-H correction: the north component's residual, in place of FUS_BQA_N: its short-lag walk (10 May 2024 along the Pacific route, real time: 71)"),
+    _p("FUS_SYMH_TN", float, 0.9, 0.0, 1000.0, "h", "with a SYM-H correction: the north residual's correlation time, in place of FUS_BQA_TN (Gauss-Markov: the prediction's error comes and goes; real time 0.88 h; 0 a random walk)"),
+    _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states"),
+    _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma"),
+    _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled"),
+    _p("FUS_DR_POS_M", float, 150.0, 0.0, 1e5, "m", "dead reckoning: position error added per step (turns, speed changes)"),
+    _p("FUS_CUR_MPS", float, 0.3, 0.0, 10.0, "m/s", "dead reckoning: prior 1-sigma of the current (drift) per axis"),
+    _p("FUS_CUR_Q", float, 0.05, 0.0, 10.0, "m/s/rt(h)", "dead reckoning: random walk of the current"),
+    _p("FUS_GPS_M", float, 5.0, 0.1, 1e4, "m", "1-sigma of a GPS start position the filter starts from"),
+    _p("GRAD_INIT", int, 1, 0, 1, "", "G after the probing moves: 0 from the probes (eq. 5-9), 1 the model's gradient at the estimated position"),
+    # --- companion process (link, outputs, failsafes) ---
+    _p("COMP_SP_RATE_HZ", float, 5.0, 2.5, 50.0, "Hz", "setpoint stream rate (PX4 offboard needs > 2 Hz)"),
+    _p("COMP_ARM_ENABLE", int, 0, 0, 1, "", "1 lets the companion switch to GUIDED/OFFBOARD and arm"),
+    _p("COMP_POS_PUB", int, 3, 0, 3, "", "give the FC our position: 0 EXTERNAL_POSITION_ESTIMATE, 1 ODOMETRY, 2 off, 3 GPS_INPUT as its second GPS (an echo while its own GPS works)"),
+    _p("COMP_FEED_ACC_M", float, 5.0, 0.5, 1000.0, "m", "horizontal accuracy claimed in GPS_INPUT: the feed's short-term (relative) accuracy; the EKF diverges when told the km-level absolute one"),
+    _p("COMP_FEED_BLEND", float, 0.5, 0.1, 20.0, "m/s", "speed at which a new estimate is blended into the fed position: no steps the EKF would reject, and slow because the FC's speed loop sees the fed speed (GUIDED velocity steering needs no position)"),
+    _p("COMP_MAG_HZ", float, 10.0, 1.0, 100.0, "Hz", "magnetometer stream rate asked of the FC: up to the sensor's own rate, every sample is averaged (PX4 SIH makes 50 distinct samples/s); in SITL at N x real time the companion decodes N times as many per wall second"),
+    _p("COMP_TRIM_DEG", float, 0.0, 0.0, 45.0, "deg", "steer the measured true heading (levelled magnetometer + model D) onto the course: the setpoint's course is trimmed by the FC's yaw error, at most this; 0 off (the FC's yaw is trusted)"),
+    _p("COMP_MAG_TMO_S", float, 2.0, 0.1, 60.0, "s", "magnetometer older than this is stale (failsafe)"),
+    _p("COMP_ATT_TMO_S", float, 2.0, 0.1, 60.0, "s", "attitude older than this is stale (failsafe)"),
+    _p("COMP_HB_TMO_S", float, 3.0, 0.5, 60.0, "s", "flight-controller heartbeat older than this is lost"),
+    _p("COMP_SPIKE_NT", float, 5000.0, 10.0, 1e6, "nT", "reject a magnetometer sample this far from the running median"),
+    _p("COMP_DIVERGE_KM", float, 50.0, 0.1, 10000.0, "km", "estimate diverged: fix and fused position further apart than this and outside their joint 99.99 % ellipse"),
+    # --- safety ceiling and who may write (start-up only: the link cannot raise them, issue 10) ---
+    _boot("SAFE_SPEED_KMH", float, 60.0, 1.0, 300.0, "km/h", "speed no setpoint may exceed, whatever NAV_SPEED_KMH says"),
+    _boot("SAFE_TMO_S", float, 5.0, 0.1, 60.0, "s", "longest failsafe timeout: COMP_*_TMO_S above it act as this"),
+    _boot("SAFE_FENCE_KM", float, 100.0, 0.0, 20000.0, "km", "start and destination set over the link must lie this close to the start-up route; 0 off"),
+    _boot("LINK_GCS_ID1", int, 255, 0, 255, "", "ground-station system id allowed to set parameters and receive outputs; 0 none"),
+    _boot("LINK_GCS_ID2", int, 0, 0, 255, "", "a second allowed ground-station system id (MAVSDK's default is 245); 0 none"),
+    _p("LINK_TLOG_MB", float, 100.0, 0.0, 1e5, "MB", "companion.tlog is rotated at this size (3 older files kept); 0 no cap"),
+    _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (opposite sign of ArduPilot's COMPASS_OFS_X, which is added)"),
+    _p("MAG_OFS_Y", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body y"),
+    _p("MAG_OFS_Z", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body z"),
+    _p("MAG_SCALE_X", float, 1.0, 0.2, 5.0, "", "scale applied after the offset, body x"),
+    _p("MAG_SCALE_Y", float, 1.0, 0.2, 5.0, "", "scale, body y"),
+    _p("MAG_SCALE_Z", float, 1.0, 0.2, 5.0, "", "scale, body z"),
+)
+
+SPEC_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in REGISTRY}
+# the readings, with how long one lasts after its last link set (s of message time)
+READINGS: dict[str, float] = {spec.name: spec.max_age_s for spec in REGISTRY if spec.max_age_s is not None}
+
+for _spec in REGISTRY:  # a registry error is a programming error: fail at import, loudly
+    if len(_spec.name) > MAX_NAME_LEN or not _spec.minimum <= _spec.default <= _spec.maximum:
+        raise RuntimeError(f"bad registry entry {_spec}")
