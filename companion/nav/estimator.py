@@ -10,7 +10,7 @@ into the denied leg *with its uncertainty* as the bias states' covariance), then
 predicts over the move flown and updates with the averaged elements.
 
 The geomagnetic fix (eq. 49, on the steering pair, bias-corrected) is still computed from the
-prior: it is reported, and a fix farther than ``NAV_FIX_GATE_M`` from the prior estimate whose
+prior (the linearised fix when it is near, ``FIX_LINEAR_WITHIN_M``): it is reported, and a fix farther than ``NAV_FIX_GATE_M`` from the prior estimate whose
 measurement is also outside the filter's own 99.99 % innovation ellipse (``FIX_GATE_PROBABILITY``,
 chi-square on the element count) marks a wrong contour crossing or a disturbed measurement, so
 that step's update is skipped. Judged in kilometres alone, a dead-reckoning filter whose 1-sigma
@@ -48,6 +48,12 @@ __all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filt
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
 FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only outside this innovation ellipse
+# The step's fix is reported and judged (the gate above, the companion's divergence check, both at
+# tens of km), never fused: the filter takes the elements themselves. So a fix within this of the
+# window centre is the linearised one, one Gauss-Newton step from the model evaluation the update
+# makes anyway (element_fix's linear_within_m: off the converged fix by 0.3 m median, 50 m at most
+# over the globe, against its own noise of hundreds of metres); farther ones are iterated to 1 m.
+FIX_LINEAR_WITHIN_M = 1000.0
 
 
 @functools.lru_cache(maxsize=8)
@@ -310,7 +316,8 @@ class PositionEstimator:
         first = None if at_centre is None else (at_centre[0][:n], at_centre[1][:n])
         try:
             fix = element_fix(self.model, self.steering, target, *start, self.config.alt_m, self.config.year,
-                              report_at_fix=False, at_prior=first)   # the position is all we use
+                              report_at_fix=False, at_prior=first,   # the position is all we use
+                              linear_within_m=FIX_LINEAR_WITHIN_M)
         except PositionFixError:
             return None, None
         moved = offset_position(fix.lat_deg, fix.lon_deg, float(lag_en_m[0]), float(lag_en_m[1]))

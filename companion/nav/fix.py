@@ -195,6 +195,7 @@ def element_fix(
     step_m: float | None = None,
     report_at_fix: bool = True,
     at_prior: tuple[np.ndarray, np.ndarray] | None = None,
+    linear_within_m: float = 0.0,
 ) -> PositionFix:
     """The position whose model elements equal the measured ``target`` (eq. 49 on any element set).
 
@@ -208,6 +209,14 @@ def element_fix(
     iterate before it, less than ``tol_m`` away, which saves one model evaluation; the position
     is the same). ``at_prior``: the elements and exact G at the prior when the caller has them
     already (:func:`element_values_and_gradient`; the first iterate then costs no evaluation).
+    ``linear_within_m``: where G is well conditioned (below :data:`LINEAR_MAX_CONDITION`), a first
+    step shorter than this is the fix, the linearised one (one Gauss-Newton step from the prior, as
+    a Kalman update linearises; no evaluation there), with the residual, condition and G of the
+    prior. Its error is the field's curvature over the step, growing as the step's square, and
+    amplified by G's condition: over 2,500 random points of the globe with a condition below 20
+    (WMM2020, (D, I), steps 0.1-2 km) at most 7e-6 per metre times the step squared (7 m at 1 km;
+    median 2.4e-7), against 2.4e-4 (62 m at 1 km) over all conditions up to 1e4. 0 (the
+    default): always iterate to ``tol_m``.
 
     Element contours can cross more than once on the globe; the iteration finds the crossing the
     prior leads to, so the prior should be within a few hundred km. Raises PositionFixError for
@@ -222,10 +231,11 @@ def element_fix(
                   "prior_lon_deg": prior_lon_deg, "alt_m": alt_m, "year": year}
         bad = {k: v for k, v in inputs.items() if not math.isfinite(v)}
         raise PositionFixError(f"geomagnetic fix needs finite inputs, got {bad or inputs}")
-    if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and (step_m is None or step_m > 0.0)):
+    if max_iter < 1 or not (tol_m > 0.0 and max_step_m > 0.0 and (step_m is None or step_m > 0.0)
+                            and 0.0 <= linear_within_m < math.inf):
         raise ValueError(
-            f"need max_iter >= 1 and positive tol_m, max_step_m, step_m; got {max_iter}, {tol_m}, "
-            f"{max_step_m}, {step_m}"
+            f"need max_iter >= 1, positive tol_m, max_step_m, step_m and a finite linear_within_m >= 0; got "
+            f"{max_iter}, {tol_m}, {max_step_m}, {step_m}, {linear_within_m}"
         )
     if abs(prior_lat_deg) > _MAX_FIX_LAT_DEG:
         raise PositionFixError(
@@ -251,6 +261,7 @@ def element_fix(
             break
         step = solve2(gradient, -residual)
         last_step_m = math.hypot(*step)
+        linear = iteration == 0 and last_step_m < linear_within_m and condition < LINEAR_MAX_CONDITION
         if last_step_m > max_step_m:
             step *= max_step_m / last_step_m
         new_lat, new_lon = offset_position(lat, lon, step[0], step[1])
@@ -258,13 +269,16 @@ def element_fix(
         if abs(lat) > _MAX_FIX_LAT_DEG:
             raise PositionFixError(f"iterate reached latitude {lat:.3f} deg, too close to a pole; "
                                    f"{_where(prev_lat, prev_lon, iteration, residual_norm)}")
-        if not report_at_fix and last_step_m < tol_m:
+        if linear or (not report_at_fix and last_step_m < tol_m):
             return PositionFix(lat, lon, iteration + 1, residual_norm, condition, gradient)
     raise PositionFixError(
         f"no convergence within {max_iter} iterations: {_where(lat, lon, iteration, residual_norm)}, "
         f"last Newton step {last_step_m:.3g} m "
         f"(target {elements.label} = {tuple(float(v) for v in target)})"
     )
+
+
+LINEAR_MAX_CONDITION = 20.0   # element_fix takes a short first step as the fix only below this cond(G)
 
 
 def _where(lat: float, lon: float, iteration: int, residual_norm: float) -> str:
