@@ -27,6 +27,9 @@ Setting
     Accepted values are persisted at once with :func:`companion.params.write_parm_file`
     (temporary file, fsync, rename: a crash leaves the old or the new file, never half of one),
     then reported to ``on_change`` so the application applies them at its next control step.
+    Readings (:data:`companion.registry.READINGS`: Kp, SYM-H) are kept in memory with the message
+    time of their last set (:meth:`ParamServer.age_s`) and never written: a value from the file
+    never counts as a reading, and in a storm SYM-H changes every minute.
 
 Who may set
     Only ground stations whose system id is allowed (LINK_GCS_ID1/ID2, start-up only; default
@@ -57,6 +60,7 @@ from companion.ceiling import SafetyCeiling
 from companion.io.link import COMPANION_COMPONENT, MavlinkLink, mavlink
 from companion.params import REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec, default_values, read_parm_file, \
     validate_all, write_parm_file
+from companion.registry import READINGS
 
 __all__ = ["ParamServer", "encode_value", "decode_value", "ENCODINGS"]
 
@@ -261,7 +265,8 @@ class ParamServer:
             self.set_at_s[name] = self.clock()
         if old == value and type(old) is type(value):
             return   # nothing changed: no rewrite, no fsync
-        self.persist()
+        if name not in READINGS:   # a reading is kept in memory: one from the file never counts, and a
+            self.persist()         # storm's SYM-H changes every minute (a rewrite and an fsync each)
         if self.on_change is not None:
             self.on_change(name, value)
 

@@ -79,21 +79,26 @@ def served(tmp_path):
 
 def test_a_live_reading_is_as_old_as_its_last_set_and_one_from_the_file_is_none(tmp_path):
     """NAV_SYMH from the .parm file has no age (inf: not a live reading); each set over the link,
-    a repeated value too (no rewrite), makes it as old as the message time since."""
+    a repeated value too, makes it as old as the message time since. A reading is never written to
+    the file (it would never count from there); a setting is, at once."""
     parm = tmp_path / "companion.parm"
     write_parm_file(parm, {**default_values(), "NAV_SYMH": -300.0})
     now = [100.0]
     served = Served(parm, clock=lambda: now[0])
     try:
         assert served.server.values["NAV_SYMH"] == -300.0 and served.server.age_s("NAV_SYMH", 100.0) == math.inf
+        writes, on_disk = served.server.writes, parm.read_bytes()
         for at in (100.0, 160.0):   # the same value twice, a minute apart
             now[0] = at
-            writes = served.server.writes
             served.client.mav.param_set_send(1, 191, b"NAV_SYMH", -42.0, mavlink.MAV_PARAM_TYPE_REAL32)
             assert served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SYMH") is not None
+            assert served.server.values["NAV_SYMH"] == -42.0
             assert served.server.age_s("NAV_SYMH", at + 50.0) == pytest.approx(50.0)
-        assert served.server.writes == writes   # the repeat was not rewritten
+        assert served.server.writes == writes and parm.read_bytes() == on_disk   # a reading: never written
         assert served.server.age_s("NAV_KP", 200.0) == math.inf
+        served.client.mav.param_set_send(1, 191, b"NAV_SPEED_KMH", 40.0, mavlink.MAV_PARAM_TYPE_REAL32)
+        assert served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SPEED_KMH") is not None
+        assert served.server.writes == writes + 1 and read_parm_file(parm)["NAV_SPEED_KMH"] == 40.0
     finally:
         served.close()
 
