@@ -99,72 +99,14 @@ def evaluate_flight(
         f"({dest[0]:.6f}, {dest[1]:.6f}), {geodesic_distance_m(*ref, *dest):.0f} m apart; cruise speed "
         f"{cruise_mps:.1f} m/s (median GPS speed of the judged span), period = window; state bounds widened to "
         f"D in [-180, 180], I in [-90, 90] deg (Table 4's I in [10, 100] excludes the southern hemisphere)")
+    judged = np.flatnonzero(in_nav & accepted)
     for w in windows_s:
-        recs: list[WindowRecord] = []
-        fix_pos: list[tuple[float, float] | None] = []
-        averager = PeriodAverager()
-        sel = np.flatnonzero(in_nav & accepted)
-        for k in sel:
-            averager.add(float(t_m[k]), float(meas[k, 0]), float(meas[k, 1]))
-        edges = np.arange(nav0, nav1 - w + 1e-9, w)
-        for a in edges:
-            b = a + w
-            avg = averager.take(b - 1e-9)
-            if avg.count < max(1, int(0.5 * w * rate_hz)):
-                continue
-            tc = avg.mean_time_s
-            la, lo, al = (float(v) for v in interp_gps(gps, tc))
-            decl, incl, g = model_di_gradient(model, la, lo, al, year)
-            e = np.array([float(wrap180(avg.decl_deg - decl)), avg.incl_deg - incl])
-            pred = float(np.hypot(*np.linalg.solve(g, e)))
-            rec = WindowRecord(w, float(a), float(b), float(tc), avg.count, avg.decl_deg, avg.incl_deg,
-                               float(e[0]), float(e[1]), pred)
-            prior = offset_position(la, lo, *prior_offset)
-            try:
-                fix = geomagnetic_fix(model, avg.decl_deg, avg.incl_deg, float(prior[0]), float(prior[1]), al, year)
-                rec.fix_error_m = geodesic_distance_m(fix.lat_deg, fix.lon_deg, la, lo)
-                fix_pos.append((fix.lat_deg, fix.lon_deg))
-            except PositionFixError as err:
-                rec.fix_failed = str(err)
-                fix_pos.append(None)
-            recs.append(rec)
+        recs, fix_pos = _window_records(w, t_m[judged], meas[judged], nav0, nav1, rate_hz, gps, model, year,
+                                        prior_offset)
         if not recs:
             continue
-        mean_e = np.array([circ_mean_deg([r.err_decl_deg for r in recs]), np.mean([r.err_incl_deg for r in recs])])
-        for r in recs:
-            la, lo, al = (float(v) for v in interp_gps(gps, r.centre_s))
-            g = model_di_gradient(model, la, lo, al, year)[2]
-            e_noise = np.array([float(wrap180(r.err_decl_deg - mean_e[0])), r.err_incl_deg - mean_e[1]])
-            r.predicted_noise_m = float(np.hypot(*np.linalg.solve(g, e_noise)))
-        fixes = [r.fix_error_m for r in recs]
-        preds = [r.predicted_m for r in recs]
-        ratios = [r.fix_error_m / r.predicted_m for r in recs if math.isfinite(r.fix_error_m) and r.predicted_m > 0]
-        fix_rows.append(FixRow(
-            w, len(recs), sum(1 for r in recs if r.fix_failed),
-            float(mean_e[0]), circ_std_deg([r.err_decl_deg for r in recs]),
-            float(mean_e[1]), float(np.std([r.err_incl_deg for r in recs])),
-            percentile(fixes, 50), percentile(fixes, 90), percentile(preds, 50), percentile(preds, 90),
-            percentile(ratios, 50), min(ratios) if ratios else math.nan, max(ratios) if ratios else math.nan,
-            percentile([r.predicted_noise_m for r in recs], 50)))
-
-        # 4. fusion, Table 3 settings, in local metres from the first fix
-        fusion = InsGeomagFusion(FusionSettings())
-        for r, fixed in zip(recs, fix_pos):
-            ie, inn = float(np.interp(r.centre_s, ins_t, ins_e)), float(np.interp(r.centre_s, ins_t, ins_n))
-            ge, gn = float(np.interp(r.centre_s, gps[:, 0], gps_e)), float(np.interp(r.centre_s, gps[:, 0], gps_n))
-            r.ins_error_m = math.hypot(ie - ge, inn - gn)
-            if fixed is not None:
-                fe, fn = enu_offset(ref[0], ref[1], *fixed)
-                res = fusion.step(np.array([ie, inn]), np.array([float(fe), float(fn)]))
-            else:
-                res = fusion.predict_only(np.array([ie, inn]))
-            r.fused_error_m = math.hypot(res.east_m - ge, res.north_m - gn)
-            r.fused_sigma_m = res.sigma_m
-        fused_rows.append(FusedRow(
-            w, len(recs), percentile([r.fused_error_m for r in recs], 50),
-            percentile([r.fused_error_m for r in recs], 90), recs[-1].fused_error_m,
-            percentile([r.ins_error_m for r in recs], 50), percentile(fixes, 50), recs[-1].fused_sigma_m))
-
+        fix_rows.append(_fix_row(w, recs, gps, model, year))
+        fused_rows.append(_fused_row(w, recs, fix_pos, ref, (ins_t, ins_e, ins_n), gps, gps_e, gps_n))
         # 5. the mission, open-loop: the command issued at the end of window k is for window k+1
         heading_rows.append(run_mission(recs, w, model, year, ref, dest, seg.ground_alt_m, cruise_mps,
                                          gps, gps_e, gps_n, ins_latlon))
@@ -191,6 +133,90 @@ def evaluate_flight(
         date_source=date.source, date_note=date.note, boot=data.boot, boots=data.boots,
         imu_rate_hz=data.imu_rate_hz, f_ratio=_f_ratio(meas[in_nav & accepted, 2], wmm.f_nt[in_nav & accepted]),
         warnings=warnings, series=series)
+
+
+def _window_records(w: float, t_m: np.ndarray, meas: np.ndarray, nav0: float, nav1: float, rate_hz: float,
+                    gps: np.ndarray, model: WorldMagneticModel, year: float, prior_offset: tuple[float, float]
+                    ) -> tuple[list[WindowRecord], list[tuple[float, float] | None]]:
+    """2. The judged span cut into windows of ``w`` seconds (``t_m``, ``meas``: the judged samples):
+    per window with at least half its samples, the averaged D and I against the model at the GPS
+    position there, the |G^-1 e| prediction, and the geomagnetic fix from a prior ``prior_offset``
+    (east, north m) off the truth; with each window's fix position (None where it failed)."""
+    recs: list[WindowRecord] = []
+    fix_pos: list[tuple[float, float] | None] = []
+    averager = PeriodAverager()
+    for k in range(len(t_m)):
+        averager.add(float(t_m[k]), float(meas[k, 0]), float(meas[k, 1]))
+    for a in np.arange(nav0, nav1 - w + 1e-9, w):
+        b = a + w
+        avg = averager.take(b - 1e-9)
+        if avg.count < max(1, int(0.5 * w * rate_hz)):
+            continue
+        tc = avg.mean_time_s
+        la, lo, al = (float(v) for v in interp_gps(gps, tc))
+        decl, incl, g = model_di_gradient(model, la, lo, al, year)
+        e = np.array([float(wrap180(avg.decl_deg - decl)), avg.incl_deg - incl])
+        pred = float(np.hypot(*np.linalg.solve(g, e)))
+        rec = WindowRecord(w, float(a), float(b), float(tc), avg.count, avg.decl_deg, avg.incl_deg,
+                           float(e[0]), float(e[1]), pred)
+        prior = offset_position(la, lo, *prior_offset)
+        try:
+            fix = geomagnetic_fix(model, avg.decl_deg, avg.incl_deg, float(prior[0]), float(prior[1]), al, year)
+            rec.fix_error_m = geodesic_distance_m(fix.lat_deg, fix.lon_deg, la, lo)
+            fix_pos.append((fix.lat_deg, fix.lon_deg))
+        except PositionFixError as err:
+            rec.fix_failed = str(err)
+            fix_pos.append(None)
+        recs.append(rec)
+    return recs, fix_pos
+
+
+def _fix_row(w: float, recs: list[WindowRecord], gps: np.ndarray, model: WorldMagneticModel, year: float) -> FixRow:
+    """The fixes of one window length: the windows' D/I error (mean and spread), the fix error
+    against its |G^-1 e| prediction; sets each record's noise-only prediction (its error less the
+    mean error, through G)."""
+    mean_e = np.array([circ_mean_deg([r.err_decl_deg for r in recs]), np.mean([r.err_incl_deg for r in recs])])
+    for r in recs:
+        la, lo, al = (float(v) for v in interp_gps(gps, r.centre_s))
+        g = model_di_gradient(model, la, lo, al, year)[2]
+        e_noise = np.array([float(wrap180(r.err_decl_deg - mean_e[0])), r.err_incl_deg - mean_e[1]])
+        r.predicted_noise_m = float(np.hypot(*np.linalg.solve(g, e_noise)))
+    fixes = [r.fix_error_m for r in recs]
+    preds = [r.predicted_m for r in recs]
+    ratios = [r.fix_error_m / r.predicted_m for r in recs if math.isfinite(r.fix_error_m) and r.predicted_m > 0]
+    return FixRow(
+        w, len(recs), sum(1 for r in recs if r.fix_failed),
+        float(mean_e[0]), circ_std_deg([r.err_decl_deg for r in recs]),
+        float(mean_e[1]), float(np.std([r.err_incl_deg for r in recs])),
+        percentile(fixes, 50), percentile(fixes, 90), percentile(preds, 50), percentile(preds, 90),
+        percentile(ratios, 50), min(ratios) if ratios else math.nan, max(ratios) if ratios else math.nan,
+        percentile([r.predicted_noise_m for r in recs], 50))
+
+
+def _fused_row(w: float, recs: list[WindowRecord], fix_pos: list[tuple[float, float] | None],
+               ref: tuple[float, float], ins_track: tuple[np.ndarray, np.ndarray, np.ndarray], gps: np.ndarray,
+               gps_e: np.ndarray, gps_n: np.ndarray) -> FusedRow:
+    """4. Table 3's fusion of one window length, in local metres from the first fix (``ref``):
+    the INS (``ins_track``: time, east, north) with each window's fix; sets each record's INS and
+    fused errors against the GPS and the fusion's 1-sigma."""
+    ins_t, ins_e, ins_n = ins_track
+    fusion = InsGeomagFusion(FusionSettings())
+    for r, fixed in zip(recs, fix_pos):
+        ie, inn = float(np.interp(r.centre_s, ins_t, ins_e)), float(np.interp(r.centre_s, ins_t, ins_n))
+        ge, gn = float(np.interp(r.centre_s, gps[:, 0], gps_e)), float(np.interp(r.centre_s, gps[:, 0], gps_n))
+        r.ins_error_m = math.hypot(ie - ge, inn - gn)
+        if fixed is not None:
+            fe, fn = enu_offset(ref[0], ref[1], *fixed)
+            res = fusion.step(np.array([ie, inn]), np.array([float(fe), float(fn)]))
+        else:
+            res = fusion.predict_only(np.array([ie, inn]))
+        r.fused_error_m = math.hypot(res.east_m - ge, res.north_m - gn)
+        r.fused_sigma_m = res.sigma_m
+    fixes = [r.fix_error_m for r in recs]
+    return FusedRow(
+        w, len(recs), percentile([r.fused_error_m for r in recs], 50),
+        percentile([r.fused_error_m for r in recs], 90), recs[-1].fused_error_m,
+        percentile([r.ins_error_m for r in recs], 50), percentile(fixes, 50), recs[-1].fused_sigma_m)
 
 
 def _source_note(path: Path) -> str:
