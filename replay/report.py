@@ -63,7 +63,8 @@ def format_log_report(result: LogEvaluation) -> str:
 
 
 def format_report(ev: ReplayEvaluation) -> str:
-    """The markdown report (what is printed and written to table.md)."""
+    """The markdown report (what is printed and written to table.md): the header, then one
+    section per part of the evaluation."""
     seg = ev.segments
     lines: list[str] = []
     add = lines.append
@@ -92,6 +93,16 @@ def format_report(ev: ReplayEvaluation) -> str:
         f"{SPIKE_NT:.0f} nT spike filter.")
     add("- Segments, chosen from the data: " + "; ".join(seg.rules) + ".")
     add("")
+    for section in (_di_section, _fix_section, _ins_section, _fused_section, _heading_section,
+                    _closing_sections):
+        lines += section(ev)
+    return "\n".join(lines) + "\n"
+
+
+def _di_section(ev: ReplayEvaluation) -> list[str]:
+    """1. D and I measured against the model at the GPS position, per segment."""
+    lines: list[str] = []
+    add = lines.append
     add("## 1. D and I measured vs the model at the GPS position")
     add("")
     add("| Segment | Span (s) | Samples | D meas (deg) | D model (deg) | D bias (deg) | D spread (deg) "
@@ -111,6 +122,13 @@ def format_report(ev: ReplayEvaluation) -> str:
         "I does not depend on yaw, only on roll, pitch and the compass calibration, so the I bias is a real "
         "measurement error (calibration, mounting or local field); the F bias shows the calibration is not absolute.")
     add("")
+    return lines
+
+
+def _fix_section(ev: ReplayEvaluation) -> list[str]:
+    """2. The geomagnetic fixes against the GPS, per window length."""
+    lines: list[str] = []
+    add = lines.append
     add("## 2. Geomagnetic position fix (eq. 49) vs GPS")
     add("")
     add(f"Fix from D, I averaged over non-overlapping windows of the judged span, Newton from a prior "
@@ -129,6 +147,13 @@ def format_report(ev: ReplayEvaluation) -> str:
             f"{_km(r.predicted_median_m)} | {_km(r.predicted_p90_m)} | {_f(r.ratio_median)} "
             f"[{_f(r.ratio_min)}-{_f(r.ratio_max)}] | {_km(r.predicted_noise_median_m)} |")
     add("")
+    return lines
+
+
+def _ins_section(ev: ReplayEvaluation) -> list[str]:
+    """3. The INS's drift alone against the GPS."""
+    lines: list[str] = []
+    add = lines.append
     add("## 3. INS-only drift (horizontal error vs GPS, m)")
     add("")
     keys = [f"+{s:g} s" for s in INS_REPORT_S] + ["end of judged span"]
@@ -146,6 +171,13 @@ def format_report(ev: ReplayEvaluation) -> str:
         "Static alignment: the body-frame accelerometer bias that zeroes the mean horizontal specific force while "
         "standing on the ground before take-off (levelling, no GPS).")
     add("")
+    return lines
+
+
+def _fused_section(ev: ReplayEvaluation) -> list[str]:
+    """4. Table 3's fused position against the GPS, per window length."""
+    lines: list[str] = []
+    add = lines.append
     add("## 4. Fused position (Table 3 filter: Q_c 0.05 km^2, R_c 2 km^2, P_0 1 km^2) vs GPS")
     add("")
     add("| Window (s) | Steps | Fused median (km) | Fused p90 (km) | Fused at end (km) | Filter sigma at end (km) "
@@ -163,6 +195,13 @@ def format_report(ev: ReplayEvaluation) -> str:
            f"walks towards the fix while its own sigma ({_km(worst.sigma_final_m)} km) says nothing about its error."
            if worst is not None and worst.fused_median_m > 10e3 * rc_km else ""))
     add("")
+    return lines
+
+
+def _heading_section(ev: ReplayEvaluation) -> list[str]:
+    """5. The heading the controller would have commanded against the heading flown."""
+    lines: list[str] = []
+    add = lines.append
     add("## 5. Heading the controller would have commanded vs the heading flown")
     add("")
     add(f"Mission: {ev.mission_note}. Open-loop: the commands are not flown, so the measurements come from the "
@@ -179,6 +218,13 @@ def format_report(ev: ReplayEvaluation) -> str:
         add(f"| {r.window_s:g} | {r.steps} | {r.compared} | {_f(r.median_abs_diff_deg, 0)} | "
             f"{_f(r.ideal_median_abs_diff_deg, 0)} | {_km(r.est_error_median_m)} | {state} |")
     add("")
+    return lines
+
+
+def _closing_sections(ev: ReplayEvaluation) -> list[str]:
+    """What the numbers mean, and the evaluation's limitations."""
+    lines: list[str] = []
+    add = lines.append
     meaning = _meaning(ev)
     if meaning:
         add("## What the numbers mean")
@@ -195,8 +241,7 @@ def format_report(ev: ReplayEvaluation) -> str:
         "the measurement errors and what they do "
         "to a fix, not whether Fc-MPC reaches a destination. "
         "The heading comparison is a plumbing check of the open-loop controller, not a navigation result.")
-    return "\n".join(lines) + "\n"
-
+    return lines
 
 def _averaging_words(ev: ReplayEvaluation) -> str:
     """How much longer averaging reduces the D spread (little, if the errors are correlated)."""
