@@ -116,6 +116,49 @@ def read_iaga2002(path: str | os.PathLike[str]) -> IagaRecord:
         FileNotFoundError: the file does not exist.
     """
     path = Path(path)
+    header, columns, columns_line, times, values = _parse(path)
+
+    code_entry = header.get("iaga code")
+    code = (code_entry[1].split()[0] if code_entry and code_entry[1].split() else columns[3][:-1]).upper()
+    letters = "".join(c[-1].upper() for c in columns[3:])
+    reported_entry = header.get("reported") or header.get("reporting")
+    if reported_entry is not None:
+        stated = reported_entry[1].replace(" ", "").upper()
+        if stated and stated != letters:
+            raise StormDataError(
+                path,
+                reported_entry[0],
+                f"header reports {stated!r} but the data header (line {columns_line}) has {letters!r}",
+            )
+    lat = _header_float(path, header, ["geodetic latitude"], required=True)
+    lon_east = _header_float(path, header, ["geodetic longitude"], required=True) % 360.0
+    elevation = _header_float(path, header, ["elevation"], required=False)
+    name = header["station name"][1] if "station name" in header else code
+
+    x, y, z, f = _components(path, columns_line, letters, values)
+    time_s = np.asarray(times, dtype="datetime64[ms]").astype(np.int64).astype(np.float64) / 1000.0
+    return IagaRecord(
+        code=code,
+        name=name,
+        lat_deg=lat,
+        lon_deg=lon_east - 360.0 if lon_east >= 180.0 else lon_east,
+        lon_east_deg=lon_east,
+        elevation_m=elevation,
+        reported=letters,
+        time_s=time_s,
+        x_nt=np.ascontiguousarray(x),
+        y_nt=np.ascontiguousarray(y),
+        z_nt=np.ascontiguousarray(z),
+        f_nt=np.ascontiguousarray(f),
+        sources=(path,),
+        header={k: v for k, (_, v) in header.items()},
+    )
+
+
+def _parse(path: Path) -> tuple[dict[str, tuple[int, str]], list[str], int, list[np.datetime64],
+                                 list[tuple[float, float, float, float]]]:
+    """The file's header (key -> (line, value)), its data columns and their line, and the data
+    lines' times and four values, each line checked (:func:`read_iaga2002`'s errors)."""
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     header: dict[str, tuple[int, str]] = {}
     columns: list[str] | None = None
@@ -149,49 +192,46 @@ def read_iaga2002(path: str | os.PathLike[str]) -> IagaRecord:
             continue
         if not line.strip():
             continue
-        match = _DATA_RE.match(line)
-        if match is None:
-            raise StormDataError(
-                path,
-                line_no,
-                "malformed or truncated data line (expected 'YYYY-MM-DD HH:MM:SS.sss DOY' and 4 decimal "
-                f"values): {line!r}",
-            )
-        try:
-            stamp = np.datetime64(f"{match['date']}T{match['time']}", "ms")
-        except ValueError:
-            raise StormDataError(path, line_no, f"invalid date/time {match['date']} {match['time']}") from None
-        day0 = stamp.astype("datetime64[D]")
-        doy = int((day0 - day0.astype("datetime64[Y]")).astype(np.int64)) + 1
-        if int(match["doy"]) != doy:
-            raise StormDataError(path, line_no, f"day of year {match['doy']} does not match date {match['date']}")
-        if times and stamp <= times[-1]:
-            raise StormDataError(path, line_no, f"time {match['date']} {match['time']} does not increase")
+        stamp, row = _data_line(path, line_no, line, times[-1] if times else None)
         times.append(stamp)
-        values.append((float(match["v1"]), float(match["v2"]), float(match["v3"]), float(match["v4"])))
+        values.append(row)
 
     if columns is None:
         raise StormDataError(path, len(lines), "no 'DATE TIME DOY' data header line (truncated header?)")
     if not times:
         raise StormDataError(path, len(lines), "no data lines after the data header (truncated file?)")
+    return header, columns, columns_line, times, values
 
-    code_entry = header.get("iaga code")
-    code = (code_entry[1].split()[0] if code_entry and code_entry[1].split() else columns[3][:-1]).upper()
-    letters = "".join(c[-1].upper() for c in columns[3:])
-    reported_entry = header.get("reported") or header.get("reporting")
-    if reported_entry is not None:
-        stated = reported_entry[1].replace(" ", "").upper()
-        if stated and stated != letters:
-            raise StormDataError(
-                path,
-                reported_entry[0],
-                f"header reports {stated!r} but the data header (line {columns_line}) has {letters!r}",
-            )
-    lat = _header_float(path, header, ["geodetic latitude"], required=True)
-    lon_east = _header_float(path, header, ["geodetic longitude"], required=True) % 360.0
-    elevation = _header_float(path, header, ["elevation"], required=False)
-    name = header["station name"][1] if "station name" in header else code
 
+def _data_line(path: Path, line_no: int, line: str, last: np.datetime64 | None
+               ) -> tuple[np.datetime64, tuple[float, float, float, float]]:
+    """One data line's time (ms) and four values, checked: the layout, the date, its day of year,
+    and a time after ``last``."""
+    match = _DATA_RE.match(line)
+    if match is None:
+        raise StormDataError(
+            path,
+            line_no,
+            "malformed or truncated data line (expected 'YYYY-MM-DD HH:MM:SS.sss DOY' and 4 decimal "
+            f"values): {line!r}",
+        )
+    try:
+        stamp = np.datetime64(f"{match['date']}T{match['time']}", "ms")
+    except ValueError:
+        raise StormDataError(path, line_no, f"invalid date/time {match['date']} {match['time']}") from None
+    day0 = stamp.astype("datetime64[D]")
+    doy = int((day0 - day0.astype("datetime64[Y]")).astype(np.int64)) + 1
+    if int(match["doy"]) != doy:
+        raise StormDataError(path, line_no, f"day of year {match['doy']} does not match date {match['date']}")
+    if last is not None and stamp <= last:
+        raise StormDataError(path, line_no, f"time {match['date']} {match['time']} does not increase")
+    return stamp, (float(match["v1"]), float(match["v2"]), float(match["v3"]), float(match["v4"]))
+
+
+def _components(path: Path, columns_line: int, letters: str, values: list[tuple[float, float, float, float]]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """X, Y, Z and F (nT) from the data values in the reported layout (XYZ* kept, HDZ* with D in
+    minutes of arc converted; F NaN unless reported); the missing-value markers become NaN."""
     data = np.asarray(values, dtype=np.float64)
     data[np.isin(data, _IAGA_MISSING)] = np.nan
     cols = {letter: data[:, i] for i, letter in enumerate(letters)}
@@ -202,25 +242,8 @@ def read_iaga2002(path: str | os.PathLike[str]) -> IagaRecord:
         x, y, z = cols["H"] * np.cos(d_rad), cols["H"] * np.sin(d_rad), cols["Z"]
     else:
         raise StormDataError(path, columns_line, f"unsupported component layout {letters!r} (need XYZ* or HDZ*)")
-    f = cols["F"] if letters[3] == "F" else np.full(len(times), np.nan)
-    time_s = np.asarray(times, dtype="datetime64[ms]").astype(np.int64).astype(np.float64) / 1000.0
-    return IagaRecord(
-        code=code,
-        name=name,
-        lat_deg=lat,
-        lon_deg=lon_east - 360.0 if lon_east >= 180.0 else lon_east,
-        lon_east_deg=lon_east,
-        elevation_m=elevation,
-        reported=letters,
-        time_s=time_s,
-        x_nt=np.ascontiguousarray(x),
-        y_nt=np.ascontiguousarray(y),
-        z_nt=np.ascontiguousarray(z),
-        f_nt=np.ascontiguousarray(f),
-        sources=(path,),
-        header={k: v for k, (_, v) in header.items()},
-    )
-
+    f = cols["F"] if letters[3] == "F" else np.full(len(values), np.nan)
+    return x, y, z, f
 
 def _concat(records: Sequence[IagaRecord]) -> IagaRecord:
     """Join records of one station (files of consecutive days) in time order."""
