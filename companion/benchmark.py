@@ -1,4 +1,4 @@
-"""Benchmark of the companion process against the simulator's streams (``scripts/bench.py`` calls it).
+"""Benchmark of the companion process against the simulator's streams (``fcmpc_bench.sections`` calls it).
 
 The simulator runs as a separate process, started by module name (``python -m sitl.server``; the
 companion never imports it); the companion runs in this process, exactly as ``fcmpc-companion``
