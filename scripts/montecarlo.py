@@ -22,19 +22,15 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import csv
-import json
 import sys
-import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 from companion.cli import ArgumentParser, UsageError, param_items, positive_int, run_main
 from companion.params import Controller, NavConfig, read_parm_file, validate_all
-from montecarlo.batch import run_montecarlo
-from montecarlo.budget import format_budget, realistic_counterpart, run_budget
+from montecarlo.budget import realistic_counterpart
+from montecarlo.cli_table import budget_main, table_main
 from montecarlo.engines import ENGINES, Engine
-from montecarlo.tables import PAPER, format_table, summarise
 from sitl.scenario import ScenarioError, load_scenario
 
 CONTROLLER_KEYS = {"lti": Controller.LTI, "ltv": Controller.LTV, "fc": Controller.FC}
@@ -130,52 +126,8 @@ def _run(argv: list[str] | None) -> int:
     check_missions(values, controllers)
 
     if args.budget:
-        started = time.perf_counter()
-        budget = run_budget(real, args.runs, args.workers, values, args.data_dir, not args.quiet, args.first_seed,
-                            engine)
-        out = Path(args.out) / real.name
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "budget.json").write_text(json.dumps({"scenario": real.name, "runs": args.runs, "rows": budget,
-                                                     "wall_s": time.perf_counter() - started}, indent=2))
-        print(f"\nError budget, {real.name}: Fc-MPC, {args.runs} runs per row "
-              f"({time.perf_counter() - started:.0f} s wall)\n")
-        print(format_budget(budget))
-        print(f"results: {out / 'budget.json'}")
-        return 0
-    started = time.perf_counter()
-    scenario, rows, tracks = run_montecarlo(scenario_ref, args.runs, controllers, args.workers, values,
-                                            args.data_dir, progress=not args.quiet, first_seed=args.first_seed,
-                                            engine=engine)
-    wall = time.perf_counter() - started
-    storm = scenario.storm.enabled
-    summary = summarise(rows, (scenario.dest_lat_deg, scenario.dest_lon_deg))
-    out = Path(args.out) / scenario.name
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "runs.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(asdict(rows[0])))
-        writer.writeheader()
-        writer.writerows(asdict(r) for r in rows)
-    (out / "summary.json").write_text(json.dumps({"scenario": scenario.name, "runs": args.runs, "wall_s": wall,
-                                                  "parameters": values, "summary": summary,
-                                                  "paper": PAPER.get(scenario.name, {})}, indent=2, default=float))
-    print(f"\n{scenario.description}\n{args.runs} runs per controller, {len(rows)} missions in {wall:.1f} s wall "
-          f"({args.workers} workers, engine {args.engine})\n")
-    print(format_table(scenario.name, summary, storm))
-    if not args.no_plots:
-        from montecarlo.plots import plot_results
-
-        written = plot_results(out, scenario, rows, tracks, storm)
-        if storm:
-            from sitl import storms
-            from sitl.world.build import build_truth_field
-
-            truth = build_truth_field(scenario, args.data_dir)
-            window = storms.StormWindow(scenario.name, *scenario.storm.window_posix)
-            storms.plot_disturbance(truth.disturbance, out / "disturbance.png", window)
-            written.append(out / "disturbance.png")
-        print("\nplots: " + ", ".join(str(p) for p in written))
-    print(f"results: {out / 'runs.csv'}, {out / 'summary.json'}")
-    return 0
+        return budget_main(args, real, values, engine)
+    return table_main(args, scenario_ref, values, controllers, engine)
 
 
 def main(argv: list[str] | None = None) -> int:
