@@ -148,9 +148,11 @@ class Router:
         if self.routing and (target_sys != self.sysid or target_comp not in (self.compid,)) and \
                 (len(self.links) > 1 or link.peer_count() > 1):
             self.out.send_coalesced()   # a forwarded frame does not overtake ours sent before it
+            # counted before it leaves: whoever receives the frame then finds it counted (a test
+            # that read the counter on receipt raced the count, under load)
+            self.counters.add("rx_routed")
             for other in self.links:
                 other.send(frame, exclude=peer if other is link else None)
-            self.counters.add("rx_routed")
         if self.gate is not None and self.gate.eligible(*src):
             stamp = getattr(msg, "time_boot_ms", None)
             self.gate.observe(stamp if isinstance(stamp, int) else None, self.clock.boot_us)
