@@ -7,9 +7,8 @@ issue 13, measured on a faster machine, and the baseline measured on the 2-core 
 machine before the speed work, with the ratio to it: :data:`BASELINE_HERE`) and the target
 (issue 13): one MPC update+solve beside the bare OSQP solve of the same problem (the floor:
 what the solver itself costs, called through its compiled object, and the time OSQP reports for
-it); the field model
-per point beside pygeomag's per point (the ratio); the geomagnetic fix; one mission step while
-cruising; the 50-run x 3-controller Monte Carlo; the simulator's speed-up over real time; the
+it); the field model per point beside pygeomag's per point (the ratio); the geomagnetic fix; one
+mission step while cruising; the 50-run x 3-controller Monte Carlo; the simulator's speed-up over real time; the
 companion's control step. Timings are medians of many repetitions of wall time (p99 where a
 tail matters); on a machine shared with other work they are indicative only, and the ratios
 beside an anchor measured in the same run are the robust figures. Nothing here is asserted by

@@ -100,12 +100,13 @@ def evaluate_flight(
         f"{cruise_mps:.1f} m/s (median GPS speed of the judged span), period = window; state bounds widened to "
         f"D in [-180, 180], I in [-90, 90] deg (Table 4's I in [10, 100] excludes the southern hemisphere)")
     judged = np.flatnonzero(in_nav & accepted)
+    t_judged, meas_judged = t_m[judged], meas[judged]
     for w in windows_s:
-        recs, fix_pos = _window_records(w, t_m[judged], meas[judged], nav0, nav1, rate_hz, gps, model, year,
-                                        prior_offset)
+        recs, fix_pos, gradients = _window_records(w, t_judged, meas_judged, nav0, nav1, rate_hz, gps, model, year,
+                                                   prior_offset)
         if not recs:
             continue
-        fix_rows.append(_fix_row(w, recs, gps, model, year))
+        fix_rows.append(_fix_row(w, recs, gradients))
         fused_rows.append(_fused_row(w, recs, fix_pos, ref, (ins_t, ins_e, ins_n), gps, gps_e, gps_n))
         # 5. the mission, open-loop: the command issued at the end of window k is for window k+1
         heading_rows.append(run_mission(recs, w, model, year, ref, dest, seg.ground_alt_m, cruise_mps,
@@ -137,13 +138,15 @@ def evaluate_flight(
 
 def _window_records(w: float, t_m: np.ndarray, meas: np.ndarray, nav0: float, nav1: float, rate_hz: float,
                     gps: np.ndarray, model: WorldMagneticModel, year: float, prior_offset: tuple[float, float]
-                    ) -> tuple[list[WindowRecord], list[tuple[float, float] | None]]:
+                    ) -> tuple[list[WindowRecord], list[tuple[float, float] | None], list[np.ndarray]]:
     """2. The judged span cut into windows of ``w`` seconds (``t_m``, ``meas``: the judged samples):
     per window with at least half its samples, the averaged D and I against the model at the GPS
     position there, the |G^-1 e| prediction, and the geomagnetic fix from a prior ``prior_offset``
-    (east, north m) off the truth; with each window's fix position (None where it failed)."""
+    (east, north m) off the truth; with each window's fix position (None where it failed) and the
+    model's G at its GPS position."""
     recs: list[WindowRecord] = []
     fix_pos: list[tuple[float, float] | None] = []
+    gradients: list[np.ndarray] = []
     averager = PeriodAverager()
     for k in range(len(t_m)):
         averager.add(float(t_m[k]), float(meas[k, 0]), float(meas[k, 1]))
@@ -168,17 +171,16 @@ def _window_records(w: float, t_m: np.ndarray, meas: np.ndarray, nav0: float, na
             rec.fix_failed = str(err)
             fix_pos.append(None)
         recs.append(rec)
-    return recs, fix_pos
+        gradients.append(g)
+    return recs, fix_pos, gradients
 
 
-def _fix_row(w: float, recs: list[WindowRecord], gps: np.ndarray, model: WorldMagneticModel, year: float) -> FixRow:
+def _fix_row(w: float, recs: list[WindowRecord], gradients: list[np.ndarray]) -> FixRow:
     """The fixes of one window length: the windows' D/I error (mean and spread), the fix error
     against its |G^-1 e| prediction; sets each record's noise-only prediction (its error less the
-    mean error, through G)."""
+    mean error, through its window's G, ``gradients``)."""
     mean_e = np.array([circ_mean_deg([r.err_decl_deg for r in recs]), np.mean([r.err_incl_deg for r in recs])])
-    for r in recs:
-        la, lo, al = (float(v) for v in interp_gps(gps, r.centre_s))
-        g = model_di_gradient(model, la, lo, al, year)[2]
+    for r, g in zip(recs, gradients):
         e_noise = np.array([float(wrap180(r.err_decl_deg - mean_e[0])), r.err_incl_deg - mean_e[1]])
         r.predicted_noise_m = float(np.hypot(*np.linalg.solve(g, e_noise)))
     fixes = [r.fix_error_m for r in recs]

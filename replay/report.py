@@ -243,6 +243,7 @@ def _closing_sections(ev: ReplayEvaluation) -> list[str]:
         "The heading comparison is a plumbing check of the open-loop controller, not a navigation result.")
     return lines
 
+
 def _averaging_words(ev: ReplayEvaluation) -> str:
     """How much longer averaging reduces the D spread (little, if the errors are correlated)."""
     rows = sorted(ev.fix_rows, key=lambda r: r.window_s)

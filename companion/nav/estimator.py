@@ -10,9 +10,10 @@ into the denied leg *with its uncertainty* as the bias states' covariance), then
 predicts over the move flown and updates with the averaged elements.
 
 The geomagnetic fix (eq. 49, on the steering pair, bias-corrected) is still computed from the
-prior (the linearised fix when it is near, ``FIX_LINEAR_WITHIN_M``): it is reported, and a fix farther than ``NAV_FIX_GATE_M`` from the prior estimate whose
-measurement is also outside the filter's own 99.99 % innovation ellipse (``FIX_GATE_PROBABILITY``,
-chi-square on the element count) marks a wrong contour crossing or a disturbed measurement, so
+prior (the linearised fix when it is near, ``FIX_LINEAR_WITHIN_M``): it is reported, and a fix
+farther than ``NAV_FIX_GATE_M`` from the prior estimate whose measurement is also outside the
+filter's own 99.99 % innovation ellipse (``FIX_GATE_PROBABILITY``, chi-square on the element
+count) marks a wrong contour crossing or a disturbed measurement, so
 that step's update is skipped. Judged in kilometres alone, a dead-reckoning filter whose 1-sigma
 had grown past the distance rejected every fix for the rest of the mission (``pacific_real``
 without an INS, (I, F), 20 seeds: the worst ended 1,743 km off, mean 114 km; with the ellipse the
@@ -51,8 +52,9 @@ FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only o
 # The step's fix is reported and judged (the gate above, the companion's divergence check, both at
 # tens of km), never fused: the filter takes the elements themselves. So a fix within this of the
 # window centre is the linearised one, one Gauss-Newton step from the model evaluation the update
-# makes anyway (element_fix's linear_within_m: off the converged fix by 0.3 m median, 50 m at most
-# over the globe, against its own noise of hundreds of metres); farther ones are iterated to 1 m.
+# makes anyway (element_fix's linear_within_m, where cond(G) < 20: off the converged fix by at most
+# 7 m at 1 km over the globe, against its own noise of hundreds of metres); farther or worse
+# conditioned ones are iterated to 1 m.
 FIX_LINEAR_WITHIN_M = 1000.0
 
 

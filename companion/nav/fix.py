@@ -159,6 +159,7 @@ class PositionFix:
 
 # Beyond this latitude the local east/north plane (and the +-step gradient) degenerates.
 _MAX_FIX_LAT_DEG = 89.5
+LINEAR_MAX_CONDITION = 20.0   # element_fix takes a short first step as the fix only below this cond(G)
 
 
 def geomagnetic_fix(
@@ -276,9 +277,6 @@ def element_fix(
         f"last Newton step {last_step_m:.3g} m "
         f"(target {elements.label} = {tuple(float(v) for v in target)})"
     )
-
-
-LINEAR_MAX_CONDITION = 20.0   # element_fix takes a short first step as the fix only below this cond(G)
 
 
 def _where(lat: float, lon: float, iteration: int, residual_norm: float) -> str:

@@ -20,9 +20,9 @@ from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.nav.steering import is_new_course
-from companion.registry import READINGS
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
+from companion.registry import READINGS
 
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 

@@ -195,7 +195,7 @@ class Phases:
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
         if estimator is not None and estimator.storm_declared:
-            kp = float(app.params.values["NAV_KP"])   # the reading that declared it (params.READINGS)
+            kp = float(app.params.values["NAV_KP"])   # the reading that declared it (registry.READINGS)
             app.out.say(f"FcMPC: storm declared: NAV_KP {kp:g} >= FUS_KP_ON {config.kp_on:g}, {estimator.storm_walk}"[:200],
                         mavlink.MAV_SEVERITY_WARNING)
         if estimator is not None and estimator.ring_current_removed:
