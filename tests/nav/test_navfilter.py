@@ -159,7 +159,7 @@ def test_local_model_error_states_make_the_realistic_world_filter_honest(shared_
     """pacific_real (IGRF-14 + crust against the navigator's WMM, calibration residuals), six
     seeded missions with the INS filter: with the defaults' local model-error states the median
     of the runs' mean NEES is at most 6.5 and under 0.6 of the same runs' without them
-    (FUS_GM_* 0 and the still bias of the paper's world). Measured: 4.5 against 9.0 (50 seeds:
+    (FUS_GM_* 0 and a still bias, FUS_BQ_DEG 0.0002). Measured: 4.5 against 9.0 (50 seeds:
     mean NEES 7.2 against 27.4, median miss 22.0 against 40.3 km). Both without the heading
     states (FUS_BH_* 0, which came later and are judged in tests/nav/test_heading_residual.py):
     with them on both sides the local states' share is smaller (2.6 against 3.7)."""
@@ -230,7 +230,10 @@ def test_disturbance_needs_a_sustained_rise_of_the_innovations():
 def test_nees_and_nis_of_a_seeded_monte_carlo_are_chi_square(shared_data):
     """Six seeded Pacific missions (Fc-MPC, the INS filter, R from the measured standard
     errors): the final-step NEES summed over the runs lies inside the 99 % interval of
-    chi-square with 2 x 6 degrees of freedom, the mean NEES over all steps is near 2, and most
+    chi-square with 2 x 6 degrees of freedom, the mean NEES over all steps is near 2 (1.6-2.5:
+    the filter's covariance within about 20 % of its errors; measured 1.77 on these seeds and
+    1.73-2.17 on each of eight groups of six, 0-47; with the quiet bias walk the preset declared
+    before 2026-12-04, 1.46 here and 1.40-1.81: a covariance that outgrew the errors), and most
     steps put the truth inside the 95 % ellipse.
 
     NIS: the mean NIS / m of the cruise updates (from step 3: the start and the two probing steps
@@ -255,7 +258,7 @@ def test_nees_and_nis_of_a_seeded_monte_carlo_are_chi_square(shared_data):
     low, high = chi2.ppf([0.005, 0.995], 2 * len(runs))
     assert low <= final <= high, final
     every = np.concatenate([n[np.isfinite(n)] for n in nees])
-    assert 1.0 <= every.mean() <= 4.0, every.mean()
+    assert 1.6 <= every.mean() <= 2.5, every.mean()
     assert np.mean(every <= CHI2_95_2DOF) >= 0.8
 
 
