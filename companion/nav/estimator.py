@@ -103,7 +103,8 @@ def filter_settings(config) -> FilterSettings:
                       config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
                       bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt,
                       config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt),
-                      (config.bias_qa_tn_h, config.bias_qa_te_h, config.bias_qa_tz_h)),
+                      (config.bias_qa_tn_h, config.bias_qa_te_h, config.bias_qa_tz_h),
+                      (config.bias_qa_rne, config.bias_qa_rnz, config.bias_qa_rez)),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps))
@@ -148,9 +149,12 @@ class PositionEstimator:
             parts = [f"{name} {q:g}" + (f" (tau {tau:g} h)" if tau > 0.0 else "")
                      for name, q, tau in zip("NEZ", (north[0], c.bias_qa_e_nt, c.bias_qa_z_nt),
                                              (north[1], c.bias_qa_te_h, c.bias_qa_tz_h))]
-            return ("bias states walk along the field components " + ", ".join(parts) + " nT/rt(h)"
-                    + (", N after the SYM-H ring current" if removed else ""))
-        return f"bias states walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT /rt(h)"
+            corr = (c.symh_residual_rne, c.symh_residual_rnz) if removed else (c.bias_qa_rne, c.bias_qa_rnz)
+            corr = (*corr, c.bias_qa_rez)
+            return ("biases walk by field component " + ", ".join(parts) + " nT/rt(h)"
+                    + (", N after SYM-H" if removed else "")
+                    + (", correlated NE {:g} NZ {:g} EZ {:g}".format(*corr) if any(corr) else ""))
+        return f"biases walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT/rt(h)"
 
     @property
     def ring_current_removed(self) -> bool:
@@ -203,7 +207,8 @@ class PositionEstimator:
             b = settings.bias
             settings = replace(settings, bias=replace(
                 b, qa_ned_nt_rth=(c.symh_residual_n_nt, *b.qa_ned_nt_rth[1:]),
-                qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:])))
+                qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:]),
+                qa_ned_corr=(c.symh_residual_rne, c.symh_residual_rnz, b.qa_ned_corr[2])))
         self.filter = NavigationFilter(process, self.measured, settings, self.model, c.alt_m, c.year)
         self.filter.monitor.declare(storm_declared(meas.kp, c.kp_on))
         measured = measured - self.ring_current_share(meas, (c.start_lat_deg, c.start_lon_deg))

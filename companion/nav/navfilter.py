@@ -97,8 +97,8 @@ class BiasSpec:
     the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
     disturbance is active the biases walk per element at ``qa_*_rth`` (``qa_mode`` 0) or along
     the field components at ``qa_ned_nt_rth`` (N, E, Z, nT per sqrt(hour); ``qa_mode`` 1), each a
-    random walk or, with a correlation time ``qa_ned_tau_h`` (hours), Gauss-Markov; see
-    :mod:`companion.nav.disturbance`."""
+    random walk or, with a correlation time ``qa_ned_tau_h`` (hours), Gauss-Markov, their changes
+    correlated by ``qa_ned_corr`` (N-E, N-Z, E-Z); see :mod:`companion.nav.disturbance`."""
 
     sigma0_deg: float = 0.5
     sigma0_nt: float = 500.0
@@ -117,11 +117,12 @@ class BiasSpec:
     qa_mode: int = ELEMENT_WALK
     qa_ned_nt_rth: tuple[float, float, float] = (70.0, 45.0, 35.0)
     qa_ned_tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    qa_ned_corr: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def storm_walk(self) -> StormWalk:
         """How a declared storm walks along the field components (``qa_mode`` 1)."""
-        return StormWalk(self.qa_ned_nt_rth, self.qa_ned_tau_h)
+        return StormWalk(self.qa_ned_nt_rth, self.qa_ned_tau_h, self.qa_ned_corr)
 
     @property
     def has_local(self) -> bool:
@@ -305,7 +306,11 @@ class NavigationFilter:
         if self.ns:   # the storm's Gauss-Markov components: driven while declared, fading after
             decay, driven = self._walk.storm.state_step(dt_s, along_components)
             transition[self._storm_states, self._storm_states] = np.diag(decay)
-            noise[self._storm_states, self._storm_states] = np.diag(driven)
+            noise[self._storm_states, self._storm_states] = driven
+            # driven together with the walking components while declared (StormWalk.corr)
+            cross = self._walk.storm.cross_noise(jacobian, dt_s) if along_components else 0.0
+            noise[self._bias_block, self._storm_states] = cross
+            noise[self._storm_states, self._bias_block] = np.transpose(cross)
         if self.nl:   # first-order Gauss-Markov in the distance travelled
             decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
             transition[self._local_diag] = decay

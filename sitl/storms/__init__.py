@@ -61,7 +61,7 @@ from __future__ import annotations
 #   disturbance  StormDisturbance: the interpolated disturbance field
 #   timemap      StormTimeMap and sharpest_window
 #   plot         plot_disturbance (matplotlib, lazily)
-#   rates        component_rates, component_walks: how the disturbance moves along a route (a navigator's declared walk)
+#   rates        component_rates, component_walks, component_correlations: how the disturbance moves along a route (a navigator's declared walk)
 from sitl.storms.common import (ACKNOWLEDGEMENT, DEFAULT_STATIONS, KP_FILE, LONG_STORM, OMNI_FILE, QUIET_BASELINE, SHORT_STORM,
                                 SUDDEN_COMMENCEMENT_S, StormDataError, StormWindow, default_data_dir, utc_s)
 from sitl.storms.deviation import (StationDeviation, di_shift_deg, eq64_dbh_nt, quiet_baseline,
@@ -71,7 +71,7 @@ from sitl.storms.iaga import IagaRecord, load_stations, read_iaga2002
 from sitl.storms.kp import KpRecord, read_gfz_kp
 from sitl.storms.omni import OmniIndices, read_omni_symh
 from sitl.storms.plot import plot_disturbance
-from sitl.storms.rates import component_rates, component_walks
+from sitl.storms.rates import component_correlations, component_rates, component_walks
 from sitl.storms.timemap import StormTimeMap, sharpest_window
 
 __all__ = [
@@ -98,6 +98,7 @@ __all__ = [
     "plot_disturbance",
     "quiet_baseline",
     "component_rates",
+    "component_correlations",
     "component_walks",
     "read_gfz_kp",
     "read_iaga2002",

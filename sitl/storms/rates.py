@@ -20,29 +20,63 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "component_rates", "component_walks", "structure_function"]
+__all__ = ["CORRELATION_LAG_S", "FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "component_correlations", "component_rates",
+           "component_walks", "structure_function"]
 
 RATE_LAG_S = 3600.0
+CORRELATION_LAG_S = 360.0   # one control step (NAV_PERIOD_S's default): the filter's noise is per step
 FIT_LAGS_H = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)   # lags of the structure function a walk is fitted to
 MEAN_REVERTING = 0.25   # a component is Gauss-Markov when its fitted correlation time is below this share of the mission
+
+
+def _route_samples(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],
+                   duration_s: float, sample_s: float) -> np.ndarray:
+    """(dN, dE, dZ) every ``sample_s`` along the straight route flown in ``duration_s`` mission seconds."""
+    t = np.arange(0.0, duration_s + 0.5 * sample_s, sample_s)
+    frac = t / duration_s
+    lat = start_deg[0] + frac * (dest_deg[0] - start_deg[0])
+    lon = start_deg[1] + frac * (dest_deg[1] - start_deg[1])
+    return np.asarray(storm_ned_nt(lat, lon, t), dtype=float)
+
+
+def _lag_steps(lag_s: float, sample_s: float, count: int, duration_s: float) -> int:
+    k = int(round(lag_s / sample_s))
+    if not 0 < k < count:
+        raise ValueError(f"structure_function: lag {lag_s:g} s does not fit a {duration_s:g} s mission")
+    return k
 
 
 def structure_function(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],
                        duration_s: float, lags_s: np.ndarray, sample_s: float = 60.0) -> np.ndarray:
     """Mean squared change of (dN, dE, dZ) over each lag (rows) along the straight route flown in
     ``duration_s`` mission seconds (nT^2), the disturbance as in :func:`component_rates`."""
-    t = np.arange(0.0, duration_s + 0.5 * sample_s, sample_s)
-    frac = t / duration_s
-    lat = start_deg[0] + frac * (dest_deg[0] - start_deg[0])
-    lon = start_deg[1] + frac * (dest_deg[1] - start_deg[1])
-    ned = np.asarray(storm_ned_nt(lat, lon, t), dtype=float)
+    ned = _route_samples(storm_ned_nt, start_deg, dest_deg, duration_s, sample_s)
     rows = []
     for lag in lags_s:
-        k = int(round(lag / sample_s))
-        if not 0 < k < len(t):
-            raise ValueError(f"structure_function: lag {lag:g} s does not fit a {duration_s:g} s mission")
+        k = _lag_steps(lag, sample_s, len(ned), duration_s)
         rows.append(np.mean((ned[k:] - ned[:-k]) ** 2, axis=0))
     return np.array(rows)
+
+
+def component_correlations(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],
+                           duration_s: float, lag_s: float = CORRELATION_LAG_S,
+                           sample_s: float = 60.0) -> tuple[float, float, float]:
+    """Correlation (N-E, N-Z, E-Z) of the components' changes over ``lag_s`` along the route, the
+    disturbance as in :func:`component_rates`: the ``FUS_BQA_RNE/RNZ/REZ`` a navigator declares.
+    Taken about zero, as the walks are (a change's mean is part of its walk).
+
+    >>> import numpy as np
+    >>> together = lambda lat, lon, t: np.stack([np.sin(t / 900.0), -2.0 * np.sin(t / 900.0), 0 * t + 1.0], axis=-1)
+    >>> [round(v, 3) for v in component_correlations(together, (30.0, 150.0), (30.0, 151.0), 7200.0)]
+    [-1.0, 0.0, 0.0]
+    """
+    ned = _route_samples(storm_ned_nt, start_deg, dest_deg, duration_s, sample_s)
+    k = _lag_steps(lag_s, sample_s, len(ned), duration_s)
+    change = ned[k:] - ned[:-k]
+    second = change.T @ change / len(change)
+    scale = np.sqrt(np.diag(second))
+    r = second / np.outer(np.where(scale > 0.0, scale, 1.0), np.where(scale > 0.0, scale, 1.0))
+    return float(r[0, 1]), float(r[0, 2]), float(r[1, 2])
 
 
 #: Which components may revert: the east, from field-aligned and ionospheric currents that come

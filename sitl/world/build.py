@@ -43,7 +43,7 @@ from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField
 
 __all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
-           "storm_component_walks"]
+           "storm_component_correlations", "storm_component_walks"]
 
 
 class StormUnavailableError(RuntimeError):
@@ -147,23 +147,43 @@ def storm_component_walks(scenario: Scenario, data_dir: str | os.PathLike[str] |
     direction, from the mission's start), whose north may revert (the prediction's error comes
     and goes): the rates to declare as ``FUS_SYMH_N``, ``FUS_SYMH_TN`` and ``FUS_BQA_E/Z``."""
     from sitl import storms
-    truth = build_truth_field(scenario, data_dir)
-    if truth.disturbance is None:
-        raise ValueError(f"scenario {scenario.name!r} has no storm")
     from sitl.storms.rates import MAY_REVERT
-    disturbance, may_revert = truth.storm_ned_nt, MAY_REVERT
-    if symh_ratio > 0.0:
-        reference = truth.symh(0.0)
-
-        def disturbance(lat, lon, elapsed_s):
-            ned = np.array(truth.storm_ned_nt(lat, lon, elapsed_s), dtype=float)
-            main = truth.main_ned_nt(lat, lon, scenario.alt_m)
-            change = symh_ratio * (np.array([truth.symh(t) for t in np.atleast_1d(elapsed_s)]) - reference)
-            along_h = main[..., :2] / np.hypot(main[..., 0], main[..., 1])[..., None]
-            ned[..., :2] -= change[..., None] * along_h
-            return ned
-        may_revert = (True,) + tuple(MAY_REVERT[1:])
+    disturbance = _storm_disturbance(scenario, data_dir, symh_ratio)
+    may_revert = (True,) + tuple(MAY_REVERT[1:]) if symh_ratio > 0.0 else MAY_REVERT
     q, tau = storms.component_walks(disturbance, (scenario.start_lat_deg, scenario.start_lon_deg),
                                     (scenario.dest_lat_deg, scenario.dest_lon_deg),
                                     expected_mission_duration_s(scenario), may_revert)
     return tuple(float(v) for v in q), tuple(float(v) for v in tau)
+
+
+def storm_component_correlations(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
+                                 symh_ratio: float = 0.0) -> tuple[float, float, float]:
+    """The correlation (N-E, N-Z, E-Z) of the scenario's storm components' changes over one control
+    step along its route in mission time (:func:`sitl.storms.component_correlations`): what a
+    navigator set up for this world declares as ``FUS_BQA_RNE/RNZ/REZ``, or with ``symh_ratio`` > 0
+    (see :func:`storm_component_walks`) as ``FUS_SYMH_RNE/RNZ``."""
+    from sitl import storms
+    return storms.component_correlations(_storm_disturbance(scenario, data_dir, symh_ratio),
+                                         (scenario.start_lat_deg, scenario.start_lon_deg),
+                                         (scenario.dest_lat_deg, scenario.dest_lon_deg),
+                                         expected_mission_duration_s(scenario))
+
+
+def _storm_disturbance(scenario: Scenario, data_dir: str | os.PathLike[str] | None, symh_ratio: float):
+    """The scenario's storm disturbance ``(lat, lon, elapsed_s) -> (dN, dE, dZ)`` in nT, less the
+    ring current predicted from SYM-H with ``symh_ratio`` (0: none removed)."""
+    truth = build_truth_field(scenario, data_dir)
+    if truth.disturbance is None:
+        raise ValueError(f"scenario {scenario.name!r} has no storm")
+    if symh_ratio <= 0.0:
+        return truth.storm_ned_nt
+    reference = truth.symh(0.0)
+
+    def disturbance(lat, lon, elapsed_s):
+        ned = np.array(truth.storm_ned_nt(lat, lon, elapsed_s), dtype=float)
+        main = truth.main_ned_nt(lat, lon, scenario.alt_m)
+        change = symh_ratio * (np.array([truth.symh(t) for t in np.atleast_1d(elapsed_s)]) - reference)
+        along_h = main[..., :2] / np.hypot(main[..., 0], main[..., 1])[..., None]
+        ned[..., :2] -= change[..., None] * along_h
+        return ned
+    return disturbance

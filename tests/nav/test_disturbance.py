@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, DisturbanceMonitor,
+from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, DisturbanceMonitor, StormWalk,
                                        component_walk_covariance, field_jacobian, gauss_markov_step,
                                        stationary_variance, storm_declared)
 from companion.nav.elements import ELEMENT_SETS, ElementSet
@@ -165,8 +165,60 @@ def test_gauss_markov_step_keeps_the_stationary_variance():
     np.testing.assert_allclose(driven, q ** 2 / 3600.0, rtol=1e-3)
 
 
-def _walk_filter(model, tau_h: tuple[float, float, float]) -> NavigationFilter:
-    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_ned_nt_rth=(60.0, 30.0, 10.0), qa_ned_tau_h=tau_h)
+def test_correlated_components_walk_as_j_c_jt_by_hand():
+    """The same field and walk as above plus dE at 30 nT per sqrt(hour), the changes correlated
+    N-E -0.5, N-Z 0.7, E-Z -0.8: the bias walk is J diag(q) R diag(q) J^T dt / 1 h, written out;
+    uncorrelated it is the independent walk to the last bit."""
+    jac = field_jacobian(("incl_deg", "f_nt"), 30000.0, 0.0, 40000.0)
+    q = np.array([60.0, 30.0, 20.0])
+    r = np.array([[1.0, -0.5, 0.7], [-0.5, 1.0, -0.8], [0.7, -0.8, 1.0]])
+    walk = StormWalk(tuple(q), corr=(-0.5, 0.7, -0.8))
+    by_hand = jac @ (np.outer(q, q) * r) @ jac.T * 0.5
+    np.testing.assert_allclose(walk.bias_noise(jac, 1800.0), by_hand, rtol=1e-12)
+    independent = StormWalk(tuple(q))
+    assert np.array_equal(independent.bias_noise(jac, 1800.0), component_walk_covariance(jac, q, 1800.0))
+    assert not np.allclose(walk.bias_noise(jac, 1800.0), independent.bias_noise(jac, 1800.0), rtol=0.05)
+
+
+@pytest.mark.parametrize("corr", [(0.9, 0.9, -0.9), (1.0, -1.0, 1.0), (-1.0, -1.0, -1.0)])
+def test_a_correlation_no_matrix_has_is_taken_at_the_nearest_that_is(corr):
+    """Three correlations that no correlation matrix has (the parameters are set one at a time, so
+    a ground station can pass through such a set) give a positive semi-definite matrix with a unit
+    diagonal, so the filter's process noise stays a covariance; a valid set is kept exactly."""
+    r = StormWalk((60.0, 30.0, 20.0), corr=corr).correlation
+    assert np.linalg.eigvalsh(r).min() >= -1e-12
+    np.testing.assert_allclose(np.diag(r), 1.0, rtol=1e-12)
+    assert np.all(np.abs(r) <= 1.0 + 1e-12)
+    valid = (-0.53, 0.70, -0.79)
+    kept = StormWalk((60.0, 30.0, 20.0), corr=valid).correlation
+    assert (kept[0, 1], kept[0, 2], kept[1, 2]) == valid
+
+
+def test_correlated_gauss_markov_and_walking_components_are_driven_together(model):
+    """With the changes correlated, a Gauss-Markov east (a state) and the walking north and down
+    (on the bias states) are driven together: over a step far shorter than the correlation time
+    the elements' bias covariance grows as with all three walking, correlated the same way; the
+    cross terms between the storm state and the bias states carry it (without them it does not)."""
+    corr = (-0.5, 0.7, -0.8)
+    walk, markov = _walk_filter(model, (0.0, 0.0, 0.0), corr), _walk_filter(model, (0.0, 1e6, 0.0), corr)
+    grown = []
+    for flt in (walk, markov):
+        flt.monitor.declare(True)
+        before = flt.beyond_position_covariance()
+        flt.predict(360.0, np.zeros(2), START[0], START)
+        grown.append(flt.beyond_position_covariance() - before)
+    np.testing.assert_allclose(grown[1], grown[0], rtol=1e-6)
+    uncorrelated = _walk_filter(model, (0.0, 0.0, 0.0))
+    uncorrelated.monitor.declare(True)
+    before = uncorrelated.beyond_position_covariance()
+    uncorrelated.predict(360.0, np.zeros(2), START[0], START)
+    assert not np.allclose(uncorrelated.beyond_position_covariance() - before, grown[0], rtol=0.05)
+
+
+def _walk_filter(model, tau_h: tuple[float, float, float],
+                 corr: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> NavigationFilter:
+    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_ned_nt_rth=(60.0, 30.0, 10.0), qa_ned_tau_h=tau_h,
+                    qa_ned_corr=corr)
     settings_ = FilterSettings(bias=spec)
     process = DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0)
     return NavigationFilter(process, ELEMENT_SETS[ElementSet.WEIGHTED], settings_, model, ALT, YEAR)

@@ -12,7 +12,7 @@ from companion.params import NavConfig, validate_all
 from sitl.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.storms import component_rates, component_walks
-from sitl.world.build import build_truth_field, storm_component_walks
+from sitl.world.build import build_truth_field, storm_component_correlations, storm_component_walks
 
 
 @pytest.mark.parametrize("name", ["long_storm", "short_storm"])
@@ -38,6 +38,22 @@ def test_declared_north_residual_after_the_ring_current_is_the_worlds_own(shared
     q, tau = storm_component_walks(scenario, shared_data, symh_ratio=1.0)
     assert declared["FUS_SYMH_N"] == pytest.approx(q[0], abs=0.051)
     assert declared["FUS_SYMH_TN"] == pytest.approx(tau[0], abs=0.0051) and tau[0] > 0.0
+
+
+@pytest.mark.parametrize("name", ["long_storm", "short_storm"])
+def test_declared_correlations_of_the_components_are_the_worlds_own(shared_data, name):
+    """FUS_BQA_RNE/RNZ/REZ are how the world's storm components change together over one control step
+    along the route (storm_component_correlations), and FUS_SYMH_RNE/RNZ the same once the ring
+    current predicted from SYM-H is removed, to the 0.01 they are written with. Removing the ring
+    current leaves E-Z within 0.02 of where it was (it moves the horizontal field along itself:
+    north, and east only by the declination's few degrees), so E-Z has one parameter."""
+    scenario = load_scenario(name)
+    declared = dict(scenario.navigator)
+    plain = storm_component_correlations(scenario, shared_data)
+    removed = storm_component_correlations(scenario, shared_data, symh_ratio=1.0)
+    assert [declared[f"FUS_BQA_R{pair}"] for pair in ("NE", "NZ", "EZ")] == pytest.approx(plain, abs=0.0051)
+    assert [declared["FUS_SYMH_RNE"], declared["FUS_SYMH_RNZ"]] == pytest.approx(removed[:2], abs=0.0051)
+    assert removed[2] == pytest.approx(plain[2], abs=0.02)
 
 
 def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_storm(shared_data):

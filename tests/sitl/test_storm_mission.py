@@ -53,20 +53,23 @@ def test_quiet_mission_with_the_filter_lands(short_storm):
 
 
 # Seeds 0-11 with the storm declared by the world's Kp, walking along the field components as the
-# world's storm moves (the east Gauss-Markov; 2026-12-03): short storm median 6.5 km, worst 13.0,
-# mean NEES 1.35, 12 of 12 inside their own 95 % ellipse; long storm median 15.0 km, worst 24.5,
-# NEES 2.2, 11 of 12. Before (per element, found by the innovations): short storm 18.1 km, worst
-# 66.9, NEES 14.0, 5 of 12; long storm 11.8 km, NEES 23.0 (overconfident by an order of magnitude).
-STORM_LIMITS = {"short_storm": (9e3, 3.0), "long_storm": (18e3, 3.0)}
+# world's storm moves, the ring current predicted from SYM-H removed, and (since 2026-12-04) the
+# components' changes correlated as the world's are: short storm median 4.73 km, worst 8.4, mean
+# NEES 0.97, 12 of 12 inside their own 95 % ellipse; long storm median 3.27 km, worst 6.2, NEES
+# 1.94, 12 of 12. With the components walking independently: short storm 5.74 km, worst 12.8,
+# NEES 0.95; long storm 7.82 km, worst 15.4, NEES 1.09 (a covariance twice its errors). Before the
+# walk along the components (per element, found by the innovations): short storm 18.1 km, NEES
+# 14.0; long storm 11.8 km, NEES 23.0. Limits: (median miss, mean NEES from, to).
+STORM_LIMITS = {"short_storm": (5.5e3, 0.0, 3.0), "long_storm": (5e3, 1.5, 3.0)}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(STORM_LIMITS))
 def test_storm_missions_are_accurate_and_honest(shared_data, name):
     """Twelve seeds: the median miss stays under its limit and the filter's own uncertainty
-    describes its error (mean NEES at most 3 for the 2 of a consistent filter; at least 10 of 12
-    misses inside the own 95 % ellipse). Fails if the storm handling gets worse, or overconfident
-    again."""
+    describes its error (mean NEES at most 3 for the 2 of a consistent filter, and on the long
+    storm at least 1.5; at least 10 of 12 misses inside the own 95 % ellipse). Fails if the storm
+    handling gets worse, overconfident again, or (long storm) twice as unsure as it is wrong."""
     scenario = load_scenario(name)
     truth = build_truth_field(scenario, shared_data)
     nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
@@ -75,8 +78,8 @@ def test_storm_missions_are_accurate_and_honest(shared_data, name):
     nees = [nees_per_step(r) for r in runs]
     mean_nees = float(np.mean([np.nanmean(n) for n in nees]))
     inside = sum(bool(n[-1] <= CHI2_95_2DOF) for n in nees)
-    median_limit, nees_limit = STORM_LIMITS[name]
+    median_limit, nees_low, nees_high = STORM_LIMITS[name]
     summary = (f"misses {[round(m / 1e3, 1) for m in misses]} km, mean NEES {mean_nees:.2f}, "
                f"{inside} of 12 inside the own 95 % ellipse")
     assert float(np.median(misses)) <= median_limit, summary
-    assert mean_nees <= nees_limit and inside >= 10, summary
+    assert nees_low <= mean_nees <= nees_high and inside >= 10, summary
