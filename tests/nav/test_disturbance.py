@@ -200,19 +200,19 @@ def test_correlated_gauss_markov_and_walking_components_are_driven_together(mode
     the elements' bias covariance grows as with all three walking, correlated the same way; the
     cross terms between the storm state and the bias states carry it (without them it does not)."""
     corr = (-0.5, 0.7, -0.8)
-    walk, markov = _walk_filter(model, (0.0, 0.0, 0.0), corr), _walk_filter(model, (0.0, 1e6, 0.0), corr)
-    grown = []
-    for flt in (walk, markov):
-        flt.monitor.declare(True)
-        before = flt.beyond_position_covariance()
-        flt.predict(360.0, np.zeros(2), START[0], START)
-        grown.append(flt.beyond_position_covariance() - before)
-    np.testing.assert_allclose(grown[1], grown[0], rtol=1e-6)
-    uncorrelated = _walk_filter(model, (0.0, 0.0, 0.0))
-    uncorrelated.monitor.declare(True)
-    before = uncorrelated.beyond_position_covariance()
-    uncorrelated.predict(360.0, np.zeros(2), START[0], START)
-    assert not np.allclose(uncorrelated.beyond_position_covariance() - before, grown[0], rtol=0.05)
+    walking = _declared_step_growth(_walk_filter(model, (0.0, 0.0, 0.0), corr))
+    np.testing.assert_allclose(_declared_step_growth(_walk_filter(model, (0.0, 1e6, 0.0), corr)), walking, rtol=1e-6)
+    uncorrelated = _declared_step_growth(_walk_filter(model, (0.0, 0.0, 0.0)))
+    assert not np.allclose(uncorrelated, walking, rtol=0.05)
+
+
+def _declared_step_growth(flt: NavigationFilter) -> np.ndarray:
+    """How much the elements' covariance beyond the position grows over one 360 s step, standing
+    still under a declared storm."""
+    flt.monitor.declare(True)
+    before = flt.beyond_position_covariance()
+    flt.predict(360.0, np.zeros(2), START[0], START)
+    return flt.beyond_position_covariance() - before
 
 
 def _walk_filter(model, tau_h: tuple[float, float, float],
@@ -230,13 +230,7 @@ def test_a_gauss_markov_component_is_a_state_that_walks_like_the_random_walk_ove
     east a random walk on the bias states."""
     walk, markov = _walk_filter(model, (0.0, 0.0, 0.0)), _walk_filter(model, (0.0, 1e6, 0.0))
     assert markov.ns == 1 and walk.ns == 0 and markov.kf.x.shape[0] == walk.kf.x.shape[0] + 1
-    grown = []
-    for flt in (walk, markov):
-        flt.monitor.declare(True)
-        before = flt.beyond_position_covariance()
-        flt.predict(360.0, np.zeros(2), START[0], START)
-        grown.append(flt.beyond_position_covariance() - before)
-    np.testing.assert_allclose(grown[1], grown[0], rtol=1e-6)
+    np.testing.assert_allclose(_declared_step_growth(markov), _declared_step_growth(walk), rtol=1e-6)
 
 
 def test_a_declared_storm_starts_its_gauss_markov_states_stationary_and_they_fade_after(model):
