@@ -33,11 +33,13 @@ A storm a space-weather index declares is known to be a storm, and walks as decl
 (``FUS_BQA_MODE``):
 
 * along the field components (1, the default): the disturbance is a vector ``dB = (dN, dE, dZ)``
-  (geographic north, east, down, nT) whose components walk independently at
-  ``q = (FUS_BQA_N, FUS_BQA_E, FUS_BQA_Z)`` nT per sqrt(hour); it enters the elements through
+  (geographic north, east, down, nT) whose components walk at ``q = (FUS_BQA_N, FUS_BQA_E,
+  FUS_BQA_Z)`` nT per sqrt(hour), their changes correlated by ``R`` (``FUS_BQA_RNE``, ``_RNZ``,
+  ``_REZ``; 0, the default, independent: :class:`StormWalk`); it enters the elements through
   their Jacobian ``J = d(element) / d(N, E, Z)`` at the model's field where the vehicle is
-  believed to be (:func:`field_jacobian`), so the bias states walk with ``Q = J diag(q^2) J^T dt``
-  on top of the quiet walk: correlated between the elements as one field vector makes them.
+  believed to be (:func:`field_jacobian`), so the bias states walk with
+  ``Q = J diag(q) R diag(q) J^T dt`` on top of the quiet walk: correlated between the elements as
+  one field vector makes them.
   Why: at low and middle latitudes a storm is mostly the ring current's change of the horizontal
   intensity (the Dst index is that change), which moves I and F together and D hardly at all,
   while D, the east's measure on the Pacific route, moves only with the smaller dE. Per element,
