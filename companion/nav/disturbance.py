@@ -66,6 +66,7 @@ compresses a storm window onto the mission slows it down, and its navigator decl
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -225,9 +226,10 @@ class StormWalk:
     tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
     corr: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
-    @property
+    @functools.cached_property
     def correlation(self) -> np.ndarray:
-        """The 3 x 3 correlation matrix of the components' changes (positive semi-definite)."""
+        """The 3 x 3 correlation matrix of the components' changes (positive semi-definite;
+        computed once: the filter asks for it at every step of a declared storm)."""
         ne, nz, ez = self.corr
         r = np.array([[1.0, ne, nz], [ne, 1.0, ez], [nz, ez, 1.0]])
         values, vectors = np.linalg.eigh(r)
@@ -286,8 +288,9 @@ class StormWalk:
         over ``dt_s``: driven while the storm is declared, fading without noise after."""
         decay = gauss_markov_step(*self._gauss_markov(), dt_s)[0]
         states = self.states
-        driven = self.increment_covariance(dt_s)[np.ix_(states, states)]
-        return decay, driven if declared else np.zeros_like(driven)
+        if not declared:
+            return decay, np.zeros((len(states), len(states)))
+        return decay, self.increment_covariance(dt_s)[np.ix_(states, states)]
 
     def initial_variance(self) -> np.ndarray:
         """The Gauss-Markov states' stationary variance, where a declared storm starts them (nT^2)."""

@@ -42,7 +42,7 @@ def _route_samples(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_
 def _lag_steps(lag_s: float, sample_s: float, count: int, duration_s: float) -> int:
     k = int(round(lag_s / sample_s))
     if not 0 < k < count:
-        raise ValueError(f"structure_function: lag {lag_s:g} s does not fit a {duration_s:g} s mission")
+        raise ValueError(f"lag {lag_s:g} s does not fit a {duration_s:g} s mission")
     return k
 
 
@@ -75,7 +75,8 @@ def component_correlations(storm_ned_nt: Callable, start_deg: tuple[float, float
     change = ned[k:] - ned[:-k]
     second = change.T @ change / len(change)
     scale = np.sqrt(np.diag(second))
-    r = second / np.outer(np.where(scale > 0.0, scale, 1.0), np.where(scale > 0.0, scale, 1.0))
+    scale = np.where(scale > 0.0, scale, 1.0)   # a component that never changes correlates with nothing
+    r = second / np.outer(scale, scale)
     return float(r[0, 1]), float(r[0, 2]), float(r[1, 2])
 
 
