@@ -172,6 +172,7 @@ class NavConfig(_FromRegistry):
     speed_mps: float = _from("NAV_SPEED_KMH", _KMH_TO_MPS)
     period_s: float = _from("NAV_PERIOD_S")
     arrive_m: float = _from("NAV_ARRIVE_M")
+    arrive_legs: int = _from("NAV_ARRIVE_LEGS")
     lookahead_m: float = _from("NAV_LOOKAHEAD_M")
     max_steps: int = _from("NAV_MAX_STEPS")
     probe1_deg: float = _from("NAV_PROBE1_DEG")

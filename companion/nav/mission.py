@@ -10,7 +10,8 @@ Sequence (Algorithm 1): k = 0 and 1 fly the probing headings theta_1, theta_2 (T
 k = 2 the gradient G(2) comes from the two probes (eq. 5-9); from then on G is updated
 (eq. 10 or its sound replacement, :mod:`companion.nav.gradient`), the MPC gives u*(k)
 (eq. 36) whose direction is the heading (eq. 3-4), and the mission ends when the estimated
-distance to the destination is below epsilon.
+distance to the destination is below epsilon, or (``NAV_ARRIVE_LEGS``) after that many legs in
+a row each planned to reach the estimated destination (:mod:`companion.nav.arrival`).
 
 Controllers (``NAV_CONTROLLER``):
 
@@ -41,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion import course_from_theta
+from companion.nav.arrival import arrival_reason, is_final_leg
 from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_date
@@ -176,6 +178,7 @@ class Mission:
         self.rejected_fixes = 0
         self._shift: tuple[np.ndarray, float] | None = None
         self._had_ins = False
+        self._final_legs = 0   # legs in a row planned to reach the destination (the arrival rule)
 
     def set_bias(self, bias: tuple[float, ...] | None) -> None:
         """The start-up calibration to subtract from every measurement (None: none), before the
@@ -326,8 +329,9 @@ class Mission:
                 remaining = math.inf
             xi = np.zeros(2)
             target = self.s_dest
-        if remaining < c.arrive_m:
-            return self._finish(meas.time_s, Phase.ARRIVED, "estimated distance below epsilon", remaining, fix, fused, sigma)
+        arrived = arrival_reason(remaining, c.arrive_m, self._final_legs, c.arrive_legs)
+        if arrived is not None:
+            return self._finish(meas.time_s, Phase.ARRIVED, arrived, remaining, fix, fused, sigma)
         if self.k >= c.max_steps:
             return self._finish(meas.time_s, Phase.FAILED, "step limit reached", remaining, fix, fused, sigma)
 
@@ -348,6 +352,7 @@ class Mission:
         direction = u if float(np.hypot(*u)) >= 1e-6 * c.speed_mps else to_dest
         theta = math.atan2(direction[1], direction[0])        # eq. 4, quadrant resolved by atan2
         speed = c.speed_mps if c.speed_mode == 1 else min(c.speed_mps, remaining / c.period_s)
+        self._final_legs = self._final_legs + 1 if is_final_leg(remaining, c.speed_mps, c.period_s) else 0
         u_a = compensation(b, xi * s_unit) * u_unit if np.any(xi) else np.zeros(2)
         command = self._command(meas.time_s, Phase.CRUISE, theta, speed, remaining, fix, fused, sigma,
                                 u_first=(float(u[0]), float(u[1])), u_a=(float(u_a[0]), float(u_a[1])),

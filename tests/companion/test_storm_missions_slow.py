@@ -71,12 +71,13 @@ def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
         f"(limit {limit / 1e3:.1f} km) ({result.out_dir})")
     # the steps: within the in-process runs' range, with a margin for the last few. Near the end an
     # estimate 4-5 km uncertain under the storm moves by 0.5-1 km a step against the 0.5 km
-    # epsilon, so a run may circle the destination a few steps before it is within epsilon: the
-    # closed loop of 2026-12-04 (the components' changes correlated) arrived 2.1 km off in 43
-    # steps, ten of them within 1.7 km (in-process seeds 0-7: 32-37 steps). A stalled or wandering
-    # mission (55 steps over this route once) is still caught.
+    # epsilon: with epsilon alone the closed loop of 2026-12-04 circled the destination for ten
+    # steps (43 against in-process 32-37) and ended 2.1 km off; NAV_ARRIVE_LEGS (3) ends it after
+    # three legs flown to the estimated destination (34 steps, 5.1 km off, 1.2 km believed: one
+    # draw; in-process, 50 seeds, the short storm's median is the same either way). A stalled or
+    # wandering mission (55 steps over this route once) is caught.
     steps = sorted(run.iterations for run in spread)
-    assert 0.85 * steps[0] <= result.iterations <= 1.3 * steps[-1], (result.iterations, steps)
+    assert 0.85 * steps[0] <= result.iterations <= 1.15 * steps[-1], (result.iterations, steps)
     assert result.came_to_rest and abs(result.rest_remaining_m - result.step_remaining_m) <= 1000.0
 
 
