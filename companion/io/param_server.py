@@ -281,7 +281,9 @@ class ParamServer:
             return False   # a broken file stays as it is, for the operator to inspect
         self.writes += 1
         try:
-            write_parm_file(self.path, self.values, header="fcmpc companion parameters (written by the parameter server)")
+            # the settings only: a reading (Kp, SYM-H) from the file never counts, so it is not written
+            settings = {name: value for name, value in self.values.items() if name not in READINGS}
+            write_parm_file(self.path, settings, header="fcmpc companion parameters (written by the parameter server)")
         except OSError as err:
             self.persist_error = str(err)
             self.link.send_statustext(f"FcMPC: cannot save params: {err}"[:100], mavlink.MAV_SEVERITY_ERROR)

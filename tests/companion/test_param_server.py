@@ -80,7 +80,8 @@ def served(tmp_path):
 def test_a_live_reading_is_as_old_as_its_last_set_and_one_from_the_file_is_none(tmp_path):
     """NAV_SYMH from the .parm file has no age (inf: not a live reading); each set over the link,
     a repeated value too, makes it as old as the message time since. A reading is never written to
-    the file (it would never count from there); a setting is, at once."""
+    the file (it would never count from there), neither alone nor beside a setting; a setting is,
+    at once."""
     parm = tmp_path / "companion.parm"
     write_parm_file(parm, {**default_values(), "NAV_SYMH": -300.0})
     now = [100.0]
@@ -99,6 +100,8 @@ def test_a_live_reading_is_as_old_as_its_last_set_and_one_from_the_file_is_none(
         served.client.mav.param_set_send(1, 191, b"NAV_SPEED_KMH", 40.0, mavlink.MAV_PARAM_TYPE_REAL32)
         assert served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_SPEED_KMH") is not None
         assert served.server.writes == writes + 1 and read_parm_file(parm)["NAV_SPEED_KMH"] == 40.0
+        # ... with the settings alone: the readings (the file's old NAV_SYMH too) are not written beside it
+        assert not {"NAV_SYMH", "NAV_KP"} & set(read_parm_file(parm))
     finally:
         served.close()
 
