@@ -239,10 +239,16 @@ class StormWalk:
         scale = np.sqrt(np.diag(r))
         return r / np.outer(scale, scale)
 
-    def increment_covariance(self, dt_s: float) -> np.ndarray:
+    @functools.lru_cache(maxsize=4)   # noqa: B019 - a frozen value: the bias noise, the cross terms
+    def increment_covariance(self, dt_s: float) -> np.ndarray:   # and the states' noise ask each step
         """Covariance (nT^2) of the components' changes over ``dt_s``: a random walk's ``q^2 dt``,
         a Gauss-Markov component's driving noise (:func:`gauss_markov_step`), correlated by
-        :attr:`correlation`."""
+        :attr:`correlation`. Read-only: computed once per step length."""
+        covariance = self._increment_covariance(dt_s)
+        covariance.setflags(write=False)
+        return covariance
+
+    def _increment_covariance(self, dt_s: float) -> np.ndarray:
         q, tau = np.asarray(self.q_rth, dtype=float), np.asarray(self.tau_h, dtype=float) * HOUR_S
         variance = q ** 2 * dt_s / HOUR_S
         markov = tau > 0.0
