@@ -100,10 +100,18 @@ def _approach(value: float, target: float, max_change: float) -> float:
     return target if abs(target - value) <= max_change else value + math.copysign(max_change, target - value)
 
 
+MAX_PIECE_TURN_RAD = math.radians(15.0)   # longest arc moved in one piece (chord error < 0.1 %)
+
+
 def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_speed_mps: float,
                  limits: VehicleLimits, motion: MotionErrors = NO_MOTION_ERRORS) -> VehicleState:
-    """State after ``dt_s`` seconds of tracking the command (midpoint integration), with the
-    run's ``motion`` errors (none by default).
+    """State after ``dt_s`` seconds of tracking the command, with the run's ``motion`` errors
+    (none by default).
+
+    Speed and course change at their limits until they reach the command, then hold: the step is
+    split where either reaches it, and each piece moves its mean speed's distance along an arc
+    (the chord along its mid course; a long turn in arcs of at most 15 deg). Unsplit, a 30 s step from 6.6 m/s to a stop moved 106 m where the
+    vehicle, stopped after 13 s, moves 44 m.
 
     Commands outside the limits are clipped; a NaN command holds the current course and
     stops the vehicle, so a bad setpoint can never move it.
@@ -113,17 +121,37 @@ def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_sp
     else:
         cmd_course_rad, cmd_speed_mps = cmd_course_rad + motion.course_bias_rad, cmd_speed_mps * motion.speed_scale
     target_speed = min(max(cmd_speed_mps, 0.0), limits.max_speed_mps)
-    speed = _approach(state.speed_mps, target_speed, limits.accel_mps2 * dt_s)
-    turn = _approach(0.0, wrap_pi(cmd_course_rad - state.course_rad), limits.turn_rate_radps * dt_s)
-    course = wrap_2pi(state.course_rad + turn)
-    mid_course = state.course_rad + 0.5 * turn
-    step_m = 0.5 * (state.speed_mps + speed) * dt_s
+    wanted_turn = wrap_pi(cmd_course_rad - state.course_rad)
+    reached = [abs(target_speed - state.speed_mps) / limits.accel_mps2 if limits.accel_mps2 > 0.0 else math.inf,
+               abs(wanted_turn) / limits.turn_rate_radps if limits.turn_rate_radps > 0.0 else math.inf]
+    ends = sorted({t for t in reached if 0.0 < t < dt_s}) + [dt_s]
+    lat, lon, distance = state.lat_deg, state.lon_deg, state.distance_m
+    start_t, speed, course = 0.0, state.speed_mps, state.course_rad
+    turned = 0.0
+    for end_t in ends:
+        new_speed = _approach(state.speed_mps, target_speed, limits.accel_mps2 * end_t)
+        turn = _approach(0.0, wanted_turn, limits.turn_rate_radps * end_t) - turned
+        pieces = max(1, math.ceil(abs(turn) / MAX_PIECE_TURN_RAD))   # a long turn: short arcs
+        for k in range(pieces):
+            a, b = speed + (new_speed - speed) * k / pieces, speed + (new_speed - speed) * (k + 1) / pieces
+            lat, lon, step_m = _move(lat, lon, (end_t - start_t) / pieces, a, b, course + turn * k / pieces,
+                                     turn / pieces, motion)
+            distance += step_m
+        start_t, speed, course, turned = end_t, new_speed, wrap_2pi(state.course_rad + turned + turn), turned + turn
+    return VehicleState(lat, (lon + 180.0) % 360.0 - 180.0, course, speed, distance, *motion.current_en_mps)
+
+
+def _move(lat_deg: float, lon_deg: float, dt_s: float, speed_mps: float, new_speed_mps: float, course_rad: float,
+          turn_rad: float, motion: MotionErrors) -> tuple[float, float, float]:
+    """Position (deg) and path length (m, through the water) after ``dt_s`` of a speed and course
+    changing linearly (midpoint rule), with the current's drift."""
+    mid_course = course_rad + 0.5 * turn_rad
+    step_m = 0.5 * (speed_mps + new_speed_mps) * dt_s
+    half = 0.5 * turn_rad     # an arc's chord: its length times sinc(turn / 2), along the mid course
+    chord_m = step_m * (math.sin(half) / half) if half != 0.0 else step_m
     drift_n = motion.current_en_mps[1] * dt_s     # (written so that no errors is bit-identical to before)
-    north_m = step_m * math.cos(mid_course) + drift_n
-    east_m = step_m * math.sin(mid_course) + motion.current_en_mps[0] * dt_s
-    east_per_deg, north_per_deg = metres_per_degree(state.lat_deg + 0.5 * step_m * math.cos(mid_course) / 111e3
+    north_m = chord_m * math.cos(mid_course) + drift_n
+    east_m = chord_m * math.sin(mid_course) + motion.current_en_mps[0] * dt_s
+    east_per_deg, north_per_deg = metres_per_degree(lat_deg + 0.5 * chord_m * math.cos(mid_course) / 111e3
                                                     + 0.5 * drift_n / 111e3)
-    lat = state.lat_deg + north_m / float(north_per_deg)
-    lon = state.lon_deg + east_m / float(east_per_deg)
-    return VehicleState(lat, (lon + 180.0) % 360.0 - 180.0, course, speed, state.distance_m + step_m,
-                        *motion.current_en_mps)
+    return lat_deg + north_m / float(north_per_deg), lon_deg + east_m / float(east_per_deg), step_m

@@ -149,14 +149,40 @@ def test_random_commands_never_exceed_the_limits():
     state = VehicleState(33.0, 152.0)
     for _ in range(500):
         dt = rng.uniform(0.1, 30.0)
-        new = step_vehicle(state, dt, rng.uniform(-10.0, 10.0), rng.uniform(-5.0, 40.0), LIMITS)
+        command_speed = rng.uniform(-5.0, 40.0)
+        new = step_vehicle(state, dt, rng.uniform(-10.0, 10.0), command_speed, LIMITS)
         assert 0.0 <= new.speed_mps <= LIMITS.max_speed_mps + 1e-12
         assert abs(new.speed_mps - state.speed_mps) <= LIMITS.accel_mps2 * dt + 1e-9
         assert abs(wrap_pi(new.course_rad - state.course_rad)) <= LIMITS.turn_rate_radps * dt + 1e-9
         assert 0.0 <= new.course_rad < 2.0 * math.pi
-        step = WGS84.Inverse(state.lat_deg, state.lon_deg, new.lat_deg, new.lon_deg)["s12"]
-        assert step == pytest.approx(new.distance_m - state.distance_m, rel=1e-3, abs=0.01)
+        # the path is the speed profile's integral (ramp at the limit, then hold), the chord no longer
+        target = min(max(command_speed, 0.0), LIMITS.max_speed_mps)
+        ramp = min(abs(target - state.speed_mps) / LIMITS.accel_mps2, dt)
+        path = 0.5 * (state.speed_mps + new.speed_mps) * ramp + new.speed_mps * (dt - ramp)
+        assert new.distance_m - state.distance_m == pytest.approx(path, rel=1e-9, abs=1e-9)
+        chord = WGS84.Inverse(state.lat_deg, state.lon_deg, new.lat_deg, new.lon_deg)["s12"]
+        assert chord <= path * (1.0 + 1e-3) + 0.01
         state = new
+
+
+@pytest.mark.parametrize("speed, new_speed, turn_deg", [(6.6, 0.0, 0.0), (13.9, 0.5, 150.0), (0.0, 13.9, -90.0),
+                                                          (13.9, 13.9, 3.0), (13.9, 13.9, 0.0)])
+def test_one_long_step_goes_where_many_short_ones_do(speed, new_speed, turn_deg):
+    """The in-process world steps 30 s at a time: a stop, a slow-down with a turn, a start, a
+    cruise course change in one step end within 0.5 m of the same 30 s in 3000 steps of 10 ms
+    (before the step was split where speed and course reach the command, a stop from 6.6 m/s went
+    106 m in one step against the 44 m it goes: v^2 / 2a)."""
+    start = VehicleState(33.0, 152.0, math.radians(132.0), speed)
+    course = math.radians(132.0 + turn_deg)
+    coarse = step_vehicle(start, 30.0, course, new_speed, LIMITS)
+    fine = start
+    for _ in range(3000):
+        fine = step_vehicle(fine, 0.01, course, new_speed, LIMITS)
+    assert WGS84.Inverse(coarse.lat_deg, coarse.lon_deg, fine.lat_deg, fine.lon_deg)["s12"] < 0.5
+    assert coarse.distance_m == pytest.approx(fine.distance_m, abs=1e-6)
+    assert coarse.speed_mps == fine.speed_mps and coarse.course_rad == pytest.approx(fine.course_rad, abs=1e-12)
+    if speed == 6.6:
+        assert coarse.distance_m == pytest.approx(speed ** 2 / (2.0 * LIMITS.accel_mps2))
 
 
 @pytest.mark.parametrize("course_deg", [0.0, 45.0, 133.0, 270.0, 301.0])
