@@ -10,10 +10,10 @@ Three distances to the destination, kept apart because they answer different que
     where the vehicle came to rest after the mission ended: the headline, what a user standing
     at the destination would measure. Taken from the truth track after the last control step,
     once the vehicle moved less than :data:`REST_TOL_M` over :data:`REST_WINDOW_S`; if the
-    track ends while it still moves, the last point and ``came_to_rest = False``.
+    track ends while it still moves, the last point and ``came_to_rest = False``. The in-process
+    Monte Carlo reports where its vehicle comes to rest too (``InProcessFlight.at_rest``).
 ``step_remaining_m``
-    the true distance at the last control step (the step that ended the mission): what the
-    in-process Monte Carlo reports, since there the vehicle stops dead at its last step.
+    the true distance at the last control step (the step that ended the mission).
 ``believed_remaining_m``
     what the companion believed at its last step (its estimate's distance to the destination,
     the number it compared with the arrival threshold).
@@ -172,7 +172,7 @@ def summary_lines(result: FlyResult) -> list[str]:
              f"  at the last control step: {_km(result.step_remaining_m)} from the destination (true position)",
              f"  the companion believed:   {_km(result.believed_remaining_m)} to go"]
     if math.isfinite(result.mc_remaining_m):
-        lines.append(f"  in-process Monte Carlo, same seed: {_km(result.mc_remaining_m)} at its last step, "
+        lines.append(f"  in-process Monte Carlo, same seed: {_km(result.mc_remaining_m)} at rest, "
                      f"{result.mc_iterations} steps")
     if result.plot_path:
         lines.append(f"  track plot: {result.plot_path}")

@@ -186,14 +186,15 @@ def run_specs(batch: list[tuple[int, RunSpec]]) -> list[tuple[int, RunOutput]]:
 def _output(spec: RunSpec, nav: NavConfig, result: RunResult, truth: TruthField, wall: float) -> RunOutput:
     """One run's row of metrics and its track."""
     start, dest = (nav.start_lat_deg, nav.start_lon_deg), (nav.dest_lat_deg, nav.dest_lon_deg)
-    m = track_metrics(result.true_lat_deg, result.true_lon_deg, start, dest, result.iterations)
+    lat, lon = result.track_to_rest()   # the miss where the vehicle stops, not where the last step found it
+    m = track_metrics(lat, lon, start, dest, result.iterations)
     nees = nees_per_step(result)
     end = result.est_cov_en_m2[-1] if len(result.est_cov_en_m2) else (math.nan,) * 3
     row = RunRow(result.controller, spec.seed, spec.storm, result.phase, result.reason, m.iterations,
                  m.remaining_m / 1e3, m.length_m / 1e3, m.step_variance_m2 / 1e6, m.mean_deviation_m / 1e3,
                  m.max_deviation_m / 1e3, m.path_matching_rate_pct, m.final_lat_deg, m.final_lon_deg,
-                 _snr_db(truth, result.true_lat_deg, result.true_lon_deg, nav.period_s, nav.alt_m), wall,
+                 _snr_db(truth, lat, lon, nav.period_s, nav.alt_m), wall,
                  result.process_model, float(np.nanmean(nees)) if np.any(np.isfinite(nees)) else math.nan,
                  float(nees[-1] <= CHI2_95_2DOF) if len(nees) and math.isfinite(nees[-1]) else math.nan,
                  math.sqrt(0.5 * (end[0] + end[2])) / 1e3)
-    return RunOutput(row, result.true_lat_deg, result.true_lon_deg)
+    return RunOutput(row, lat, lon)
