@@ -173,6 +173,7 @@ class NavConfig(_FromRegistry):
     period_s: float = _from("NAV_PERIOD_S")
     arrive_m: float = _from("NAV_ARRIVE_M")
     arrive_legs: int = _from("NAV_ARRIVE_LEGS")
+    final_leg: int = _from("NAV_FINAL_LEG")
     lookahead_m: float = _from("NAV_LOOKAHEAD_M")
     max_steps: int = _from("NAV_MAX_STEPS")
     probe1_deg: float = _from("NAV_PROBE1_DEG")

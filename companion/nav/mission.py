@@ -11,7 +11,8 @@ k = 2 the gradient G(2) comes from the two probes (eq. 5-9); from then on G is u
 (eq. 10 or its sound replacement, :mod:`companion.nav.gradient`), the MPC gives u*(k)
 (eq. 36) whose direction is the heading (eq. 3-4), and the mission ends when the estimated
 distance to the destination is below epsilon, or (``NAV_ARRIVE_LEGS``) after that many legs in
-a row each planned to reach the estimated destination (:mod:`companion.nav.arrival`).
+a row each planned to reach the estimated destination, and by default after one last leg to the
+estimated destination (``NAV_FINAL_LEG``; :mod:`companion.nav.arrival`).
 
 Controllers (``NAV_CONTROLLER``):
 
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion import course_from_theta
-from companion.nav.arrival import arrival_reason, is_final_leg
+from companion.nav.arrival import Arrival
 from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_date
@@ -178,7 +179,7 @@ class Mission:
         self.rejected_fixes = 0
         self._shift: tuple[np.ndarray, float] | None = None
         self._had_ins = False
-        self._final_legs = 0   # legs in a row planned to reach the destination (the arrival rule)
+        self.arrival = Arrival()
 
     def set_bias(self, bias: tuple[float, ...] | None) -> None:
         """The start-up calibration to subtract from every measurement (None: none), before the
@@ -329,10 +330,10 @@ class Mission:
                 remaining = math.inf
             xi = np.zeros(2)
             target = self.s_dest
-        arrived = arrival_reason(remaining, c.arrive_m, self._final_legs, c.arrive_legs)
-        if arrived is not None:
-            return self._finish(meas.time_s, Phase.ARRIVED, arrived, remaining, fix, fused, sigma)
-        if self.k >= c.max_steps:
+        ended = self.arrival.judge(remaining, c)   # (arrived with a last leg to fly: not yet)
+        if ended is not None:
+            return self._finish(meas.time_s, Phase.ARRIVED, ended, remaining, fix, fused, sigma)
+        if self.k >= c.max_steps and self.arrival.arrived is None:
             return self._finish(meas.time_s, Phase.FAILED, "step limit reached", remaining, fix, fused, sigma)
 
         s_unit, u_unit = qp_units(c, self.elements)
@@ -352,7 +353,7 @@ class Mission:
         direction = u if float(np.hypot(*u)) >= 1e-6 * c.speed_mps else to_dest
         theta = math.atan2(direction[1], direction[0])        # eq. 4, quadrant resolved by atan2
         speed = c.speed_mps if c.speed_mode == 1 else min(c.speed_mps, remaining / c.period_s)
-        self._final_legs = self._final_legs + 1 if is_final_leg(remaining, c.speed_mps, c.period_s) else 0
+        self.arrival.flew(remaining, c)
         u_a = compensation(b, xi * s_unit) * u_unit if np.any(xi) else np.zeros(2)
         command = self._command(meas.time_s, Phase.CRUISE, theta, speed, remaining, fix, fused, sigma,
                                 u_first=(float(u[0]), float(u[1])), u_a=(float(u_a[0]), float(u_a[1])),

@@ -11,7 +11,7 @@ import pytest
 from companion.nav.arrival import BELOW_EPSILON, arrival_reason, is_final_leg, legs_reason
 from companion.nav.field import model_for_date
 from companion.nav.mission import Measurement, Mission, Phase
-from tests.nav.test_mission import NoiselessWorld, nav_config
+from tests.nav.test_mission import NoiselessWorld, fly_noiseless, nav_config
 
 def test_the_rule_in_each_case():
     """Epsilon ends the mission at once; NAV_ARRIVE_LEGS final legs in a row end it wherever the
@@ -57,14 +57,37 @@ def fly_noisy(legs: int, seed: int, noise_deg: float = 0.01, dr_pos_m: float = 1
 def test_a_vehicle_that_has_flown_to_an_uncertain_destination_stops_instead_of_circling(seed):
     """With the paper's rule alone (NAV_ARRIVE_LEGS 0) the vehicle chases an estimate that moves by
     more than epsilon every period (seeds 1 and 2: 17 and 51 periods after its first final leg);
-    with 3 it arrives after three final legs in a row, wherever the estimate then is."""
+    with 3 it arrives after three final legs in a row (and the last leg to where the estimate then
+    is)."""
     chased, chased_first, _ = fly_noisy(0, seed)
     stopped, stopped_first, world = fly_noisy(3, seed)
     assert len(chased) - chased_first >= 15, (len(chased), chased_first)
     last = stopped[-1]
-    assert last.phase == Phase.ARRIVED and last.reason == legs_reason(3), last
-    assert len(stopped) - stopped_first <= 12, (len(stopped), stopped_first)
-    reach = stopped[0].speed_mps * 360.0
-    assert all(c.phase == Phase.CRUISE and c.remaining_m <= reach for c in stopped[-4:-1]), stopped[-4:]
+    assert last.phase == Phase.ARRIVED and last.reason.startswith(legs_reason(3)), last
+    assert len(stopped) - stopped_first <= 13, (len(stopped), stopped_first)
+    reach = stopped[0].speed_mps * 360.0     # three final legs, then the last leg (NAV_FINAL_LEG)
+    assert all(c.phase == Phase.CRUISE and c.remaining_m <= reach for c in stopped[-5:-1]), stopped[-5:]
     ee, _, nn = last.est_cov_en_m2
     assert world.miss_m() <= 3.0 * math.sqrt(ee + nn), (world.miss_m(), last.est_cov_en_m2)
+
+
+def test_the_last_leg_ends_on_the_estimated_destination():
+    """Exact measurements (the estimate is the truth up to linearisation), epsilon 3 km: stopping
+    once within epsilon leaves the vehicle up to epsilon off (2.9 km); the last leg (NAV_FINAL_LEG
+    1, the default) flies the remainder and ends within metres (22 m). NAV_SPEED_MODE 1 (a
+    constant speed, the paper's) stops at once: its leg would overshoot by kilometres."""
+    model = model_for_date(2024.36)
+    misses = {}
+    for final_leg, speed_mode in ((0, 0), (1, 0), (1, 1)):
+        nav = nav_config(None, NAV_FINAL_LEG=final_leg, NAV_SPEED_MODE=speed_mode, NAV_ARRIVE_M=3000.0)
+        commands, world, _ = fly_noiseless(nav, model)
+        last = commands[-1]
+        assert last.phase == Phase.ARRIVED, last
+        misses[final_leg, speed_mode] = world.miss_m()
+        if final_leg and not speed_mode:
+            leg = commands[-2]
+            assert last.reason == f"{BELOW_EPSILON}, then the last leg" and leg.phase == Phase.CRUISE
+            assert leg.speed_mps == pytest.approx(leg.remaining_m / nav.period_s) and leg.remaining_m < nav.arrive_m
+        else:
+            assert last.reason == BELOW_EPSILON
+    assert misses[1, 0] < 50.0 and misses[0, 0] > 1000.0 and misses[1, 1] == misses[0, 0], misses
