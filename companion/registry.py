@@ -97,7 +97,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_PERIOD_S", float, 360.0, 1.0, 7200.0, "s", "control period T (Table 4 gives 10 without unit; see README)"),
     _p("NAV_LOOKAHEAD_M", float, 10000.0, 0.0, 1e6, "m", "Fc-MPC aims this far ahead on the start-destination geodesic; 0 aims at the destination"),
     _p("NAV_ARRIVE_M", float, 500.0, 10.0, 100000.0, "m", "arrival threshold epsilon on the estimated distance"),
-    _p("NAV_FINAL_LEG", int, 1, 0, 1, "", "on arrival: 1 fly the remainder to the estimated destination for one more period, then stop (not with NAV_SPEED_MODE 1); 0 stop at once (the paper)"),
+    _p("NAV_FINAL_LEG", int, 1, 0, 1, "", "on arrival: 1 fly the remainder to the estimated destination for one more period, then stop (Fc-MPC, not with NAV_SPEED_MODE 1); 0 stop at once (the paper)"),
     _p("NAV_ARRIVE_LEGS", int, 3, 0, 1000, "", "arrived after this many legs in a row each planned to reach the estimated destination (0: epsilon only, the paper)"),
     _p("NAV_MAX_STEPS", int, 1000, 3, 100000, "", "give up after this many control steps"),
     _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),

@@ -330,7 +330,7 @@ class Mission:
                 remaining = math.inf
             xi = np.zeros(2)
             target = self.s_dest
-        ended = self.arrival.judge(remaining, c)   # (arrived with a last leg to fly: not yet)
+        ended = self.arrival.judge(remaining, c, c.controller == Controller.FC)   # (a last leg to fly: not yet)
         if ended is not None:
             return self._finish(meas.time_s, Phase.ARRIVED, ended, remaining, fix, fused, sigma)
         if self.k >= c.max_steps and self.arrival.arrived is None:
