@@ -1,5 +1,5 @@
 """When a mission has arrived: Algorithm 1's epsilon, or a bounded number of legs flown to the
-estimated destination.
+estimated destination; and the last leg that ends it at rest there.
 
 Algorithm 1 stops when the *estimated* distance to the destination is below epsilon
 (``NAV_ARRIVE_M``). Where the estimate's own 1-sigma is far larger than epsilon (a storm: 4-5 km),
@@ -12,19 +12,25 @@ information; but the mission must end. A *final leg* is one planned to reach the
 within the period (the remaining distance within one period at cruise speed). After
 ``NAV_ARRIVE_LEGS`` final legs in a row the vehicle has arrived wherever the last one ended, as
 ArduPilot's Rover counts a waypoint reached once it has passed it, not only within its radius.
-``NAV_ARRIVE_LEGS`` 0 keeps Algorithm 1's rule alone (the paper). On arrival, with ``NAV_FINAL_LEG`` 1
-(the default; Fc-MPC, whose position estimate says where the destination is; not with a constant
-speed, ``NAV_SPEED_MODE`` 1, whose leg would overshoot), the
-vehicle flies one more leg to the estimated destination and stops at the next step, so it comes
-to rest where the estimate puts the destination instead of up to epsilon from it, still moving
-at the last leg's speed. A rule on the estimate's own
-uncertainty (stop when the destination lies inside its 1-sigma ellipse after a final leg) was
-measured and not kept: it drops a correction the filter has just made, and at ten times the
-magnetometer noise its median miss rose from 0.985 to 1.034 km.
+``NAV_ARRIVE_LEGS`` 0 keeps Algorithm 1's rule alone (the paper).
+
+Once arrived, with ``NAV_FINAL_LEG`` 1 (the default), the vehicle flies one *last leg* to the
+estimated destination and the mission ends at the next step, so the vehicle comes to rest where
+the estimate puts the destination, instead of up to epsilon from it, still moving at the last
+leg's speed. Only for Fc-MPC, whose position estimate says where the destination is, and not with
+a constant speed (``NAV_SPEED_MODE`` 1), whose leg would overshoot.
+
+A rule on the estimate's own uncertainty (stop when the destination lies inside its 1-sigma
+ellipse after a final leg) was measured and not kept: it drops a correction the filter has just
+made, and at ten times the magnetometer noise its median miss rose from 0.985 to 1.034 km.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from companion.params import NavConfig
 
 __all__ = ["BELOW_EPSILON", "Arrival", "arrival_reason", "is_final_leg", "legs_reason"]
 
@@ -63,9 +69,9 @@ class Arrival:
     final_legs: int = 0
     arrived: str | None = None
 
-    def judge(self, remaining_m: float, config, positioned: bool) -> str | None:
+    def judge(self, remaining_m: float, config: NavConfig, positioned: bool) -> str | None:
         """Why the mission ends at this step, or None to fly on (the last leg included);
-        ``config``: the mission's :class:`companion.params.NavConfig`; ``positioned``: the
+        ``config``: the mission's settings; ``positioned``: the
         remaining distance is from a position estimate (Fc-MPC). LTI- and LTV-MPC have none, only
         the field's linear extrapolation ``G^-1 (S_d - S)``, whose direction over the last few
         hundred metres is the noise's: they stop at once (with a last leg LTV-MPC ended 0.85 km
@@ -78,6 +84,6 @@ class Arrival:
         self.arrived = reason
         return None
 
-    def flew(self, remaining_m: float, config) -> None:
+    def flew(self, remaining_m: float, config: NavConfig) -> None:
         """A leg was commanded from ``remaining_m`` (m) from the estimated destination."""
         self.final_legs = self.final_legs + 1 if is_final_leg(remaining_m, config.speed_mps, config.period_s) else 0
