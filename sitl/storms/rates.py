@@ -5,8 +5,9 @@ of each field component, the rate a navigator declares for its bias states' acti
 For a random walk the rms change over a lag ``tau`` is ``q sqrt(tau)``; so
 ``q = rms(dB(t + tau) - dB(t)) / sqrt(tau)``, taken over the mission along the straight route
 from start to destination at the cruise speed, in *mission* time: a storm window compressed onto
-the mission (the paper's overlay) moves more slowly than the storm did. Lag one hour: the
-control step is six minutes and the disturbance is judged over hours.
+the mission (the paper's overlay) moves more slowly than the storm did. :func:`component_rates`
+takes a lag of one hour by default; the walks a navigator declares (:func:`component_walks`) and
+their correlations are of one control step's change.
 
 >>> import numpy as np
 >>> ramp = lambda lat, lon, t: np.stack([t / 360.0, 0 * t, 0 * t], axis=-1)   # dN: 10 nT per hour
@@ -15,16 +16,17 @@ control step is six minutes and the disturbance is judged over hours.
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["CORRELATION_LAG_S", "FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "component_correlations", "component_rates",
-           "component_walks", "structure_function"]
+__all__ = ["CORRELATION_LAG_S", "FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "STEP_LAG_S", "component_correlations",
+           "component_rates", "component_walks", "structure_function"]
 
 RATE_LAG_S = 3600.0
-CORRELATION_LAG_S = 360.0   # one control step (NAV_PERIOD_S's default): the filter's noise is per step
+# one control step (NAV_PERIOD_S's default): the filter's noise is per step, so the walks' rates and
+# correlations are those of one step's change
+CORRELATION_LAG_S = STEP_LAG_S = 360.0
 FIT_LAGS_H = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)   # lags of the structure function a walk is fitted to
 MEAN_REVERTING = 0.25   # a component is Gauss-Markov when its fitted correlation time is below this share of the mission
 
@@ -88,24 +90,31 @@ MAY_REVERT = (False, True, False)
 
 
 def component_walks(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],
-                    duration_s: float, may_revert: tuple[bool, bool, bool] = MAY_REVERT) -> tuple[np.ndarray, np.ndarray]:
+                    duration_s: float, may_revert: tuple[bool, bool, bool] = MAY_REVERT,
+                    step_s: float = STEP_LAG_S) -> tuple[np.ndarray, np.ndarray]:
     """The walk of each component (dN, dE, dZ) a navigator declares: short-lag rate ``q`` (nT per
     sqrt(hour)) and correlation time ``tau`` (hours, 0: random walk); only the components of
     ``may_revert`` are fitted as Gauss-Markov.
 
-    The structure function ``D(lag)`` over :data:`FIT_LAGS_H` (those that leave a third of the
-    mission's samples to compare) is
-    fitted by a first-order Gauss-Markov process, ``D = 2 s^2 (1 - exp(-lag / tau))`` (least squares
-    on the relative error, ``tau`` on a log grid from 0.05 h to ten missions, ``s^2`` in closed form), ``q^2 = 2 s^2 /
-    tau``. Where the fitted ``tau`` is not below a quarter of the mission the component does not
-    revert on the mission's scale: a random walk at its hourly rate (:func:`component_rates`)."""
+    ``q`` is the rms change over one control step ``step_s`` per sqrt(hour): the filter's noise is
+    per step. A storm's disturbance is smoother over a step than over hours (the short storm's
+    north, SYM-H removed: 33.7 nT/rt(h) over 6 min, 47.4 over 1 h), and the walk at the hourly rate
+    made the filter conservative (NEES 1.27) and its miss larger (5.05 against 3.53 km, 50 seeds;
+    long storm 3.00 against 2.87).
+
+    Whether and how fast a component reverts (``tau``) comes from the structure function ``D(lag)``
+    over :data:`FIT_LAGS_H` (those that leave a third of the mission's samples to compare), fitted
+    by a first-order Gauss-Markov process, ``D = 2 s^2 (1 - exp(-lag / tau))`` (least squares on
+    the relative error, ``tau`` on a log grid from 0.05 h to ten missions, ``s^2`` in closed form).
+    Where the fitted ``tau`` is not below a quarter of the mission the component does not revert on
+    the mission's scale: a random walk."""
     lags_h = np.array([lag for lag in FIT_LAGS_H if lag * 3600.0 <= duration_s * 2.0 / 3.0])
-    _check_lag(duration_s, RATE_LAG_S)
-    # the fit's lags and the hourly rate's from one sampling of the route
+    _check_lag(duration_s, step_s)
+    # the fit's lags and the step's from one sampling of the route
     d_all = structure_function(storm_ned_nt, start_deg, dest_deg, duration_s,
-                               np.append(lags_h * 3600.0, RATE_LAG_S))
-    d, hourly = d_all[:-1], np.sqrt(d_all[-1]) / np.sqrt(RATE_LAG_S / 3600.0)
-    q, tau = np.array(hourly, dtype=float), np.zeros(3)
+                               np.append(lags_h * 3600.0, step_s))
+    d, q = d_all[:-1], np.sqrt(d_all[-1]) / np.sqrt(step_s / 3600.0)
+    tau = np.zeros(3)
     grid = np.geomspace(0.05, 10.0 * duration_s / 3600.0, 400)   # up to ten missions: a random walk fits there
     for c in np.flatnonzero(may_revert):
         weight = 1.0 / np.maximum(d[:, c], 1e-12) ** 2
@@ -115,8 +124,7 @@ def component_walks(storm_ned_nt: Callable, start_deg: tuple[float, float], dest
         best = int(np.argmin(error))
         if grid[best] < MEAN_REVERTING * duration_s / 3600.0:
             tau[c] = grid[best]
-            q[c] = math.sqrt(s2[best] / grid[best])   # 2 s^2 / tau with D's factor 2 inside s2
-    return q, tau
+    return np.asarray(q, dtype=float), tau
 
 
 def component_rates(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],

@@ -76,8 +76,8 @@ def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_
 
 def test_a_gauss_markov_component_is_fitted_back_and_a_random_walk_is_not_taken_for_one():
     """A Gauss-Markov east (q 30 nT/rt(h), tau 1.5 h) and random-walk north and down (20, 10)
-    over 400 h: the east's q and tau come back within 10 %, the others stay random walks at their
-    hourly rate; a random-walk east is not fitted as Gauss-Markov."""
+    over 400 h: the east's q (over one control step) and tau come back within 10 %, the others stay
+    random walks at their rate; a random-walk east is not fitted as Gauss-Markov."""
     rng = np.random.default_rng(4)
     minutes = 400 * 60
     dt_h, tau_h = 1.0 / 60.0, 1.5
