@@ -110,8 +110,8 @@ def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_sp
 
     Speed and course change at their limits until they reach the command, then hold: the step is
     split where either reaches it, and each piece moves its mean speed's distance along an arc
-    (the chord along its mid course; a long turn in arcs of at most 15 deg). Unsplit, a 30 s step from 6.6 m/s to a stop moved 106 m where the
-    vehicle, stopped after 13 s, moves 44 m.
+    (the chord along its mid course; a long turn in arcs of at most 15 deg). Unsplit, a 30 s step
+    from 6.6 m/s to a stop moved 106 m where the vehicle, stopped after 13 s, moves 44 m.
 
     Commands outside the limits are clipped; a NaN command holds the current course and
     stops the vehicle, so a bad setpoint can never move it.
