@@ -258,12 +258,14 @@ def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
 @pytest.mark.parametrize("count", [0, 1, 7, 64, 150, 1000, 10_000])
 @pytest.mark.parametrize("workers", [1, 2, 5])
 def test_batches_keep_every_run_once_in_order_and_end_one_run_per_task(count, workers):
-    from montecarlo.engines import batches
+    from montecarlo.engines import BATCH_CAP, batches
 
     items = list(range(count))
     split = batches(items, workers)
     assert [item for batch in split for item in batch] == items
-    assert all(1 <= len(batch) <= 16 for batch in split)
+    assert all(1 <= len(batch) <= BATCH_CAP for batch in split)
+    # guided: never growing, so the big batches (whose runs share the per-step overhead) go first
+    assert all(len(a) >= len(b) for a, b in zip(split, split[1:]))
     # the tail a worker could be left alone with is one run, not a batch
     tail = split[-workers:] if len(split) >= workers else split
     assert all(len(batch) == 1 for batch in tail)
