@@ -58,9 +58,11 @@ A storm a space-weather index declares is known to be a storm, and walks as decl
   random walk lets D's bias wander without bound and the east with it;
 * per element (0) at ``FUS_BQA_DEG``, ``FUS_BQA_NT``, unscaled.
 
-The defaults are how fast the 10 May 2024 storm moved along the Pacific route in real time
-(:func:`sitl.storms.component_rates`; 16 h from 18 UTC: 72, 36, 33 nT per sqrt(hour); its main
-phase 18-24 UTC: 67, 46, 33), rounded: ``dN`` 70, ``dE`` 45, ``dZ`` 35. A scenario that
+The defaults are how fast the 10 May 2024 storm moved along the Pacific route in real time from
+18 UTC over one control step, the filter's noise being per step
+(:func:`sitl.world.build.storm_component_walks` on the long storm's window played as it happened:
+59.6, 45.6, 30.2 nT per sqrt(hour); over one hour 72, 36, 33), rounded: ``dN`` 60, ``dE`` 46,
+``dZ`` 30. A scenario that
 compresses a storm window onto the mission slows it down, and its navigator declares its own
 (README "Storms declared by Kp").
 """

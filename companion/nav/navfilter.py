@@ -115,7 +115,7 @@ class BiasSpec:
     heading_deg: float = 0.0
     heading_nt: float = 0.0
     qa_mode: int = ELEMENT_WALK
-    qa_ned_nt_rth: tuple[float, float, float] = (70.0, 45.0, 35.0)
+    qa_ned_nt_rth: tuple[float, float, float] = (60.0, 46.0, 30.0)
     qa_ned_tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
     qa_ned_corr: tuple[float, float, float] = (0.0, 0.0, 0.0)
 

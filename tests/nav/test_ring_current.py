@@ -91,7 +91,7 @@ def test_the_start_up_walk_of_the_north_is_the_residuals():
     on = _started(_estimator(FUS_SYMH_N=61.0, FUS_SYMH_TN=1.3), -50.0)
     off = _started(_estimator(FUS_SYMH_K=0.0, FUS_SYMH_N=61.0, FUS_SYMH_TN=1.3), -50.0)
     assert "N 61 (tau 1.3 h)" in on.storm_walk and "SYM-H" in on.storm_walk
-    assert "N 70," in off.storm_walk and "SYM-H" not in off.storm_walk
+    assert f"N {validate_all({})['FUS_BQA_N']:g}," in off.storm_walk and "SYM-H" not in off.storm_walk
     assert on.filter.ns == off.filter.ns + 1
 
 

@@ -133,3 +133,20 @@ def test_the_feed_reaches_the_navigator_as_a_declared_storm(shared_data):
     undeclared = fly_in_process(NavConfig.from_values({**values, "FUS_KP_ON": 9.0}), scenario, 0, truth,
                                 keep_commands=True)
     assert not undeclared.commands[1].disturbed
+
+
+def test_real_vehicle_storm_walk_defaults_are_the_10_may_storms_step_in_real_time(shared_data):
+    """The defaults a real vehicle declares (FUS_BQA_N/E/Z, FUS_SYMH_N/TN) are how the 10 May 2024
+    storm moved along the Pacific route over one control step in real time from 18 UTC (the long
+    storm's window played as it happened, "utc"), to the 1 nT/rt(h) and 0.1 h they are written
+    with: every component a random walk (the east keeps growing over the mission in real time), the
+    north residual after SYM-H Gauss-Markov."""
+    long_storm = load_scenario("long_storm")
+    real_time = replace(long_storm, storm=replace(long_storm.storm, time_map="utc"))
+    defaults = validate_all({})
+    q, tau = storm_component_walks(real_time, shared_data)
+    assert [defaults[f"FUS_BQA_{c}"] for c in "NEZ"] == pytest.approx(q, abs=0.51)
+    assert [defaults[f"FUS_BQA_T{c}"] for c in "NEZ"] == list(tau) == [0.0, 0.0, 0.0]
+    q, tau = storm_component_walks(real_time, shared_data, symh_ratio=1.0)
+    assert defaults["FUS_SYMH_N"] == pytest.approx(q[0], abs=0.51)
+    assert defaults["FUS_SYMH_TN"] == pytest.approx(tau[0], abs=0.051)
