@@ -12,11 +12,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from geographiclib.geodesic import Geodesic
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from companion import wrap_pi
 from sitl.scenario import ScenarioError, load_scenario
 from sitl.world.ins import ARCMIN, InsErrorConfig, InsErrorModel
-from sitl.world.vehicle import VehicleLimits, VehicleState, step_vehicle
+from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleLimits, VehicleState, _tracked, step_vehicle
 
 WGS84 = Geodesic.WGS84
 EARTH_RADIUS_M = 6371.0e3
@@ -183,6 +185,19 @@ def test_one_long_step_goes_where_many_short_ones_do(speed, new_speed, turn_deg)
     assert coarse.speed_mps == fine.speed_mps and coarse.course_rad == pytest.approx(fine.course_rad, abs=1e-12)
     if speed == 6.6:
         assert coarse.distance_m == pytest.approx(speed ** 2 / (2.0 * LIMITS.accel_mps2))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-80.0, 80.0), st.floats(-180.0, 180.0), st.floats(0.0, 2.0 * math.pi, exclude_max=True),
+       st.floats(0.0, 16.0), st.floats(0.0, 120.0), st.floats(0.0, 1e6), st.booleans())
+def test_a_step_holding_course_and_speed_is_the_split_steps_bit_for_bit(lat, lon, course, speed, dt, flown, drift):
+    """A vehicle already at its commanded course and speed takes step_vehicle's short way (one
+    straight piece); the general split (_tracked) gives the same state to the last bit, with and
+    without motion errors."""
+    state = VehicleState(lat, lon, course, speed, flown)
+    motion = MotionErrors((0.3, -0.2), 1.0, 0.0) if drift else NO_MOTION_ERRORS
+    assert step_vehicle(state, dt, course, speed, LIMITS, motion) == _tracked(state, dt, course, speed, 0.0,
+                                                                             LIMITS, motion)
 
 
 @pytest.mark.parametrize("course_deg", [0.0, 45.0, 133.0, 270.0, 301.0])
