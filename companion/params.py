@@ -245,6 +245,7 @@ class NavConfig(_FromRegistry):
     symh_residual_tn_h: float = _from("FUS_SYMH_TN")
     symh_residual_rne: float = _from("FUS_SYMH_RNE")
     symh_residual_rnz: float = _from("FUS_SYMH_RNZ")
+    attitude_from_ins: int = _from("FUS_ATT_INS")
     bias_heading_deg: float = _from("FUS_BH_DEG")
     bias_heading_nt: float = _from("FUS_BH_NT")
     local_err_deg: float = _from("FUS_GM_DEG")

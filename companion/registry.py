@@ -159,6 +159,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_BQD_NT", float, 7.5, 0.0, 1000.0, "nT/rt(km)", "random walk of the F/H/Z bias states per distance travelled (200 nT in 800 km)"),
     _p("FUS_BQA_DEG", float, 0.05, 0.0, 10.0, "deg/rt(h)", "random walk of the D/I bias states while the innovations say a disturbance is active"),
     _p("FUS_BQA_NT", float, 40.0, 0.0, 1e4, "nT/rt(h)", "random walk of the F/H/Z bias states while a disturbance is active"),
+    _p("FUS_ATT_INS", int, 2, 0, 2, "", "with the INS process model, which part of the attitude that levels and turns the magnetometer into north-east-down is the INS's own: 2 roll, pitch and heading (a navigation-grade INS's attitude), 1 roll and pitch (the heading from a true-heading sensor), 0 none (an AHRS of its own); that part's misalignment states enter the measured elements"),
     _p("FUS_BH_DEG", float, 0.1, 0.0, 5.0, "deg", "prior 1-sigma of each heading harmonic (cos, sin of psi and 2 psi) of the D/I calibration residual: a body-frame hard/soft-iron residual changes D and I when the vehicle turns; 0: no such states (before 2026-12-02)"),
     _p("FUS_BH_NT", float, 200.0, 0.0, 5000.0, "nT", "prior 1-sigma of each heading harmonic of the F/H/Z calibration residual; 0: no such states (before 2026-12-02)"),
     _p("FUS_BQA_ADAPT", int, 1, 0, 1, "", "while the innovations (not a Kp) say a disturbance is active: 1 (default) the bias states walk at FUS_BQA_DEG/NT scaled by covariance matching (the averaged NIS), between the quiet FUS_BQ_* and FUS_BQA_*; 0 at FUS_BQA_* always (before 2026-12-02)"),

@@ -35,7 +35,9 @@ def run_budget(real: Scenario, runs: int, workers: int, values: dict, data_dir: 
     rows = []
     for source in ("none", *predicted, "all"):
         scenario = only(real, None if source == "none" else source)
-        _, flown, _ = run_montecarlo(scenario, runs, [Controller.FC], workers, values, data_dir, progress,
+        # the row's installation: its attitude is the INS's only where its heading errors are on
+        row_values = {**values, "FUS_ATT_INS": scenario.attitude.ins_share}
+        _, flown, _ = run_montecarlo(scenario, runs, [Controller.FC], workers, row_values, data_dir, progress,
                                      first_seed, quiet_too=False, engine=engine)
         miss = np.array([r.remaining_km for r in flown])
         if source == "all":

@@ -168,11 +168,14 @@ class Scenario:
     def nav_overrides(self, navigator: bool = True) -> dict[str, float]:
         """Registry values this scenario sets: start, destination, altitude, date, and (unless
         ``navigator`` is False: a flight on real firmware, whose world is not this one) the
-        ``[navigator]`` table."""
+        installation's attitude source (``FUS_ATT_INS`` from ``[attitude]``, an operator's
+        declaration of where the attitude comes from) and the ``[navigator]`` table."""
         mission = {"NAV_START_LAT": self.start_lat_deg, "NAV_START_LON": self.start_lon_deg,
                    "NAV_DEST_LAT": self.dest_lat_deg, "NAV_DEST_LON": self.dest_lon_deg,
                    "NAV_ALT_M": self.alt_m, "NAV_YEAR": self.year}
-        return {**mission, **dict(self.navigator)} if navigator else mission
+        if not navigator:
+            return mission
+        return {**mission, "FUS_ATT_INS": self.attitude.ins_share, **dict(self.navigator)}
 
 
 def _parse_utc(text: str) -> datetime:

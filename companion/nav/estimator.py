@@ -56,6 +56,8 @@ FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only o
 # 7 m at 1 km over the globe, against its own noise of hundreds of metres); farther or worse
 # conditioned ones are iterated to 1 m.
 FIX_LINEAR_WITHIN_M = 1000.0
+# what the companion says of FUS_ATT_INS beside the INS process model
+_ATTITUDE_WORDS = {0: "", 1: "; its tilt levels the magnetometer", 2: "; its attitude levels and turns the magnetometer"}
 
 
 @functools.lru_cache(maxsize=8)
@@ -107,7 +109,8 @@ def filter_settings(config) -> FilterSettings:
                       (config.bias_qa_rne, config.bias_qa_rnz, config.bias_qa_rez)),
         ins=InsErrorSpec(),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
-                                         config.current_sigma_mps, config.current_q_mps))
+                                         config.current_sigma_mps, config.current_q_mps),
+        attitude_from_ins=config.attitude_from_ins)
 
 
 class PositionEstimator:
@@ -197,7 +200,7 @@ class PositionEstimator:
                            else f"dead reckoning on {course}: no independent INS position")
         elif have_ins:
             process = InsProcess(self.settings.ins, meas.ins_lat_deg)
-            self.reason = "INS error model: an independent INS position is available"
+            self.reason = "INS error model: an independent INS position is available" + _ATTITUDE_WORDS[c.attitude_from_ins]
         else:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
         self.symh_reference_nt = symh_value(meas.symh_nt) if c.symh_ratio > 0.0 else math.nan

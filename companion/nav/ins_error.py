@@ -49,10 +49,12 @@ __all__ = [
     "LON",
     "N_INS",
     "VEL",
+    "AttitudeSource",
     "InsErrorSpec",
     "discretise",
     "error_dynamics",
     "initial_covariance",
+    "misalignment_columns",
     "process_noise_density",
 ]
 
@@ -159,6 +161,44 @@ def initial_covariance(spec: InsErrorSpec, lat_deg: float) -> np.ndarray:
     sigma[_BIAS] = spec.gyro_bias_degph * DEG_PER_HOUR
     sigma[_MARKOV] = spec.gyro_markov_degph * DEG_PER_HOUR
     return np.diag(sigma ** 2)
+
+
+class AttitudeSource:
+    """Values of FUS_ATT_INS: which part of the attitude that levels and turns the magnetometer into
+    north-east-down is this INS's own."""
+
+    NONE = 0      # an AHRS of its own: its errors are the bias states'
+    TILT = 1      # roll and pitch from the INS, the heading from a true-heading sensor
+    ALL = 2       # roll, pitch and heading from the INS (a navigation-grade INS's attitude)
+
+    @staticmethod
+    def columns(source: int) -> tuple[int, ...]:
+        """The misalignment states (0 phi_e, 1 phi_n, 2 phi_u) the measured field carries."""
+        return {AttitudeSource.NONE: (), AttitudeSource.TILT: (0, 1), AttitudeSource.ALL: (0, 1, 2)}[source]
+
+
+def misalignment_columns(field_jacobian: np.ndarray, ned_nt: np.ndarray) -> np.ndarray:
+    """``d(elements) / d(phi_e, phi_n, phi_u)`` (elements x 3): what the INS misalignment does to
+    elements measured with the INS's attitude.
+
+    The attitude turns the body-frame field into north-east-down; the misalignment ``phi`` (ENU,
+    indicated minus true) turns it by the rotation vector ``(-phi_n, -phi_e, phi_u)`` in NED (the
+    Euler errors of :meth:`sitl.world.ins.InsErrorModel.attitude_error_rad`, whatever the
+    heading), so the measured field is ``B + theta x B`` and the elements move by
+    ``J (theta x B)``, with ``field_jacobian`` J = d(elements)/d(N, E, Z) at the field
+    ``ned_nt`` (:func:`companion.nav.disturbance.field_jacobian`). The yaw column of D is one
+    radian per radian (D moves with the heading error); F does not move.
+
+    >>> from companion.nav.disturbance import field_jacobian
+    >>> ned = np.array([27000.0, -1500.0, 30000.0])
+    >>> cols = misalignment_columns(field_jacobian(("decl_deg", "f_nt"), *ned), ned)
+    >>> [round(float(v), 6) + 0.0 for v in cols[:, 2]]   # phi_u: D by 57.3 deg per rad, F not at all
+    [57.29578, 0.0]
+    """
+    b = np.asarray(ned_nt, dtype=float)
+    # theta = P phi: per unit phi_e, phi_n, phi_u the NED rotation vectors (0, -1, 0), (-1, 0, 0), (0, 0, 1)
+    turn = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return field_jacobian @ (-_skew(b) @ turn)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

@@ -70,7 +70,7 @@ FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_
                     "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
                     "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
                     "filter_r_deg", "filter_r_nt", "filter_r_source", "filter_rmin_deg", "filter_rmin_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
-                    "bias_qd_deg", "bias_qd_nt", "bias_qa_deg", "bias_qa_nt", "bias_qa_adapt", "local_err_deg", "local_err_nt", "local_err_length_m", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m",
+                    "bias_qd_deg", "bias_qd_nt", "bias_qa_deg", "bias_qa_nt", "bias_qa_adapt", "local_err_deg", "local_err_nt", "local_err_length_m", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m", "attitude_from_ins",
                     "model_err_deg", "model_err_nt", "model_err_length_m", "grad_init")
 
 

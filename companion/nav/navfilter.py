@@ -32,7 +32,12 @@ their declared noise need no special case. With ``y = S_meas - S_model(p) - b - 
 where ``J = d(true east, north) / d(state)`` comes from the process model and G is the model's
 gradient at the predicted position (:func:`companion.nav.field.element_gradient`), evaluated at
 the centre of the averaging window. The field is linear to well below the noise over the few
-kilometres of prior uncertainty, so one linearisation per step suffices.
+kilometres of prior uncertainty, so one linearisation per step suffices. When the INS's own
+attitude levels and turns the magnetometer (``attitude_from_ins``, FUS_ATT_INS: tilt, or tilt and
+heading), its misalignment states are in the measurement too: ``+ A phi`` in y and ``G J + A`` in
+H's process columns, A the misalignment's columns at the model's field there
+(:func:`companion.nav.ins_error.misalignment_columns`; the heading error moves D one for one, a
+tilt error moves D by about its size times tan I, and I).
 
 Measurement noise (``r_source`` 1, FUS_R_SRC, the default): each period's averaged elements
 carry their standard errors measured from the period's own scatter (the companion's robust
@@ -64,12 +69,13 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
-from companion.nav.disturbance import COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk
+from companion.nav.disturbance import (COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk,
+                                       field_jacobian)
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_gradient, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
-from companion.nav.ins_error import InsErrorSpec
-from companion.nav.process import DeadReckoningSpec, ProcessModel
+from companion.nav.ins_error import AttitudeSource, InsErrorSpec, misalignment_columns
+from companion.nav.process import DeadReckoningSpec, InsProcess, ProcessModel
 from companion.nav.small import inverse2, whiten
 
 __all__ = [
@@ -165,6 +171,7 @@ class FilterSettings:
     bias: BiasSpec = field(default_factory=BiasSpec)
     ins: InsErrorSpec = field(default_factory=InsErrorSpec)
     dead_reckoning: DeadReckoningSpec = field(default_factory=DeadReckoningSpec)
+    attitude_from_ins: int = AttitudeSource.NONE   # FUS_ATT_INS (the companion's default: ALL)
 
 
 class NavigationFilter:
@@ -210,6 +217,10 @@ class NavigationFilter:
                                  np.zeros((self.nb, self.ns))])
         self._storm_states = slice(n - self.ns, n)
         self.heading_known = False
+        # the INS misalignment states the measured field carries (FUS_ATT_INS): their columns
+        # follow the field at the window centre (_carry_attitude)
+        self._attitude = list(AttitudeSource.columns(settings.attitude_from_ins)) \
+            if isinstance(process, InsProcess) else []
         self.kf = kf
         # predict's block-diagonal Phi and Q_d: the bias and heading states are constants (the
         # identity; the heading states have no noise), the rest is filled in each step
@@ -269,9 +280,18 @@ class NavigationFilter:
             self._total[element, start:start + HARMONIC_TERMS] = row
 
     def _h(self, gradient: np.ndarray, lat_deg: float) -> np.ndarray:
-        """Jacobian of the elements with respect to the state: ``G J`` then the bias and local
-        error states, which enter additively."""
-        return np.hstack([gradient @ self.process.jacobian(lat_deg), self._total[:, self.process.n:]])
+        """Jacobian of the elements with respect to the state: ``G J`` (plus the INS misalignment's
+        columns, FUS_ATT_INS) then the bias and local error states, which enter additively."""
+        k = self.process.n
+        return np.hstack([gradient @ self.process.jacobian(lat_deg) + self._total[:, :k], self._total[:, k:]])
+
+    def _carry_attitude(self, lat_deg: float, lon_deg: float) -> None:
+        """The misalignment's columns (:func:`companion.nav.ins_error.misalignment_columns`) at the
+        model's field here: the elements were measured with the INS's attitude."""
+        if self._attitude:
+            ned = self.model.ned_and_slopes(lat_deg, lon_deg, self.alt_m, self.year)[0]
+            columns = misalignment_columns(field_jacobian(self.elements.names, *ned), ned)
+            self._total[:, self._attitude] = columns[:, self._attitude]
 
     def snapshot(self) -> tuple:
         """Everything a step changes, to go back to (:meth:`restore`)."""
@@ -402,10 +422,11 @@ class NavigationFilter:
     def _innovation(self, measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre=None):
         """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate."""
         lat = self.position(ins_lat_deg, ins_lon_deg)[0]
-        if at_centre is None:
-            at_centre = element_values_and_gradient(self.model, self.elements,
-                                                    *self.window_centre(lag_en_m, ins_lat_deg, ins_lon_deg),
-                                                    self.alt_m, self.year)
+        if at_centre is None or self._attitude:
+            centre = self.window_centre(lag_en_m, ins_lat_deg, ins_lon_deg)
+            self._carry_attitude(*centre)
+            if at_centre is None:
+                at_centre = element_values_and_gradient(self.model, self.elements, *centre, self.alt_m, self.year)
         values, g = at_centre
         h = self._h(g, lat)
         y = self.elements.difference(np.asarray(measured, dtype=float), values + self.bias)
@@ -429,19 +450,21 @@ class NavigationFilter:
         Returns the NIS of the calibration measurement."""
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         self._walk.position = (float(lat), float(lon))
+        self._carry_attitude(lat, lon)
         expected = self.elements.values(self.model.elements(lat, lon, self.alt_m, self.year)) + self.bias
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         r2 = np.diag(self.measurement_noise(standard_errors))
         local = np.zeros(self.nb)
         local[:self.nl] = self._local_sigma ** 2     # the local error at the start is part of y
         storm = np.zeros(self.ns)
-        beyond = local.copy()
+        k = self.process.n
+        attitude = self._total[:, :k]                # so is the INS misalignment's share (FUS_ATT_INS)
+        beyond = local + np.einsum("ij,jk,ik->i", attitude, self.kf.P[:k, :k], attitude)
         if self.ns and self.monitor.declared:   # so is a declared storm's Gauss-Markov part
             storm = self._walk.storm.initial_variance()
             columns = self._storm_columns()[:, self._walk.states]
             beyond += np.einsum("ij,j,ij->i", columns, storm, columns)
         var = np.clip(y ** 2 - r2 - beyond, r2 / 100.0, self._bias_sigma0 ** 2)
-        k = self.process.n
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
         self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2, storm]))

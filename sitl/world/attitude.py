@@ -59,6 +59,15 @@ class AttitudeErrorConfig:
             raise ValueError("heading_drift_tau_s must be > 0")
 
     @property
+    def ins_share(self) -> int:
+        """How much of this attitude is the INS's, as a navigator set up for this installation
+        declares it (``FUS_ATT_INS``): 2 tilt and heading, 1 tilt, 0 none (a heading alone from
+        the INS is not a setting: 0)."""
+        if not self.tilt_from_ins:
+            return 0
+        return 2 if self.heading_source == "ins" else 1
+
+    @property
     def ideal(self) -> bool:
         """True for the paper's world: a true heading with white noise only."""
         return (self.heading_source == "true" and not self.heading_bias_deg and not self.heading_drift_deg

@@ -10,10 +10,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from companion.nav.geo import radii_of_curvature_m
+from companion.nav.disturbance import field_jacobian
 from companion.nav.ins_error import (GRAVITY_MPS2, LAT, InsErrorSpec, discretise, error_dynamics,
-                                     initial_covariance, process_noise_density)
+                                     initial_covariance, misalignment_columns, process_noise_density)
 from companion.nav.process import InsProcess
 
 
@@ -85,3 +87,24 @@ def test_initial_covariance_is_table_1():
     assert math.sqrt(p0[LAT, LAT]) * float(m) == pytest.approx(5000.0)
     assert math.sqrt(p0[2, 2]) == pytest.approx(math.radians(500.0 / 3600.0))
     assert p0[5, 5] == 0.0 and p0[8, 8] == 0.0                # vertical channel held
+
+
+@pytest.mark.parametrize("names", [("decl_deg", "incl_deg"), ("decl_deg", "incl_deg", "f_nt"), ("incl_deg", "f_nt"),
+                                   ("h_nt", "z_nt")])
+def test_misalignment_columns_are_the_elements_of_the_turned_field(names):
+    """Oracle: the elements of the field turned by scipy's Rotation of the rotation vector
+    (-phi_n, -phi_e, phi_u) in north-east-down, by central differences of 1e-6 rad per state."""
+    ned = np.array([27500.0, -1800.0, 31000.0])
+    columns = misalignment_columns(field_jacobian(names, *ned), ned)
+
+    def elements(b: np.ndarray) -> np.ndarray:
+        h = math.hypot(b[0], b[1])
+        values = {"decl_deg": math.degrees(math.atan2(b[1], b[0])), "incl_deg": math.degrees(math.atan2(b[2], h)),
+                  "f_nt": math.hypot(h, b[2]), "h_nt": h, "z_nt": b[2]}
+        return np.array([values[name] for name in names])
+
+    eps = 1e-6
+    for state, turn in enumerate(([0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0])):   # phi_e, phi_n, phi_u
+        plus = Rotation.from_rotvec(eps * np.array(turn)).apply(ned)
+        minus = Rotation.from_rotvec(-eps * np.array(turn)).apply(ned)
+        assert columns[:, state] == pytest.approx((elements(plus) - elements(minus)) / (2.0 * eps), rel=1e-5, abs=1e-5)

@@ -107,6 +107,31 @@ def test_in_process_ins_heading_error_equals_psi_z_of_the_run():
     assert avg.incl_deg == pytest.approx(true.incl_deg, abs=1e-9)  # yaw does not touch I
 
 
+@pytest.mark.parametrize("course_deg", [20.0, 132.0, 250.0, 311.0])
+def test_the_navigators_misalignment_columns_are_what_the_worlds_ins_attitude_does(course_deg):
+    """The world's period with the INS's tilt and heading errors (a misalignment of tens of arc
+    seconds, noise off) moves D and I by what the navigator's FUS_ATT_INS 2 columns
+    (companion.nav.ins_error.misalignment_columns) predict from the misalignment, at any course,
+    to 2 % (the waves' tilt and second-order terms): the two sides' conventions agree."""
+    from companion.nav.disturbance import field_jacobian
+    from companion.nav.ins_error import misalignment_columns
+
+    ned = np.array(model_for_date(YEAR).ned(30.5, 155.0, 0.0, YEAR))
+    ins = InsErrorModel(InsErrorConfig(deterministic=True), np.random.default_rng(0), 30.5)
+    ins.state[0:3] = np.radians(np.array([40.0, -70.0, 300.0]) / 3600.0)   # phi_e, phi_n, phi_u
+    course = math.radians(course_deg)
+    times = np.arange(13) * 30.0
+    slow = np.tile(ins.attitude_error_rad(course), (13, 1))
+    period = PeriodKnots(times, np.tile(ned, (13, 1)), np.full(13, course), slow, np.full(13, math.nan))
+    settings = SampleSettings(10.0, 0.0, 0.0, (0.0, 0.0, 0.0), 0.0, "ins")
+    turned = sample_period(period, settings, WaveMotion().tilt_rad, None, np.random.default_rng(0))
+    level = sample_period(replace(period, slow_error_rad=np.zeros((13, 3))), settings, WaveMotion().tilt_rad, None,
+                          np.random.default_rng(0))
+    predicted = misalignment_columns(field_jacobian(("decl_deg", "incl_deg"), *ned), ned) @ ins.state[0:3]
+    moved = np.array([turned.decl_deg - level.decl_deg, turned.incl_deg - level.incl_deg])
+    assert moved == pytest.approx(predicted, rel=0.02, abs=2e-5)
+
+
 def test_magnetic_heading_makes_d_equal_the_tables_declination_at_the_believed_position():
     scenario = load_scenario("pacific_real")
     scenario = replace(scenario, sensors=_quiet(scenario.sensors),
