@@ -180,6 +180,22 @@ def test_elements_measured_with_the_ins_attitude_carry_its_misalignment(model, s
     assert np.all(dead_reckoning.bias == 0.0)
 
 
+@pytest.mark.parametrize("source, words", [(2, "its attitude levels and turns the magnetometer"),
+                                           (1, "its tilt levels the magnetometer"), (0, "")])
+def test_the_estimator_says_whose_attitude_turns_the_magnetometer(model, source, words):
+    """The companion's start-up STATUSTEXT names the process model and, with the INS, FUS_ATT_INS."""
+    from companion.nav.estimator import PositionEstimator
+    from companion.nav.step_io import Measurement
+
+    config = NavConfig.from_values(validate_all({"FUS_ATT_INS": source}))
+    estimator = PositionEstimator(config, model, ELEMENT_SETS[ElementSet.PAPER])
+    e = model.elements(*START, ALT, YEAR)
+    estimator.start(Measurement(0.0, e.decl_deg, e.incl_deg, *START, 360.0, e.f_nt), np.array([e.decl_deg, e.incl_deg]),
+                    2.5)
+    assert estimator.reason.startswith("INS error model")
+    assert estimator.reason.endswith(words) and (words or "magnetometer" not in estimator.reason)
+
+
 @pytest.mark.slow
 def test_local_model_error_states_make_the_realistic_world_filter_honest(shared_data):
     """pacific_real (IGRF-14 + crust against the navigator's WMM, calibration residuals), six
