@@ -62,9 +62,8 @@ The defaults are how fast the 10 May 2024 storm moved along the Pacific route in
 18 UTC over one control step, the filter's noise being per step
 (:func:`sitl.world.build.storm_component_walks` on the long storm's window played as it happened:
 59.6, 45.6, 30.2 nT per sqrt(hour); over one hour 72, 36, 33), rounded: ``dN`` 60, ``dE`` 46,
-``dZ`` 30. A scenario that
-compresses a storm window onto the mission slows it down, and its navigator declares its own
-(README "Storms declared by Kp").
+``dZ`` 30. A scenario that compresses a storm window onto the mission slows it down, and its
+navigator declares its own (README "Storms declared by Kp").
 """
 from __future__ import annotations
 
