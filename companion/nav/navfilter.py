@@ -72,7 +72,7 @@ from scipy.linalg import block_diag
 from companion.nav.disturbance import (COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk,
                                        field_jacobian)
 from companion.nav.elements import ElementSet
-from companion.nav.field import WorldMagneticModel, element_gradient, element_values_and_gradient
+from companion.nav.field import WorldMagneticModel, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.ins_error import AttitudeSource, InsErrorSpec, misalignment_columns
 from companion.nav.process import DeadReckoningSpec, InsProcess, ProcessModel
@@ -217,8 +217,7 @@ class NavigationFilter:
                                  np.zeros((self.nb, self.ns))])
         self._storm_states = slice(n - self.ns, n)
         self.heading_known = False
-        # the INS misalignment states the measured field carries (FUS_ATT_INS): their columns
-        # follow the field at the window centre (_carry_attitude)
+        # the INS misalignment states the measured field carries (FUS_ATT_INS; _carry_attitude)
         self._attitude = list(AttitudeSource.columns(settings.attitude_from_ins)) \
             if isinstance(process, InsProcess) else []
         self.kf = kf
@@ -286,8 +285,7 @@ class NavigationFilter:
         return np.hstack([gradient @ self.process.jacobian(lat_deg) + self._total[:, :k], self._total[:, k:]])
 
     def _carry_attitude(self, lat_deg: float, lon_deg: float) -> None:
-        """The misalignment's columns (:func:`companion.nav.ins_error.misalignment_columns`) at the
-        model's field here: the elements were measured with the INS's attitude."""
+        """The INS misalignment's columns (:func:`~companion.nav.ins_error.misalignment_columns`) here."""
         if self._attitude:
             ned = self.model.ned_and_slopes(lat_deg, lon_deg, self.alt_m, self.year)[0]
             columns = misalignment_columns(field_jacobian(self.elements.names, *ned), ned)
@@ -446,7 +444,7 @@ class NavigationFilter:
         ``var_b = clip(y^2 - r^2 - sigma_local^2, ...)``: what is carried from the start is the
         calibration, not the crust under the start. A storm declared at the start is treated
         alike: its Gauss-Markov components start at their stationary variance, and the bias takes
-        what is left. Then the usual update.
+        what is left; so is the INS misalignment's share (FUS_ATT_INS). Then the usual update.
         Returns the NIS of the calibration measurement."""
         lat, lon = self.position(ins_lat_deg, ins_lon_deg)
         self._walk.position = (float(lat), float(lon))
@@ -469,13 +467,6 @@ class NavigationFilter:
         self.kf.P[:, k:] = 0.0
         self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2, storm]))
         return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
-
-    def innovation_covariance(self, lat_deg: float, lon_deg: float,
-                              standard_errors: np.ndarray | None = None) -> np.ndarray:
-        """S = H P H^T + R of an element measurement at this position (for tests and gates)."""
-        g = element_gradient(self.model, self.elements, lat_deg, lon_deg, self.alt_m, self.year)
-        h = self._h(g, lat_deg)
-        return h @ self.kf.P @ h.T + self.measurement_noise(standard_errors)
 
     def _update(self, y: np.ndarray, h: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
         z = (y + h @ self.x).reshape(-1, 1)
