@@ -20,13 +20,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["CORRELATION_LAG_S", "FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "STEP_LAG_S", "component_correlations",
-           "component_rates", "component_walks", "structure_function"]
+__all__ = ["FIT_LAGS_H", "MAY_REVERT", "RATE_LAG_S", "STEP_LAG_S", "component_correlations", "component_rates",
+           "component_walks", "structure_function"]
 
 RATE_LAG_S = 3600.0
 # one control step (NAV_PERIOD_S's default): the filter's noise is per step, so the walks' rates and
 # correlations are those of one step's change
-CORRELATION_LAG_S = STEP_LAG_S = 360.0
+STEP_LAG_S = 360.0
 FIT_LAGS_H = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)   # lags of the structure function a walk is fitted to
 MEAN_REVERTING = 0.25   # a component is Gauss-Markov when its fitted correlation time is below this share of the mission
 
@@ -61,7 +61,7 @@ def structure_function(storm_ned_nt: Callable, start_deg: tuple[float, float], d
 
 
 def component_correlations(storm_ned_nt: Callable, start_deg: tuple[float, float], dest_deg: tuple[float, float],
-                           duration_s: float, lag_s: float = CORRELATION_LAG_S,
+                           duration_s: float, lag_s: float = STEP_LAG_S,
                            sample_s: float = 60.0) -> tuple[float, float, float]:
     """Correlation (N-E, N-Z, E-Z) of the components' changes over ``lag_s`` along the route, the
     disturbance as in :func:`component_rates`: the ``FUS_BQA_RNE/RNZ/REZ`` a navigator declares.
