@@ -38,7 +38,7 @@ from companion.nav.field import (PositionFixError, WorldMagneticModel, element_f
                                  fix_covariance)
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import window_heading_rad
-from companion.nav.ins_error import InsErrorSpec
+from companion.nav.ins_error import AttitudeSource, InsErrorSpec
 from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
@@ -57,7 +57,8 @@ FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only o
 # conditioned ones are iterated to 1 m.
 FIX_LINEAR_WITHIN_M = 1000.0
 # what the companion says of FUS_ATT_INS beside the INS process model
-_ATTITUDE_WORDS = {0: "", 1: "; its tilt levels the magnetometer", 2: "; its attitude levels and turns the magnetometer"}
+_ATTITUDE_WORDS = {AttitudeSource.NONE: "", AttitudeSource.TILT: "; its tilt levels the magnetometer",
+                   AttitudeSource.ALL: "; its attitude levels and turns the magnetometer"}
 
 
 @functools.lru_cache(maxsize=8)
