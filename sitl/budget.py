@@ -36,7 +36,7 @@ import numpy as np
 
 from companion.nav.field import decl_incl_gradient, model_for_date
 from companion.nav.geo import WGS84
-from sitl.scenario import Scenario
+from sitl.scenario import Scenario, ins_declaration
 from sitl.world.attitude import AttitudeErrorConfig, AttitudeErrors
 from sitl.world.ins import InsErrorConfig, InsErrorModel
 from sitl.world.magerrors import MagErrors
@@ -89,7 +89,10 @@ def with_errors(scenario: Scenario, switches: dict[str, bool], real: Scenario) -
         elif name == "motion":
             s = replace(s, motion=real.motion if on else MotionErrorConfig())
         elif name == "ins":
-            s = replace(s, ins=real.ins if on else PERFECT_INS)
+            # the navigator keeps the real INS's datasheet: a world whose INS happens to be
+            # perfect does not tell the navigator so (what the [navigator] table sets wins)
+            declared = {**(ins_declaration(real.ins) if real.ins.onboard else {}), **dict(s.navigator)}
+            s = replace(s, ins=real.ins if on else PERFECT_INS, navigator=tuple(declared.items()))
     # the sample-by-sample path whenever anything of the realistic world is on
     return replace(s, sensors=replace(s.sensors, inprocess_samples=real.sensors.inprocess_samples))
 

@@ -27,7 +27,7 @@ from sitl.world.magerrors import MagErrorConfig
 from sitl.world.vehicle import MotionErrorConfig, VehicleLimits
 
 __all__ = ["Scenario", "SensorModel", "StormConfig", "FieldConfig", "Fault", "ScenarioError", "load_scenario",
-           "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
+           "ins_declaration", "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heartbeat_off",
@@ -167,15 +167,30 @@ class Scenario:
 
     def nav_overrides(self, navigator: bool = True) -> dict[str, float]:
         """Registry values this scenario sets: start, destination, altitude, date, and (unless
-        ``navigator`` is False: a flight on real firmware, whose world is not this one) the
-        installation's attitude source (``FUS_ATT_INS`` from ``[attitude]``, an operator's
-        declaration of where the attitude comes from) and the ``[navigator]`` table."""
+        ``navigator`` is False: a flight on real firmware, whose world is not this one) what an
+        operator declares of the installation: where the attitude comes from (``FUS_ATT_INS``
+        from ``[attitude]``) and the INS's datasheet (``FUS_INS_*`` from ``[ins]``,
+        :func:`ins_declaration`), then the ``[navigator]`` table."""
         mission = {"NAV_START_LAT": self.start_lat_deg, "NAV_START_LON": self.start_lon_deg,
                    "NAV_DEST_LAT": self.dest_lat_deg, "NAV_DEST_LON": self.dest_lon_deg,
                    "NAV_ALT_M": self.alt_m, "NAV_YEAR": self.year}
         if not navigator:
             return mission
-        return {**mission, "FUS_ATT_INS": self.attitude.ins_share, **dict(self.navigator)}
+        declared = ins_declaration(self.ins) if self.ins.onboard else {}
+        return {**mission, "FUS_ATT_INS": self.attitude.ins_share, **declared, **dict(self.navigator)}
+
+
+def ins_declaration(ins: InsErrorConfig) -> dict[str, float]:
+    """The ``FUS_INS_*`` values declaring this INS to the navigator: the 1-sigma its errors are
+    drawn with (a datasheet), not the errors drawn. The two level axes' misalignments and the
+    east and north position errors are declared as one value each, their RMS (rounded to 1e-6
+    of the unit, so Table 1's arc-minutes read back as whole arc-seconds)."""
+    tilt_arcsec = 60.0 * math.sqrt((ins.misalign_arcmin[0] ** 2 + ins.misalign_arcmin[1] ** 2) / 2.0)
+    pos_m = math.sqrt((ins.pos_err_east_m ** 2 + ins.pos_err_north_m ** 2) / 2.0)
+    return {"FUS_INS_TILT": round(tilt_arcsec, 6), "FUS_INS_AZ": round(60.0 * ins.misalign_arcmin[2], 6),
+            "FUS_INS_VEL": ins.vel_err_mps, "FUS_INS_POS": round(pos_m, 6),
+            "FUS_INS_GB": ins.gyro_bias_degph, "FUS_INS_GM": ins.gyro_markov_degph,
+            "FUS_INS_GM_TAU": ins.gyro_markov_tau_s}
 
 
 def _parse_utc(text: str) -> datetime:

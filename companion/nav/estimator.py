@@ -108,7 +108,9 @@ def filter_settings(config) -> FilterSettings:
                       config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt),
                       (config.bias_qa_tn_h, config.bias_qa_te_h, config.bias_qa_tz_h),
                       (config.bias_qa_rne, config.bias_qa_rnz, config.bias_qa_rez)),
-        ins=InsErrorSpec(),
+        ins=InsErrorSpec((config.ins_tilt_arcsec, config.ins_tilt_arcsec, config.ins_azimuth_arcsec),
+                         config.ins_vel_err_mps / math.sqrt(2.0), config.ins_pos_err_m, config.ins_gyro_bias_degph,
+                         config.ins_gyro_markov_degph, config.ins_gyro_markov_tau_s, config.ins_vrw_mps_rts),
         dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
                                          config.current_sigma_mps, config.current_q_mps),
         attitude_from_ins=config.attitude_from_ins)
@@ -201,7 +203,9 @@ class PositionEstimator:
                            else f"dead reckoning on {course}: no independent INS position")
         elif have_ins:
             process = InsProcess(self.settings.ins, meas.ins_lat_deg)
-            self.reason = "INS error model: an independent INS position is available" + _ATTITUDE_WORDS[c.attitude_from_ins]
+            ins = self.settings.ins
+            self.reason = (f"INS error model (gyros {ins.gyro_bias_degph:g} + {ins.gyro_markov_degph:g} deg/h): an "
+                           "independent INS position is available" + _ATTITUDE_WORDS[c.attitude_from_ins])
         else:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
         self.symh_reference_nt = symh_value(meas.symh_nt) if c.symh_ratio > 0.0 else math.nan

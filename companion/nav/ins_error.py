@@ -70,8 +70,9 @@ _BIAS, _MARKOV = slice(9, 12), slice(12, 15)
 
 @dataclass(frozen=True)
 class InsErrorSpec:
-    """What the navigator assumes about its INS: Table 1 (misalignment read as arc-seconds, see
-    the README), 1-sigma per axis. ``vrw_mps_rts``: velocity random walk (accelerometer white
+    """What the navigator assumes about its INS, 1-sigma per axis: its datasheet, declared by the
+    operator (the companion's ``FUS_INS_*``); the defaults are Table 1 (misalignment read as
+    arc-seconds, see the README). ``vrw_mps_rts``: velocity random walk (accelerometer white
     noise, m/s per sqrt(s)); Table 1 gives none, a small value keeps the filter from trusting a
     noiseless model absolutely."""
 
