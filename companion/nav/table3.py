@@ -47,7 +47,7 @@ import numpy as np
 from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, fix_covariance
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
-from companion.nav.geo import enu_offset, geodesic_distance_m, geodesic_inverse, offset_position
+from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.navfilter import BiasSpec, measured_variance
 from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
@@ -116,7 +116,7 @@ class Table3Estimator:
         """What the dead reckoning since the last fix adds to ``P`` at ``time_s`` (module
         docstring); advances the distance and steps flown."""
         c = self.config
-        self._flown_m += geodesic_distance_m(*self._last[1], est[0], est[1])
+        self._flown_m += geodesic_inverse(*self._last[1], est[0], est[1])[0]
         self._steps += 1
         dt = max(time_s - self._anchor_time_s, 0.0)
         grown = (c.current_sigma_mps * dt) ** 2 + (DeadReckoningSpec.speed_frac * self._flown_m) ** 2 \
@@ -191,7 +191,7 @@ class Table3Estimator:
         c = self.config
         n = len(self.elements.names)
         se = np.full(n, np.nan) if standard_errors is None else np.asarray(standard_errors, dtype=float)[:n]
-        distance = geodesic_distance_m(c.start_lat_deg, c.start_lon_deg, *fix) if self.calibrated else None
+        distance = geodesic_inverse(c.start_lat_deg, c.start_lon_deg, *fix)[0] if self.calibrated else None
         variance = measured_variance(se, self._floor, self._declared)   # as the error-state filter's R
         if with_model:
             variance = variance + self.model_error.variance(self.elements.names, distance)
