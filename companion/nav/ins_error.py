@@ -139,7 +139,24 @@ def process_noise_density(spec: InsErrorSpec) -> np.ndarray:
 
 
 def discretise(f: np.ndarray, q_c: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(Phi, Q_d)`` of ``dx/dt = F x + w`` over ``dt_s`` seconds, exactly (Van Loan 1978)."""
+    """``(Phi, Q_d)`` of ``dx/dt = F x + w`` over ``dt_s`` seconds, exactly (Van Loan 1978).
+
+    Van Loan's block holds ``expm(-F T)``, which grows as ``exp(T / tau)`` for a state decaying
+    with time constant tau (the Markov drift): beyond a few tau, ``Q_d`` is a difference of huge
+    numbers (a 1 s tau over a 360 s step gave a covariance that was not positive definite). So
+    the step is cut into ``2^k`` equal pieces no longer than the fastest decay on F's diagonal
+    and composed by doubling, ``(Phi, Q) -> (Phi Phi, Phi Q Phi^T + Q)``; one piece, as before,
+    whenever ``T`` is within that time constant (Table 1: 360 s against 3600 s)."""
+    fastest = float(np.max(-np.diagonal(f), initial=0.0))
+    doublings = max(0, math.ceil(math.log2(dt_s * fastest))) if dt_s * fastest > 1.0 else 0
+    phi, q_d = _van_loan(f, q_c, dt_s / 2 ** doublings)
+    for _ in range(doublings):
+        q_d = phi @ q_d @ phi.T + q_d
+        phi = phi @ phi
+    return phi, 0.5 * (q_d + q_d.T)
+
+
+def _van_loan(f: np.ndarray, q_c: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     n = f.shape[0]
     block = np.zeros((2 * n, 2 * n))
     block[:n, :n] = -f
@@ -147,8 +164,7 @@ def discretise(f: np.ndarray, q_c: np.ndarray, dt_s: float) -> tuple[np.ndarray,
     block[n:, n:] = f.T
     e = expm(block * dt_s)
     phi = e[n:, n:].T
-    q_d = phi @ e[:n, n:]
-    return phi, 0.5 * (q_d + q_d.T)
+    return phi, phi @ e[:n, n:]
 
 
 def initial_covariance(spec: InsErrorSpec, lat_deg: float) -> np.ndarray:

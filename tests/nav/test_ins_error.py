@@ -55,6 +55,24 @@ def test_van_loan_matches_a_fine_step_integration(lat, ve, vn):
     np.testing.assert_allclose(q_d, q_d.T, atol=0.0)
 
 
+@pytest.mark.parametrize("tau_s, sigma_degph", [(1.0, 0.005), (10.0, 100.0), (100.0, 1.0)])
+def test_a_markov_drift_much_faster_than_the_step_is_discretised_as_exactly(tau_s, sigma_degph):
+    """FUS_INS_GM_TAU down to 1 s against a 360 s step: Van Loan's block then holds exp(360) and
+    its Q_d was not a covariance; cut into pieces and composed, Phi and Q_d equal a fine-step RK4
+    integration (steps of a tenth of tau) as closely as at Table 1's 3600 s."""
+    spec = InsErrorSpec(gyro_markov_degph=sigma_degph, gyro_markov_tau_s=tau_s, vrw_mps_rts=1e-3)
+    f = error_dynamics(33.0, 10.3, -9.3, tau_s)
+    q_c = process_noise_density(spec)
+    phi, q_d = discretise(f, q_c, 360.0)
+    phi_ref, q_ref = rk4_propagate(f, q_c, 360.0, max(3600, int(3600.0 / tau_s)))
+    np.testing.assert_allclose(phi, phi_ref, rtol=1e-8, atol=1e-12)
+    diag = np.diag(q_ref)
+    scale = np.sqrt(np.outer(diag, diag))
+    round_off = 1e-12 * np.sqrt(np.maximum.outer(diag, diag) * diag.max())
+    assert np.all(np.abs(q_d - q_ref) <= 1e-6 * scale + round_off)
+    assert np.all(np.linalg.eigvalsh(q_d) > -1e-12 * diag.max())          # a covariance
+
+
 def test_free_propagation_oscillates_at_the_schuler_period():
     """A north tilt error at rest, propagated in 60 s steps by the filter's own process model:
     the north velocity error crosses zero every half Schuler period, 2 pi sqrt(M / g) / 2."""
