@@ -57,7 +57,10 @@ from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["Measurement", "Command", "Phase", "Mission", "compensation", "WMM_NAMES", "FROZEN_IN_FLIGHT"]
+__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target", "WMM_NAMES",
+           "FROZEN_IN_FLIGHT"]
+
+CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
 
 KMH = 1.0 / 3.6
 WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
@@ -259,7 +262,17 @@ class Mission:
     # --- the step ------------------------------------------------------------------------------
     def step(self, meas: Measurement) -> Command:
         """Advance one control period. A bad measurement returns a zero-speed command with a
-        reason and changes nothing, so the caller can retry with the next one."""
+        reason and changes nothing, so the caller can retry with the next one. An error inside
+        the core (a filter whose estimate left the Earth, a covariance no longer one) ends the
+        mission FAILED with the error as its reason and ``solver_ok`` False, for the caller's
+        failsafe, instead of raising through it."""
+        try:
+            return self._step(meas)
+        except (ValueError, ArithmeticError) as err:
+            return self._finish(meas.time_s, Phase.FAILED, f"{CORE_ERROR}: {type(err).__name__}: {err}",
+                                solver_ok=False)
+
+    def _step(self, meas: Measurement) -> Command:
         if self.finished is not None:
             return self.finished
         measured = self.measured.values(meas) - self.bias
@@ -342,7 +355,7 @@ class Mission:
             b = b * self.quadrant                             # solve in the destination's quadrant
         target_qp = target * s_unit
         if c.mpc_units == 0:
-            target_qp = self._governed(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
+            target_qp = governed_target(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
         solution = self.mpc.solve(b, s_now * s_unit, target_qp)
         if not solution.ok:
             return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
@@ -360,16 +373,6 @@ class Mission:
                                 solver_time_s=solution.solve_time_s)
         self._advance(meas.time_s, s, theta, speed)
         return command
-
-    def _governed(self, s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:
-        """Reference governor: pull the target to within ``reach_units`` of input (one step at
-        full speed) along the linearised path, so the optimum stays inside the input bounds."""
-        try:
-            needed = solve2(b, target_qp - s_qp)    # input that reaches the target in one step
-        except np.linalg.LinAlgError:
-            return target_qp
-        size = float(np.hypot(*needed))
-        return target_qp if size <= reach_units else s_qp + (target_qp - s_qp) * (reach_units / size)
 
     def _take(self, estimate: Estimate) -> None:
         self.estimate = estimate
@@ -432,3 +435,14 @@ class Mission:
                                  phase=Phase.HOLD, course_rad=course, speed_mps=0.0, done=False,
                                  est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
                                  remaining_m=math.nan, solver_ok=True, reason=reason), **self._filter_fields()})
+
+
+def governed_target(s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:
+    """Reference governor: pull the target to within ``reach_units`` of input (one step at full
+    speed) along the linearised path ``S + B u``, so the optimum stays inside the input bounds."""
+    try:
+        needed = solve2(b, target_qp - s_qp)    # input that reaches the target in one step
+    except np.linalg.LinAlgError:
+        return target_qp
+    size = float(np.hypot(*needed))
+    return target_qp if size <= reach_units else s_qp + (target_qp - s_qp) * (reach_units / size)

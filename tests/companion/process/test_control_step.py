@@ -18,6 +18,8 @@ from tests.companion.process.rig import GOOD, _msg, _run_step, _sent
     (replace(GOOD, course_rad=math.nan), "non-finite command"),
     (replace(GOOD, speed_mps=math.inf), "non-finite command"),
     (replace(GOOD, solver_ok=False, reason="QP failed: max iterations"), "solver failure"),
+    (replace(GOOD, solver_ok=False, reason="navigation core error: ValueError: latitude 123 deg outside [-90, 90]"),
+     "FAILSAFE: navigation core error: ValueError"),
     (replace(GOOD, fix_lat_deg=33.5), "diverged"),                    # 111 km from the estimate
 ])
 def test_navigation_failure_holds_and_restarts(rig, bad, why):
