@@ -190,7 +190,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_INS_GB", float, 0.01, 0.0, 100.0, "deg/h", "INS process model: constant gyro drift per axis (a state the filter estimates)"),
     _p("FUS_INS_GM", float, 0.005, 0.0, 100.0, "deg/h", "INS process model: first-order Gauss-Markov gyro drift per axis"),
     _p("FUS_INS_GM_TAU", float, 3600.0, 1.0, 1e6, "s", "INS process model: correlation time of the Gauss-Markov gyro drift"),
-    _p("FUS_INS_VRW", float, 1e-4, 0.0, 1.0, "m/s/rt(s)", "INS process model: velocity random walk (accelerometer white noise); a small value keeps the filter from trusting a noiseless model absolutely"),
+    _p("FUS_INS_VRW", float, 1e-4, 1e-6, 1.0, "m/s/rt(s)", "INS process model: velocity random walk (accelerometer white noise); never zero: it keeps the filter from trusting a noiseless model absolutely (a position covariance of zero)"),
     _p("FUS_DR_POS_M", float, 150.0, 0.0, 1e5, "m", "dead reckoning: position error added per step (turns, speed changes)"),
     _p("FUS_CUR_MPS", float, 0.3, 0.0, 10.0, "m/s", "dead reckoning: prior 1-sigma of the current (drift) per axis"),
     _p("FUS_CUR_Q", float, 0.05, 0.0, 10.0, "m/s/rt(h)", "dead reckoning: random walk of the current"),

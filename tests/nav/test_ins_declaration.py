@@ -50,6 +50,8 @@ def test_a_declared_ins_reaches_the_filters_covariance():
     assert spec.gyro_markov_tau_s == 1800.0 and process.q_c[12, 12] == pytest.approx(2.0 * (0.05 * DEG_PER_HOUR) ** 2 / 1800.0)
     with pytest.raises(ValueError, match="FUS_INS_GM_TAU"):
         validate_all({"FUS_INS_GM_TAU": 0.0})
+    with pytest.raises(ValueError, match="FUS_INS_VRW"):   # a perfect INS, declared, has a covariance of zero
+        validate_all({"FUS_INS_VRW": 0.0})
 
 
 def test_the_companion_says_which_gyros_it_assumes():
