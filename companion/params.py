@@ -21,6 +21,7 @@ file and line, and the allowed range.
 """
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field, fields
@@ -30,7 +31,7 @@ from typing import Iterable, Mapping
 from companion.registry import READINGS, REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec
 
 __all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate",
-           "validate_all", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller",
+           "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller",
            "registry_parm_text"]
 
 
@@ -48,11 +49,38 @@ def validate(name: str, value: float) -> float | int:
 
 
 def validate_all(values: Mapping[str, float]) -> dict[str, float | int]:
-    """Defaults overlaid with validated values."""
+    """Defaults overlaid with validated values; ParamError also for values that are each in range
+    but cannot be flown together (:func:`combination_error`)."""
     merged = default_values()
     for name, value in values.items():
         merged[name.upper()] = validate(name, value)
+    why = combination_error(merged)
+    if why is not None:
+        raise ParamError(why)
     return merged
+
+
+def combination_error(values: Mapping[str, float]) -> str | None:
+    """Why these values, each within its range, cannot make a mission (None: they can): a field
+    model forced by NAV_WMM that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
+    NAV_PROBE2_DEG within 5 degrees of parallel (the gradient needs two independent moves)."""
+    from companion.nav.wmm import load_wmm
+
+    name = {1: "WMM2020", 2: "WMM2025"}.get(int(values["NAV_WMM"]))
+    year = float(values["NAV_YEAR"])
+    if name is not None:
+        model = load_wmm(name)
+        if not model.valid_from <= year < model.valid_until:
+            return (f"{name} covers {model.valid_from:.2f}..{model.valid_until:.2f}, not NAV_YEAR {year:g} "
+                    f"(NAV_WMM {int(values['NAV_WMM'])}; 0 picks the model by date)")
+    apart = math.radians(float(values["NAV_PROBE2_DEG"]) - float(values["NAV_PROBE1_DEG"]))
+    if abs(math.sin(apart)) < math.sin(math.radians(PROBE_MIN_APART_DEG)):
+        return (f"NAV_PROBE1_DEG {values['NAV_PROBE1_DEG']:g}, NAV_PROBE2_DEG {values['NAV_PROBE2_DEG']:g}: within "
+                f"{PROBE_MIN_APART_DEG:g} deg of parallel (the gradient needs two independent moves)")
+    return None
+
+
+PROBE_MIN_APART_DEG = 5.0
 
 
 def read_parm_file(path: str | os.PathLike) -> dict[str, float | int]:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import fields
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from companion.params import (
     validate_all,
     write_parm_file,
 )
+from sitl.scenario import SCENARIO_DIR, load_scenario
 
 
 # --- registry ------------------------------------------------------------------------------------
@@ -228,3 +230,20 @@ def test_safety_ceiling_from_the_start_up_values():
     assert ceiling.refusal("NAV_DEST_LON", 159.0, values) == "outside SAFE_FENCE_KM 50"   # 98 km
     mid = distance_to_route_m(30.5, 155.0, ceiling.route)                               # near the middle
     assert mid < 30e3
+
+
+@pytest.mark.parametrize("values,why", [
+    ({"NAV_WMM": 1, "NAV_YEAR": 2026.5}, "WMM2020 covers 2019.94..2025.00, not NAV_YEAR 2026.5"),
+    ({"NAV_WMM": 2, "NAV_YEAR": 2020.5}, "WMM2025 covers 2024.87..2030.00"),
+    ({"NAV_PROBE1_DEG": 90.0, "NAV_PROBE2_DEG": 272.0}, "within 5 deg of parallel"),
+])
+def test_values_in_range_that_no_mission_can_fly_together_are_refused(values, why):
+    """Each in range; together the mission's constructor raised (no model for the year) or the
+    probing failed (parallel moves). validate_all names the clash; the registry's defaults and
+    every bundled scenario pass, and so does a model that covers the year."""
+    with pytest.raises(ParamError, match=re.escape(why)):
+        validate_all(values)
+    validate_all({})
+    validate_all({"NAV_WMM": 2, "NAV_YEAR": 2026.5, "NAV_PROBE2_DEG": 96.0})
+    for path in SCENARIO_DIR.glob("*.toml"):
+        validate_all(load_scenario(path.stem).nav_overrides())

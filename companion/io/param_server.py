@@ -58,8 +58,8 @@ from typing import Callable
 
 from companion.ceiling import SafetyCeiling
 from companion.io.link import COMPANION_COMPONENT, MavlinkLink, mavlink
-from companion.params import REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec, default_values, read_parm_file, \
-    validate_all, write_parm_file
+from companion.params import REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec, combination_error, default_values, \
+    read_parm_file, validate_all, write_parm_file
 from companion.registry import READINGS
 
 __all__ = ["ParamServer", "encode_value", "decode_value", "ENCODINGS"]
@@ -242,6 +242,9 @@ class ParamServer:
             self.link.send_statustext(f"FcMPC: {name}={raw:.6g} refused, {why}", mavlink.MAV_SEVERITY_WARNING)
             return
         why = self._ceiling().refusal(name, value, self.values)
+        if why is None:   # each value in range, but together no mission (NAV_WMM against NAV_YEAR, ...)
+            clash = combination_error({**self.values, name: value})
+            why = None if clash is None else f"refused: {clash}"
         if why is not None:
             self.sets_refused += 1
             self.send_value(name)

@@ -322,6 +322,28 @@ def test_the_link_cannot_raise_the_safety_ceiling(served, tmp_path, name, value,
     assert not (tmp_path / "companion.parm").exists()
 
 
+@pytest.mark.parametrize("first,name,value,why", [
+    (("NAV_YEAR", 2026.5), "NAV_WMM", 1, "WMM2020 covers 2019.94..2025.00"),   # both in range, no model for both
+    (None, "NAV_PROBE2_DEG", 180.0, "within 5 deg of parallel"),              # NAV_PROBE1_DEG 0: one line
+])
+def test_a_value_no_mission_can_fly_with_the_others_is_refused(served, tmp_path, first, name, value, why):
+    """Each value in range, together no mission: the companion built its mission from them and
+    raised (NAV_WMM 1 with NAV_YEAR 2026.5), or failed the probing. The write is refused, with the
+    unchanged value and a STATUSTEXT saying why; the value set before it stays."""
+    if first is not None:
+        served.client.mav.param_set_send(1, 191, first[0].encode(), first[1], mavlink.MAV_PARAM_TYPE_REAL32)
+        assert served.recv("PARAM_VALUE", condition=lambda m: m.param_id == first[0]).param_value == \
+            pytest.approx(first[1])
+    before = served.server.values[name]
+    kind = mavlink.MAV_PARAM_TYPE_INT32 if isinstance(before, int) else mavlink.MAV_PARAM_TYPE_REAL32
+    served.client.mav.param_set_send(1, 191, name.encode(), value, kind)
+    msgs = served.drain(1.0)
+    replies = [m for m in msgs if m.get_type() == "PARAM_VALUE" and m.param_id == name]
+    text = "".join(m.text for m in msgs if m.get_type() == "STATUSTEXT")   # chunks of a long text, joined
+    assert replies and replies[-1].param_value == before and served.server.values[name] == before
+    assert f"{name}=" in text and why in text, text
+
+
 def test_a_destination_near_the_route_is_accepted(served):
     served.client.mav.param_set_send(1, 191, b"NAV_DEST_LAT", 28.3, mavlink.MAV_PARAM_TYPE_REAL32)   # 33 km north
     reply = served.recv("PARAM_VALUE", condition=lambda m: m.param_id == "NAV_DEST_LAT")
