@@ -31,8 +31,10 @@ from typing import Iterable, Mapping
 from companion.registry import READINGS, REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec
 
 __all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate",
-           "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig", "Controller",
-           "registry_parm_text"]
+           "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig",
+           "Controller", "registry_parm_text", "PROBE_MIN_APART_DEG"]
+
+PROBE_MIN_APART_DEG = 5.0   # the probing headings' least angle from parallel (combination_error)
 
 
 def default_values() -> dict[str, float | int]:
@@ -78,9 +80,6 @@ def combination_error(values: Mapping[str, float]) -> str | None:
         return (f"NAV_PROBE1_DEG {values['NAV_PROBE1_DEG']:g}, NAV_PROBE2_DEG {values['NAV_PROBE2_DEG']:g}: within "
                 f"{PROBE_MIN_APART_DEG:g} deg of parallel (the gradient needs two independent moves)")
     return None
-
-
-PROBE_MIN_APART_DEG = 5.0
 
 
 def read_parm_file(path: str | os.PathLike) -> dict[str, float | int]:
