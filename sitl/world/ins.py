@@ -107,6 +107,17 @@ class InsErrorConfig:
     deterministic: bool = False
     onboard: bool = True      # False: no navigation-grade INS (ArduPilot, PX4 on MEMS): no INS position
 
+    def __post_init__(self) -> None:
+        values = {"misalign_arcmin": self.misalign_arcmin, "vel_err_mps": self.vel_err_mps,
+                  "pos_err_east_m": self.pos_err_east_m, "pos_err_north_m": self.pos_err_north_m,
+                  "gyro_bias_degph": self.gyro_bias_degph, "gyro_markov_degph": self.gyro_markov_degph}
+        for name, value in values.items():   # 1-sigma values, or with ``deterministic`` the errors themselves
+            for v in (value if isinstance(value, tuple) else (value,)):
+                if not math.isfinite(v) or (v < 0.0 and not self.deterministic):
+                    raise ValueError(f"{name} = {value!r}: must be finite, and a 1-sigma is not negative")
+        if not (math.isfinite(self.gyro_markov_tau_s) and self.gyro_markov_tau_s > 0.0):
+            raise ValueError(f"gyro_markov_tau_s = {self.gyro_markov_tau_s!r}: must be a positive time")
+
 
 class InsErrorModel:
     """Propagates the INS error along the true track; seeded and reproducible.

@@ -270,6 +270,12 @@ def test_good_file_loads(tmp_path):
     ("vehicle = 3\n" + GOOD.replace("[vehicle]\nmax_speed_kmh = 60.0\n", ""), ["[vehicle]", "table"]),
     (GOOD + "[navigator]\nFUS_GM_DEGS = 0.0\n", ["[navigator]", "FUS_GM_DEGS"]),
     (GOOD + "[navigator]\nFUS_GM_NT = -1.0\n", ["[navigator]", "FUS_GM_NT"]),
+    (GOOD + "[sensors]\nmag_noise_nt = -5.0\n", ["[sensors]", "mag_noise_nt", "not negative"]),
+    (GOOD + "[sensors]\nmag_rate_hz = 0\n", ["[sensors]", "mag_rate_hz", "positive"]),
+    (GOOD.replace('misalign_unit = "arcsec"\n', 'misalign_unit = "arcsec"\ngyro_markov_tau_s = 0.0\n'),
+     ["[ins]", "gyro_markov_tau_s"]),
+    (GOOD.replace('misalign_unit = "arcsec"\n', 'misalign_unit = "arcsec"\nvel_err_mps = -10.0\n'),
+     ["[ins]", "vel_err_mps"]),
 ])
 def test_bad_scenario_names_the_file_and_the_key(tmp_path, text, words):
     path = write(tmp_path, text)
