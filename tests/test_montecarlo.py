@@ -205,6 +205,8 @@ BAD_SWEEPS = [
     (["--sweep", "sensors.mag_rate_hz=0"], "mag_rate_hz = 0.0: must be a finite positive rate"),
     (["--sweep", "ins.gyro_markov_tau_s=0"], "gyro_markov_tau_s = 0.0: must be a positive time"),
     (["--sweep", "ins.gyro_bias_degph=-0.01"], "gyro_bias_degph = -0.01"),
+    (["--sweep", "vehicle.accel_mps2=0"], "accel_mps2 = 0.0: must be finite and positive"),
+    (["--sweep", "motion.current_mps=-0.3"], "current_mps = -0.3"),
     (["--sweep", "MPC_HORIZON=2,2"], "repeated"),
     (["--sweep", "MPC_N=2,4,8"], "did you mean"),
     (["--sweep", "NAV_CONTROLLER=1,2"], "--controllers"),

@@ -35,6 +35,12 @@ class VehicleLimits:
     accel_mps2: float = 0.5
     turn_rate_radps: float = math.radians(6.0)
 
+    def __post_init__(self) -> None:
+        for name in ("max_speed_mps", "accel_mps2", "turn_rate_radps"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):   # a vehicle that cannot move or turn flies nothing
+                raise ValueError(f"{name} = {value!r}: must be finite and positive")
+
 
 @dataclass(frozen=True)
 class MotionErrorConfig:
@@ -44,6 +50,12 @@ class MotionErrorConfig:
     current_mps: float = 0.0
     speed_scale_sigma: float = 0.0
     course_bias_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("current_mps", "speed_scale_sigma", "course_bias_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} = {value!r}: a 1-sigma must be finite and not negative")
 
     @property
     def active(self) -> bool:
