@@ -51,7 +51,8 @@ import numpy as np
 
 from companion.nav.elements import ElementSet, element_set, hz_standard_errors, resolve_elements
 from companion.nav.geo import enu_offset, geodesic_distance_m
-from companion.nav.mission import Command, Measurement, Mission, Phase
+from companion.nav.mission import WMM_NAMES, Command, Measurement, Mission, Phase
+from companion.nav.wmm import model_for_date
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
 from sitl.sensors import WaveMotion, make_error_models
@@ -168,7 +169,10 @@ class InProcessFlight:
         self.ins = InsErrorModel(scenario.ins, np.random.default_rng(ins_seed), nav.start_lat_deg)
         self.truth = truth = truth.for_seed(seed)
         if nav_model is None and scenario.field_model.main == "wmm":
-            nav_model = truth.model
+            # the ideal world: the navigator's WMM is the truth's own, when it is the model the
+            # navigator picks for its NAV_YEAR (a navigator set to another date picks its own)
+            wanted = model_for_date(nav.year, WMM_NAMES.get(nav.wmm))
+            nav_model = truth.model if wanted.name == truth.model.name else wanted
         self.mission = Mission(nav, nav_model)
         # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)
         self.mission.set_start_fix(nav.gps_sigma_m)
@@ -180,7 +184,7 @@ class InProcessFlight:
         self.errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
         self.motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed))
         if not self.sampled:
-            start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, nav.year)
+            start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, truth.year)   # the world's date
             self.sigma_d, self.sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),
                                                                        float(start_field.f_nt))
             samples = max(1.0, sensors.mag_rate_hz * nav.period_s)

@@ -50,3 +50,17 @@ def test_missions_flown_side_by_side_are_each_the_mission_flown_alone():
         assert (a.phase, a.reason, a.iterations, a.duration_s) == (b.phase, b.reason, b.iterations, b.duration_s)
         for name in FIELDS:
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_a_navigator_set_to_another_date_than_the_world_flies_its_own_model():
+    """The ideal world hands the navigator the truth's own WMM only when it is the model the
+    navigator picks for its NAV_YEAR. A navigator four and a half years off (NAV_YEAR 2029: WMM2025)
+    raised before (WMM2020, the world's, refused 2029); now it flies with its own model, and the
+    secular variation it did not expect puts it kilometres off where the matched one is not."""
+    scenario = load_scenario("pacific")
+    truth = build_truth_field(scenario)
+    matched = fly_in_process(NavConfig.from_values(validate_all(scenario.nav_overrides())), scenario, 0, truth)
+    dated = fly_in_process(NavConfig.from_values(validate_all({**scenario.nav_overrides(), "NAV_YEAR": 2029.0})),
+                           scenario, 0, truth)
+    assert matched.arrived and dated.arrived
+    assert matched.remaining_m < 1000.0 < dated.remaining_m, (matched.remaining_m, dated.remaining_m)
