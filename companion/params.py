@@ -34,7 +34,8 @@ __all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "d
            "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig",
            "Controller", "registry_parm_text", "PROBE_MIN_APART_DEG"]
 
-PROBE_MIN_APART_DEG = 5.0   # the probing headings' least angle from parallel (combination_error)
+# the probing headings' least angle from parallel: that of companion.nav.gradient.MIN_MOVE_SINE
+PROBE_MIN_APART_DEG = math.degrees(math.asin(0.2))
 
 
 def default_values() -> dict[str, float | int]:
@@ -65,7 +66,7 @@ def validate_all(values: Mapping[str, float]) -> dict[str, float | int]:
 def combination_error(values: Mapping[str, float]) -> str | None:
     """Why these values, each within its range, cannot make a mission (None: they can): a field
     model forced by NAV_WMM that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
-    NAV_PROBE2_DEG within 5 degrees of parallel (the gradient needs two independent moves)."""
+    NAV_PROBE2_DEG within 11.5 degrees of parallel (the gradient needs two independent moves)."""
     from companion.nav.wmm import load_wmm
 
     name = {1: "WMM2020", 2: "WMM2025"}.get(int(values["NAV_WMM"]))
@@ -78,7 +79,7 @@ def combination_error(values: Mapping[str, float]) -> str | None:
     apart = math.radians(float(values["NAV_PROBE2_DEG"]) - float(values["NAV_PROBE1_DEG"]))
     if abs(math.sin(apart)) < math.sin(math.radians(PROBE_MIN_APART_DEG)):
         return (f"NAV_PROBE1_DEG {values['NAV_PROBE1_DEG']:g}, NAV_PROBE2_DEG {values['NAV_PROBE2_DEG']:g}: within "
-                f"{PROBE_MIN_APART_DEG:g} deg of parallel (the gradient needs two independent moves)")
+                f"{PROBE_MIN_APART_DEG:.1f} deg of parallel (the gradient needs two independent moves)")
     return None
 
 

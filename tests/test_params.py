@@ -235,7 +235,8 @@ def test_safety_ceiling_from_the_start_up_values():
 @pytest.mark.parametrize("values,why", [
     ({"NAV_WMM": 1, "NAV_YEAR": 2026.5}, "WMM2020 covers 2019.94..2025.00, not NAV_YEAR 2026.5"),
     ({"NAV_WMM": 2, "NAV_YEAR": 2020.5}, "WMM2025 covers 2024.87..2030.00"),
-    ({"NAV_PROBE1_DEG": 90.0, "NAV_PROBE2_DEG": 272.0}, "within 5 deg of parallel"),
+    ({"NAV_PROBE1_DEG": 90.0, "NAV_PROBE2_DEG": 272.0}, "within 11.5 deg of parallel"),
+    ({"NAV_PROBE1_DEG": 0.0, "NAV_PROBE2_DEG": 10.0}, "within 11.5 deg of parallel"),   # the gradient refused it
 ])
 def test_values_in_range_that_no_mission_can_fly_together_are_refused(values, why):
     """Each in range; together the mission's constructor raised (no model for the year) or the

@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-__all__ = ["GradientUpdate", "gradient_from_moves", "broyden_update", "paper_update", "GradientEstimator"]
+__all__ = ["GradientUpdate", "MIN_MOVE_SINE", "gradient_from_moves", "broyden_update", "paper_update", "GradientEstimator"]
 
 
 class GradientUpdate:
@@ -42,8 +42,11 @@ class GradientUpdate:
     TWO_MOVES = 2
 
 
+MIN_MOVE_SINE = 0.2   # two moves closer to parallel than this (11.5 deg) give no gradient
+
+
 def gradient_from_moves(ds1: np.ndarray, dp1: np.ndarray, ds2: np.ndarray, dp2: np.ndarray,
-                        min_sine: float = 0.2) -> np.ndarray:
+                        min_sine: float = MIN_MOVE_SINE) -> np.ndarray:
     """G from two moves: ``G = [dS_1 dS_2] [dp_1 dp_2]^-1`` (eq. 6-9 for axis-aligned moves).
 
     ``ds*`` are (dD, dI) in degrees, ``dp*`` (east, north) displacements in metres.
@@ -115,7 +118,10 @@ class GradientEstimator:
                 self._moves.append((ds, dp))
             if len(self._moves) >= 2:
                 (ds1, dp1), (ds2, dp2) = self._moves[-2:]
-                self.g = gradient_from_moves(ds1, dp1, ds2, dp2)
+                try:
+                    self.g = gradient_from_moves(ds1, dp1, ds2, dp2)
+                except ValueError:   # two moves along one line (the vehicle did not turn): no gradient yet
+                    self.g = None
             return self.g
         if frozen or not moved:
             return self.g

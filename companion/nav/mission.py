@@ -315,7 +315,7 @@ class Mission:
         if self.k == 1:
             return self._probe(meas.time_s, s, math.radians(c.probe2_deg), Phase.PROBE_2)
         if g is None:
-            return self._finish(meas.time_s, Phase.FAILED, "no gradient: the probing moves were too short")
+            return self._finish(meas.time_s, Phase.FAILED, "no gradient: the probing moves were too short or along one line")
         return self._cruise(meas, s, g)
 
     def _cruise(self, meas: Measurement, s: np.ndarray, g: np.ndarray) -> Command:

@@ -324,7 +324,7 @@ def test_the_link_cannot_raise_the_safety_ceiling(served, tmp_path, name, value,
 
 @pytest.mark.parametrize("first,name,value,why", [
     (("NAV_YEAR", 2026.5), "NAV_WMM", 1, "WMM2020 covers 2019.94..2025.00"),   # both in range, no model for both
-    (None, "NAV_PROBE2_DEG", 180.0, "within 5 deg of parallel"),              # NAV_PROBE1_DEG 0: one line
+    (None, "NAV_PROBE2_DEG", 180.0, "within 11.5 deg of parallel"),           # NAV_PROBE1_DEG 0: one line
 ])
 def test_a_value_no_mission_can_fly_with_the_others_is_refused(served, tmp_path, first, name, value, why):
     """Each value in range, together no mission: the companion built its mission from them and

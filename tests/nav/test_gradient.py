@@ -154,6 +154,18 @@ def test_estimator_ignores_short_and_non_finite_moves_while_probing():
     np.testing.assert_allclose(g, G_PACIFIC, rtol=1e-9)
 
 
+def test_probing_moves_along_one_line_give_no_gradient_and_do_not_raise():
+    """A vehicle that did not turn for its second probe (the moves east, then east again, or back
+    west) gives no gradient, as moves too short do; it raised ValueError out of the core before,
+    the fuzz of tests/nav/test_mission_fuzz.py found it. Ten degrees apart is still too close
+    (MIN_MOVE_SINE 0.2, 11.5 deg); a later move at an angle gives the exact gradient."""
+    field = LinearField(G_PACIFIC)
+    for second in ((4000.0, 0.0), (-5000.0, 0.0), (5000.0 * math.cos(0.17), 5000.0 * math.sin(0.17))):
+        est = GradientEstimator()
+        assert fly(est, field, [(5000.0, 0.0), second]) == [None, None]
+        np.testing.assert_allclose(fly(est, field, [(0.0, -5000.0)])[-1], G_PACIFIC, rtol=1e-9)
+
+
 def test_frozen_estimator_keeps_the_probe_gradient_lti():
     true_field = LinearField(G_PACIFIC)
     est = GradientEstimator()
