@@ -32,10 +32,7 @@ from companion.registry import READINGS, REGISTRY, SPEC_BY_NAME, ParamError, Par
 
 __all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate",
            "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig",
-           "Controller", "registry_parm_text", "PROBE_MIN_APART_DEG"]
-
-# the probing headings' least angle from parallel: that of companion.nav.gradient.MIN_MOVE_SINE
-PROBE_MIN_APART_DEG = math.degrees(math.asin(0.2))
+           "Controller", "registry_parm_text"]
 
 
 def default_values() -> dict[str, float | int]:
@@ -67,9 +64,10 @@ def combination_error(values: Mapping[str, float]) -> str | None:
     """Why these values, each within its range, cannot make a mission (None: they can): a field
     model forced by NAV_WMM that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
     NAV_PROBE2_DEG within 11.5 degrees of parallel (the gradient needs two independent moves)."""
-    from companion.nav.wmm import load_wmm
+    from companion.nav.gradient import MIN_MOVE_SINE   # the core's own bounds (here: no import cycle)
+    from companion.nav.wmm import WMM_NAMES, load_wmm
 
-    name = {1: "WMM2020", 2: "WMM2025"}.get(int(values["NAV_WMM"]))
+    name = WMM_NAMES.get(int(values["NAV_WMM"]))
     year = float(values["NAV_YEAR"])
     if name is not None:
         model = load_wmm(name)
@@ -77,9 +75,10 @@ def combination_error(values: Mapping[str, float]) -> str | None:
             return (f"{name} covers {model.valid_from:.2f}..{model.valid_until:.2f}, not NAV_YEAR {year:g} "
                     f"(NAV_WMM {int(values['NAV_WMM'])}; 0 picks the model by date)")
     apart = math.radians(float(values["NAV_PROBE2_DEG"]) - float(values["NAV_PROBE1_DEG"]))
-    if abs(math.sin(apart)) < math.sin(math.radians(PROBE_MIN_APART_DEG)):
+    if abs(math.sin(apart)) < MIN_MOVE_SINE:
+        least_deg = math.degrees(math.asin(MIN_MOVE_SINE))
         return (f"NAV_PROBE1_DEG {values['NAV_PROBE1_DEG']:g}, NAV_PROBE2_DEG {values['NAV_PROBE2_DEG']:g}: within "
-                f"{PROBE_MIN_APART_DEG:.1f} deg of parallel (the gradient needs two independent moves)")
+                f"{least_deg:.1f} deg of parallel (the gradient needs two independent moves)")
     return None
 
 

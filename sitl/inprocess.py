@@ -51,8 +51,8 @@ import numpy as np
 
 from companion.nav.elements import ElementSet, element_set, hz_standard_errors, resolve_elements
 from companion.nav.geo import enu_offset, geodesic_distance_m
-from companion.nav.mission import WMM_NAMES, Command, Measurement, Mission, Phase
-from companion.nav.wmm import model_for_date
+from companion.nav.field import model_for_setting
+from companion.nav.mission import Command, Measurement, Mission, Phase
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
 from sitl.sensors import WaveMotion, make_error_models
@@ -171,7 +171,7 @@ class InProcessFlight:
         if nav_model is None and scenario.field_model.main == "wmm":
             # the ideal world: the navigator's WMM is the truth's own, when it is the model the
             # navigator picks for its NAV_YEAR (a navigator set to another date picks its own)
-            wanted = model_for_date(nav.year, WMM_NAMES.get(nav.wmm))
+            wanted = model_for_setting(nav.year, nav.wmm)
             nav_model = truth.model if wanted.name == truth.model.name else wanted
         self.mission = Mission(nav, nav_model)
         # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)

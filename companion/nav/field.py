@@ -8,7 +8,7 @@ modules, one idea each, and is re-exported here so callers keep one import:
   technical report's algorithm), pure numpy;
 * :mod:`companion.nav.wmm`: :class:`WorldMagneticModel` (NOAA ``.COF`` files, by default the
   copies shipped with pygeomag; validity span; :class:`FieldElements`), :func:`load_wmm`,
-  :func:`model_for_date`;
+  :func:`model_for_date`, :func:`model_for_setting`;
 * :mod:`companion.nav.fix`: :func:`decl_incl_gradient` / :func:`element_gradient` (G in element
   units per metre) and :func:`geomagnetic_fix` / :func:`element_fix` (eq. 49, Newton from a prior), :func:`fix_covariance`.
 """
@@ -31,6 +31,7 @@ from companion.nav.wmm import (
     WorldMagneticModel,
     load_wmm,
     model_for_date,
+    model_for_setting,
 )
 
 __all__ = [
@@ -48,5 +49,6 @@ __all__ = [
     "geomagnetic_fix",
     "load_wmm",
     "model_for_date",
+    "model_for_setting",
     "schmidt_polynomials",
 ]

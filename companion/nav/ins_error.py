@@ -148,7 +148,7 @@ def discretise(f: np.ndarray, q_c: np.ndarray, dt_s: float) -> tuple[np.ndarray,
     and composed by doubling, ``(Phi, Q) -> (Phi Phi, Phi Q Phi^T + Q)``; one piece, as before,
     whenever ``T`` is within that time constant (Table 1: 360 s against 3600 s)."""
     fastest = float(np.max(-np.diagonal(f), initial=0.0))
-    doublings = max(0, math.ceil(math.log2(dt_s * fastest))) if dt_s * fastest > 1.0 else 0
+    doublings = math.ceil(math.log2(dt_s * fastest)) if dt_s * fastest > 1.0 else 0
     phi, q_d = _van_loan(f, q_c, dt_s / 2 ** doublings)
     for _ in range(doublings):
         q_d = phi @ q_d @ phi.T + q_d

@@ -46,7 +46,7 @@ from companion import course_from_theta
 from companion.nav.arrival import Arrival
 from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
-from companion.nav.field import WorldMagneticModel, element_gradient, model_for_date
+from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
@@ -57,13 +57,12 @@ from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target", "WMM_NAMES",
+__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
            "FROZEN_IN_FLIGHT"]
 
 CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
 
 KMH = 1.0 / 3.6
-WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
 
 
 # Settings a running mission keeps until it ends: they define where it goes, what it has
@@ -151,7 +150,7 @@ class Mission:
                  bias: tuple[float, float] | None = None) -> None:
         self.config = config
         if model is None:
-            model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
+            model = model_for_setting(config.year, config.wmm)
         self.model = model
         self.measured: ElementSet = element_set(config.elements or ElementSet.PAPER)
         self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see

@@ -22,10 +22,14 @@ from numpy.typing import ArrayLike
 
 from companion.nav.harmonics import WMM_DEGREE, HarmonicSums, schmidt_polynomials
 
-__all__ = ["WMM2025_SWITCH_YEAR", "FieldElements", "WorldMagneticModel", "load_wmm", "model_for_date"]
+__all__ = ["WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm", "model_for_date",
+           "model_for_setting"]
 
 WMM2025_SWITCH_YEAR = 2024.87
 """Decimal year from which :func:`model_for_date` uses WMM2025 (released 2024-11-13)."""
+
+WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
+"""The models NAV_WMM forces (0: by date, :func:`model_for_setting`)."""
 
 # Points per block in the array path: keeps the (points x 90) temporaries inside the CPU cache.
 _BLOCK = 128
@@ -287,3 +291,9 @@ def model_for_date(year: float, override: str | None = None) -> WorldMagneticMod
             f"{load_wmm('WMM2020').valid_from:.3f}, WMM2025 until {load_wmm('WMM2025').valid_until:.1f}"
         )
     return model
+
+
+def model_for_setting(year: float, wmm: int) -> WorldMagneticModel:
+    """The model the settings ask for: NAV_WMM ``wmm`` 0 by the date ``year`` (NAV_YEAR,
+    :func:`model_for_date`), 1 WMM2020, 2 WMM2025 (:data:`WMM_NAMES`)."""
+    return model_for_date(year, WMM_NAMES.get(int(wmm)))

@@ -27,9 +27,9 @@ from companion.io.param_server import ParamServer
 from companion.io.sensors.base import SampleKind, SensorSource
 from companion.io.sensors.factory import make_source
 from companion.io.sensors.mavlink_source import MavlinkDecoder
-from companion.nav.field import model_for_date
+from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagCalibration, MagProcessor
-from companion.nav.mission import WMM_NAMES, Command, Mission, Phase
+from companion.nav.mission import Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
@@ -82,7 +82,7 @@ class CompanionApp:
         self.notifier = Notifier()   # systemd READY/WATCHDOG (a no-op outside systemd)
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
-        model_for_date(self.nav_cfg.year, WMM_NAMES.get(self.nav_cfg.wmm))   # load the coefficients now, not at take-off
+        model_for_setting(self.nav_cfg.year, self.nav_cfg.wmm)   # load the coefficients now, not at take-off
         self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None

@@ -12,9 +12,9 @@ import math
 from dataclasses import replace
 
 from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, resolve_elements
-from companion.nav.field import model_for_date
+from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_distance_m
-from companion.nav.mission import WMM_NAMES, Mission
+from companion.nav.mission import Mission
 from companion.params import NavConfig
 from companion.process.options import GPS_START_MAX_AGE_S
 
@@ -116,7 +116,7 @@ class MissionPreparation:
         if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
             return None, "" if not config.calibrate else f"not calibrated (start from {source})"
         elements = ELEMENT_SETS[config.elements]
-        model = model_for_date(config.year, WMM_NAMES.get(config.wmm))
+        model = model_for_setting(config.year, config.wmm)
         expected = elements.values(model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year))
         measured = elements.values(replace(startup, incl_deg=self.inclination(startup)))
         bias = elements.difference(measured, expected)

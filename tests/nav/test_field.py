@@ -228,6 +228,9 @@ def test_model_for_date_selection_and_override() -> None:
     assert model_for_date(PAPER_EPOCH, override="WMM2025").name == "WMM2025"
     assert model_for_date(2027.0, override="WMM2020").name == "WMM2020"
     assert model_for_date(PAPER_EPOCH) is load_wmm("WMM2020")  # cached
+    # NAV_WMM: 0 by date, 1 and 2 forced
+    assert [field.model_for_setting(2026.0, wmm).name for wmm in (0, 1, 2)] == ["WMM2025", "WMM2020", "WMM2025"]
+    assert field.model_for_setting(PAPER_EPOCH, 0) is load_wmm("WMM2020")
     wmm2020 = load_wmm("WMM2020")
     assert (wmm2020.epoch, wmm2020.valid_until) == (2020.0, 2025.0)
     # WMM2025 is usable from its release (2024-11-13), so the switch year is inside its span

@@ -209,10 +209,11 @@ class MavlinkDecoder:
                 t = self.clock.now_s
             alt_ell = getattr(msg, "alt_ellipsoid", 0)
             h_acc = getattr(msg, "h_acc", 0)
-            on_earth = _on_earth(msg.lat * 1e-7, msg.lon * 1e-7)
+            lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+            on_earth = _on_earth(lat, lon)
             if not on_earth:
-                self.last_problem["gps"] = f"GPS_RAW_INT outside the Earth: lat {msg.lat * 1e-7:g}, lon {msg.lon * 1e-7:g}"
-            return [GpsSample(time_s=t, lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7,
+                self.last_problem["gps"] = f"GPS_RAW_INT outside the Earth: lat {lat:g}, lon {lon:g}"
+            return [GpsSample(time_s=t, lat_deg=lat, lon_deg=lon,
                               alt_m=alt_ell * 1e-3 if alt_ell else math.nan, fix_type=int(msg.fix_type),
                               h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
                               num_sv=int(msg.satellites_visible) if msg.satellites_visible != 255 else 0,
@@ -220,12 +221,12 @@ class MavlinkDecoder:
         if mtype == "GLOBAL_POSITION_INT":
             if msg.lat == 0 and msg.lon == 0:   # "no position" as ArduPilot and PX4 send it
                 return []
-            if not _on_earth(msg.lat * 1e-7, msg.lon * 1e-7):   # int32 degE7 reaches 214 deg: not a position
-                self.last_problem["position"] = (f"GLOBAL_POSITION_INT outside the Earth: lat {msg.lat * 1e-7:g}, "
-                                                 f"lon {msg.lon * 1e-7:g}")
+            lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+            if not _on_earth(lat, lon):   # int32 degE7 reaches 214 deg: not a position
+                self.last_problem["position"] = f"GLOBAL_POSITION_INT outside the Earth: lat {lat:g}, lon {lon:g}"
                 return []
-            self.fc_position = FcPosition(msg.time_boot_ms * 1e-3, msg.lat * 1e-7, msg.lon * 1e-7,
-                                          msg.alt * 1e-3, msg.vx * 0.01, msg.vy * 0.01)
+            self.fc_position = FcPosition(msg.time_boot_ms * 1e-3, lat, lon, msg.alt * 1e-3, msg.vx * 0.01,
+                                          msg.vy * 0.01)
         return []
 
 
