@@ -21,6 +21,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from sitl.world.attitude import AttitudeErrorConfig
+from sitl.world.checks import require
 from sitl.world.crustal import CrustalConfig
 from sitl.world.ins import InsErrorConfig
 from sitl.world.magerrors import MagErrorConfig
@@ -36,14 +37,6 @@ FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heart
 
 class ScenarioError(ValueError):
     """A scenario file that cannot be used."""
-
-
-def _require(config, name: str, ok, what: str) -> None:
-    """ValueError naming ``name`` unless its value is finite and ``ok`` (a scenario file's or a
-    sweep's value: :func:`_build` and the sweep turn it into one clear line)."""
-    value = getattr(config, name)
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and ok(value)):
-        raise ValueError(f"{name} = {value!r}: must be {what}")
 
 
 @dataclass(frozen=True)
@@ -70,12 +63,11 @@ class SensorModel:
     inprocess_samples: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("mag_rate_hz", "imu_rate_hz"):
-            _require(self, name, lambda v: v > 0.0, "a finite positive rate")
-        for name in ("mag_noise_nt", "mag_lsb_nt", "accel_noise_mps2", "gyro_noise_radps", "attitude_noise_deg",
-                     "gps_noise_m", "gps_denied_after_s", "mag_hard_iron_resid_nt", "mag_soft_iron_resid",
-                     "mag_temp_coeff_nt_per_k", "mag_temp_swing_k"):
-            _require(self, name, lambda v: v >= 0.0, "finite and not negative (a 1-sigma, a size or a time)")
+        require(self, ("mag_rate_hz", "imu_rate_hz"), lambda v: v > 0.0, "a finite positive rate")
+        require(self, ("mag_noise_nt", "mag_lsb_nt", "accel_noise_mps2", "gyro_noise_radps", "attitude_noise_deg",
+                       "gps_noise_m", "gps_denied_after_s", "mag_hard_iron_resid_nt", "mag_soft_iron_resid",
+                       "mag_temp_coeff_nt_per_k", "mag_temp_swing_k"), lambda v: v >= 0.0,
+                "finite and not negative (a 1-sigma, a size or a time)")
 
     @property
     def mag_errors(self) -> MagErrorConfig:

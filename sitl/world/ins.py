@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from companion.nav.geo import radii_of_curvature_m
+from sitl.world.checks import require
 
 __all__ = ["InsErrorConfig", "InsErrorModel", "expm_times", "expm_times_stacked", "propagate_together"]
 
@@ -108,15 +109,11 @@ class InsErrorConfig:
     onboard: bool = True      # False: no navigation-grade INS (ArduPilot, PX4 on MEMS): no INS position
 
     def __post_init__(self) -> None:
-        values = {"misalign_arcmin": self.misalign_arcmin, "vel_err_mps": self.vel_err_mps,
-                  "pos_err_east_m": self.pos_err_east_m, "pos_err_north_m": self.pos_err_north_m,
-                  "gyro_bias_degph": self.gyro_bias_degph, "gyro_markov_degph": self.gyro_markov_degph}
-        for name, value in values.items():   # 1-sigma values, or with ``deterministic`` the errors themselves
-            for v in (value if isinstance(value, tuple) else (value,)):
-                if not math.isfinite(v) or (v < 0.0 and not self.deterministic):
-                    raise ValueError(f"{name} = {value!r}: must be finite, and a 1-sigma is not negative")
-        if not (math.isfinite(self.gyro_markov_tau_s) and self.gyro_markov_tau_s > 0.0):
-            raise ValueError(f"gyro_markov_tau_s = {self.gyro_markov_tau_s!r}: must be a positive time")
+        # 1-sigma values, or with ``deterministic`` the errors themselves (of either sign)
+        require(self, ("misalign_arcmin", "vel_err_mps", "pos_err_east_m", "pos_err_north_m", "gyro_bias_degph",
+                       "gyro_markov_degph"), lambda v: self.deterministic or v >= 0.0,
+                "finite, and a 1-sigma is not negative")
+        require(self, ("gyro_markov_tau_s",), lambda v: v > 0.0, "a positive time")
 
 
 class InsErrorModel:

@@ -23,6 +23,7 @@ import numpy as np
 
 from companion import wrap_2pi, wrap_pi
 from companion.nav.geo import metres_per_degree
+from sitl.world.checks import require
 
 __all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "step_vehicle"]
 
@@ -35,11 +36,8 @@ class VehicleLimits:
     accel_mps2: float = 0.5
     turn_rate_radps: float = math.radians(6.0)
 
-    def __post_init__(self) -> None:
-        for name in ("max_speed_mps", "accel_mps2", "turn_rate_radps"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):   # a vehicle that cannot move or turn flies nothing
-                raise ValueError(f"{name} = {value!r}: must be finite and positive")
+    def __post_init__(self) -> None:   # a vehicle that cannot move or turn flies nothing
+        require(self, ("max_speed_mps", "accel_mps2", "turn_rate_radps"), lambda v: v > 0.0, "finite and positive")
 
 
 @dataclass(frozen=True)
@@ -52,10 +50,8 @@ class MotionErrorConfig:
     course_bias_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("current_mps", "speed_scale_sigma", "course_bias_deg"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} = {value!r}: a 1-sigma must be finite and not negative")
+        require(self, ("current_mps", "speed_scale_sigma", "course_bias_deg"), lambda v: v >= 0.0,
+                "finite and not negative (a 1-sigma)")
 
     @property
     def active(self) -> bool:
