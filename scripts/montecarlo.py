@@ -67,7 +67,7 @@ def build_parser() -> ArgumentParser:
                         help="the error-state filter's process model (FUS_MODEL 2 or 3); default auto (the INS here)")
     parser.add_argument("--no-ins", action="store_true",
                         help="the vehicle carries no navigation-grade INS (ArduPilot, PX4 on MEMS sensors): "
-                             "the navigator gets no INS position, and auto flies the fix alone (Table 3)")
+                             "the navigator gets no INS position, and auto flies the dead-reckoning filter")
     parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
                         help="override the scenario's [attitude] heading_source")
     parser.add_argument("--budget", action="store_true",

@@ -44,7 +44,7 @@ import numpy as np
 
 from companion import course_from_theta
 from companion.nav.arrival import Arrival
-from companion.nav.elements import ElementSet, element_set
+from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
@@ -57,8 +57,8 @@ from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
-           "FROZEN_IN_FLIGHT"]
+__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "elements_for",
+           "governed_target", "uses_filter", "FROZEN_IN_FLIGHT"]
 
 CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
 
@@ -111,6 +111,19 @@ def state_bounds(c: NavConfig, elements: ElementSet, s_start: np.ndarray,
     return (np.array([table[n][0] for n in elements.names]), np.array([table[n][1] for n in elements.names]))
 
 
+def uses_filter(config: NavConfig) -> bool:
+    """Whether the error-state filter (issue 14) estimates the position: Fc-MPC, unless Table 3
+    (FUS_MODEL 1) is chosen."""
+    return config.controller == Controller.FC and config.fusion_model != FusionModel.TABLE3
+
+
+def elements_for(config: NavConfig, compass_derived: bool = False) -> int:
+    """The concrete NAV_ELEMENTS set of a mission with this heading source: auto (0) is (D, I, F)
+    where the filter weighs them, else the paper's (D, I), and (I, F) without an independent
+    heading (:func:`companion.nav.elements.resolve_elements`)."""
+    return resolve_elements(config.elements, compass_derived, filtered=uses_filter(config))
+
+
 def qp_units(c: NavConfig, elements: ElementSet) -> tuple[np.ndarray, float]:
     """(QP state units per element unit, metres per second per QP input unit)."""
     return elements.qp_scale(c.mpc_units), (KMH if c.mpc_units == 1 else c.speed_mps)
@@ -142,8 +155,8 @@ class Mission:
 
     ``bias``: the start-up calibration of the element set's two elements (measured minus model
     at a known start, in the elements' units), subtracted from every measurement; None for
-    none. ``config.elements`` 0 (auto) means (D, I) here: the caller resolves auto from the
-    heading source it knows about.
+    none. ``config.elements`` 0 (auto) means an independent heading here (:func:`elements_for`):
+    the caller resolves auto from the heading source it knows about.
     """
 
     def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None,
@@ -152,14 +165,12 @@ class Mission:
         if model is None:
             model = model_for_setting(config.year, config.wmm)
         self.model = model
-        self.measured: ElementSet = element_set(config.elements or ElementSet.PAPER)
+        self.measured: ElementSet = element_set(elements_for(config))
         self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see
-        # the error-state filter (issue 14) estimates position for Fc-MPC unless Table 3 is chosen
-        use_filter = config.controller == Controller.FC and config.fusion_model != FusionModel.TABLE3
-        self.estimator = PositionEstimator(config, model, self.measured) if use_filter else None
+        self.estimator = PositionEstimator(config, model, self.measured) if uses_filter(config) else None
         self.estimate: Estimate | None = None
         self.start_sigma_m: float | None = None
-        self.table3 = Table3Estimator(config, model, self.elements)   # FUS_MODEL 1, or auto without an INS
+        self.table3 = Table3Estimator(config, model, self.elements)   # the path of FUS_MODEL 1
         self.set_bias(bias)
         field_at = lambda lat, lon: self.elements.values(model.elements(lat, lon, config.alt_m, config.year))  # noqa: E731
         self.s_dest = field_at(config.dest_lat_deg, config.dest_lon_deg)

@@ -175,8 +175,7 @@ class FilterSettings:
 
 
 class NavigationFilter:
-    """Error-state filter over ``process`` plus one bias state per element of ``elements``, and
-    one local model-error state per element when ``settings.bias.has_local``."""
+    """Error-state filter over ``process`` plus the bias, local, heading and storm states (above)."""
 
     def __init__(self, process: ProcessModel, elements: ElementSet, settings: FilterSettings,
                  model: WorldMagneticModel, alt_m: float, year: float) -> None:
@@ -247,9 +246,8 @@ class NavigationFilter:
         return np.sqrt(np.diag(self._total @ self.kf.P @ self._total.T))
 
     def beyond_position_covariance(self, standard_errors: np.ndarray | None = None) -> np.ndarray:
-        """Covariance (element units) of what a measurement carries beyond the position: the
-        estimated biases' uncertainty at the current heading (bias, local and heading states)
-        plus the measurement noise R. Through G^-1 it is the uncertainty of a bias-corrected fix."""
+        """Covariance (element units) of what a measurement carries beyond the position: the biases'
+        uncertainty at the current heading plus R; through G^-1 that of a bias-corrected fix."""
         return self._total @ self.kf.P @ self._total.T + self.measurement_noise(standard_errors)
 
     def position(self, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan) -> tuple[float, float]:
@@ -265,10 +263,9 @@ class NavigationFilter:
         return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh + self.ns))])
 
     def set_heading(self, heading_rad: float) -> None:
-        """The vehicle's true heading over the window measured next (rad; NaN: not known). The
-        heading states enter the elements as ``cos psi, sin psi, cos 2 psi, sin 2 psi`` times
-        their coefficients; with the heading unknown their columns are zero and the residual at
-        that heading is measurement noise instead (:meth:`measurement_noise`)."""
+        """The vehicle's true heading over the window measured next (rad; NaN: not known): the heading
+        states' columns, ``cos psi, sin psi, cos 2 psi, sin 2 psi`` (zero when not known, the residual
+        then measurement noise, :meth:`measurement_noise`)."""
         if not self.nh:
             return
         self.heading_known = math.isfinite(heading_rad)
@@ -402,9 +399,8 @@ class NavigationFilter:
                        ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
                        standard_errors: np.ndarray | None = None,
                        at_centre: tuple[np.ndarray, np.ndarray] | None = None) -> float:
-        """The NIS ``y^T S^-1 y`` the element measurement would have, without updating: the gate
-        judged in the filter's own uncertainty (a fix far from an estimate that knows it is
-        uncertain is not a blunder)."""
+        """The NIS ``y^T S^-1 y`` the element measurement would have, without updating: the gate judged
+        in the filter's own uncertainty (a far fix is no blunder to an estimate that knows it is uncertain)."""
         y, h, r = self._innovation(measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre)
         s = h @ self.kf.P @ h.T + r
         return float(y @ np.linalg.solve(s, y))
@@ -418,7 +414,8 @@ class NavigationFilter:
         return float(centre[0]), float(centre[1])
 
     def _innovation(self, measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre=None):
-        """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate."""
+        """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate;
+        the elements of :meth:`ElementSet.in_storm` only while a storm is declared."""
         lat = self.position(ins_lat_deg, ins_lon_deg)[0]
         if at_centre is None or self._attitude:
             centre = self.window_centre(lag_en_m, ins_lat_deg, ins_lon_deg)
@@ -428,7 +425,10 @@ class NavigationFilter:
         values, g = at_centre
         h = self._h(g, lat)
         y = self.elements.difference(np.asarray(measured, dtype=float), values + self.bias)
-        return y, h, self.measurement_noise(standard_errors)
+        r = self.measurement_noise(standard_errors)
+        if self.monitor.declared and len(rows := list(self.elements.in_storm())) < self.nb:   # F set aside
+            return y[rows], h[rows], r[np.ix_(rows, rows)]
+        return y, h, r
 
     def calibrate(self, measured: np.ndarray, ins_lat_deg: float = math.nan, ins_lon_deg: float = math.nan,
                   standard_errors: np.ndarray | None = None) -> float:

@@ -1,6 +1,6 @@
 """Table 3's position estimate: the geomagnetic fix alone, fused with the INS where it is weak.
 
-``FUS_MODEL 1`` (and auto without an independent INS): each cruise step's geomagnetic fix
+``FUS_MODEL 1`` (auto flies the error-state filter, with or without an INS): each cruise step's geomagnetic fix
 (eq. 49, Newton from the dead-reckoned prior, on the steering pair with the start-up
 calibration already removed) is the position, unless it is weak (Algorithm 1's min |G| < sigma,
 read as the smallest singular value of the model's G at the fix in degrees per metre, F counted

@@ -26,7 +26,7 @@ import time
 
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import ELEMENT_SETS
-from companion.nav.mission import Command, Phase
+from companion.nav.mission import Command, Phase, uses_filter
 from companion.process.machine import Event, State
 from companion.process.options import MAX_RESTARTS
 
@@ -187,7 +187,10 @@ class Phases:
         app.machine.fire(Event.ENGAGED)
         app.last_phase = ""
         app.out.say(f"FcMPC: mission {app.mission_no} start {lat:.4f},{lon:.4f} ({source})")
-        app.out.say(f"FcMPC: elements {ELEMENT_SETS[app.elements_code].label}: {why}"[:200])
+        elements = ELEMENT_SETS[app.elements_code]
+        aside = "; F set aside while a storm is declared" \
+            if uses_filter(config) and len(elements.in_storm()) < len(elements.names) else ""
+        app.out.say(f"FcMPC: elements {elements.label}: {why}{aside}"[:200])
         if calibration:
             app.out.say(f"FcMPC: {calibration}"[:200])
         app.stepper.step(app.m0, window_limit_s=0.0, avg=startup)
