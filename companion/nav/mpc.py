@@ -114,6 +114,8 @@ class _OsqpBackend:
             cols += [j] * len(col_rows)
             ptr.append(len(rows))
         self.a_rows, self.a_cols = np.array(rows), np.array(cols)
+        # the same entries as flat indices of the dense (n x n) P and (2n x n) A: one take each
+        self._p_flat, self._a_flat = self.p_rows * n + self.p_cols, self.a_rows * n + self.a_cols
         p0 = sp.csc_matrix((np.ones(len(self.p_rows)), self.p_rows, p_ptr), shape=(n, n))
         a0 = sp.csc_matrix((np.ones(len(self.a_rows)), self.a_rows, np.array(ptr)), shape=(2 * n, n))
         self.solver = osqp.OSQP()
@@ -128,7 +130,6 @@ class _OsqpBackend:
         ext = getattr(self.solver, "_solver", None)
         needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
         self._ext = ext if ext is not None and all(hasattr(ext, name) for name in needed) else None
-        self._infinity = float(osqp.constant("OSQP_INFTY")) if self._ext is not None else math.inf
 
     def _solve_once(self) -> tuple[np.ndarray, str, float, int]:
         if self._ext is None:
@@ -139,13 +140,13 @@ class _OsqpBackend:
         return self._ext.solution.x, str(info.status), float(info.run_time), int(info.iter)
 
     def solve(self, hess, grad, a_full, lower, upper):
-        px, ax = hess[self.p_rows, self.p_cols], a_full[self.a_rows, self.a_cols]
+        """``lower``, ``upper`` within OSQP's infinity (1e30): the controller clips its bounds to
+        +-1e20 (the wrapper's own clipping is not needed)."""
+        px, ax = hess.take(self._p_flat), a_full.take(self._a_flat)
         if self._ext is None:
             self.solver.update(Px=px, Ax=ax, q=grad, l=lower, u=upper)
         else:
-            # the wrapper's clipping to OSQP's infinity, kept
-            self._ext.update_data_vec(q=grad, l=np.maximum(lower, -self._infinity),
-                                      u=np.minimum(upper, self._infinity))
+            self._ext.update_data_vec(q=grad, l=lower, u=upper)
             self._ext.update_data_mat(P_x=px, P_i=None, A_x=ax, A_i=None)
         x, status, run_time, iterations = self._solve_once()
         if status != "solved":
@@ -209,16 +210,15 @@ class MpcController:
         self._c_blocks = self._c.reshape(settings.horizon, 2, settings.horizon, 2).transpose(0, 2, 1, 3)
         self._q_bar = np.concatenate([np.tile(self.q, settings.horizon - 1), self.f])
         self._r_bar2 = 2.0 * np.tile(self.r, settings.horizon)
-        self._diag = np.diag_indices(n)
         self._stack = np.tile(np.arange(2), settings.horizon)   # S(k) repeated over the horizon
         bounds = np.abs(np.concatenate([self.u_lower, self.u_upper]))
         bounds = bounds[np.isfinite(bounds) & (bounds > 0)]
         self._scale = float(bounds.max()) if bounds.size else 1.0  # x = d * y keeps y of order one
         # rows: y (the scaled input, so its box is U's box over d) and C d y (the predicted states)
         self._a_full = np.vstack([np.eye(n), np.zeros((n, n))])
-        big = 1e20  # OSQP's infinity
-        self._lower = np.concatenate([self.u_lower / self._scale, np.clip(self.s_lower, -big, big)])
-        self._upper = np.concatenate([self.u_upper / self._scale, np.clip(self.s_upper, -big, big)])
+        big = 1e20  # "no bound", well within OSQP's infinity (1e30) whatever the state subtracts
+        self._lower = np.clip(np.concatenate([self.u_lower / self._scale, self.s_lower]), -big, big)
+        self._upper = np.clip(np.concatenate([self.u_upper / self._scale, self.s_upper]), -big, big)
         self._s_lower = self._lower[n:].copy()
         self._s_upper = self._upper[n:].copy()
 
@@ -234,7 +234,7 @@ class MpcController:
         self._c_blocks[self._block_rows, self._block_cols] = b   # every lower block, one assignment
         weighted_c = self._q_bar[:, None] * c
         hess = 2.0 * (c.T @ weighted_c)                        # eq. 37
-        hess[self._diag] += self._r_bar2
+        hess.flat[::n + 1] += self._r_bar2                     # its diagonal
         free_state = s[self._stack]                            # M S(k): S repeated over the horizon
         grad = 2.0 * (weighted_c.T @ (free_state - s_target[self._stack]))   # eq. 38, factor 2
         lower, upper = self._lower, self._upper
@@ -250,7 +250,7 @@ class MpcController:
                 hess_y, grad_y, self._a_full, lower, upper)
             status = f"osqp {status}; daqp fallback: {fallback_status}"
             solve_time, iterations = solve_time + more_time, iterations + more_iterations
-        if not ok or y is None or not np.all(np.isfinite(y)):
+        if not ok or y is None or not math.isfinite(sum(np.asarray(y, dtype=float).tolist())):   # no NaN, no inf
             return self._failed(status)
         u = np.asarray(y, dtype=float) * d
         return MpcSolution(u[:2].copy(), u, True, status, solve_time, iterations)
