@@ -87,12 +87,13 @@ class ElementSet:
         return not self.uses_declination
 
     def in_storm(self) -> tuple[int, ...]:
-        """The indices of the elements measured while a storm is declared (a space-weather index
-        at or above FUS_KP_ON): a weighted set sets F aside, a pair keeps both. Why: a storm's
-        ring current moves the total intensity most, by tens to hundreds of nT against F's few nT
-        of quiet noise, and what the SYM-H prediction and the bias states' walk leave of it was
-        read as position: on the ideal storms (D, I, F) ended 4.78 / 7.30 km off where (D, I)
-        ends 2.91 / 3.51 km (50 seeds each, 2026-12-04)."""
+        """The indices of the elements the navigation filter measures while a storm is declared (a
+        space-weather index at or above FUS_KP_ON): a weighted set sets F aside, a pair keeps both.
+        Why: a storm's ring current moves the total intensity most, by tens to hundreds of nT
+        against F's few nT of quiet noise, and what the SYM-H prediction and the bias states' walk
+        leave of it was read as position: on the ideal storms (D, I, F) ended 4.78 / 7.30 km off
+        where (D, I) ends 2.91 / 3.51 km, and with F set aside 2.91 / 3.51 km (50 seeds each,
+        2026-12-04)."""
         if len(self.names) == 3 and "f_nt" in self.names:
             return tuple(i for i, name in enumerate(self.names) if name != "f_nt")
         return tuple(range(len(self.names)))
@@ -136,26 +137,19 @@ ELEMENT_SETS: dict[int, ElementSet] = {
 }
 
 
-def resolve_elements(requested: int, compass_derived: bool, filtered: bool = False) -> int:
+def resolve_elements(requested: int, compass_derived: bool) -> int:
     """NAV_ELEMENTS against the heading source: with a compass-derived yaw never D ((D, I) and
-    (D, I, F) become (I, F); (H, Z) stays); auto (0) is (I, F) without an independent heading,
-    and with one (D, I, F) where the navigation filter weighs the elements (``filtered``: Fc-MPC
-    with the error-state filter), else the paper's (D, I) (Table 3's fix, LTI and LTV-MPC).
-    Why (D, I, F) for the filter: F adds its gradient, 114-117 deg from east on the Pacific
-    route, to D's weak east; in the paper's ideal world 0.203 -> 0.172 km median, at ten times
-    the noise 0.90 -> 0.82 km, in the realistic one 13.25 -> 12.46 km (50 seeds each), and a
-    declared storm sets F aside (:meth:`ElementSet.in_storm`).
+    (D, I, F) become (I, F); (H, Z) stays); auto (0) is (D, I) with an independent heading and
+    (I, F) without one. Why not (D, I, F) for auto: without a space-weather index (NAV_KP
+    unknown, the default) a storm drags F before the innovations recognise it (README,
+    "Element sets").
 
-    >>> resolve_elements(0, True), resolve_elements(0, False), resolve_elements(0, False, filtered=True)
-    (2, 1, 4)
-    >>> resolve_elements(4, True), resolve_elements(3, True), resolve_elements(1, False, filtered=True)
-    (2, 3, 1)
+    >>> resolve_elements(0, True), resolve_elements(0, False), resolve_elements(4, True), resolve_elements(3, True)
+    (2, 1, 2, 3)
     """
     if compass_derived:
         return requested if requested == ElementSet.HORIZONTAL_VERTICAL else ElementSet.HEADING_FREE
-    if requested == 0:
-        return ElementSet.WEIGHTED if filtered else ElementSet.PAPER
-    return requested
+    return ElementSet.PAPER if requested == 0 else requested
 
 
 def hz_standard_errors(f_nt: float, incl_deg: float, f_se_nt: float, incl_se_deg: float) -> tuple[float, float]:

@@ -44,7 +44,7 @@ import numpy as np
 
 from companion import course_from_theta
 from companion.nav.arrival import Arrival
-from companion.nav.elements import ElementSet, element_set, resolve_elements
+from companion.nav.elements import ElementSet, element_set
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
@@ -57,8 +57,8 @@ from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "elements_for",
-           "governed_target", "uses_filter", "FROZEN_IN_FLIGHT"]
+__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
+           "uses_filter", "FROZEN_IN_FLIGHT"]
 
 CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
 
@@ -117,13 +117,6 @@ def uses_filter(config: NavConfig) -> bool:
     return config.controller == Controller.FC and config.fusion_model != FusionModel.TABLE3
 
 
-def elements_for(config: NavConfig, compass_derived: bool = False) -> int:
-    """The concrete NAV_ELEMENTS set of a mission with this heading source: auto (0) is (D, I, F)
-    where the filter weighs them, else the paper's (D, I), and (I, F) without an independent
-    heading (:func:`companion.nav.elements.resolve_elements`)."""
-    return resolve_elements(config.elements, compass_derived, filtered=uses_filter(config))
-
-
 def qp_units(c: NavConfig, elements: ElementSet) -> tuple[np.ndarray, float]:
     """(QP state units per element unit, metres per second per QP input unit)."""
     return elements.qp_scale(c.mpc_units), (KMH if c.mpc_units == 1 else c.speed_mps)
@@ -155,8 +148,8 @@ class Mission:
 
     ``bias``: the start-up calibration of the element set's two elements (measured minus model
     at a known start, in the elements' units), subtracted from every measurement; None for
-    none. ``config.elements`` 0 (auto) means an independent heading here (:func:`elements_for`):
-    the caller resolves auto from the heading source it knows about.
+    none. ``config.elements`` 0 (auto) means (D, I) here: the caller resolves auto from the
+    heading source it knows about.
     """
 
     def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None,
@@ -165,7 +158,7 @@ class Mission:
         if model is None:
             model = model_for_setting(config.year, config.wmm)
         self.model = model
-        self.measured: ElementSet = element_set(elements_for(config))
+        self.measured: ElementSet = element_set(config.elements or ElementSet.PAPER)
         self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see
         self.estimator = PositionEstimator(config, model, self.measured) if uses_filter(config) else None
         self.estimate: Estimate | None = None

@@ -11,10 +11,10 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet
+from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, resolve_elements
 from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_distance_m
-from companion.nav.mission import Mission, elements_for
+from companion.nav.mission import Mission
 from companion.params import NavConfig
 from companion.process.options import GPS_START_MAX_AGE_S
 
@@ -85,7 +85,7 @@ class MissionPreparation:
         verdict = app.fc_view.heading_verdict(now)
         requested = app.nav_cfg.elements
         compass = verdict is None or verdict.compass_derived
-        code = elements_for(app.nav_cfg, compass)
+        code = resolve_elements(requested, compass)
         if compass:
             reason = verdict.reason if verdict is not None else "heading source unknown"
             if requested in (ElementSet.PAPER, ElementSet.WEIGHTED):

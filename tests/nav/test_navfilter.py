@@ -14,10 +14,10 @@ import pytest
 from scipy.stats import chi2
 
 from companion.nav.disturbance import ACTIVE_ON, ONSET_STEPS, REACTIVE_ON, DisturbanceMonitor
-from companion.nav.elements import ELEMENT_SETS, ElementSet, element_set, hz_standard_errors
+from companion.nav.elements import ELEMENT_SETS, ElementSet, element_set, hz_standard_errors, resolve_elements
 from companion.nav.field import element_fix, element_gradient, model_for_date
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
-from companion.nav.mission import Mission, elements_for
+from companion.nav.mission import Mission
 from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.params import NavConfig, validate_all
@@ -292,10 +292,10 @@ def test_disturbance_needs_a_sustained_rise_of_the_innovations():
     assert not any(DisturbanceMonitor().observe(np.full(2, math.sqrt(between))) for _ in range(20))
 
 
-@pytest.mark.parametrize("requested", [ElementSet.PAPER, 0], ids=["(D, I)", "auto (D, I, F)"])
+@pytest.mark.parametrize("requested", [0, ElementSet.WEIGHTED], ids=["auto (D, I)", "(D, I, F)"])
 def test_nees_and_nis_of_a_seeded_monte_carlo_are_chi_square(shared_data, requested):
     """Six seeded Pacific missions (Fc-MPC, the INS filter, R from the measured standard
-    errors), on the paper's (D, I) and on auto's (D, I, F): the final-step NEES summed over the
+    errors), on auto's (D, I) and on (D, I, F): the final-step NEES summed over the
     runs lies inside the 99 % interval of chi-square with 2 x 6 degrees of freedom, the mean
     NEES over all steps is near 2 (1.6-2.5: the filter's covariance within about 20 % of its
     errors; measured 1.76 / 1.81 on these seeds and 1.73-1.95 / 1.72-1.81 on each of four groups
@@ -314,8 +314,8 @@ def test_nees_and_nis_of_a_seeded_monte_carlo_are_chi_square(shared_data, reques
     scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)
     nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), "NAV_ELEMENTS": requested}))
-    m = len(element_set(elements_for(nav)).names)
-    assert m == (2 if requested else 3)
+    m = len(Mission(nav).measured.names)
+    assert m == (3 if requested else 2)
     runs = [fly_in_process(nav, scenario, seed, truth, keep_commands=True) for seed in range(6)]
     assert all(r.process_model == "ins" and r.arrived for r in runs)
     assert not any(c.disturbed for r in runs for c in r.commands)
@@ -391,15 +391,15 @@ def test_a_declared_storm_sets_f_aside_and_keeps_d_and_i(model):
     assert flt.position() == d_and_i.position()
 
 
-@pytest.mark.parametrize("changes, label", [({}, "(D, I, F)"), ({"FUS_MODEL": 1}, "(D, I)"),
-                                            ({"NAV_CONTROLLER": 1}, "(D, I)"), ({"NAV_ELEMENTS": 1}, "(D, I)")])
-def test_auto_weighs_f_where_the_filter_runs(changes, label):
-    """Auto (NAV_ELEMENTS 0) with an independent heading: (D, I, F) where the error-state filter
-    weighs the elements (Fc-MPC, FUS_MODEL 0), the paper's (D, I) on Table 3's path and for
-    LTV-MPC; with a compass-derived yaw (I, F) whatever the estimator."""
+@pytest.mark.parametrize("changes, label", [({}, "(D, I)"), ({"NAV_ELEMENTS": 4}, "(D, I, F)"),
+                                            ({"NAV_ELEMENTS": 4, "FUS_MODEL": 1}, "(D, I, F)")])
+def test_auto_is_the_papers_pair_and_f_is_asked_for(changes, label):
+    """Auto (NAV_ELEMENTS 0) with an independent heading is the paper's (D, I): without a
+    space-weather index a storm drags F before the innovations find it (README, "Element sets");
+    (D, I, F) is asked for, and a compass-derived yaw makes (I, F) of either."""
     config = NavConfig.from_values(validate_all({"NAV_CONTROLLER": 2, **changes}))
     assert Mission(config).measured.label == label
-    assert element_set(elements_for(config, compass_derived=True)).label == "(I, F)"
+    assert element_set(resolve_elements(config.elements, compass_derived=True)).label == "(I, F)"
 
 
 def _period_samples(rng, noise_nt: float, count: int = 3600) -> np.ndarray:

@@ -166,7 +166,7 @@ def test_the_filters_bias_states_are_taken_out_before_the_fix_but_not_before_the
 def test_the_mission_says_which_bias_a_measurement_carries(fus_model):
     """Table 3's path: the start-up calibration, exact. The filter: its bias states and their 1-sigma
     (before its first step, its prior: nothing known)."""
-    config = NavConfig.from_values({**default_values(), "FUS_MODEL": fus_model, "NAV_ELEMENTS": 1})
+    config = NavConfig.from_values({**default_values(), "FUS_MODEL": fus_model})
     mission = Mission(config)
     mission.set_bias((0.1, -0.2))
     bias, sigma = navigator_bias(mission)
