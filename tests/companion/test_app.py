@@ -54,6 +54,16 @@ def test_arms_and_steers_when_allowed(tmp_path):
     assert companion["state"] == "running" and companion["param_load_error"] is None
 
 
+def test_the_start_up_words_name_the_elements_and_a_storm_setting_f_aside(tmp_path):
+    """NAV_ELEMENTS 4 with the stand-in's independent heading: the companion measures (D, I, F)
+    and says at the start that its filter sets F aside while a storm is declared."""
+    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\nNAV_ELEMENTS 4\n")
+    assert companion["elements"] == "(D, I, F)"
+    words = [e for e in companion["events"] if "FcMPC: elements" in e]
+    assert words and words[0].endswith("(D, I, F): NAV_ELEMENTS 4 (EK3_SRC1_YAW 2 (GPS (dual antenna))); "
+                                       "F set aside while a storm is declared"), words
+
+
 def test_broken_parameter_file_never_arms_or_steers(tmp_path):
     """A file with one bad line: defaults are served and the companion refuses to engage, even
     though the file's other line asks it to arm."""
