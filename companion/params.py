@@ -267,6 +267,7 @@ class NavConfig(_FromRegistry):
     bias_qa_rnz: float = _from("FUS_BQA_RNZ")
     bias_qa_rez: float = _from("FUS_BQA_REZ")
     kp_on: float = _from("FUS_KP_ON")
+    symh_on_nt: float = _from("FUS_SYMH_ON")
     symh_ratio: float = _from("FUS_SYMH_K")
     symh_residual_n_nt: float = _from("FUS_SYMH_N")
     symh_residual_tn_h: float = _from("FUS_SYMH_TN")

@@ -113,10 +113,15 @@ RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias l
 ADAPT_GAIN = 0.5     # covariance matching: the active noise's scale moves by (NIS / m)^ADAPT_GAIN a step
 
 
-def storm_declared(kp: float, kp_on: float) -> bool:
-    """Whether the space-weather index ``kp`` (planetary Kp, 0-9; NaN or negative: unknown)
-    declares a storm: at or above ``kp_on``."""
-    return math.isfinite(kp) and kp >= 0.0 and kp >= kp_on
+def storm_declared(kp: float, kp_on: float, symh_nt: float = math.nan, symh_on_nt: float = -math.inf) -> bool:
+    """Whether a space-weather index declares a storm: the planetary Kp (0-9; NaN or negative:
+    unknown) at or above ``kp_on``, or the ring-current index SYM-H (nT; NaN: unknown) at or
+    below ``symh_on_nt``.
+
+    >>> storm_declared(6.0, 5.0), storm_declared(math.nan, 5.0, -80.0, -50.0), storm_declared(2.0, 5.0, -20.0, -50.0)
+    (True, True, False)
+    """
+    return (math.isfinite(kp) and kp >= 0.0 and kp >= kp_on) or (math.isfinite(symh_nt) and symh_nt <= symh_on_nt)
 
 
 class DisturbanceMonitor:

@@ -124,14 +124,16 @@ def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
 
 def test_the_feed_reaches_the_navigator_as_a_declared_storm(shared_data):
     """In-process, the storm world's Kp declares the storm from the first step: every command says
-    disturbed; with the threshold above 9 nothing is declared and the first steps are quiet."""
+    disturbed; so does its SYM-H (below -200 nT) with Kp's threshold out of reach (9: the feed says
+    8.667); with SYM-H's out of reach too (-3000 nT) nothing is declared and the first steps are quiet."""
     scenario = load_scenario("short_storm")
     truth = build_truth_field(scenario, shared_data)
     values = validate_all({**scenario.nav_overrides(), "NAV_MAX_STEPS": 6})
-    declared = fly_in_process(NavConfig.from_values(values), scenario, 0, truth, keep_commands=True)
-    assert all(c.disturbed for c in declared.commands[1:])
-    undeclared = fly_in_process(NavConfig.from_values({**values, "FUS_KP_ON": 9.0}), scenario, 0, truth,
-                                keep_commands=True)
+    for changes in ({}, {"FUS_KP_ON": 9.0}):
+        declared = fly_in_process(NavConfig.from_values({**values, **changes}), scenario, 0, truth, keep_commands=True)
+        assert all(c.disturbed for c in declared.commands[1:]), changes
+    undeclared = fly_in_process(NavConfig.from_values({**values, "FUS_KP_ON": 9.0, "FUS_SYMH_ON": -3000.0}), scenario,
+                                0, truth, keep_commands=True)
     assert not undeclared.commands[1].disturbed
 
 
