@@ -21,8 +21,10 @@ disturbance is active and what random walk the bias states then take.
   a storm only after it has moved the measurement, and what moved before is taken for position
   (short storm, seed 36: 16 km east of the truth within six steps, never recovered); Kp is
   published every three hours (GFZ Potsdam, NOAA SWPC) and reaches a vehicle as a parameter
-  (``NAV_KP``) from its ground station. While Kp declares a storm the innovations cannot
-  release it.
+  (``NAV_KP``) from its ground station. Or the ring-current index SYM-H (``NAV_SYMH``, every
+  minute, a 1-min Dst) at or below ``FUS_SYMH_ON`` (-50 nT, a moderate storm): a station may
+  relay one without the other (:func:`storm_declared`). While an index declares a storm the
+  innovations cannot release it.
 
 **How**: a disturbance only the innovations found is of a nature not known (a storm, or the
 main-field model, the crust or a calibration residual failing the model): its bias states walk

@@ -87,8 +87,9 @@ class ElementSet:
         return not self.uses_declination
 
     def in_storm(self) -> tuple[int, ...]:
-        """The indices of the elements the navigation filter measures while a storm is declared (a
-        space-weather index at or above FUS_KP_ON): a weighted set sets F aside, a pair keeps both.
+        """The indices of the elements the navigation filter measures while a storm is declared (Kp
+        or SYM-H, :func:`companion.nav.disturbance.storm_declared`): a weighted set sets F aside, a
+        pair keeps both.
         Why: a storm's ring current moves the total intensity most, by tens to hundreds of nT
         against F's few nT of quiet noise, and what the SYM-H prediction and the bias states' walk
         leave of it was read as position: on the ideal storms (D, I, F) ended 4.78 / 7.30 km off
