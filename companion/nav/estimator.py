@@ -96,6 +96,12 @@ class Estimate:
     fix_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
 
+def _storm_declared(meas, config) -> bool:
+    """Whether the step's space-weather readings (Kp, SYM-H) declare a storm by the settings'
+    thresholds (FUS_KP_ON, FUS_SYMH_ON)."""
+    return storm_declared(meas.kp, config.kp_on, symh_value(meas.symh_nt), config.symh_on_nt)
+
+
 def filter_settings(config) -> FilterSettings:
     """The filter's settings from a :class:`companion.params.NavConfig`."""
     return FilterSettings(
@@ -218,7 +224,7 @@ class PositionEstimator:
                 qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:]),
                 qa_ned_corr=(c.symh_residual_rne, c.symh_residual_rnz, b.qa_ned_corr[2])))
         self.filter = NavigationFilter(process, self.measured, settings, self.model, c.alt_m, c.year)
-        self.filter.monitor.declare(storm_declared(meas.kp, c.kp_on, symh_value(meas.symh_nt), c.symh_on_nt))
+        self.filter.monitor.declare(_storm_declared(meas, c))
         measured = measured - self.ring_current_share(meas, (c.start_lat_deg, c.start_lon_deg))
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         self.filter.set_heading(window_heading_rad(meas))
@@ -263,7 +269,7 @@ class PositionEstimator:
         f = self.filter
         have_ins = meas.has_ins
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
-        f.monitor.declare(storm_declared(meas.kp, self.config.kp_on, symh_value(meas.symh_nt), self.config.symh_on_nt))
+        f.monitor.declare(_storm_declared(meas, self.config))
         f.predict(dt_s, vel_en_mps, lat_now, f.position(*self._ins))
         f.set_heading(window_heading_rad(meas, vel_en_mps))
         if isinstance(f.process, InsProcess):

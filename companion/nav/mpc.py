@@ -250,9 +250,10 @@ class MpcController:
                 hess_y, grad_y, self._a_full, lower, upper)
             status = f"osqp {status}; daqp fallback: {fallback_status}"
             solve_time, iterations = solve_time + more_time, iterations + more_iterations
-        if not ok or y is None or not math.isfinite(sum(np.asarray(y, dtype=float).tolist())):   # no NaN, no inf
+        y = np.asarray(y, dtype=float) if ok and y is not None else None
+        if y is None or not math.isfinite(sum(y.tolist())):   # no answer, or NaN or infinity in it
             return self._failed(status)
-        u = np.asarray(y, dtype=float) * d
+        u = y * d
         return MpcSolution(u[:2].copy(), u, True, status, solve_time, iterations)
 
     def _failed(self, status: str) -> MpcSolution:
