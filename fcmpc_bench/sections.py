@@ -99,7 +99,7 @@ def bench_field(repeats: int = 2000) -> list[Row]:
     lat, lon = rng.uniform(27, 34, 10_000), rng.uniform(145, 165, 10_000)
     scalar = _time_calls(lambda: model.elements(30.5, 155.0, 0.0, 2024.36), repeats)
     array = _time_calls(lambda: model.elements(lat, lon, 0.0, 2024.36), 30) / len(lat)
-    # a new point each call: the model keeps its last exact evaluation (the filter reuses the fix's)
+    # a new point each call: the model keeps its last few exact evaluations (a step reuses them)
     where = iter(range(10**9))
     grad = _time_calls(lambda: decl_incl_gradient(model, float(lat[next(where) % 10_000]), 155.0, 0.0, 2024.36),
                        repeats // 4)

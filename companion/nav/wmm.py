@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike
 
 from companion.nav.harmonics import WMM_DEGREE, HarmonicSums, schmidt_polynomials
 
-__all__ = ["WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm", "model_for_date",
+__all__ = ["KEPT_EVALUATIONS", "WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm", "model_for_date",
            "model_for_setting"]
 
 WMM2025_SWITCH_YEAR = 2024.87
@@ -30,6 +30,11 @@ WMM2025_SWITCH_YEAR = 2024.87
 
 WMM_NAMES = {1: "WMM2020", 2: "WMM2025"}
 """The models NAV_WMM forces (0: by date, :func:`model_for_setting`)."""
+
+KEPT_EVALUATIONS = 4
+"""Exact one-point evaluations (:meth:`WorldMagneticModel.ned_and_slopes`) a model keeps: enough
+for one control step's window centre, the fix's iterates after it, and the update back at the
+centre (with the INS's attitude, :mod:`companion.nav.navfilter`)."""
 
 # Points per block in the array path: keeps the (points x 90) temporaries inside the CPU cache.
 _BLOCK = 128
@@ -138,7 +143,7 @@ class WorldMagneticModel:
         if not seen[n_idx, m_idx].all():
             raise ValueError(f"{name}: coefficient file lacks some of the {n_idx.size} (n, m) pairs")
         self._sums = HarmonicSums(table[:, n_idx, m_idx])
-        self._last_slopes: tuple | None = None
+        self._recent_slopes: dict[tuple[float, float, float, float], tuple] = {}
 
     @classmethod
     def from_cof(cls, path: str | os.PathLike[str], allow_extrapolation: bool = False) -> WorldMagneticModel:
@@ -176,19 +181,22 @@ class WorldMagneticModel:
                        year: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(X, Y, Z) in nT at one point and its exact derivatives along geodetic latitude and
         longitude, nT per radian (:meth:`HarmonicSums.ned_and_slopes`), as read-only arrays.
-        The last answer is kept: the filter's update asks at the point where the geomagnetic fix
-        of the same step started."""
+        The last :data:`KEPT_EVALUATIONS` answers are kept: a step asks at the window centre for
+        the filter's update, the geomagnetic fix starts there, and its iterates come between."""
         key = (float(lat_deg), float(lon_deg), float(alt_m), float(year))
-        last = self._last_slopes
-        if last is not None and last[0] == key:
-            return last[1]
+        recent = self._recent_slopes
+        answer = recent.get(key)
+        if answer is not None:
+            return answer
         if abs(lat_deg) > 90.0:
             raise ValueError(f"latitude {lat_deg} deg outside [-90, 90]")
         self._check_year(key[3])
         answer = self._sums.ned_and_slopes(key[0], key[1], key[2], key[3] - self.epoch)
         for array in answer:
             array.setflags(write=False)
-        self._last_slopes = (key, answer)
+        if len(recent) >= KEPT_EVALUATIONS:
+            del recent[next(iter(recent))]   # the oldest (dicts keep their insertion order)
+        recent[key] = answer
         return answer
 
     def elements(

@@ -167,7 +167,7 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     'f_band'
     """
     # the model there, its elements and their gradient from one evaluation of the harmonic sums (the
-    # model keeps its last answer, so asking again for its NED, for F, evaluates nothing)
+    # model keeps its last answers, so asking again for its NED, for F, evaluates nothing)
     values, gradient = element_values_and_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
     model_f_nt = math.hypot(*model.ned_and_slopes(pred_lat_deg, pred_lon_deg, alt_m, year)[0].tolist())
     f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg,

@@ -461,3 +461,34 @@ def test_fix_refuses_ill_conditioned_gradient(wmm2020: WorldMagneticModel) -> No
             wmm2020, truth.decl_deg, truth.incl_deg, 30.2, 155.2, 0.0, PAPER_EPOCH,
             max_condition=0.5 * condition,
         )
+
+
+def test_the_model_keeps_its_last_few_exact_evaluations(wmm2020: WorldMagneticModel) -> None:
+    """A step asks at the window centre, the fix's iterates, then the centre again: the sums are
+    evaluated once per point while at most ``KEPT_EVALUATIONS`` points are asked between, and the
+    kept answer is the one evaluated (the same arrays, read-only)."""
+    from companion.nav.wmm import KEPT_EVALUATIONS
+
+    sums, evaluated = wmm2020._sums, []
+    original = sums.ned_and_slopes
+
+    def counting(*args):
+        evaluated.append(args[:2])
+        return original(*args)
+
+    points = [(30.0 + 0.01 * k, 155.0 - 0.02 * k) for k in range(KEPT_EVALUATIONS + 1)]
+    sums.ned_and_slopes = counting
+    try:
+        first = wmm2020.ned_and_slopes(*points[0], 0.0, PAPER_EPOCH)
+        for lat, lon in points[1:KEPT_EVALUATIONS]:
+            wmm2020.ned_and_slopes(lat, lon, 0.0, PAPER_EPOCH)
+        again = wmm2020.ned_and_slopes(*points[0], 0.0, PAPER_EPOCH)
+        assert again is first and not first[0].flags.writeable
+        assert len(evaluated) == KEPT_EVALUATIONS
+        wmm2020.ned_and_slopes(*points[-1], 0.0, PAPER_EPOCH)          # one more: the oldest goes
+        wmm2020.ned_and_slopes(*points[0], 0.0, PAPER_EPOCH)
+        assert evaluated[-1] == points[0] and len(evaluated) == KEPT_EVALUATIONS + 2
+        other_year = wmm2020.ned_and_slopes(*points[0], 0.0, PAPER_EPOCH - 1.0)
+        assert evaluated[-1] == points[0] and not np.array_equal(other_year[0], first[0])
+    finally:
+        del sums.ned_and_slopes
