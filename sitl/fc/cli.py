@@ -12,11 +12,19 @@ import sys
 
 from companion.cli import ArgumentParser   # the one-line user-error policy of every console script
 from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig
+from sitl.fc.ground_station import FEED_READINGS, feed_readings
 from sitl.fc.server import SitlServer
 from sitl.guidance import DIALECTS
 from sitl.scenario import FAULT_KINDS, ScenarioError
 
 __all__ = ["build_parser", "config_from_args", "main"]
+
+
+def _feed_readings(text: str) -> tuple[str, ...]:
+    try:
+        return feed_readings(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,9 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--summary-json", default=None, help="write the run summary here (default <log-dir>/summary.json)")
     p.add_argument("--data-dir", default=None, help="real data folder for storms (default $FCMPC_DATA_DIR or "
                                                      "../shared/data)")
-    p.add_argument("--space-weather-feed", action="store_true",
-                   help="a ground station behind this FC sets the companion's NAV_KP and NAV_SYMH to the world's "
-                        "Kp and SYM-H every minute")
+    p.add_argument("--space-weather-feed", nargs="?", const=",".join(FEED_READINGS), default="", type=_feed_readings,
+                   metavar="NAMES",
+                   help="a ground station behind this FC sets the companion's readings to the world's every minute: "
+                        "NAV_KP (Kp) and NAV_SYMH (SYM-H), or those named (comma-separated)")
     p.add_argument("--expected-duration", type=float, default=None,
                    help="mission seconds the 'compress' storm rule spreads the window over")
     p.add_argument("--field-step", type=float, default=1.0, help="simulated seconds between field evaluations (default 1)")

@@ -73,7 +73,7 @@ class ServerConfig:
     wave_pitch_deg: float = 2.0
     data_dir: str | None = None
     expected_duration_s: float | None = None
-    space_weather_feed: bool = False    # the world's ground station keeps the companion's NAV_KP and NAV_SYMH up to date
+    space_weather_feed: tuple[str, ...] = ()   # the readings the world's ground station keeps up to date: NAV_KP, NAV_SYMH
     routing: bool = True
     batch: bool = True
     summary_json: str | None = None

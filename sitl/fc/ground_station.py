@@ -11,7 +11,8 @@ date: every ``FEED_PERIOD_S`` of simulated time it sends, as PARAM_SETs from gro
 * ``NAV_SYMH``: the world's SYM-H (:meth:`~sitl.world.magnetic.TruthField.symh`, OMNI's 1-minute
   index at the storm time), rounded to 0.1 nT as the index is published.
 
-An index the world lacks (a quiet world has neither) is not sent. The companion takes each only
+An index the world lacks (a quiet world has neither) is not sent, nor one the ground station is
+not set to feed (``--space-weather-feed NAV_SYMH``: an operator with SYM-H and no Kp). The companion takes each only
 while it is renewed (``companion.process.control_step``), so a feed that stops is a feed lost,
 not a storm frozen at its last value.
 """
@@ -23,19 +24,32 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.mavframe import FrameEncoder
 
-__all__ = ["FEED_PERIOD_S", "GCS_COMPID", "GCS_SYSID", "SpaceWeatherFeed"]
+__all__ = ["FEED_PERIOD_S", "FEED_READINGS", "GCS_COMPID", "GCS_SYSID", "SpaceWeatherFeed", "feed_readings"]
 
 FEED_PERIOD_S = 60.0      # SYM-H is published once a minute
 GCS_SYSID, GCS_COMPID = 255, 190
 COMPANION_COMPID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+FEED_READINGS = ("NAV_KP", "NAV_SYMH")
+
+
+def feed_readings(text: str) -> tuple[str, ...]:
+    """The readings named in ``text`` (comma-separated, any case; empty: none), in
+    :data:`FEED_READINGS`' order; ValueError naming an unknown one."""
+    names = {name.strip().upper() for name in text.split(",") if name.strip()}
+    unknown = sorted(names - set(FEED_READINGS))
+    if unknown:
+        raise ValueError(f"unknown space-weather reading {', '.join(unknown)}: choose from {', '.join(FEED_READINGS)}")
+    return tuple(name for name in FEED_READINGS if name in names)
 
 
 class SpaceWeatherFeed:
-    """Sends ``NAV_KP`` and ``NAV_SYMH`` to the companion of system ``target_sysid`` (:meth:`send`
-    every ``FEED_PERIOD_S``); ``kp_at`` and ``symh_at``: simulated seconds -> the index (NaN: none)."""
+    """Sends ``NAV_KP`` and ``NAV_SYMH`` (or the ``readings`` named) to the companion of system
+    ``target_sysid`` (:meth:`send` every ``FEED_PERIOD_S``); ``kp_at`` and ``symh_at``: simulated
+    seconds -> the index (NaN: none)."""
 
-    def __init__(self, kp_at, symh_at, outbox, target_sysid: int) -> None:
-        self.readings = ((b"NAV_KP", kp_at, 3), (b"NAV_SYMH", symh_at, 1))   # (name, source, decimals)
+    def __init__(self, kp_at, symh_at, outbox, target_sysid: int, readings: tuple[str, ...] = FEED_READINGS) -> None:
+        every = ((b"NAV_KP", kp_at, 3), (b"NAV_SYMH", symh_at, 1))   # (name, source, decimals)
+        self.readings = tuple(reading for reading in every if reading[0].decode() in readings)
         self.outbox = outbox
         self.target_sysid = target_sysid
         self.encoder = FrameEncoder(GCS_SYSID, GCS_COMPID)

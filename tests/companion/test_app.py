@@ -16,8 +16,8 @@ from tests.processes import wait_for_file
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0) -> tuple[dict, dict]:
-    """Simulator (lockstep, ``sim_s`` simulated seconds) and companion; their summaries."""
+def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[str, ...] = ()) -> tuple[dict, dict]:
+    """Simulator (lockstep, ``sim_s`` simulated seconds, ``sitl_args`` more) and companion; their summaries."""
     port = free_port()
     parm = tmp_path / "companion.parm"
     parm.write_text(parm_text, encoding="utf-8")
@@ -29,7 +29,7 @@ def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0) -> tuple[dict, di
     wait_for_file(tmp_path / "companion" / "steps.csv", [companion], 60.0)   # its port is bound
     sitl = subprocess.Popen(
         [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration",
-         str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
+         str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5", *sitl_args],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         sitl.wait(timeout=60)
@@ -62,6 +62,20 @@ def test_the_start_up_words_name_the_elements_and_a_storm_setting_f_aside(tmp_pa
     words = [e for e in companion["events"] if "FcMPC: elements" in e]
     assert words and words[0].endswith("(D, I, F): NAV_ELEMENTS 4 (EK3_SRC1_YAW 2 (GPS (dual antenna))); "
                                        "F set aside while a storm is declared"), words
+
+
+def test_a_sym_h_fed_without_kp_declares_the_storm_at_the_start(tmp_path, shared_data):
+    """The short storm's ground station feeds SYM-H and no Kp: its ring current (below FUS_SYMH_ON's
+    -50 nT at the start) declares the storm, and the companion says which reading did."""
+    if not (shared_data / "storms").is_dir():
+        pytest.skip(f"storm data not found under {shared_data}")
+    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n",
+                        sitl_args=("--scenario", "short_storm", "--data-dir", str(shared_data),
+                                   "--space-weather-feed", "NAV_SYMH"))
+    words = [e for e in companion["events"] if "storm declared" in e]
+    assert len(words) == 1 and "storm declared: NAV_SYMH -" in words[0] and "<= FUS_SYMH_ON -50 nT" in words[0], \
+        [e for e in companion["events"] if "FcMPC" in e]
+    assert any("ring current removed: NAV_SYMH" in e for e in companion["events"])
 
 
 def test_broken_parameter_file_never_arms_or_steers(tmp_path):

@@ -43,6 +43,13 @@ def test_cli_errors_exit_2(capsys):
     assert main(["--fault", "mag_explode:1", "--quiet", "--no-truth-log"]) == 2
     assert main(["--out", "serial:/dev/null", "--quiet", "--no-truth-log"]) == 2
     assert main(["--fault", "storm_onset:5", "--quiet", "--no-truth-log"]) == 2   # pacific has no storm
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        main(["--space-weather-feed", "NAV_KP,NAV_DST", "--quiet"])
+    assert refused.value.code == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "fcmpc-sitl: error: argument --space-weather-feed: unknown space-weather reading NAV_DST: choose from "
+        "NAV_KP, NAV_SYMH (see fcmpc-sitl --help)"]
 
 
 def test_sigterm_stops_cleanly_and_flushes_records(tmp_path):

@@ -6,12 +6,12 @@ import math
 
 import pytest
 
-from sitl.fc.ground_station import FEED_PERIOD_S, GCS_COMPID, GCS_SYSID
+from sitl.fc.ground_station import FEED_PERIOD_S, FEED_READINGS, GCS_COMPID, GCS_SYSID
 from tests.sitl.conftest import COMPANION
 
 
 def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_ground_station(sitl, shared_data):
-    server, client = sitl(scenario="long_storm", space_weather_feed=True, speedup=300.0, data_dir=str(shared_data))
+    server, client = sitl(scenario="long_storm", space_weather_feed=FEED_READINGS, speedup=300.0, data_dir=str(shared_data))
     sets = client.collect("PARAM_SET", until_ms=int(3.5 * FEED_PERIOD_S * 1000), timeout=120.0)
     truth = server.vehicle.truth_full
     for msg in sets:
@@ -28,5 +28,12 @@ def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_
 
 
 def test_a_world_without_space_weather_sends_nothing(sitl):
-    _, client = sitl(scenario="pacific", space_weather_feed=True, speedup=300.0)
+    _, client = sitl(scenario="pacific", space_weather_feed=FEED_READINGS, speedup=300.0)
     assert client.collect("PARAM_SET", until_ms=int(2.5 * FEED_PERIOD_S * 1000), timeout=120.0) == []
+
+
+def test_a_ground_station_set_to_feed_sym_h_alone_sends_no_kp(sitl, shared_data):
+    """``--space-weather-feed NAV_SYMH``: an operator with SYM-H and no Kp."""
+    _, client = sitl(scenario="long_storm", space_weather_feed=("NAV_SYMH",), speedup=300.0, data_dir=str(shared_data))
+    sets = client.collect("PARAM_SET", until_ms=int(1.5 * FEED_PERIOD_S * 1000), timeout=120.0)
+    assert [m.param_id for m in sets] == ["NAV_SYMH", "NAV_SYMH"]
