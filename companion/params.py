@@ -227,6 +227,7 @@ class NavConfig(_FromRegistry):
     s_max_f: float = _from("MPC_S_MAX_F")
     s_auto: int = _from("MPC_S_AUTO")
     s_margin_deg: float = _from("MPC_S_MARGIN")
+    s_admit: int = _from("MPC_S_ADMIT")
     elements: int = _from("NAV_ELEMENTS")
     calibrate: int = _from("NAV_CALIBRATE")
     fix_gate_m: float = _from("NAV_FIX_GATE_M")

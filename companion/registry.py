@@ -137,6 +137,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MPC_S_MAX_F", float, 70000.0, 0.0, 100000.0, "nT", "state bound S_max on F"),
     _p("MPC_S_AUTO", int, 1, 0, 1, "", "1 state bounds from the mission's start and destination field +- MPC_S_MARGIN; 0 the MPC_S_MIN_*/MAX_* values (Table 4)"),
     _p("MPC_S_MARGIN", float, 10.0, 0.1, 90.0, "deg", "margin of the automatic state bounds for D and I (F: 360 nT per degree)"),
+    _p("MPC_S_ADMIT", int, 1, 0, 1, "", "1 (default) the state bounds admit the current state: a state S beyond them widens them to S for that step, so the QP stays feasible and the vehicle may move back inside, not farther out; 0 the paper's hard bounds (eq. 34: the QP is infeasible and the mission fails)"),
     _p("MPC_SOLVER", int, 0, 0, 1, "", "QP backend: 0 OSQP, 1 daqp (exact dense active set)"),
     # --- fusion (eq. 46-58, Table 3) ---
     _p("FUS_SIGMA", float, 0.001, 0.0, 10.0, "deg/km", "fuse with the INS when the fix is weak: smallest singular value of the model G"),

@@ -131,7 +131,8 @@ def mpc_settings(c: NavConfig, elements: ElementSet, s_lower: np.ndarray, s_uppe
         u_lower, u_upper = (-c.speed_mps / u_unit,) * 2, (c.speed_mps / u_unit,) * 2
     return MpcSettings(horizon=c.horizon, q=(c.q_d, c.q_i), f=(c.f_d, c.f_i), r=(c.r_x, c.r_y),
                        u_lower=u_lower, u_upper=u_upper, s_lower=tuple(float(v) for v in s_lower * s_unit),
-                       s_upper=tuple(float(v) for v in s_upper * s_unit), solver=SOLVERS[c.solver])
+                       s_upper=tuple(float(v) for v in s_upper * s_unit), solver=SOLVERS[c.solver],
+                       admit_state=c.s_admit == 1)
 
 
 @dataclass

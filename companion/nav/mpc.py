@@ -12,7 +12,11 @@ half the true minimiser of eq. 28. We use the consistent pair (the minimiser of 
 what the tests check against a brute-force cost).
 
 Constraints (eq. 29-34): ``U_min <= U <= U_max`` and ``S_min <= M S + C U <= S_max``, written
-for the solver as ``l <= [I; C] U_bar <= u``, which is eq. 33-34's ``W U_bar <= w``.
+for the solver as ``l <= [I; C] U_bar <= u``, which is eq. 33-34's ``W U_bar <= w``. A state S
+beyond the box makes eq. 34 infeasible for every U (the vehicle cannot be back inside at once);
+with ``admit_state`` (the default) the box is widened to S on that side for the step,
+``min(S_min, S) <= M S + C U <= max(S_max, S)``, so no input is always feasible and the optimum
+may bring the state back, never farther out. Inside the box nothing changes.
 
 This module is unit-agnostic: callers pass B, S, bounds and weights in whatever units they
 chose (``companion.nav.mission`` documents its choice). Backends: OSQP (default), set up
@@ -50,6 +54,7 @@ class MpcSettings:
     s_upper: tuple[float, float] = (math.inf, math.inf)
     solver: str = "osqp"
     eps: float = 1e-9
+    admit_state: bool = True    # widen S's bounds to a current state beyond them (module docstring)
 
 
 @dataclass(frozen=True)
@@ -238,8 +243,12 @@ class MpcController:
         free_state = s[self._stack]                            # M S(k): S repeated over the horizon
         grad = 2.0 * (weighted_c.T @ (free_state - s_target[self._stack]))   # eq. 38, factor 2
         lower, upper = self._lower, self._upper
-        lower[n:] = self._s_lower - free_state
-        upper[n:] = self._s_upper - free_state
+        if self.settings.admit_state:   # zero input (C U = 0) stays feasible: 0 within each row's bounds
+            lower[n:] = np.minimum(self._s_lower - free_state, 0.0)
+            upper[n:] = np.maximum(self._s_upper - free_state, 0.0)
+        else:
+            lower[n:] = self._s_lower - free_state
+            upper[n:] = self._s_upper - free_state
         d = self._scale
         self._a_full[n:] = c * d
         norm = max(float(np.abs(hess).max()) * d * d, 1e-300)

@@ -386,30 +386,6 @@ def test_mission_does_not_fail_on_a_solvable_qp(pacific, truth):
     assert not result.reason.startswith("QP failed"), result.reason
 
 
-def test_destination_outside_the_state_bounds_is_refused_at_start():
-    """Table 4's S_min = [-10, 10] (MPC_S_AUTO 0) excludes the southern hemisphere (I < 0): a clear
-    error naming the parameters instead of an infeasible QP in flight."""
-    nav = NavConfig.from_values(validate_all({"NAV_START_LAT": -35.0, "NAV_START_LON": 149.0,
-                                              "NAV_DEST_LAT": -36.0, "NAV_DEST_LON": 150.0, "MPC_S_AUTO": 0}))
-    with pytest.raises(ValueError, match="MPC_S_MIN_I"):
-        Mission(nav)
-    wide = nav.replace(s_min_i=-90.0, s_min_d=-180.0, s_max_d=180.0)
-    assert Mission(wide).s_dest[1] < 0.0
-
-
-@pytest.mark.parametrize("start, dest", [((-35.0, 149.0), (-35.5, 150.0)), ((1.0, -30.0), (-0.5, -29.0))])
-def test_any_route_flies_with_the_default_bounds(start, dest):
-    """MPC_S_AUTO 1 (default): bounds from the mission's own field, so southern-hemisphere and
-    equatorial missions fly and arrive (noiseless world) without touching MPC_S_MIN_*/MAX_*."""
-    nav = NavConfig.from_values(validate_all({"NAV_START_LAT": start[0], "NAV_START_LON": start[1],
-                                              "NAV_DEST_LAT": dest[0], "NAV_DEST_LON": dest[1]}))
-    model = model_for_date(nav.year)
-    commands, world, mission = fly_noiseless(nav, model)
-    assert commands[-1].phase == Phase.ARRIVED, commands[-1]
-    assert world.miss_m() < 2.0 * nav.arrive_m
-    assert np.all(mission.s_lower <= mission.s_dest) and np.all(mission.s_dest <= mission.s_upper)
-
-
 def test_heading_free_elements_arrive(model):
     """NAV_ELEMENTS 2 steers on (I, F), which need no heading: the noiseless mission arrives, and a
     declination that is pure garbage (what a compass-derived yaw gives) does not matter."""

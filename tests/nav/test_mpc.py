@@ -220,6 +220,43 @@ def test_active_state_constraint_is_respected(solver):
     np.testing.assert_allclose(sol.u_all, brute.x, atol=1e-4)
 
 
+@pytest.mark.parametrize("solver", ["osqp", "daqp"])
+def test_a_state_beyond_its_bounds_is_admitted_and_brought_back_not_farther_out(solver):
+    """S beyond S_max: the paper's hard bounds (eq. 34) leave no feasible input; admitted (the
+    default) the box is widened to S for the step, so the optimum is the brute-force one under
+    the widened box, and it moves toward a target inside, never farther out."""
+    horizon, q, f, r = 2, np.array([1.0, 1.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0])
+    b = np.array([[1.0, 0.3], [-0.2, 0.8]])
+    s0, s_d = np.array([3.0, -1.0]), np.array([0.0, 0.0])    # D beyond S_max = 1, I inside
+    settings = dict(horizon=horizon, q=tuple(q), f=tuple(f), r=tuple(r), u_lower=(-1.0, -1.0), u_upper=(1.0, 1.0),
+                    s_lower=(-2.0, -2.0), s_upper=(1.0, 1.0), solver=solver)
+    hard = MpcController(MpcSettings(**settings, admit_state=False)).solve(b, s0, s_d)
+    assert not hard.ok and np.all(np.isnan(hard.u_all))
+    admitted = MpcController(MpcSettings(**settings)).solve(b, s0, s_d)
+    assert admitted.ok, admitted.status
+    predicted = simulate(np.eye(2), b, s0, admitted.u_all)
+    upper, lower = np.tile([3.0, 1.0], horizon), np.tile([-2.0, -2.0], horizon)   # widened to S on D's side
+    assert np.all(predicted <= upper + 1e-6) and np.all(predicted >= lower - 1e-6)
+    assert predicted[0] < s0[0]                                    # back toward the box
+    cons = [{"type": "ineq", "fun": lambda x: upper - simulate(np.eye(2), b, s0, x)},
+            {"type": "ineq", "fun": lambda x: simulate(np.eye(2), b, s0, x) - lower}]
+    brute = minimize(lambda x: cost_loop(np.eye(2), b, s0, s_d, q, f, r, x), np.zeros(2 * horizon),
+                     method="SLSQP", bounds=[(-1.0, 1.0)] * (2 * horizon), constraints=cons,
+                     options={"ftol": 1e-12, "maxiter": 1000})
+    np.testing.assert_allclose(admitted.u_all, brute.x, atol=1e-4)
+
+
+def test_inside_the_bounds_admitting_the_state_changes_nothing():
+    """Every random problem whose state lies inside its box: the same answer to the last bit."""
+    rng = np.random.default_rng(11)
+    settings = dict(horizon=3, s_lower=(-5.0, -5.0), s_upper=(5.0, 5.0))
+    plain, admitted = (MpcController(MpcSettings(**settings, admit_state=a)) for a in (False, True))
+    for _ in range(200):
+        b, s0, s_d = random_b(rng), rng.uniform(-4.9, 4.9, 2), rng.uniform(-8.0, 8.0, 2)
+        one, two = plain.solve(b, s0, s_d), admitted.solve(b, s0, s_d)
+        assert one.ok == two.ok and np.array_equal(one.u_all, two.u_all)
+
+
 @pytest.mark.parametrize("bound", [1.0, 2.5, 40.0])
 @pytest.mark.parametrize("horizon", [1, 2, 3])
 def test_osqp_and_daqp_agree_on_hundreds_of_random_problems(horizon, bound):
