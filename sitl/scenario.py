@@ -91,13 +91,18 @@ class SensorModel:
 
 @dataclass(frozen=True)
 class StormConfig:
-    """Which storm window drives the disturbance and how its time maps onto mission time."""
+    """Which storm window drives the disturbance and how its time maps onto mission time; and
+    which of its space-weather indices reach the navigator (the ground station's feed: the
+    companion's ``NAV_KP`` and ``NAV_SYMH``, in-process the step's readings). An index not fed is
+    NaN to the navigator, as for an operator without that service; the storm is the same."""
 
     enabled: bool = False
     window_utc: tuple[str, str] = ("2024-05-10T18:00:00Z", "2024-05-11T00:00:00Z")
     time_map: str = "compress"           # "compress": window onto expected duration; "utc": real time
     scale: float = 1.0
     stations: tuple[str, ...] = ("kak", "gua", "cta", "cnb", "frd")
+    kp_feed: bool = True                 # the storm's Kp reaches the navigator
+    symh_feed: bool = True               # the storm's SYM-H reaches the navigator
 
     @property
     def window_posix(self) -> tuple[float, float]:

@@ -275,3 +275,14 @@ def test_batches_keep_every_run_once_in_order_and_end_one_run_per_task(count, wo
     # the tail a worker could be left alone with is one run, not a batch
     tail = split[-workers:] if len(split) >= workers else split
     assert all(len(batch) == 1 for batch in tail)
+
+
+def test_a_sweep_can_withhold_a_storms_space_weather_feed():
+    """``--sweep storm.kp_feed=0,1``: which indices reach the navigator is a scenario key like any."""
+    from montecarlo.runs import apply_scenario_changes, scenario_keys
+    from sitl.scenario import load_scenario
+
+    storm = load_scenario("long_storm")
+    assert scenario_keys(storm)["storm.kp_feed"] is True and scenario_keys(storm)["storm.symh_feed"] is True
+    changed = apply_scenario_changes(storm, (("storm.kp_feed", 0.0), ("storm.symh_feed", 1.0)))
+    assert (changed.storm.kp_feed, changed.storm.symh_feed) == (False, True)

@@ -105,7 +105,8 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
                                     "(set FCMPC_DATA_DIR or --data-dir)") from err
     time_map = _storm_time_map(scenario, expected_duration_s)
     return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale,
-                   space_weather=_space_weather(folder), ring_current=_ring_current(folder))
+                   space_weather=_space_weather(folder) if storm.kp_feed else None,
+                   ring_current=_ring_current(folder) if storm.symh_feed else None)
 
 
 def _storm_time_map(scenario: Scenario, expected_duration_s: float | None = None):
@@ -171,8 +172,9 @@ def storm_component_correlations(scenario: Scenario, data_dir: str | os.PathLike
 
 def _storm_disturbance(scenario: Scenario, data_dir: str | os.PathLike[str] | None, symh_ratio: float):
     """The scenario's storm disturbance ``(lat, lon, elapsed_s) -> (dN, dE, dZ)`` in nT, less the
-    ring current predicted from SYM-H with ``symh_ratio`` (0: none removed)."""
-    truth = build_truth_field(scenario, data_dir)
+    ring current predicted from SYM-H with ``symh_ratio`` (0: none removed), whether or not the
+    navigator is fed the index."""
+    truth = build_truth_field(replace(scenario, storm=replace(scenario.storm, symh_feed=True)), data_dir)
     if truth.disturbance is None:
         raise ValueError(f"scenario {scenario.name!r} has no storm")
     if symh_ratio <= 0.0:

@@ -61,13 +61,14 @@ class TruthField:
 
     def kp(self, elapsed_s: float) -> float:
         """The planetary Kp a space-weather service gives at this mission time: the storm's own
-        (at its storm time, whatever ``storm_scale``), NaN without a storm or without Kp data (no
-        feed reaches the vehicle, and the navigator's innovations alone decide)."""
+        (at its storm time, whatever ``storm_scale``), NaN without a storm, without Kp data or
+        without the feed (``[storm] kp_feed`` false: the navigator's innovations alone decide)."""
         return self._storm_index(self.space_weather, elapsed_s)
 
     def symh(self, elapsed_s: float) -> float:
         """The ring-current index SYM-H (nT) a space-weather service gives at this mission time:
-        the storm's own at its storm time, NaN without a storm or without SYM-H data."""
+        the storm's own at its storm time, NaN without a storm, without SYM-H data or without the
+        feed (``[storm] symh_feed`` false)."""
         return self._storm_index(self.ring_current, elapsed_s)
 
     def _storm_index(self, index, elapsed_s: float) -> float:

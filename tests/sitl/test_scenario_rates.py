@@ -72,6 +72,10 @@ def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_
     off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
     assert math.isnan(off.symh(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).symh(0.0))
     assert math.isnan(replace(truth, ring_current=None).symh(0.0))
+    # an operator without a SYM-H service ([storm] symh_feed = false): the same storm, no SYM-H, Kp fed
+    unfed = build_truth_field(replace(storm, storm=replace(storm.storm, symh_feed=False)), shared_data)
+    assert math.isnan(unfed.symh(0.0)) and unfed.kp(0.0) == truth.kp(0.0)
+    np.testing.assert_array_equal(unfed.storm_ned_nt(30.0, 155.0, 3600.0), truth.storm_ned_nt(30.0, 155.0, 3600.0))
 
 
 def test_a_gauss_markov_component_is_fitted_back_and_a_random_walk_is_not_taken_for_one():
@@ -120,6 +124,9 @@ def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
     assert math.isnan(off.kp(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).kp(0.0))
     assert math.isnan(replace(truth, space_weather=None).kp(0.0))
     assert math.isnan(replace(truth, storm_scale=0.0).kp(0.0))
+    # an operator without a Kp service ([storm] kp_feed = false, a sweep's storm.kp_feed=0): SYM-H still fed
+    unfed = build_truth_field(replace(storm, storm=replace(storm.storm, kp_feed=False)), shared_data)
+    assert math.isnan(unfed.kp(0.0)) and unfed.symh(0.0) == truth.symh(0.0)
 
 
 def test_the_feed_reaches_the_navigator_as_a_declared_storm(shared_data):
