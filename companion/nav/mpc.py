@@ -15,7 +15,7 @@ Constraints (eq. 29-34): ``U_min <= U <= U_max`` and ``S_min <= M S + C U <= S_m
 for the solver as ``l <= [I; C] U_bar <= u``, which is eq. 33-34's ``W U_bar <= w``. A state S
 beyond the box makes eq. 34 infeasible for every U (the vehicle cannot be back inside at once);
 with ``admit_state`` (the default) the box is widened to S on that side for the step,
-``min(S_min, S) <= M S + C U <= max(S_max, S)``, so no input is always feasible and the optimum
+``min(S_min, S) <= M S + C U <= max(S_max, S)``, so zero input is always feasible and the optimum
 may bring the state back, never farther out. Inside the box nothing changes.
 
 This module is unit-agnostic: callers pass B, S, bounds and weights in whatever units they

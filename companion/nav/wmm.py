@@ -22,8 +22,8 @@ from numpy.typing import ArrayLike
 
 from companion.nav.harmonics import WMM_DEGREE, HarmonicSums, schmidt_polynomials
 
-__all__ = ["KEPT_EVALUATIONS", "WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm", "model_for_date",
-           "model_for_setting"]
+__all__ = ["KEPT_EVALUATIONS", "WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm",
+           "model_for_date", "model_for_setting"]
 
 WMM2025_SWITCH_YEAR = 2024.87
 """Decimal year from which :func:`model_for_date` uses WMM2025 (released 2024-11-13)."""
