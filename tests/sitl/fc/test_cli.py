@@ -6,7 +6,7 @@ import pytest
 
 from sitl.server import main
 from sitl.truthlog import TRUTH_COLUMNS, read_truth_csv
-from tests.sitl.conftest import REPO, read_tlog, run_cli
+from tests.sitl.conftest import REPO, open_client, read_tlog, run_cli
 from tests.sitl.fc.helpers import closed_udp_port
 
 
@@ -58,22 +58,21 @@ def test_sigterm_stops_cleanly_and_flushes_records(tmp_path):
     import signal
     import subprocess
     import sys
-    import time
 
     log_dir = tmp_path / "sig"
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    client, port = open_client()
     proc = subprocess.Popen([sys.executable, "-m", "sitl.server", "--speedup", "50", "--tlog", "--log-dir",
-                             str(log_dir), "--out", f"udp:127.0.0.1:{closed_udp_port()}"],
+                             str(log_dir), "--out", f"udp:127.0.0.1:{port}"],
                             env=env, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 20
-        while not (log_dir / "truth.csv").exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.0)
+        # stopped once the simulator's own clock says 15 s (its SYSTEM_TIME), whatever the machine's load
+        client.recv("SYSTEM_TIME", 60.0, predicate=lambda m: m.time_boot_ms >= 15_000)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     finally:
+        client.conn.close()
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, err
