@@ -243,12 +243,10 @@ class MpcController:
         free_state = s[self._stack]                            # M S(k): S repeated over the horizon
         grad = 2.0 * (weighted_c.T @ (free_state - s_target[self._stack]))   # eq. 38, factor 2
         lower, upper = self._lower, self._upper
+        low, high = self._s_lower - free_state, self._s_upper - free_state
         if self.settings.admit_state:   # zero input (C U = 0) stays feasible: 0 within each row's bounds
-            lower[n:] = np.minimum(self._s_lower - free_state, 0.0)
-            upper[n:] = np.maximum(self._s_upper - free_state, 0.0)
-        else:
-            lower[n:] = self._s_lower - free_state
-            upper[n:] = self._s_upper - free_state
+            low, high = np.minimum(low, 0.0), np.maximum(high, 0.0)
+        lower[n:], upper[n:] = low, high
         d = self._scale
         self._a_full[n:] = c * d
         norm = max(float(np.abs(hess).max()) * d * d, 1e-300)
