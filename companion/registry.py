@@ -103,7 +103,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_PROBE1_DEG", float, 0.0, 0.0, 360.0, "deg", "first probing heading theta_1, from east counter-clockwise"),
     _p("NAV_PROBE2_DEG", float, 270.0, 0.0, 360.0, "deg", "second probing heading theta_2, from east counter-clockwise"),
     _p("NAV_CONTROLLER", int, 2, 0, 2, "", "0 LTI-MPC, 1 LTV-MPC, 2 Fc-MPC"),
-    _p("NAV_ELEMENTS", int, 0, 0, 4, "", "navigation state S: 0 auto ((D, I) with an independent heading, else (I, F)), 1 (D, I) paper, 2 (I, F) heading-free, 3 (H, Z) heading-free, 4 (D, I, F) weighted, F set aside by the filter while a space-weather reading declares a storm (NAV_KP, NAV_SYMH: feed them)"),
+    _p("NAV_ELEMENTS", int, 0, 0, 5, "", "navigation state S: 0 auto (5 with an independent heading, else 2), 1 (D, I) paper, 2 (I, F) heading-free, 3 (H, Z) heading-free, 4 (D, I, F) weighted, F set aside by the filter while a space-weather reading declares a storm (NAV_KP, NAV_SYMH: feed them), 5 (D, I, F) with F weighed only while a fresh reading says quiet (without a feed: (D, I))"),
     _p("COMP_HEADING_SRC", int, 0, 0, 2, "", "heading the FC reports: 0 detect (EK3_SRC1_YAW/COMPASS_USE, EKF2_MAG_TYPE), 1 independent of the compass, 2 compass-derived"),
     _p("NAV_CALIBRATE", int, 1, 0, 1, "", "1 subtract the start-up bias (measured minus model at a GPS-known start) from every measurement"),
     _p("NAV_FIX_GATE_M", float, 50000.0, 100.0, 1e7, "m", "a geomagnetic fix farther than this from the dead-reckoned position is rejected (the step keeps dead reckoning)"),

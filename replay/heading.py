@@ -7,6 +7,7 @@ import numpy as np
 
 from companion import wrap_2pi
 from companion.nav.field import WorldMagneticModel, decl_incl_gradient
+from companion.nav.elements import ElementSet
 from companion.nav.geo import geodesic_distance_m, geodesic_inverse
 from companion.nav.mission import Measurement, Mission, Phase
 from companion.params import Controller, NavConfig, default_values
@@ -41,7 +42,8 @@ def run_mission(recs: list[WindowRecord], w: float, model: WorldMagneticModel, y
         alt_m=alt, year=year, speed_mps=cruise_mps, period_s=w, controller=Controller.FC,
         # a probe moves speed * T, of which the gradient sees half after the window-centre correction
         grad_min_move_m=min(1.0, 0.25 * cruise_mps * w), arrive_m=5.0, max_steps=100_000,
-        s_min_d=-180.0, s_max_d=180.0, s_min_i=-90.0, s_max_i=90.0)
+        s_min_d=-180.0, s_max_d=180.0, s_min_i=-90.0, s_max_i=90.0,
+        elements=ElementSet.PAPER)   # the windows measure the paper's pair, D and I
     mission = Mission(config, model)
     diffs, ideal_diffs, est_errors = [], [], []
     last_phase, reason = "", ""

@@ -16,7 +16,7 @@ would be on the vehicle. Two measurement paths, chosen by the scenario's
 Either way the averaged elements D, I, F, H, Z of each step are kept in
 ``RunResult.elements`` (:class:`~sitl.world.sampling.AveragedElements`) for a navigator that
 uses heading-free elements; the mission is fed :class:`Measurement` with D, I and F and uses the
-two of its element set (NAV_ELEMENTS: 0/1 (D, I), 2 (I, F)).
+elements of its set (NAV_ELEMENTS: 1 (D, I), 2 (I, F), 0 auto (D, I, F) with F weighed while quiet, ...).
 
 The navigator's field model is its own (``Mission`` picks WMM from ``NavConfig``); the truth
 field (``truth``) may be a different model plus crust and storm. The flight controller's

@@ -101,8 +101,8 @@ class StormConfig:
     time_map: str = "compress"           # "compress": window onto expected duration; "utc": real time
     scale: float = 1.0
     stations: tuple[str, ...] = ("kak", "gua", "cta", "cnb", "frd")
-    kp_feed: bool = True                 # the storm's Kp reaches the navigator
-    symh_feed: bool = True               # the storm's SYM-H reaches the navigator
+    kp_feed: bool = True                 # Kp (the storm's, or a quiet day's) reaches the navigator
+    symh_feed: bool = True               # SYM-H (the storm's, or a quiet day's) reaches the navigator
 
     @property
     def window_posix(self) -> tuple[float, float]:

@@ -93,6 +93,7 @@ __all__ = [
     "component_walk_covariance",
     "field_jacobian",
     "gauss_markov_step",
+    "index_says_quiet",
     "stationary_variance",
     "storm_declared",
 ]
@@ -115,6 +116,17 @@ RELEASE_STEPS = 60   # six hours at T = 360 s: a storm lasts hours, and a bias l
 ADAPT_GAIN = 0.5     # covariance matching: the active noise's scale moves by (NIS / m)^ADAPT_GAIN a step
 
 
+def index_says_quiet(kp: float, kp_on: float, symh_nt: float = math.nan, symh_on_nt: float = -math.inf) -> bool:
+    """Whether a space-weather index vouches for a quiet field: at least one of Kp (0-9; NaN or
+    negative: unknown) and SYM-H (nT; NaN: unknown) is known, and neither declares a storm.
+
+    >>> index_says_quiet(2.0, 5.0), index_says_quiet(math.nan, 5.0), index_says_quiet(2.0, 5.0, -80.0, -50.0)
+    (True, False, False)
+    """
+    known = (math.isfinite(kp) and kp >= 0.0) or math.isfinite(symh_nt)
+    return known and not storm_declared(kp, kp_on, symh_nt, symh_on_nt)
+
+
 def storm_declared(kp: float, kp_on: float, symh_nt: float = math.nan, symh_on_nt: float = -math.inf) -> bool:
     """Whether a space-weather index declares a storm: the planetary Kp (0-9; NaN or negative:
     unknown) at or above ``kp_on``, or the ring-current index SYM-H (nT; NaN: unknown) at or
@@ -134,14 +146,17 @@ class DisturbanceMonitor:
         self.average = 1.0
         self.active = False
         self.declared = False
+        self.index_quiet = False    # a fresh space-weather index says the field is quiet
         self.quiet_steps = 0
         self.loud_steps = 0
         self.activations = 0
 
-    def declare(self, storm: bool) -> bool:
-        """A space-weather index says whether a storm is on; returns whether active. A declared
-        storm switches the disturbance on at once; its end leaves the release to the innovations."""
+    def declare(self, storm: bool, index_quiet: bool = False) -> bool:
+        """A space-weather index says whether a storm is on (``storm``) or the field is quiet
+        (``index_quiet``; both False: no index); returns whether active. A declared storm switches
+        the disturbance on at once; its end leaves the release to the innovations."""
         self.declared = bool(storm)
+        self.index_quiet = bool(index_quiet) and not self.declared
         if self.declared and not self.active:
             self.active = True
             self.activations += 1
@@ -162,10 +177,11 @@ class DisturbanceMonitor:
         return self.active
 
     def snapshot(self) -> tuple:
-        return self.average, self.active, self.declared, self.quiet_steps, self.loud_steps, self.activations
+        return (self.average, self.active, self.declared, self.index_quiet, self.quiet_steps, self.loud_steps,
+                self.activations)
 
     def restore(self, state: tuple) -> None:
-        (self.average, self.active, self.declared, self.quiet_steps, self.loud_steps,
+        (self.average, self.active, self.declared, self.index_quiet, self.quiet_steps, self.loud_steps,
          self.activations) = state
 
 

@@ -13,7 +13,10 @@ Sets (NAV_ELEMENTS): 1 ``(D, I)`` (the paper), 2 ``(I, F)``, 3 ``(H, Z)`` (headi
 ``(D, I, F)``: all three measured and weighted by each element's declared noise in the
 navigation filter (:mod:`companion.nav.navfilter`), the MPC steering on its first two,
 ``(D, I)`` (:meth:`ElementSet.steering`), whose geomagnetic fix (eq. 49) is also the one
-reported beside the filter's estimate.
+reported beside the filter's estimate; F is set aside while a space-weather index declares a
+storm. 5 ``(D, I, F)`` with F weighed only while an index says the field is quiet (auto with an
+independent heading): without a space-weather feed it is ``(D, I)``, and F is never trusted on
+a day nobody vouches for (:meth:`ElementSet.measured_rows`).
 
 Each :class:`ElementSet` says which two elements form S, in which unit each enters the state
 (degrees for angles, nanotesla for intensities), how a difference is formed (declination wraps
@@ -72,6 +75,7 @@ class ElementSet:
     HEADING_FREE = 2   # (I, F): magnetometer and tilt only
     HORIZONTAL_VERTICAL = 3   # (H, Z): magnetometer and tilt only
     WEIGHTED = 4       # (D, I, F): all three, weighted by declared noise; steers on (D, I)
+    WEIGHTED_WHEN_QUIET = 5   # (D, I, F), F weighed only while a space-weather index says quiet
 
     @property
     def label(self) -> str:
@@ -86,18 +90,36 @@ class ElementSet:
     def heading_free(self) -> bool:
         return not self.uses_declination
 
-    def in_storm(self) -> tuple[int, ...]:
-        """The indices of the elements the navigation filter measures while a storm is declared (Kp
-        or SYM-H, :func:`companion.nav.disturbance.storm_declared`): a weighted set sets F aside, a
-        pair keeps both.
+    def measured_rows(self, declared: bool, index_quiet: bool) -> tuple[int, ...]:
+        """The indices of the elements the navigation filter measures this step.
+
+        ``declared``: a space-weather index (Kp or SYM-H,
+        :func:`companion.nav.disturbance.storm_declared`) declares a storm; ``index_quiet``: a fresh
+        index says the field is quiet. A pair keeps both elements. A weighted set sets F aside
+        while a storm is declared, and set 5 also while no index says quiet.
         Why: a storm's ring current moves the total intensity most, by tens to hundreds of nT
         against F's few nT of quiet noise, and what the SYM-H prediction and the bias states' walk
         leave of it was read as position: on the ideal storms (D, I, F) ended 4.78 / 7.30 km off
         where (D, I) ends 2.91 / 3.51 km, and with F set aside 2.91 / 3.51 km (50 seeds each,
-        2026-12-04)."""
-        if len(self.names) == 3 and "f_nt" in self.names:
+        2026-12-04). Without an index the storm drags F before the innovations recognise it
+        (README, "Element sets"), so set 5 weighs F only on a day an index vouches for.
+
+        >>> [ELEMENT_SETS[c].measured_rows(d, q) for c, d, q in ((4, False, False), (4, True, False), (5, False, False),
+        ...                                                      (5, False, True), (1, True, False))]
+        [(0, 1, 2), (0, 1), (0, 1), (0, 1, 2), (0, 1)]
+        """
+        if len(self.names) != 3 or "f_nt" not in self.names:
+            return tuple(range(len(self.names)))
+        if declared or (self.code == self.WEIGHTED_WHEN_QUIET and not index_quiet):
             return tuple(i for i, name in enumerate(self.names) if name != "f_nt")
         return tuple(range(len(self.names)))
+
+    @property
+    def f_condition(self) -> str:
+        """When a weighted set weighs F, in words ("" for a pair)."""
+        if self.code == self.WEIGHTED_WHEN_QUIET:
+            return "F weighed only while NAV_KP or NAV_SYMH, fresh, says quiet"
+        return "F set aside while a storm is declared" if len(self.names) == 3 else ""
 
     def steering(self) -> "ElementSet":
         """The two elements the MPC steers on: the set itself, or the first two of a weighted set."""
@@ -135,22 +157,23 @@ ELEMENT_SETS: dict[int, ElementSet] = {
     ElementSet.HEADING_FREE: ElementSet(ElementSet.HEADING_FREE, ("incl_deg", "f_nt")),
     ElementSet.HORIZONTAL_VERTICAL: ElementSet(ElementSet.HORIZONTAL_VERTICAL, ("h_nt", "z_nt")),
     ElementSet.WEIGHTED: ElementSet(ElementSet.WEIGHTED, ("decl_deg", "incl_deg", "f_nt")),
+    ElementSet.WEIGHTED_WHEN_QUIET: ElementSet(ElementSet.WEIGHTED_WHEN_QUIET, ("decl_deg", "incl_deg", "f_nt")),
 }
 
 
 def resolve_elements(requested: int, compass_derived: bool) -> int:
     """NAV_ELEMENTS against the heading source: with a compass-derived yaw never D ((D, I) and
-    (D, I, F) become (I, F); (H, Z) stays); auto (0) is (D, I) with an independent heading and
-    (I, F) without one. Why not (D, I, F) for auto: without a space-weather index (NAV_KP
-    unknown, the default) a storm drags F before the innovations recognise it (README,
-    "Element sets").
+    (D, I, F) become (I, F); (H, Z) stays); auto (0) is set 5 with an independent heading, (D, I, F)
+    with F weighed only while a space-weather index says quiet, and (I, F) without one. Why not
+    set 4 for auto: without a space-weather index (NAV_KP unknown, the default) a storm drags F
+    before the innovations recognise it (README, "Element sets"); set 5 is then (D, I).
 
     >>> resolve_elements(0, True), resolve_elements(0, False), resolve_elements(4, True), resolve_elements(3, True)
-    (2, 1, 2, 3)
+    (2, 5, 2, 3)
     """
     if compass_derived:
         return requested if requested == ElementSet.HORIZONTAL_VERTICAL else ElementSet.HEADING_FREE
-    return ElementSet.PAPER if requested == 0 else requested
+    return ElementSet.WEIGHTED_WHEN_QUIET if requested == 0 else requested
 
 
 def hz_standard_errors(f_nt: float, incl_deg: float, f_se_nt: float, incl_se_deg: float) -> tuple[float, float]:
@@ -166,10 +189,10 @@ def hz_standard_errors(f_nt: float, incl_deg: float, f_se_nt: float, incl_se_deg
 
 
 def element_set(code: int) -> ElementSet:
-    """The element set of a NAV_ELEMENTS value (1-4); ValueError otherwise (0, auto, is
+    """The element set of a NAV_ELEMENTS value (1-5); ValueError otherwise (0, auto, is
     resolved by the caller, who knows the heading source)."""
     try:
         return ELEMENT_SETS[int(code)]
     except (KeyError, ValueError, TypeError):
         raise ValueError(f"NAV_ELEMENTS {code!r} is not a concrete element set "
-                         "(1 (D, I), 2 (I, F), 3 (H, Z), 4 (D, I, F))") from None
+                         "(1 (D, I), 2 (I, F), 3 (H, Z), 4 (D, I, F), 5 (D, I, F) with F while quiet)") from None

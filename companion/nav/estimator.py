@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from companion.nav.disturbance import COMPONENT_WALK, ONSET_STEPS, storm_declared
+from companion.nav.disturbance import COMPONENT_WALK, ONSET_STEPS, index_says_quiet, storm_declared
 from companion.nav.elements import ElementSet
 from companion.nav.field import (PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient,
                                  fix_covariance)
@@ -101,10 +101,11 @@ class Estimate:
     fix_cov_en_m2: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
 
-def _storm_declared(meas, config) -> bool:
+def _space_weather(meas, config) -> tuple[bool, bool]:
     """Whether the step's space-weather readings (Kp, SYM-H) declare a storm by the settings'
-    thresholds (FUS_KP_ON, FUS_SYMH_ON)."""
-    return storm_declared(meas.kp, config.kp_on, symh_value(meas.symh_nt), config.symh_on_nt)
+    thresholds (FUS_KP_ON, FUS_SYMH_ON), and whether they say the field is quiet."""
+    readings = (meas.kp, config.kp_on, symh_value(meas.symh_nt), config.symh_on_nt)
+    return storm_declared(*readings), index_says_quiet(*readings)
 
 
 def filter_settings(config) -> FilterSettings:
@@ -229,7 +230,8 @@ class PositionEstimator:
                 qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:]),
                 qa_ned_corr=(c.symh_residual_rne, c.symh_residual_rnz, b.qa_ned_corr[2])))
         self.filter = NavigationFilter(process, self.measured, settings, self.model, c.alt_m, c.year)
-        self.filter.monitor.declare(_storm_declared(meas, c))
+        # at the known start F's innovation is calibration, whatever an index says of the day
+        self.filter.monitor.declare(_space_weather(meas, c)[0], index_quiet=True)
         measured = measured - self.ring_current_share(meas, (c.start_lat_deg, c.start_lon_deg))
         self._ins = (meas.ins_lat_deg, meas.ins_lon_deg)
         self.filter.set_heading(window_heading_rad(meas))
@@ -274,7 +276,7 @@ class PositionEstimator:
         f = self.filter
         have_ins = meas.has_ins
         lat_now = meas.ins_lat_deg if have_ins else fallback[0]
-        f.monitor.declare(_storm_declared(meas, self.config))
+        f.monitor.declare(*_space_weather(meas, self.config))
         f.predict(dt_s, vel_en_mps, lat_now, f.position(*self._ins))
         f.set_heading(window_heading_rad(meas, vel_en_mps))
         if isinstance(f.process, InsProcess):

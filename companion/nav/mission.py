@@ -44,7 +44,7 @@ import numpy as np
 
 from companion import course_from_theta
 from companion.nav.arrival import Arrival
-from companion.nav.elements import ElementSet, element_set
+from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
@@ -149,8 +149,9 @@ class Mission:
 
     ``bias``: the start-up calibration of the element set's two elements (measured minus model
     at a known start, in the elements' units), subtracted from every measurement; None for
-    none. ``config.elements`` 0 (auto) means (D, I) here: the caller resolves auto from the
-    heading source it knows about.
+    none. ``config.elements`` 0 (auto) means an independent heading here, (D, I, F) with F weighed
+    only while a space-weather index says quiet: the caller resolves auto from the heading source
+    it knows about.
     """
 
     def __init__(self, config: NavConfig, model: WorldMagneticModel | None = None,
@@ -159,7 +160,7 @@ class Mission:
         if model is None:
             model = model_for_setting(config.year, config.wmm)
         self.model = model
-        self.measured: ElementSet = element_set(config.elements or ElementSet.PAPER)
+        self.measured: ElementSet = element_set(config.elements or resolve_elements(0, compass_derived=False))
         self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see
         self.estimator = PositionEstimator(config, model, self.measured) if uses_filter(config) else None
         self.estimate: Estimate | None = None

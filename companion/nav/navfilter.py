@@ -415,7 +415,7 @@ class NavigationFilter:
 
     def _innovation(self, measured, lag_en_m, ins_lat_deg, ins_lon_deg, standard_errors, at_centre=None):
         """(y, H, R) of an element measurement at the window centre ``lag_en_m`` behind the estimate;
-        the elements of :meth:`ElementSet.in_storm` only while a storm is declared."""
+        the elements of :meth:`ElementSet.measured_rows` (F set aside in a storm, or without an index)."""
         lat = self.position(ins_lat_deg, ins_lon_deg)[0]
         if at_centre is None or self._attitude:
             centre = self.window_centre(lag_en_m, ins_lat_deg, ins_lon_deg)
@@ -426,7 +426,7 @@ class NavigationFilter:
         h = self._h(g, lat)
         y = self.elements.difference(np.asarray(measured, dtype=float), values + self.bias)
         r = self.measurement_noise(standard_errors)
-        if self.monitor.declared and len(rows := list(self.elements.in_storm())) < self.nb:   # F set aside
+        if len(rows := list(self.elements.measured_rows(self.monitor.declared, self.monitor.index_quiet))) < self.nb:
             return y[rows], h[rows], r[np.ix_(rows, rows)]
         return y, h, r
 

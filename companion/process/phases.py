@@ -189,8 +189,7 @@ class Phases:
         app.last_phase = ""
         app.out.say(f"FcMPC: mission {app.mission_no} start {lat:.4f},{lon:.4f} ({source})")
         elements = ELEMENT_SETS[app.elements_code]
-        aside = "; F set aside while a storm is declared" \
-            if uses_filter(config) and len(elements.in_storm()) < len(elements.names) else ""
+        aside = f"; {elements.f_condition}" if uses_filter(config) and elements.f_condition else ""
         app.out.say(f"FcMPC: elements {elements.label}: {why}{aside}"[:200])
         if calibration:
             app.out.say(f"FcMPC: {calibration}"[:200])

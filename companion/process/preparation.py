@@ -88,7 +88,7 @@ class MissionPreparation:
         code = resolve_elements(requested, compass)
         if compass:
             reason = verdict.reason if verdict is not None else "heading source unknown"
-            if requested in (ElementSet.PAPER, ElementSet.WEIGHTED):
+            if requested in (ElementSet.PAPER, ElementSet.WEIGHTED, ElementSet.WEIGHTED_WHEN_QUIET):
                 return code, (f"NAV_ELEMENTS {requested} asks for D, but the FC yaw is "
                               f"compass-derived ({reason}): D is no measurement")
             if requested == ElementSet.HORIZONTAL_VERTICAL:

@@ -18,7 +18,9 @@ with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm dis
 
 With the storm comes its space-weather feed: the planetary Kp of the storm time (GFZ's
 definitive values, :data:`sitl.storms.KP_FILE`), what a service would give the vehicle
-(:meth:`TruthField.kp`); without the file there is no feed. :func:`storm_component_walks` is how
+(:meth:`TruthField.kp`); without the file there is no feed. A world without a storm feeds a
+quiet day's indices (Kp 0, SYM-H 0 nT, :func:`sitl.world.magnetic.quiet_index`), and
+``[storm] kp_feed`` / ``symh_feed`` false withhold either. :func:`storm_component_walks` is how
 fast the disturbance moves along the route, the walk a navigator set up for this world declares.
 
 Mission elapsed seconds are the simulator's time since boot. Past the end of the storm
@@ -40,7 +42,7 @@ from sitl.scenario import Scenario
 from sitl.storms import default_data_dir
 from sitl.world.fc_tables import ardupilot_tables
 from sitl.world.igrf import igrf14_model
-from sitl.world.magnetic import TruthField
+from sitl.world.magnetic import TruthField, quiet_index
 
 __all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
            "storm_component_correlations", "storm_component_walks"]
@@ -94,8 +96,9 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     quiet = TruthField(model=model, year=scenario.year, crustal_config=scenario.field_model.crustal,
                        crustal_origin=(scenario.start_lat_deg, scenario.start_lon_deg)).for_seed(seed)
     storm = scenario.storm
-    if not storm.enabled:
-        return quiet
+    if not storm.enabled:   # a quiet day: what a space-weather feed says of it, if it is fed
+        return replace(quiet, space_weather=quiet_index if storm.kp_feed else None,
+                       ring_current=quiet_index if storm.symh_feed else None)
     from sitl import storms
     folder = Path(data_dir) if data_dir is not None else default_data_dir()
     try:

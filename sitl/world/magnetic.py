@@ -17,9 +17,15 @@ import numpy as np
 from companion.nav.field import WorldMagneticModel
 from sitl.world.crustal import CrustalConfig, CrustalField
 
-__all__ = ["Disturbance", "TruthField", "decl_incl_from_ned", "CRUSTAL_SEED_KEY"]
+__all__ = ["Disturbance", "TruthField", "decl_incl_from_ned", "CRUSTAL_SEED_KEY", "QUIET_INDEX", "quiet_index"]
 
 CRUSTAL_SEED_KEY = 0x63727374
+QUIET_INDEX = 0.0   # Kp and SYM-H (nT) of a field nothing disturbs
+
+
+def quiet_index(posix_s: float) -> float:
+    """A space-weather index of a world without a storm: :data:`QUIET_INDEX` at any time."""
+    return QUIET_INDEX
 """Second word of the crustal field's seed ``[seed, CRUSTAL_SEED_KEY]``: its own stream."""
 
 
@@ -61,21 +67,26 @@ class TruthField:
 
     def kp(self, elapsed_s: float) -> float:
         """The planetary Kp a space-weather service gives at this mission time: the storm's own
-        (at its storm time, whatever ``storm_scale``), NaN without a storm, without Kp data or
-        without the feed (``[storm] kp_feed`` false: the navigator's innovations alone decide)."""
+        (at its storm time, whatever ``storm_scale``), a quiet day's 0 while the world has no
+        disturbance, NaN without Kp data or without the feed (``[storm] kp_feed`` false: the
+        navigator's innovations alone decide)."""
         return self._storm_index(self.space_weather, elapsed_s)
 
     def symh(self, elapsed_s: float) -> float:
         """The ring-current index SYM-H (nT) a space-weather service gives at this mission time:
-        the storm's own at its storm time, NaN without a storm, without SYM-H data or without the
-        feed (``[storm] symh_feed`` false)."""
+        the storm's own at its storm time, a quiet day's 0 nT while the world has no disturbance,
+        NaN without SYM-H data or without the feed (``[storm] symh_feed`` false)."""
         return self._storm_index(self.ring_current, elapsed_s)
 
     def _storm_index(self, index, elapsed_s: float) -> float:
-        """``index`` (POSIX seconds -> value) at this mission time's storm time; NaN without a
-        storm (or one scaled to nothing) or without the index."""
-        if self.disturbance is None or self.storm_scale == 0.0 or index is None:
+        """``index`` (POSIX seconds -> value) at this mission time's storm time; NaN without the
+        index (no feed); 0 (:func:`quiet_index`) while the world has no disturbance (none, or one
+        scaled to nothing): the index of a field nothing disturbs, which is what a service
+        reports on a quiet day (Kp 0 to 1, SYM-H within ten or so nT)."""
+        if index is None:
             return math.nan
+        if self.disturbance is None or self.storm_scale == 0.0:
+            return QUIET_INDEX
         return float(index(self._storm_time(elapsed_s)))
 
     def _storm_time(self, elapsed_s):

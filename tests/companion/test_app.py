@@ -54,14 +54,19 @@ def test_arms_and_steers_when_allowed(tmp_path):
     assert companion["state"] == "running" and companion["param_load_error"] is None
 
 
-def test_the_start_up_words_name_the_elements_and_a_storm_setting_f_aside(tmp_path):
-    """NAV_ELEMENTS 4 with the stand-in's independent heading: the companion measures (D, I, F)
-    and says at the start that its filter sets F aside while a storm is declared."""
-    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\nNAV_ELEMENTS 4\n")
+@pytest.mark.parametrize("setting, words_end", [
+    ("NAV_ELEMENTS 4\n", "(D, I, F): NAV_ELEMENTS 4 (EK3_SRC1_YAW 2 (GPS (dual antenna))); "
+                         "F set aside while a storm is declared"),
+    ("", "(D, I, F): heading independent of the compass (EK3_SRC1_YAW 2 (GPS (dual antenna))); "
+         "F weighed only while NAV_KP or NAV_SYMH, fresh, says quiet")], ids=["set 4", "auto"])
+def test_the_start_up_words_name_the_elements_and_when_f_is_weighed(tmp_path, setting, words_end):
+    """With the stand-in's independent heading the companion measures (D, I, F) and says at the
+    start when its filter weighs F: set 4 sets it aside while a storm is declared; auto (set 5)
+    weighs it only while a fresh space-weather reading says the field is quiet."""
+    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n" + setting)
     assert companion["elements"] == "(D, I, F)"
     words = [e for e in companion["events"] if "FcMPC: elements" in e]
-    assert words and words[0].endswith("(D, I, F): NAV_ELEMENTS 4 (EK3_SRC1_YAW 2 (GPS (dual antenna))); "
-                                       "F set aside while a storm is declared"), words
+    assert words and words[0].endswith(words_end), words
 
 
 def test_a_sym_h_fed_without_kp_declares_the_storm_at_the_start(tmp_path, shared_data):

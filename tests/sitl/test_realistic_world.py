@@ -361,8 +361,10 @@ def test_ideal_preset_flies_exactly_as_before_the_realistic_world():
     scenario = load_scenario("pacific")
     truth = build_truth_field(scenario)
     # the declared measurement noise (FUS_R_SRC 0): the verbatim path below measures no standard
-    # errors, and what is compared here is the world's measurement path, not the filter's R
-    nav = NavConfig.from_values({**validate_all(scenario.nav_overrides()), "NAV_CONTROLLER": 2, "FUS_R_SRC": 0})
+    # errors, and what is compared here is the world's measurement path, not the filter's R; the
+    # paper's (D, I): the verbatim path measures no F
+    nav = NavConfig.from_values({**validate_all(scenario.nav_overrides()), "NAV_CONTROLLER": 2, "FUS_R_SRC": 0,
+                                 "NAV_ELEMENTS": 1})
     result = fly_in_process(nav, scenario, 4, truth)
     iterations, remaining_m = _fly_before_issue_9(nav, scenario, 4, truth)
     # the same mission: the same steps, the last step's miss to rounding (the two averages sum

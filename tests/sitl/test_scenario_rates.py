@@ -58,8 +58,8 @@ def test_declared_correlations_of_the_components_are_the_worlds_own(shared_data,
 
 def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_storm(shared_data):
     """SYM-H is OMNI's at the storm time the mission maps to (the long storm's window starts at
-    18 UTC on 10 May 2024, SYM-H about -10 nT, and ends near -330 nT); the quiet world, a storm
-    switched off and a world without the OMNI file have none."""
+    18 UTC on 10 May 2024, SYM-H about -10 nT, and ends near -330 nT); the quiet world and a storm
+    switched off give a quiet day's 0 nT; a world without the OMNI file has none."""
     from sitl.storms import OMNI_FILE, read_omni_symh
     storm = load_scenario("long_storm")
     truth = build_truth_field(storm, shared_data)
@@ -70,7 +70,7 @@ def test_the_feed_gives_the_storms_symh_at_its_storm_time_and_nothing_without_a_
         assert omni.symh_nt[bins].min() <= truth.symh(elapsed) <= omni.symh_nt[bins].max()
     assert -20.0 < truth.symh(0.0) < 0.0 and truth.symh(15.9 * 3600.0) < -250.0
     off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
-    assert math.isnan(off.symh(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).symh(0.0))
+    assert off.symh(0.0) == 0.0 and build_truth_field(load_scenario("pacific")).symh(0.0) == 0.0
     assert math.isnan(replace(truth, ring_current=None).symh(0.0))
     # an operator without a SYM-H service ([storm] symh_feed = false): the same storm, no SYM-H, Kp fed
     unfed = build_truth_field(replace(storm, storm=replace(storm.storm, symh_feed=False)), shared_data)
@@ -116,14 +116,17 @@ def test_component_rates_of_a_random_walk_recover_its_rate():
 
 def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
     """10 May 2024 18-24 UTC was Kp 9- (8.667) throughout; the quiet world and a storm switched off
-    have no feed (NaN: the navigator's innovations alone decide)."""
+    (or scaled to nothing) give a quiet day's Kp 0; without the feed there is none (NaN: the
+    navigator's innovations alone decide)."""
     storm = load_scenario("long_storm")
     truth = build_truth_field(storm, shared_data)
     assert truth.kp(0.0) == pytest.approx(8.667) and truth.kp(12 * 3600.0) == pytest.approx(8.667)
     off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
-    assert math.isnan(off.kp(0.0)) and math.isnan(build_truth_field(load_scenario("pacific")).kp(0.0))
+    assert off.kp(0.0) == 0.0 and build_truth_field(load_scenario("pacific")).kp(0.0) == 0.0
     assert math.isnan(replace(truth, space_weather=None).kp(0.0))
-    assert math.isnan(replace(truth, storm_scale=0.0).kp(0.0))
+    assert replace(truth, storm_scale=0.0).kp(0.0) == 0.0
+    withheld = replace(storm.storm, enabled=False, kp_feed=False)
+    assert math.isnan(build_truth_field(replace(storm, storm=withheld), shared_data).kp(0.0))
     # an operator without a Kp service ([storm] kp_feed = false, a sweep's storm.kp_feed=0): SYM-H still fed
     unfed = build_truth_field(replace(storm, storm=replace(storm.storm, kp_feed=False)), shared_data)
     assert math.isnan(unfed.kp(0.0)) and unfed.symh(0.0) == truth.symh(0.0)

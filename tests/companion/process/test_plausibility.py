@@ -168,7 +168,8 @@ def test_the_mission_says_which_bias_a_measurement_carries(fus_model):
     (before its first step, its prior: nothing known)."""
     config = NavConfig.from_values({**default_values(), "FUS_MODEL": fus_model})
     mission = Mission(config)
-    mission.set_bias((0.1, -0.2))
+    assert mission.measured.label == "(D, I, F)"     # auto: the steering pair's bias is judged
+    mission.set_bias((0.1, -0.2, 40.0))
     bias, sigma = navigator_bias(mission)
     if fus_model == 1:
         assert bias.tolist() == [0.1, -0.2] and sigma.tolist() == [0.0, 0.0]

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from sitl.fc.ground_station import FEED_PERIOD_S, FEED_READINGS, GCS_COMPID, GCS_SYSID
-from tests.sitl.conftest import COMPANION
+from tests.sitl.conftest import COMPANION, REPO
 
 
 def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_ground_station(sitl, shared_data):
@@ -27,8 +27,21 @@ def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_
     assert all(math.isfinite(v) and v < 0.0 for v in symh)                     # the storm's ring current
 
 
-def test_a_world_without_space_weather_sends_nothing(sitl):
+def test_a_quiet_world_feeds_a_quiet_days_kp_and_symh(sitl):
+    """A world without a storm: Kp 0 and SYM-H 0 nT, what a service says of a field nothing disturbs."""
     _, client = sitl(scenario="pacific", space_weather_feed=FEED_READINGS, speedup=300.0)
+    sets = client.collect("PARAM_SET", until_ms=int(1.5 * FEED_PERIOD_S * 1000), timeout=120.0)
+    assert sorted((m.param_id, m.param_value) for m in sets) == [("NAV_KP", 0.0)] * 2 + [("NAV_SYMH", 0.0)] * 2
+
+
+def test_a_world_whose_space_weather_is_withheld_sends_nothing(sitl, tmp_path):
+    """``[storm] kp_feed = false``, ``symh_feed = false``: no service reaches this vehicle."""
+    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text(encoding="utf-8")
+    assert "[storm]\nenabled = false\n" in text
+    path = tmp_path / "pacific_no_feed.toml"
+    path.write_text(text.replace("[storm]\nenabled = false\n",
+                                 "[storm]\nenabled = false\nkp_feed = false\nsymh_feed = false\n"), encoding="utf-8")
+    _, client = sitl(scenario=str(path), space_weather_feed=FEED_READINGS, speedup=300.0)
     assert client.collect("PARAM_SET", until_ms=int(2.5 * FEED_PERIOD_S * 1000), timeout=120.0) == []
 
 
