@@ -329,10 +329,13 @@ class PositionEstimator:
 
     def _implausible(self, measured: np.ndarray, lag_en_m: np.ndarray, meas, at_centre=None) -> bool:
         """The measurement's NIS against the filter's own innovation covariance is beyond
-        ``FIX_GATE_PROBABILITY``: a far fix is a blunder only if the filter is sure it is far."""
-        nis = self.filter.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas),
-                                         at_centre)
-        return not nis <= _gate_nis(FIX_GATE_PROBABILITY, len(measured))
+        ``FIX_GATE_PROBABILITY``: a far fix is a blunder only if the filter is sure it is far. The
+        NIS has as many degrees of freedom as the elements the filter measures this step (F set
+        aside: two)."""
+        f = self.filter
+        nis = f.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas), at_centre)
+        rows = self.measured.measured_rows(f.monitor.declared, f.monitor.index_quiet)
+        return not nis <= _gate_nis(FIX_GATE_PROBABILITY, len(rows))
 
     def _fix(self, measured: np.ndarray, start: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
         """The bias-corrected geomagnetic fix on the steering pair from ``start`` (the window

@@ -129,3 +129,44 @@ def test_a_quiet_world_feeds_a_quiet_days_indices_unless_withheld(shared_data, f
         assert (truth.kp(elapsed_s) == 0.0) == feeds.get("kp_feed", True)
         assert (truth.symh(elapsed_s) == 0.0) == feeds.get("symh_feed", True)
         assert math.isnan(truth.kp(elapsed_s)) != feeds.get("kp_feed", True)
+
+
+def test_the_fix_gate_counts_the_elements_the_filter_measures(model):
+    """The gate on a far fix is a chi-square with as many degrees of freedom as the elements the
+    filter measures this step: set 5 without an index (F set aside) judges every fix of a scan
+    from 20 to 200 km east exactly as the (D, I) filter does, and the scan crosses the band where
+    a three-element gate would have taken fixes the two-element one rejects."""
+    from scipy.stats import chi2
+
+    from companion.nav.estimator import FIX_GATE_PROBABILITY, PositionEstimator
+    from companion.nav.geo import offset_position
+    from companion.nav.mission import Measurement
+
+    # the paper world's navigator (no model-error states) with the biases known to 0.001 deg: the
+    # position's 20 km is then what the innovation is judged in
+    ideal = load_scenario("pacific").nav_overrides()
+    config = NavConfig.from_values(validate_all({**ideal, "NAV_CONTROLLER": 2, "FUS_MODEL": 3, "FUS_B0_DEG": 1e-3,
+                                                 "FUS_B0_NT": 1.0}))
+
+    def measure(lat, lon):
+        el = model.elements(lat, lon, ALT, YEAR)
+        return Measurement(0.0, float(el.decl_deg), float(el.incl_deg), f_nt=float(el.f_nt))
+
+    judged, nis = {}, []
+    for code in (ElementSet.WEIGHTED_WHEN_QUIET, ElementSet.PAPER):
+        elements = element_set(code)
+        estimator = PositionEstimator(config, model, elements)
+        estimator.calibrate_start = False
+        at_start = measure(*START)
+        estimator.start(at_start, elements.values(at_start), 20e3)   # a start known to 20 km
+        estimator.filter.monitor.declare(False)   # as a step without a space-weather index begins
+        judged[code] = []
+        for east_km in range(20, 201):
+            point = offset_position(*START, east_km * 1e3, 0.0)
+            far = measure(float(point[0]), float(point[1]))
+            judged[code].append(estimator._implausible(elements.values(far), np.zeros(2), far))
+            if code == ElementSet.PAPER:
+                nis.append(estimator.filter.innovation_nis(elements.values(far), np.zeros(2)))
+    assert judged[ElementSet.WEIGHTED_WHEN_QUIET] == judged[ElementSet.PAPER]
+    two, three = chi2.ppf(FIX_GATE_PROBABILITY, 2), chi2.ppf(FIX_GATE_PROBABILITY, 3)
+    assert any(two < v <= three for v in nis), (min(nis), max(nis))
