@@ -69,6 +69,18 @@ def test_the_start_up_words_name_the_elements_and_when_f_is_weighed(tmp_path, se
     assert words and words[0].endswith(words_end), words
 
 
+def test_a_quiet_days_feed_has_auto_weigh_f_and_says_so(tmp_path):
+    """Auto with the stand-in's independent heading is (D, I, F) with F weighed only while a fresh
+    reading says quiet: with the quiet world's Kp 0 and SYM-H 0 nT fed by the stand-in's ground
+    station the companion says F is weighed, once; without the feed it never does."""
+    (tmp_path / "fed").mkdir(), (tmp_path / "unfed").mkdir()
+    _, fed = _run(tmp_path / "fed", "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n", sitl_args=("--space-weather-feed",))
+    said = [e for e in fed["events"] if "FcMPC: F " in e]
+    assert len(said) == 1 and said[0].endswith("F weighed: a fresh space-weather reading says quiet"), said
+    _, unfed = _run(tmp_path / "unfed", "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n")
+    assert not [e for e in unfed["events"] if "FcMPC: F " in e]
+
+
 def test_a_sym_h_fed_without_kp_declares_the_storm_at_the_start(tmp_path, shared_data):
     """The short storm's ground station feeds SYM-H and no Kp: its ring current (below FUS_SYMH_ON's
     -50 nT at the start) declares the storm, and the companion says which reading did."""
