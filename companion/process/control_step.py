@@ -16,10 +16,11 @@ import numpy as np
 
 from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
-from companion.nav.elements import ElementSet, hz_standard_errors
+from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import CORE_ERROR, Measurement, Phase
 from companion.nav.steering import is_new_course
+from companion.process.filter_words import FilterWords
 from companion.process.options import FC_POSITION_MAX_AGE_S
 from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 from companion.registry import READINGS
@@ -43,7 +44,7 @@ class ControlStep:
         self.core_latency_s: list[float] = []
         self.judgement: Judgement | None = None                     # the last step's plausibility verdict
         self.fresh: dict[str, bool] = {}                             # a space-weather reading fresh at the last step
-        self.f_weighed: bool | None = None                           # a weighted set's F in the filter's update
+        self.words = FilterWords()                                   # the filter's changes, said
 
     # ------------------------------------------------------------------ INS position
     def advance_dead_reckoning(self, now: float, dt: float, moving: bool) -> None:
@@ -118,7 +119,9 @@ class ControlStep:
         core_latency = time.perf_counter() - core0
         if app.command is None:
             self.learn_f_reference(meas)
-        self.say_f_weighing(first=app.command is None)
+        said = self.words.start_words(mission, kp, symh) if app.command is None else self.words.step(mission, kp, symh)
+        for text, severity in said:     # a storm declared, a disturbance, F weighed or set aside
+            app.out.say(text, severity)
         nav_fault = self.fault(cmd)
         app.out.publish(cmd, avg)
         if app.fc_view.feeding_own and cmd.phase == Phase.CRUISE:
@@ -163,30 +166,6 @@ class ControlStep:
                              f"station sets it", mavlink.MAV_SEVERITY_WARNING)
         self.fresh[name] = fresh
         return float(self.app.params.values[name]) if fresh else math.nan
-
-    def say_f_weighing(self, first: bool = False) -> None:
-        """A weighted set: say when the filter starts or stops weighing F (set aside while a storm
-        is declared, and by set 5 while no fresh reading says quiet: ElementSet.measured_rows).
-        ``first``: the mission's first step, which the start-up words describe (set 4 weighs F,
-        set 5 not until a reading says quiet)."""
-        mission = self.app.mission
-        measured = getattr(mission, "measured", None)   # (a test's stand-in core has none)
-        flt = getattr(getattr(mission, "estimator", None), "filter", None)
-        if flt is None or measured is None or len(measured.names) != 3:
-            return
-        if first:
-            self.f_weighed = measured.code == ElementSet.WEIGHTED
-            return
-        monitor = flt.monitor
-        weighed = len(measured.measured_rows(monitor.declared, monitor.index_quiet)) == 3
-        if weighed == self.f_weighed:
-            return
-        self.f_weighed = weighed
-        why = ("a storm is declared" if monitor.declared else "no fresh NAV_KP or NAV_SYMH says quiet")
-        self.app.out.say("FcMPC: F weighed: " + ("a fresh space-weather reading says quiet"
-                                                  if measured.code == ElementSet.WEIGHTED_WHEN_QUIET
-                                                  else "no storm declared")
-                         if weighed else f"FcMPC: F set aside: {why}", mavlink.MAV_SEVERITY_NOTICE)
 
     def learn_f_reference(self, meas: Measurement) -> None:
         """At the first step, the start (a known position): learn the |F| level the band is judged

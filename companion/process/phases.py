@@ -25,7 +25,6 @@ import math
 import time
 
 from companion.io.mavlink_link import mavlink
-from companion.nav.disturbance import storm_declared
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.mission import Command, Phase, uses_filter
 from companion.process.machine import Event, State
@@ -197,11 +196,6 @@ class Phases:
         estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
         if estimator is not None and estimator.reason:
             app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
-        if estimator is not None and estimator.storm_declared:
-            kp, symh = (float(app.params.values[name]) for name in ("NAV_KP", "NAV_SYMH"))   # registry.READINGS
-            by = (f"NAV_KP {kp:g} >= FUS_KP_ON {config.kp_on:g}" if storm_declared(kp, config.kp_on)
-                  else f"NAV_SYMH {symh:g} <= FUS_SYMH_ON {config.symh_on_nt:g} nT")
-            app.out.say(f"FcMPC: storm declared: {by}, {estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING)
         if estimator is not None and estimator.ring_current_removed:
             app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "
                         f"its change x FUS_SYMH_K {config.symh_ratio:g} along H"[:200])

@@ -81,6 +81,23 @@ def test_a_quiet_days_feed_has_auto_weigh_f_and_says_so(tmp_path):
     assert not [e for e in unfed["events"] if "FcMPC: F " in e]
 
 
+def test_a_storm_that_starts_mid_mission_is_said_when_the_feed_declares_it(tmp_path, shared_data):
+    """The short storm switched on 600 s into the flight (``storm_onset``), the stand-in's ground
+    station feeding the world's indices as the field is (a quiet day's before the onset): the
+    companion weighs F on the quiet reading, then says the storm its feed declares and that F is
+    set aside, in that order, each once."""
+    if not (shared_data / "storms").is_dir():
+        pytest.skip(f"storm data not found under {shared_data}")
+    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n", sim_s=1200.0,
+                        sitl_args=("--scenario", "short_storm", "--data-dir", str(shared_data),
+                                   "--space-weather-feed", "--fault", "storm_onset:600"))
+    said = [e[e.index("FcMPC: "):] for e in companion["events"] if "FcMPC: F " in e or "FcMPC: storm" in e]
+    assert len(said) == 3, said
+    assert said[0] == "FcMPC: F weighed: a fresh space-weather reading says quiet"
+    assert said[1].startswith("FcMPC: storm declared: NAV_KP ") and ">= FUS_KP_ON 5" in said[1]
+    assert said[2] == "FcMPC: F set aside: a storm is declared"
+
+
 def test_a_sym_h_fed_without_kp_declares_the_storm_at_the_start(tmp_path, shared_data):
     """The short storm's ground station feeds SYM-H and no Kp: its ring current (below FUS_SYMH_ON's
     -50 nT at the start) declares the storm, and the companion says which reading did."""
