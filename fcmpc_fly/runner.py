@@ -274,7 +274,9 @@ def _commands(options: FlyOptions, scenario: Scenario, out: Path, parm: Path, sc
         sitl += ["--fault", fault]
     if options.data_dir:
         sitl += ["--data-dir", options.data_dir]
-    if scenario.storm.enabled:   # the ground station keeps NAV_KP and NAV_SYMH up to date, as in-process the world does
+    if scenario.storm.kp_feed or scenario.storm.symh_feed:
+        # the ground station keeps NAV_KP and NAV_SYMH up to date, as in-process the world does: a
+        # storm's indices, or a quiet day's (the scenario's [storm] kp_feed / symh_feed withhold them)
         sitl.append("--space-weather-feed")
     return companion, sitl + list(options.sitl_extra)
 
