@@ -90,6 +90,12 @@ class ElementSet:
     def heading_free(self) -> bool:
         return not self.uses_declination
 
+    @property
+    def weighted(self) -> bool:
+        """A weighted set: D and I with F beside them (sets 4 and 5), F weighed by the rules of
+        :meth:`measured_rows`."""
+        return len(self.names) == 3 and "f_nt" in self.names
+
     def measured_rows(self, declared: bool, index_quiet: bool) -> tuple[int, ...]:
         """The indices of the elements the navigation filter measures this step.
 
@@ -108,7 +114,7 @@ class ElementSet:
         ...                                                      (5, False, True), (1, True, False))]
         [(0, 1, 2), (0, 1), (0, 1), (0, 1, 2), (0, 1)]
         """
-        if len(self.names) != 3 or "f_nt" not in self.names:
+        if not self.weighted:
             return tuple(range(len(self.names)))
         if declared or (self.code == self.WEIGHTED_WHEN_QUIET and not index_quiet):
             return tuple(i for i, name in enumerate(self.names) if name != "f_nt")
@@ -119,7 +125,7 @@ class ElementSet:
         """When a weighted set weighs F, in words ("" for a pair)."""
         if self.code == self.WEIGHTED_WHEN_QUIET:
             return "F weighed only while NAV_KP or NAV_SYMH, fresh, says quiet"
-        return "F set aside while a storm is declared" if len(self.names) == 3 else ""
+        return "F set aside while a storm is declared" if self.weighted else ""
 
     def steering(self) -> "ElementSet":
         """The two elements the MPC steers on: the set itself, or the first two of a weighted set."""

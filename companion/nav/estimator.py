@@ -153,11 +153,6 @@ class PositionEstimator:
         return self.filter.process.name if self.filter is not None else ""
 
     @property
-    def storm_declared(self) -> bool:
-        """A space-weather index declares a storm at this step (:mod:`companion.nav.disturbance`)."""
-        return self.filter is not None and self.filter.monitor.declared
-
-    @property
     def storm_walk(self) -> str:
         """How the bias states walk while a storm is declared, in words."""
         c = self.config

@@ -46,7 +46,7 @@ class FilterState:
         monitor = flt.monitor
         quiet = monitor.index_quiet and not at_start
         weighed = (len(measured.measured_rows(monitor.declared, quiet)) == len(measured.names)
-                   if "f_nt" in measured.names and len(measured.names) == 3 else None)
+                   if measured.weighted else None)
         return cls(monitor.declared, monitor.active, weighed)
 
 
@@ -55,6 +55,12 @@ def declared_by(kp: float, symh_nt: float, config) -> str:
     if storm_declared(kp, config.kp_on):
         return f"NAV_KP {kp:g} >= FUS_KP_ON {config.kp_on:g}"
     return f"NAV_SYMH {symh_nt:g} <= FUS_SYMH_ON {config.symh_on_nt:g} nT"
+
+
+def _storm_declared_words(mission, kp: float, symh_nt: float) -> Said:
+    """The STATUSTEXT of a storm declared: which reading, and how the bias states now walk."""
+    return (f"FcMPC: storm declared: {declared_by(kp, symh_nt, mission.config)}, {mission.estimator.storm_walk}"[:200],
+            mavlink.MAV_SEVERITY_WARNING)
 
 
 class FilterWords:
@@ -66,11 +72,7 @@ class FilterWords:
     def start_words(self, mission, kp: float, symh_nt: float) -> list[Said]:
         """At a mission's first step: remember the state, and say a storm declared at the start."""
         self.last = state = FilterState.of(mission, at_start=True)
-        if state is None or not state.declared:
-            return []
-        estimator = mission.estimator
-        return [(f"FcMPC: storm declared: {declared_by(kp, symh_nt, mission.config)}, {estimator.storm_walk}"[:200],
-                 mavlink.MAV_SEVERITY_WARNING)]
+        return [_storm_declared_words(mission, kp, symh_nt)] if state is not None and state.declared else []
 
     def step(self, mission, kp: float, symh_nt: float) -> list[Said]:
         """After a later step: the words for each change of the state (none when nothing changed)."""
@@ -82,8 +84,7 @@ class FilterWords:
             last = FilterState(False, False, state.f_weighed)
         said: list[Said] = []
         if state.declared and not last.declared:
-            said.append((f"FcMPC: storm declared: {declared_by(kp, symh_nt, mission.config)}, "
-                         f"{mission.estimator.storm_walk}"[:200], mavlink.MAV_SEVERITY_WARNING))
+            said.append(_storm_declared_words(mission, kp, symh_nt))
         elif last.declared and not state.declared:
             readings = ", ".join(f"{name} {value:g}" for name, value in (("NAV_KP", kp), ("NAV_SYMH", symh_nt))
                                  if math.isfinite(value)) or "no fresh reading"

@@ -11,8 +11,9 @@ date: every ``FEED_PERIOD_S`` of simulated time it sends, as PARAM_SETs from gro
 * ``NAV_SYMH``: the world's SYM-H (:meth:`~sitl.world.magnetic.TruthField.symh`, OMNI's 1-minute
   index at the storm time), rounded to 0.1 nT as the index is published.
 
-An index the world lacks (a quiet world has neither, a scenario may withhold one: ``[storm]
-kp_feed``, ``symh_feed``) is not sent, nor one the ground station is not set to feed
+A world without a storm gives a quiet day's indices (Kp 0, SYM-H 0 nT), which are sent like
+any. An index the world lacks (a scenario may withhold one: ``[storm] kp_feed``, ``symh_feed``) is
+not sent, nor one the ground station is not set to feed
 (``--space-weather-feed NAV_SYMH``: an operator with SYM-H and no Kp). The companion takes each only
 while it is renewed (``companion.process.control_step``), so a feed that stops is a feed lost,
 not a storm frozen at its last value.

@@ -108,7 +108,8 @@ class SitlServer:
         self._log_interval_us = int(US_PER_S / config.log_rate_hz) if config.log_rate_hz > 0 else 0
         # the world's indices as the field is now: a storm_onset fault's quiet hours report a quiet day
         self.gcs_feed = SpaceWeatherFeed(lambda t: self.vehicle.truth.kp(t), lambda t: self.vehicle.truth.symh(t),
-                                         self.out, self.sysid, config.space_weather_feed)             if config.space_weather_feed else None
+                                         self.out, self.sysid, config.space_weather_feed) \
+            if config.space_weather_feed else None
         self._next = {"mag": 0, "imu": 0, "field": 0, "log": 0 if self._log_interval_us else NEVER_US,
                       "physics": 0, "init": int(config.init_s * US_PER_S),
                       "gcs": 0 if self.gcs_feed is not None else NEVER_US}
