@@ -51,6 +51,7 @@ from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.navfilter import BiasSpec, measured_variance
 from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
+from companion.nav.small import smallest_singular_value
 from companion.params import NavConfig
 
 __all__ = ["F_NT_PER_DEG", "ModelError", "Table3Estimator"]
@@ -149,12 +150,15 @@ class Table3Estimator:
         lag_e, lag_n = (float(v) for v in lag_en_m)
         prior = offset_position(est[0], est[1], -lag_e, -lag_n)
         try:
-            found = element_fix(self.model, self.elements, s, float(prior[0]), float(prior[1]), c.alt_m, c.year)
+            # the position is what is used, with G at the last iterate (under tol_m from it): the
+            # model is not evaluated once more at the fix itself
+            found = element_fix(self.model, self.elements, s, float(prior[0]), float(prior[1]), c.alt_m, c.year,
+                                report_at_fix=False)
             fix = tuple(float(v) for v in offset_position(found.lat_deg, found.lon_deg, lag_e, lag_n))
             gradient = found.gradient
             # the fix is as good as the field's gradient where it lands (an error e moves it G^-1 e)
             in_degrees = found.gradient / self._degree_equivalent[:, None]
-            weak = float(np.linalg.svd(in_degrees, compute_uv=False)[-1]) < c.fusion_sigma_deg_per_m
+            weak = smallest_singular_value(in_degrees) < c.fusion_sigma_deg_per_m
         except PositionFixError:
             fix, weak = None, True
         if fix is not None and geodesic_inverse(est[0], est[1], *fix)[0] > c.fix_gate_m:
