@@ -137,8 +137,11 @@ def bench_mission_step() -> list[Row]:
     truth = build_truth_field(scenario)
     rows: list[Row] = []
     for label, overrides, anchor, target in (
-            ("Fc-MPC", {"NAV_CONTROLLER": 2}, "README 862 us", "<= 400 us"),
+            ("Fc-MPC", {"NAV_CONTROLLER": 2}, "README 862 us (without the filter)", "<= 400 us"),
             ("Fc-MPC, fusing every step", {"NAV_CONTROLLER": 2, "FUS_SIGMA": 10.0}, "README 1032 us", "-"),
+            # the work the README's 862 us measured: the paper's estimator (Table 3) on (D, I)
+            ("Fc-MPC, the paper's estimator", {"NAV_CONTROLLER": 2, "FUS_MODEL": 1, "NAV_ELEMENTS": 1},
+             "README 862 us (this work)", "<= 400 us"),
             ("LTV-MPC", {"NAV_CONTROLLER": 1}, "README 203 us", "-")):
         nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **overrides}))
         samples: list[float] = []
@@ -158,7 +161,8 @@ def bench_mission_step() -> list[Row]:
         finally:
             Mission.step = original  # type: ignore[method-assign]
         rows.append((f"mission step (cruise), {label}", _us(np.array(samples), tail=True),
-                     f"{anchor}; {_vs(float(np.median(samples)), label)}", target))
+                     f"{anchor}; {_vs(float(np.median(samples)), label)}" if label in BASELINE_HERE else anchor,
+                     target))
     return rows
 
 

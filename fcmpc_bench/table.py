@@ -32,9 +32,8 @@ def median_rows(runs: list[list[Row]]) -> list[Row]:
     return merged
 
 
-def format_rows(rows: list[Row]) -> str:
-    """The table: benchmark, ours (median), anchor, target."""
-    head = ("benchmark", "ours (median)", "anchor", "target")
+def format_rows(rows: list[Row], head: Row = ("benchmark", "ours (median)", "anchor", "target")) -> str:
+    """The table under ``head`` (by default: benchmark, ours (median), anchor, target)."""
     widths = [max(len(r[i]) for r in [head, *rows]) + 2 for i in range(4)]
     lines = ["".join(f"{c:<{w}}" for c, w in zip(head, widths)), "-" * sum(widths)]
     lines += ["".join(f"{c:<{w}}" for c, w in zip(r, widths)) for r in rows]

@@ -4,6 +4,7 @@ their anchors (README "Benchmarks").
     fcmpc-bench                 # everything (a few minutes on 2 cores)
     fcmpc-bench --quick         # skip the 150-mission Monte Carlo and the closed-loop parts
     fcmpc-bench --repeat 3      # each part three times in a row: per row the median run, and the range
+    fcmpc-bench --reference     # and the pre-issue-13 commit's same parts, run after ours (fcmpc_bench.reference)
 """
 from __future__ import annotations
 
@@ -12,10 +13,13 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):   # before numpy loads
     os.environ.setdefault(_var, "1")
 
+import statistics
 import sys
 
 from companion.cli import ArgumentParser, positive_int, run_main
 from fcmpc_bench import QUICK_SECTIONS, SECTIONS, Row, format_rows, median_rows
+from fcmpc_bench.reference import REFERENCE_COMMIT, ReferenceRunError, compare, format_comparison, reference_figures, \
+    resolve
 
 
 def _run(argv: list[str] | None) -> int:
@@ -24,9 +28,21 @@ def _run(argv: list[str] | None) -> int:
     parser.add_argument("--repeat", type=positive_int, default=1,
                         help="run each part N times in a row and print, per row, the median run and the range "
                              "(a shared machine's speed moves between runs minutes apart)")
+    parser.add_argument("--reference", nargs="?", const=REFERENCE_COMMIT, default=None, metavar="COMMIT",
+                        help="also run COMMIT's same parts (default: %(const)s, the README's figures before issue 13) "
+                             "in a temporary worktree after ours, and print our speed-up over it: on a machine "
+                             "whose speed moves between days, the comparison that holds")
     args = parser.parse_args(argv)
+    reference = None
+    if args.reference is not None:
+        try:
+            reference = resolve(args.reference)
+        except ReferenceRunError as err:
+            print(f"fcmpc-bench: {err}", file=sys.stderr)
+            return 2
+    sections = QUICK_SECTIONS if args.quick else SECTIONS
     rows: list[Row] = []
-    for section in QUICK_SECTIONS if args.quick else SECTIONS:
+    for section in sections:
         runs = []
         for _ in range(args.repeat):
             try:
@@ -36,6 +52,16 @@ def _run(argv: list[str] | None) -> int:
         rows += median_rows(runs)
         print(f"  ... {section.__name__} done", file=sys.stderr)
     print(format_rows(rows))
+    if reference is not None:
+        runs = []
+        try:
+            for _ in range(args.repeat):
+                runs.append(reference_figures(reference, [section.__name__ for section in sections]))
+        except (ReferenceRunError, OSError, ValueError) as err:
+            print(f"fcmpc-bench: reference {args.reference}: {err}", file=sys.stderr)
+            return 2
+        theirs = {name: statistics.median_low([run[name] for run in runs if name in run]) for name in runs[0]}
+        print("\n" + format_comparison(compare(rows, theirs, args.reference), args.reference))
     print(f"\n(load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores: "
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")
