@@ -5,7 +5,7 @@ a figure measured on another day says little about whether our code got faster. 
 issue's "today" figures were measured on, run minutes apart on the same machine, does: the
 commit is checked out into a temporary git worktree, its own benchmark functions run there in
 a child process (this interpreter, its ``PYTHONPATH`` the worktree, so its packages shadow
-ours), and its figures come back as numbers by row name.
+ours), section by section right after ours, and its figures come back as numbers by row name.
 
 :data:`REFERENCE_COMMIT` is the README's table before issue 13 (2026-11-22), whose figures are
 the issue's "today". Its ``Fc-MPC`` mission step is the paper's estimator (Table 3 fusion on
@@ -24,8 +24,8 @@ from pathlib import Path
 
 from fcmpc_bench.sections import Row
 
-__all__ = ["ISSUE_SPEEDUP", "REFERENCE_COMMIT", "SAME_WORKLOAD", "WIDER_WORK", "ReferenceRunError", "compare",
-           "format_comparison", "reference_figures", "resolve"]
+__all__ = ["ISSUE_SPEEDUP", "REFERENCE_COMMIT", "SAME_WORKLOAD", "WIDER_WORK", "ReferenceRunError", "ReferenceTree",
+           "compare", "format_comparison", "reference_figures", "resolve"]
 
 REFERENCE_COMMIT = "9a267ba"
 REPO = Path(__file__).resolve().parents[1]
@@ -77,34 +77,55 @@ def resolve(commit: str) -> str:
     return found.stdout.strip()
 
 
-def reference_figures(commit: str, sections: list[str], timeout_s: float = 1800.0) -> dict[str, float]:
-    """Run ``sections`` (benchmark function names, e.g. ``bench_mission_step``) of ``commit`` in
-    a temporary worktree of this repository; {row name: its leading number}, rows that failed or
-    print no number left out. Raises :class:`ReferenceRunError` when the commit cannot be checked out
-    or its benchmarks do not run."""
-    with tempfile.TemporaryDirectory(prefix="fcmpc-bench-reference-") as tmp:
-        tree = Path(tmp) / "tree"
-        added = subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "--quiet", str(tree), commit],
-                               capture_output=True, text=True)
+class ReferenceTree:
+    """``commit`` checked out into a temporary worktree for as long as the ``with`` block lasts;
+    :meth:`run` times one of its benchmark sections there. Raises :class:`ReferenceRunError` when
+    the commit cannot be checked out."""
+
+    def __init__(self, commit: str, timeout_s: float = 1800.0) -> None:
+        self.commit, self.timeout_s = commit, timeout_s
+        self._tmp: tempfile.TemporaryDirectory | None = None
+        self.tree = Path()
+
+    def __enter__(self) -> ReferenceTree:
+        self._tmp = tempfile.TemporaryDirectory(prefix="fcmpc-bench-reference-")
+        self.tree = Path(self._tmp.name) / "tree"
+        added = subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "--quiet", str(self.tree),
+                                self.commit], capture_output=True, text=True)
         if added.returncode != 0:
-            raise ReferenceRunError(f"cannot check out {commit!r}: {added.stderr.strip() or 'git failed'}")
-        try:
-            env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-            # where that commit keeps its benchmark functions (before fcmpc_bench: scripts/bench.py)
-            module = "fcmpc_bench.sections" if (tree / "fcmpc_bench" / "sections.py").exists() else "scripts.bench"
-            ran = subprocess.run([sys.executable, "-c", _PROGRAM, module, *sections], cwd=tree, env=env, capture_output=True,
-                                 text=True, timeout=timeout_s, stdin=subprocess.DEVNULL)
-        finally:
-            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)], capture_output=True)
-    if ran.returncode != 0:
-        last = (ran.stderr.strip().splitlines() or ["no output"])[-1]
-        raise ReferenceRunError(f"{commit}'s benchmarks failed: {last}")
-    figures: dict[str, float] = {}
-    for name, value in json.loads(ran.stdout.strip().splitlines()[-1]):
-        number = _LEADING_NUMBER.match(value)
-        if number:
-            figures[name] = float(number.group(1))
-    return figures
+            self._tmp.cleanup()
+            raise ReferenceRunError(f"cannot check out {self.commit!r}: {added.stderr.strip() or 'git failed'}")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(self.tree)], capture_output=True)
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def run(self, sections: list[str]) -> dict[str, float]:
+        """Run ``sections`` (benchmark function names, e.g. ``bench_mission_step``) of the commit:
+        {row name: its leading number}, rows that failed or print no number left out. Raises
+        :class:`ReferenceRunError` when its benchmarks do not run."""
+        env = {**os.environ, "PYTHONPATH": str(self.tree), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+        # where that commit keeps its benchmark functions (before fcmpc_bench: scripts/bench.py)
+        module = "fcmpc_bench.sections" if (self.tree / "fcmpc_bench" / "sections.py").exists() else "scripts.bench"
+        ran = subprocess.run([sys.executable, "-c", _PROGRAM, module, *sections], cwd=self.tree, env=env,
+                             capture_output=True, text=True, timeout=self.timeout_s, stdin=subprocess.DEVNULL)
+        if ran.returncode != 0:
+            last = (ran.stderr.strip().splitlines() or ["no output"])[-1]
+            raise ReferenceRunError(f"{self.commit}'s benchmarks failed: {last}")
+        figures: dict[str, float] = {}
+        for name, value in json.loads(ran.stdout.strip().splitlines()[-1]):
+            number = _LEADING_NUMBER.match(value)
+            if number:
+                figures[name] = float(number.group(1))
+        return figures
+
+
+def reference_figures(commit: str, sections: list[str]) -> dict[str, float]:
+    """:meth:`ReferenceTree.run` in a worktree of ``commit`` made for this one call."""
+    with ReferenceTree(commit) as tree:
+        return tree.run(sections)
 
 
 def _issue_speedup(name: str) -> float | None:

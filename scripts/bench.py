@@ -4,7 +4,7 @@ their anchors (README "Benchmarks").
     fcmpc-bench                 # everything (a few minutes on 2 cores)
     fcmpc-bench --quick         # skip the 150-mission Monte Carlo and the closed-loop parts
     fcmpc-bench --repeat 3      # each part three times in a row: per row the median run, and the range
-    fcmpc-bench --reference     # and the pre-issue-13 commit's same parts, run after ours (fcmpc_bench.reference)
+    fcmpc-bench --reference     # and the pre-issue-13 commit's same parts, each after ours (fcmpc_bench.reference)
 """
 from __future__ import annotations
 
@@ -13,13 +13,40 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):   # before numpy loads
     os.environ.setdefault(_var, "1")
 
+import contextlib
+from collections.abc import Callable, Sequence
 import statistics
+import subprocess
 import sys
 
 from companion.cli import ArgumentParser, positive_int, run_main
 from fcmpc_bench import QUICK_SECTIONS, SECTIONS, Row, format_rows, median_rows
-from fcmpc_bench.reference import REFERENCE_COMMIT, ReferenceRunError, compare, format_comparison, reference_figures, \
+from fcmpc_bench.reference import REFERENCE_COMMIT, ReferenceRunError, ReferenceTree, compare, format_comparison, \
     resolve
+
+
+def _measure(sections: Sequence[Callable[[], list[Row]]], repeat: int, tree: ReferenceTree | None) -> tuple[list[Row], dict[str, list[float]]]:
+    """Each section ``repeat`` times, each time followed by the reference's same section when
+    ``tree`` is given (so the two are minutes apart, alike): our median rows, and the
+    reference's figures per row name."""
+    rows: list[Row] = []
+    theirs: dict[str, list[float]] = {}
+    for section in sections:
+        runs = []
+        for _ in range(repeat):
+            try:
+                runs.append(section())
+            except Exception as err:  # noqa: BLE001 -- a missing part must not hide the others' numbers
+                runs.append([(section.__name__, f"FAILED: {type(err).__name__}: {err}", "", "")])
+            if tree is not None:
+                try:
+                    for name, value in tree.run([section.__name__]).items():
+                        theirs.setdefault(name, []).append(value)
+                except (ReferenceRunError, OSError, ValueError, subprocess.TimeoutExpired) as err:
+                    print(f"fcmpc-bench: reference {tree.commit[:9]}, {section.__name__}: {err}", file=sys.stderr)
+        rows += median_rows(runs)
+        print(f"  ... {section.__name__} done", file=sys.stderr)
+    return rows, theirs
 
 
 def _run(argv: list[str] | None) -> int:
@@ -30,8 +57,8 @@ def _run(argv: list[str] | None) -> int:
                              "(a shared machine's speed moves between runs minutes apart)")
     parser.add_argument("--reference", nargs="?", const=REFERENCE_COMMIT, default=None, metavar="COMMIT",
                         help="also run COMMIT's same parts (default: %(const)s, the README's figures before issue 13) "
-                             "in a temporary worktree after ours, and print our speed-up over it: on a machine "
-                             "whose speed moves between days, the comparison that holds")
+                             "in a temporary worktree, each right after ours, and print our speed-up over it: on a "
+                             "machine whose speed moves between days, the comparison that holds")
     args = parser.parse_args(argv)
     reference = None
     if args.reference is not None:
@@ -41,27 +68,19 @@ def _run(argv: list[str] | None) -> int:
             print(f"fcmpc-bench: {err}", file=sys.stderr)
             return 2
     sections = QUICK_SECTIONS if args.quick else SECTIONS
-    rows: list[Row] = []
-    for section in sections:
-        runs = []
-        for _ in range(args.repeat):
+    with contextlib.ExitStack() as stack:
+        tree = None
+        if reference is not None:
             try:
-                runs.append(section())
-            except Exception as err:  # noqa: BLE001 -- a missing part must not hide the others' numbers
-                runs.append([(section.__name__, f"FAILED: {type(err).__name__}: {err}", "", "")])
-        rows += median_rows(runs)
-        print(f"  ... {section.__name__} done", file=sys.stderr)
+                tree = stack.enter_context(ReferenceTree(reference))
+            except ReferenceRunError as err:
+                print(f"fcmpc-bench: {err}", file=sys.stderr)
+                return 2
+        rows, theirs = _measure(sections, args.repeat, tree)
     print(format_rows(rows))
     if reference is not None:
-        runs = []
-        try:
-            for _ in range(args.repeat):
-                runs.append(reference_figures(reference, [section.__name__ for section in sections]))
-        except (ReferenceRunError, OSError, ValueError) as err:
-            print(f"fcmpc-bench: reference {args.reference}: {err}", file=sys.stderr)
-            return 2
-        theirs = {name: statistics.median_low([run[name] for run in runs if name in run]) for name in runs[0]}
-        print("\n" + format_comparison(compare(rows, theirs, args.reference), args.reference))
+        medians = {name: statistics.median_low(values) for name, values in theirs.items()}
+        print("\n" + format_comparison(compare(rows, medians, args.reference), args.reference))
     print(f"\n(load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores: "
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")

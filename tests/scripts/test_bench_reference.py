@@ -1,10 +1,12 @@
 """fcmpc-bench --reference: an earlier commit's benchmarks run beside ours, compared by work."""
 from __future__ import annotations
 
+import subprocess
+
 import pytest
 
-from fcmpc_bench.reference import ISSUE_SPEEDUP, REPO, ReferenceRunError, compare, format_comparison, reference_figures, \
-    resolve
+from fcmpc_bench.reference import (ISSUE_SPEEDUP, REPO, ReferenceRunError, ReferenceTree, compare, format_comparison,
+                                   reference_figures, resolve)
 from scripts.bench import main
 
 PAPER_STEP = "mission step (cruise), Fc-MPC, the paper's estimator"
@@ -47,9 +49,18 @@ def test_an_unknown_commit_is_one_clear_line_and_exit_2_before_anything_runs(cap
         resolve("no-such-commit-here")
 
 
-def test_a_commits_own_benchmark_functions_run_in_a_worktree_of_it():
+def _worktrees() -> str:
+    return subprocess.run(["git", "-C", str(REPO), "worktree", "list"], capture_output=True, text=True).stdout
+
+
+def test_a_commits_own_benchmark_functions_run_in_a_worktree_of_it_that_is_removed_after():
     if not (REPO / ".git").exists():
         pytest.skip("not a git checkout: no commit to check out")
-    figures = reference_figures(resolve("HEAD"), ["bench_mpc"])
+    with ReferenceTree(resolve("HEAD")) as tree:
+        assert str(tree.tree) in _worktrees()
+        figures = tree.run(["bench_mpc"])
+        assert tree.run(["no_such_section"]) == {}                  # a failed section: no figure, no crash
     assert set(figures) == {"MPC update+solve, osqp (N=2)", "MPC update+solve, daqp (N=2)"}
     assert all(value > 0.0 for value in figures.values())
+    assert str(tree.tree) not in _worktrees() and not tree.tree.exists()
+    assert set(reference_figures(resolve("HEAD"), ["bench_mpc"])) == set(figures)
