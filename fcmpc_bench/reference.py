@@ -101,6 +101,8 @@ class ReferenceTree:
         subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(self.tree)], capture_output=True)
         if self._tmp is not None:
             self._tmp.cleanup()
+        # a worktree git could not remove is gone with the folder: forget it too
+        subprocess.run(["git", "-C", str(REPO), "worktree", "prune"], capture_output=True)
 
     def run(self, sections: list[str]) -> dict[str, float]:
         """Run ``sections`` (benchmark function names, e.g. ``bench_mission_step``) of the commit:

@@ -14,10 +14,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):   # 
     os.environ.setdefault(_var, "1")
 
 import contextlib
-from collections.abc import Callable, Sequence
 import statistics
 import subprocess
 import sys
+from collections.abc import Callable, Sequence
 
 from companion.cli import ArgumentParser, positive_int, run_main
 from fcmpc_bench import QUICK_SECTIONS, SECTIONS, Row, format_rows, median_rows
@@ -25,7 +25,8 @@ from fcmpc_bench.reference import REFERENCE_COMMIT, ReferenceRunError, Reference
     resolve
 
 
-def _measure(sections: Sequence[Callable[[], list[Row]]], repeat: int, tree: ReferenceTree | None) -> tuple[list[Row], dict[str, list[float]]]:
+def _measure(sections: Sequence[Callable[[], list[Row]]], repeat: int,
+             tree: ReferenceTree | None) -> tuple[list[Row], dict[str, list[float]]]:
     """Each section ``repeat`` times, each time followed by the reference's same section when
     ``tree`` is given (so the two are minutes apart, alike): our median rows, and the
     reference's figures per row name."""
