@@ -20,13 +20,13 @@ from sitl.world.crustal import CrustalConfig, CrustalField
 __all__ = ["Disturbance", "TruthField", "decl_incl_from_ned", "CRUSTAL_SEED_KEY", "QUIET_INDEX", "quiet_index"]
 
 CRUSTAL_SEED_KEY = 0x63727374
+"""Second word of the crustal field's seed ``[seed, CRUSTAL_SEED_KEY]``: its own stream."""
 QUIET_INDEX = 0.0   # Kp and SYM-H (nT) of a field nothing disturbs
 
 
 def quiet_index(posix_s: float) -> float:
     """A space-weather index of a world without a storm: :data:`QUIET_INDEX` at any time."""
     return QUIET_INDEX
-"""Second word of the crustal field's seed ``[seed, CRUSTAL_SEED_KEY]``: its own stream."""
 
 
 class Disturbance(Protocol):
