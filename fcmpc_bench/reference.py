@@ -23,9 +23,10 @@ import tempfile
 from pathlib import Path
 
 from fcmpc_bench.sections import Row
+from fcmpc_bench.table import format_rows
 
 __all__ = ["ISSUE_SPEEDUP", "REFERENCE_COMMIT", "SAME_WORKLOAD", "WIDER_WORK", "ReferenceRunError", "ReferenceTree",
-           "compare", "format_comparison", "reference_figures", "resolve"]
+           "compare", "format_comparison", "resolve"]
 
 REFERENCE_COMMIT = "9a267ba"
 REPO = Path(__file__).resolve().parents[1]
@@ -124,12 +125,6 @@ class ReferenceTree:
         return figures
 
 
-def reference_figures(commit: str, sections: list[str]) -> dict[str, float]:
-    """:meth:`ReferenceTree.run` in a worktree of ``commit`` made for this one call."""
-    with ReferenceTree(commit) as tree:
-        return tree.run(sections)
-
-
 def _issue_speedup(name: str) -> float | None:
     return next((v for k, v in ISSUE_SPEEDUP.items() if name.startswith(k)), None)
 
@@ -168,8 +163,6 @@ def compare(ours: list[Row], theirs: dict[str, float], commit: str) -> list[Row]
 
 def format_comparison(rows: list[Row], commit: str) -> str:
     """The comparison as a table under a heading that says what it is."""
-    from fcmpc_bench.table import format_rows
-
     if not rows:
         return f"(no row of {commit} measures the same work as ours)"
     head = ("benchmark", "ours (median)", f"{commit} (same run)", "our speed-up over it")
