@@ -138,13 +138,16 @@ def _direction(name: str, figure: str) -> str | None:
     return None
 
 
-def compare(ours: list[Row], theirs: dict[str, float], commit: str) -> list[Row]:
-    """Rows of (benchmark, ours, the reference's figure, our speed-up over it and the issue's):
-    each of our rows that measures a speed and has a reference row of the same name or work."""
+def compare(ours: list[Row], theirs: dict[str, float], issue_reference: bool) -> list[Row]:
+    """Rows of (benchmark, ours, the reference's figure, our speed-up over it): each of our rows
+    that measures a speed and has a reference row of the same name. Against the issue's commit
+    (``issue_reference``: :data:`REFERENCE_COMMIT`) rows also pair by work (:data:`SAME_WORKLOAD`)
+    and carry the speed-up the issue asks for; against any other commit those would be wrong
+    (its Fc-MPC row is already ours), so rows pair by name alone."""
     out: list[Row] = []
     for name, figure, _, _ in ours:
         number = _LEADING_NUMBER.match(figure)
-        their_name = SAME_WORKLOAD.get(name, name)
+        their_name = SAME_WORKLOAD.get(name, name) if issue_reference else name
         direction = _direction(name, figure)
         if not number or direction is None or their_name not in theirs:
             continue
@@ -152,9 +155,9 @@ def compare(ours: list[Row], theirs: dict[str, float], commit: str) -> list[Row]
         if mine <= 0.0 or reference <= 0.0:
             continue
         speedup = mine / reference if direction == "rate" else reference / mine
-        wanted = _issue_speedup(name)
+        wanted = _issue_speedup(name) if issue_reference else None
         notes = [f"issue asks {wanted:.2f}x: {'met' if speedup >= wanted else 'not met'}"] if wanted else []
-        if name in WIDER_WORK:
+        if issue_reference and name in WIDER_WORK:
             notes.append(WIDER_WORK[name])
         out.append((name, figure.split(" [")[0], f"{reference:g}" + (f" ({their_name})" if their_name != name else ""),
                     "; ".join([f"{speedup:.2f}x", *notes])))

@@ -81,7 +81,7 @@ def _run(argv: list[str] | None) -> int:
     print(format_rows(rows))
     if reference is not None:
         medians = {name: statistics.median_low(values) for name, values in theirs.items()}
-        print("\n" + format_comparison(compare(rows, medians, args.reference), args.reference))
+        print("\n" + format_comparison(compare(rows, medians, reference == resolve(REFERENCE_COMMIT)), args.reference))
     print(f"\n(load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores: "
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")
