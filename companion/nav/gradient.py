@@ -97,7 +97,7 @@ class GradientEstimator:
         """Replace G by a given one (GRAD_INIT 1: the field model's gradient at the estimated
         position after the probes) and keep updating from there; returns it."""
         g = np.asarray(g, dtype=float)
-        if g.shape != (2, 2) or not np.all(np.isfinite(g)):
+        if g.shape != (2, 2) or not np.isfinite(g).all():
             raise ValueError(f"a starting gradient must be a finite 2 x 2 matrix, got {g!r}")
         self.g = g.copy()
         return self.g
@@ -110,7 +110,7 @@ class GradientEstimator:
         """
         ds = np.asarray(ds, dtype=float)
         dp = np.asarray(dp, dtype=float)
-        if not (np.all(np.isfinite(ds)) and np.all(np.isfinite(dp))):
+        if not (np.isfinite(ds).all() and np.isfinite(dp).all()):
             return self.g
         moved = float(np.linalg.norm(dp)) >= self.min_move_m
         if self.g is None:

@@ -196,7 +196,7 @@ class Mission:
         as uncertain states."""
         n = len(self.measured.names)
         value = np.zeros(n) if bias is None else np.asarray(bias, dtype=float)
-        if value.shape != (n,) or not np.all(np.isfinite(value)):
+        if value.shape != (n,) or not np.isfinite(value).all():
             raise ValueError(f"the element bias must be {n} finite numbers, got {bias!r}")
         self._given_bias = value
         self.bias = value if self.estimator is None else np.zeros(n)
@@ -243,7 +243,7 @@ class Mission:
         plausibility check) found its rejected fixes agreeing (:mod:`companion.nav.reanchor`);
         callers do this only where :attr:`dead_reckons`."""
         shift = np.asarray(shift_en_m, dtype=float)
-        if shift.shape != (2,) or not np.all(np.isfinite(shift)) or not (math.isfinite(sigma_m) and sigma_m > 0.0):
+        if shift.shape != (2,) or not np.isfinite(shift).all() or not (math.isfinite(sigma_m) and sigma_m > 0.0):
             raise ValueError(f"a re-anchoring shift is two finite metres and a positive 1-sigma, got {shift_en_m!r}, "
                              f"{sigma_m!r}")
         self._shift = (shift, float(sigma_m))
@@ -282,7 +282,7 @@ class Mission:
             return self.finished
         measured = self.measured.values(meas) - self.bias
         s = measured[:2]
-        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.all(np.isfinite(measured))):
+        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.isfinite(measured).all()):
             return self._hold(meas.time_s, "non-finite measurement")
         if self.last is not None and meas.time_s <= self.last.time_s:
             return self._hold(meas.time_s, "measurement time did not advance")
@@ -372,7 +372,7 @@ class Mission:
         theta = math.atan2(direction[1], direction[0])        # eq. 4, quadrant resolved by atan2
         speed = c.speed_mps if c.speed_mode == 1 else min(c.speed_mps, remaining / c.period_s)
         self.arrival.flew(remaining, c)
-        u_a = compensation(b, xi * s_unit) * u_unit if np.any(xi) else np.zeros(2)
+        u_a = compensation(b, xi * s_unit) * u_unit if xi.any() else np.zeros(2)
         command = self._command(meas.time_s, Phase.CRUISE, theta, speed, remaining, fix, fused, sigma,
                                 u_first=(float(u[0]), float(u[1])), u_a=(float(u_a[0]), float(u_a[1])),
                                 solver_time_s=solution.solve_time_s)

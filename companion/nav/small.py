@@ -68,7 +68,7 @@ def smallest_singular_value(matrix: np.ndarray) -> float:
     >>> smallest_singular_value(np.array([[3.0, 0.0], [0.0, -0.5]])), smallest_singular_value(np.zeros((2, 2)))
     (0.5, 0.0)
     """
-    if matrix.shape != (2, 2) or not np.all(np.isfinite(matrix)):
+    if matrix.shape != (2, 2) or not np.isfinite(matrix).all():
         return float(np.linalg.svd(matrix, compute_uv=False)[-1])
     (a, b), (c, d) = matrix.tolist()
     det = abs(a * d - b * c)

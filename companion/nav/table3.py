@@ -183,23 +183,23 @@ class Table3Estimator:
             relative = cov
         elif fix is not None:
             position = fix
-            cov = self._fix_covariance(gradient, fix, standard_errors)
-            relative = self._fix_covariance(gradient, fix, standard_errors, with_model=False)
+            cov, relative = self._fix_covariances(gradient, fix, standard_errors)
         sigma = math.sqrt(0.5 * float(cov[0, 0] + cov[1, 1]))
         return position, (fix if fix is not None else (math.nan, math.nan)), fused, sigma, cov, relative
 
-    def _fix_covariance(self, gradient: np.ndarray, fix: tuple[float, float],
-                        standard_errors: np.ndarray | None, with_model: bool = True) -> np.ndarray:
-        """``P_fix`` (module docstring) of a fix at ``fix`` with the model's gradient there
-        (``with_model`` False: its noise alone)."""
+    def _fix_covariances(self, gradient: np.ndarray, fix: tuple[float, float],
+                         standard_errors: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``P_fix`` (module docstring) of a fix at ``fix`` with the model's gradient there, and
+        the same of its noise alone (what the estimate is against the next fix: the model's
+        error is shared between neighbouring fixes)."""
         c = self.config
         n = len(self.elements.names)
         se = np.full(n, np.nan) if standard_errors is None else np.asarray(standard_errors, dtype=float)[:n]
         distance = geodesic_inverse(c.start_lat_deg, c.start_lon_deg, *fix)[0] if self.calibrated else None
-        variance = measured_variance(se, self._floor, self._declared)   # as the error-state filter's R
-        if with_model:
-            variance = variance + self.model_error.variance(self.elements.names, distance)
+        noise = measured_variance(se, self._floor, self._declared)   # as the error-state filter's R
         try:
-            return fix_covariance(gradient, variance)
+            return (fix_covariance(gradient, noise + self.model_error.variance(self.elements.names, distance)),
+                    fix_covariance(gradient, noise))
         except np.linalg.LinAlgError:   # a singular G (the fix's Newton steps would have failed first):
-            return np.eye(2) * c.fix_gate_m ** 2   # as uncertain as the gate lets a fix be
+            wide = np.eye(2) * c.fix_gate_m ** 2   # as uncertain as the gate lets a fix be
+            return wide, wide

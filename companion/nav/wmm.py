@@ -235,7 +235,7 @@ class WorldMagneticModel:
         lat, lon, alt, yr = np.broadcast_arrays(
             *(np.asarray(v, dtype=float) for v in (lat_deg, lon_deg, alt_m, year))
         )
-        if np.any(np.abs(lat) > 90.0):
+        if (np.abs(lat) > 90.0).any():
             raise ValueError(f"latitude outside [-90, 90]: {lat[np.abs(lat) > 90.0].ravel()[0]} deg")
         self._check_year(yr)
         shape = lat.shape
