@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, resolve_elements
 from companion.nav.field import model_for_setting
-from companion.nav.geo import geodesic_distance_m
+from companion.nav.geo import geodesic_inverse
 from companion.nav.mission import Mission
 from companion.params import NavConfig
 from companion.process.options import GPS_START_MAX_AGE_S
@@ -29,6 +29,7 @@ class MissionPreparation:
     def __init__(self, app) -> None:   # the CompanionApp wiring this part
         self.app = app
         self.prepared: Mission | None = None   # built while READY, used at arming if nothing changed
+        self._prepared_for = None              # the NavConfig (parameters) it was last found to serve
 
     def startup_window(self) -> float:
         """Seconds of stationary averaging before the first step (--startup-s, else NAV_PERIOD_S)."""
@@ -54,9 +55,14 @@ class MissionPreparation:
             return
         lat, lon, _ = self.start_position()
         code, _ = self.resolve_elements(now)
+        prepared = self.prepared
+        if prepared is not None and app.nav_cfg is self._prepared_for and code == prepared.config.elements \
+                and self._near(prepared.config, lat, lon):
+            return   # a READY tick that asks what the last one did: no configuration built to compare
         config = self.mission_config(lat, lon, code)
         if not self.fits(config):
             self.prepared = Mission(config)
+        self._prepared_for = app.nav_cfg   # (a parameter change builds a new NavConfig)
 
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:
         """The mission's settings: NAV_* from the parameters, this start, the resolved element set."""
@@ -70,8 +76,12 @@ class MissionPreparation:
             return False
         old = prepared.config
         same = old.replace(start_lat_deg=config.start_lat_deg, start_lon_deg=config.start_lon_deg) == config
-        return same and geodesic_distance_m(old.start_lat_deg, old.start_lon_deg, config.start_lat_deg,
-                                            config.start_lon_deg) <= PREPARED_START_M
+        return same and self._near(old, config.start_lat_deg, config.start_lon_deg)
+
+    @staticmethod
+    def _near(config: NavConfig, lat: float, lon: float) -> bool:
+        """The start (lat, lon) is within PREPARED_START_M of ``config``'s."""
+        return geodesic_inverse(config.start_lat_deg, config.start_lon_deg, lat, lon)[0] <= PREPARED_START_M
 
     def take_mission(self, config: NavConfig) -> Mission:
         """The prepared mission if it serves ``config``, else a new one; nothing stays prepared."""
