@@ -187,7 +187,8 @@ class Outputs:
             return
         if not view.gps_seen and app.now - app.fc_detected_at < STARTUP_GRACE_S:
             return   # no GPS_RAW_INT yet: do not take a slow stream for a lost GPS
-        estimate = self.current_estimate()
+        # the navigator's position: needed to start the feed or to start feeding our own, not after
+        estimate = self.current_estimate() if not (feed.started and view.feeding_own) else None
         if not feed.started:
             if estimate is None:
                 return
