@@ -61,13 +61,17 @@ def _run(argv: list[str] | None) -> int:
                              "in a temporary worktree, each right after ours, and print our speed-up over it: on a "
                              "machine whose speed moves between days, the comparison that holds")
     args = parser.parse_args(argv)
-    reference = None
+    reference, issue_reference = None, False
     if args.reference is not None:
         try:
             reference = resolve(args.reference)
         except ReferenceRunError as err:
             print(f"fcmpc-bench: {err}", file=sys.stderr)
             return 2
+        try:   # the issue's commit gets the issue's asks (a shallow clone may not hold it: then none is)
+            issue_reference = reference == resolve(REFERENCE_COMMIT)
+        except ReferenceRunError:
+            issue_reference = False
     sections = QUICK_SECTIONS if args.quick else SECTIONS
     with contextlib.ExitStack() as stack:
         tree = None
@@ -81,7 +85,7 @@ def _run(argv: list[str] | None) -> int:
     print(format_rows(rows))
     if reference is not None:
         medians = {name: statistics.median_low(values) for name, values in theirs.items()}
-        print("\n" + format_comparison(compare(rows, medians, reference == resolve(REFERENCE_COMMIT)), args.reference))
+        print("\n" + format_comparison(compare(rows, medians, issue_reference), args.reference))
     print(f"\n(load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores: "
           "on a shared machine the absolute figures are indicative, the ratios to an anchor of the same run "
           "are the robust ones)")
