@@ -4,8 +4,8 @@ This shared machine's speed moves 2-3x between days (pygeomag's time per point: 
 a figure measured on another day says little about whether our code got faster. The code the
 issue's "today" figures were measured on, run minutes apart on the same machine, does: the
 commit is checked out into a temporary git worktree, its own benchmark functions run there in
-a child process (this interpreter, its ``PYTHONPATH`` the worktree, so its packages shadow
-ours), section by section right after ours, and its figures come back as numbers by row name.
+a child process (:mod:`fcmpc_bench.isolated`, as ours are), section by section right after
+ours, and its figures come back as numbers by row name.
 
 :data:`REFERENCE_COMMIT` is the README's table before issue 13 (2026-11-22), whose figures are
 the issue's "today". Its ``Fc-MPC`` mission step is the paper's estimator (Table 3 fusion on
@@ -14,14 +14,12 @@ navigator's step, which also runs the error-state filter of issue 14, is shown b
 """
 from __future__ import annotations
 
-import json
-import os
 import re
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
+from fcmpc_bench.isolated import SectionRunError, run_sections
 from fcmpc_bench.sections import Row
 from fcmpc_bench.table import format_rows
 
@@ -50,17 +48,6 @@ ISSUE_SPEEDUP = {
     "companion step_latency_median_ms": 2.0 / 1.0,
 }
 
-_PROGRAM = """
-import importlib, json, sys
-bench = importlib.import_module(sys.argv[1])
-rows = []
-for name in sys.argv[2:]:
-    try:
-        rows += [[str(r[0]), str(r[1])] for r in getattr(bench, name)()]
-    except Exception as err:
-        rows.append([name, "FAILED: %s: %s" % (type(err).__name__, err)])
-print(json.dumps(rows))
-"""
 _LEADING_NUMBER = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)")
 
 
@@ -109,16 +96,12 @@ class ReferenceTree:
         """Run ``sections`` (benchmark function names, e.g. ``bench_mission_step``) of the commit:
         {row name: its leading number}, rows that failed or print no number left out. Raises
         :class:`ReferenceRunError` when its benchmarks do not run."""
-        env = {**os.environ, "PYTHONPATH": str(self.tree), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-        # where that commit keeps its benchmark functions (before fcmpc_bench: scripts/bench.py)
-        module = "fcmpc_bench.sections" if (self.tree / "fcmpc_bench" / "sections.py").exists() else "scripts.bench"
-        ran = subprocess.run([sys.executable, "-c", _PROGRAM, module, *sections], cwd=self.tree, env=env,
-                             capture_output=True, text=True, timeout=self.timeout_s, stdin=subprocess.DEVNULL)
-        if ran.returncode != 0:
-            last = (ran.stderr.strip().splitlines() or ["no output"])[-1]
-            raise ReferenceRunError(f"{self.commit}'s benchmarks failed: {last}")
+        try:
+            rows = run_sections(self.tree, sections, self.timeout_s)
+        except SectionRunError as err:
+            raise ReferenceRunError(f"{self.commit}'s benchmarks failed: {err}") from err
         figures: dict[str, float] = {}
-        for name, value in json.loads(ran.stdout.strip().splitlines()[-1]):
+        for name, value, _, _ in rows:
             number = _LEADING_NUMBER.match(value)
             if number:
                 figures[name] = float(number.group(1))

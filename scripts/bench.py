@@ -21,24 +21,31 @@ from collections.abc import Callable, Sequence
 
 from companion.cli import ArgumentParser, positive_int, run_main
 from fcmpc_bench import QUICK_SECTIONS, SECTIONS, Row, format_rows, median_rows
-from fcmpc_bench.reference import REFERENCE_COMMIT, ReferenceRunError, ReferenceTree, compare, format_comparison, \
-    resolve
+from fcmpc_bench.isolated import SectionRunError, run_sections
+from fcmpc_bench.reference import REFERENCE_COMMIT, REPO, ReferenceRunError, ReferenceTree, compare, \
+    format_comparison, resolve
+
+
+def _ours(section: Callable[[], list[Row]]) -> list[Row]:
+    """One of our sections in a fresh interpreter (:mod:`fcmpc_bench.isolated`: what ran before
+    in this process would slow it); a failure is its row."""
+    try:
+        return run_sections(REPO, [section.__name__])
+    except (SectionRunError, OSError, ValueError, subprocess.TimeoutExpired) as err:
+        return [(section.__name__, f"FAILED: {type(err).__name__}: {err}", "", "")]
 
 
 def _measure(sections: Sequence[Callable[[], list[Row]]], repeat: int,
              tree: ReferenceTree | None) -> tuple[list[Row], dict[str, list[float]]]:
-    """Each section ``repeat`` times, each time followed by the reference's same section when
-    ``tree`` is given (so the two are minutes apart, alike): our median rows, and the
-    reference's figures per row name."""
+    """Each section ``repeat`` times, each in a fresh interpreter and each time followed by the
+    reference's same section when ``tree`` is given (so the two are minutes apart, alike): our
+    median rows, and the reference's figures per row name."""
     rows: list[Row] = []
     theirs: dict[str, list[float]] = {}
     for section in sections:
         runs = []
         for _ in range(repeat):
-            try:
-                runs.append(section())
-            except Exception as err:  # noqa: BLE001 -- a missing part must not hide the others' numbers
-                runs.append([(section.__name__, f"FAILED: {type(err).__name__}: {err}", "", "")])
+            runs.append(_ours(section))
             if tree is not None:
                 try:
                     for name, value in tree.run([section.__name__]).items():
