@@ -14,14 +14,13 @@ navigator's step, which also runs the error-state filter of issue 14, is shown b
 """
 from __future__ import annotations
 
-import re
 import subprocess
 import tempfile
 from pathlib import Path
 
 from fcmpc_bench.isolated import SectionRunError, run_sections
 from fcmpc_bench.sections import Row
-from fcmpc_bench.table import format_rows
+from fcmpc_bench.table import format_rows, leading_number
 
 __all__ = ["ISSUE_SPEEDUP", "REFERENCE_COMMIT", "SAME_WORKLOAD", "WIDER_WORK", "ReferenceRunError", "ReferenceTree",
            "compare", "format_comparison", "resolve"]
@@ -47,9 +46,6 @@ ISSUE_SPEEDUP = {
     "SITL speed-up over real time": 2000.0 / 1208.0,
     "companion step_latency_median_ms": 2.0 / 1.0,
 }
-
-_LEADING_NUMBER = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)")
-
 
 class ReferenceRunError(RuntimeError):
     """The reference commit could not be checked out or benchmarked (the message says which)."""
@@ -100,12 +96,8 @@ class ReferenceTree:
             rows = run_sections(self.tree, sections, self.timeout_s)
         except SectionRunError as err:
             raise ReferenceRunError(f"{self.commit}'s benchmarks failed: {err}") from err
-        figures: dict[str, float] = {}
-        for name, value, _, _ in rows:
-            number = _LEADING_NUMBER.match(value)
-            if number:
-                figures[name] = float(number.group(1))
-        return figures
+        figures = {name: leading_number(value) for name, value, _, _ in rows}
+        return {name: value for name, value in figures.items() if value is not None}
 
 
 def _issue_speedup(name: str) -> float | None:
@@ -129,12 +121,12 @@ def compare(ours: list[Row], theirs: dict[str, float], issue_reference: bool) ->
     (its Fc-MPC row is already ours), so rows pair by name alone."""
     out: list[Row] = []
     for name, figure, _, _ in ours:
-        number = _LEADING_NUMBER.match(figure)
+        mine = leading_number(figure)
         their_name = SAME_WORKLOAD.get(name, name) if issue_reference else name
         direction = _direction(name, figure)
-        if not number or direction is None or their_name not in theirs:
+        if mine is None or direction is None or their_name not in theirs:
             continue
-        mine, reference = float(number.group(1)), theirs[their_name]
+        reference = theirs[their_name]
         if mine <= 0.0 or reference <= 0.0:
             continue
         speedup = mine / reference if direction == "rate" else reference / mine

@@ -5,9 +5,16 @@ import re
 
 from fcmpc_bench.sections import Row
 
-__all__ = ["format_rows", "median_rows"]
+__all__ = ["format_rows", "leading_number", "median_rows"]
 
 _LEADING_NUMBER = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)")
+
+
+def leading_number(figure: str) -> float | None:
+    """The number a figure starts with ("37.1 us (p99 92)" -> 37.1); None if it starts with none
+    (a failure, a name)."""
+    number = _LEADING_NUMBER.match(figure)
+    return float(number.group(1)) if number else None
 
 
 def median_rows(runs: list[list[Row]]) -> list[Row]:
@@ -20,11 +27,10 @@ def median_rows(runs: list[list[Row]]) -> list[Row]:
     merged: list[Row] = []
     for row in runs[0]:
         same = [r for run in runs for r in run if r[0] == row[0]]
-        numbers = [_LEADING_NUMBER.match(r[1]) for r in same]
-        if not all(numbers):
+        values = [leading_number(r[1]) for r in same]
+        if None in values:
             merged.append(row)
             continue
-        values = [float(m.group(1)) for m in numbers]
         order = sorted(range(len(values)), key=values.__getitem__)
         middle = same[order[(len(order) - 1) // 2]]
         merged.append((middle[0], f"{middle[1]} [{min(values):g}-{max(values):g}, {len(values)} runs]",

@@ -75,10 +75,8 @@ def _run(argv: list[str] | None) -> int:
         except ReferenceRunError as err:
             print(f"fcmpc-bench: {err}", file=sys.stderr)
             return 2
-        try:   # the issue's commit gets the issue's asks (a shallow clone may not hold it: then none is)
-            issue_reference = reference == resolve(REFERENCE_COMMIT)
-        except ReferenceRunError:
-            issue_reference = False
+        with contextlib.suppress(ReferenceRunError):   # a shallow clone may not hold the issue's commit
+            issue_reference = reference == resolve(REFERENCE_COMMIT)   # it alone gets the issue's asks
     sections = QUICK_SECTIONS if args.quick else SECTIONS
     with contextlib.ExitStack() as stack:
         tree = None

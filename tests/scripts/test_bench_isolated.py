@@ -1,6 +1,8 @@
 """fcmpc-bench's sections run each in a fresh interpreter, from the source tree given."""
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from fcmpc_bench.isolated import SectionRunError, run_sections, sections_module
@@ -23,7 +25,7 @@ def test_the_trees_own_sections_run_and_their_rows_come_back_whole(tmp_path):
                            "    raise RuntimeError('no sensor')\n")
     rows = run_sections(tree, ["bench_here", "bench_broken", "bench_missing"])
     assert rows[0][0] == "where" and rows[0][1] == str(tree / "fcmpc_bench" / "sections.py")   # the tree's module
-    assert rows[0][2] != str(__import__("os").getpid())                                          # in a child
+    assert rows[0][2] != str(os.getpid())                                          # in a child
     assert rows[1] == ("short", "1.5 us", "", "")                                                # padded to four
     assert rows[2][0] == "bench_broken" and rows[2][1] == "FAILED: RuntimeError: no sensor"
     assert rows[3][0] == "bench_missing" and rows[3][1].startswith("FAILED: AttributeError")
