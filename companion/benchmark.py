@@ -8,7 +8,10 @@ would, records included. Three measurements:
     closed loop in lockstep, cruising with NAV_PERIOD_S = 60 s (many steps per simulated hour):
     wall time of each control step (average of the period's samples + plausibility judgement +
     navigation core + outputs), median, 99th percentile and maximum, and the medians of its
-    parts: the average, the judgement and the core.
+    parts: the average, the judgement and the core. Flown twice: with the default navigator
+    (issue 14's error-state filter), and with the paper's estimator on (D, I) (``FUS_MODEL 1``,
+    ``NAV_ELEMENTS 1``: Table 3's, the work the companion ran before the filter), keys
+    ``paper_estimator_*``.
 ``sustained input``
     the simulator free-running as fast as it can (no lockstep): messages the companion handled
     per wall second and the fraction lost (socket overflow is what falling behind looks like on
@@ -125,26 +128,39 @@ def _capacity(tlog: Path, params: str, workdir: Path, max_messages: int = 300_00
     return handled / elapsed
 
 
+PAPER_ESTIMATOR = "FUS_MODEL 1\nNAV_ELEMENTS 1\n"
+"""The parameters that make the companion's navigator the paper's estimator on (D, I)."""
+
+
+def _lockstep(workdir: Path, params: str, step_sim_s: float, timeout_s: float, prefix: str = "") -> dict:
+    """One lockstep flight: its control steps' latencies (ms) and the pair's speed, keys prefixed."""
+    workdir.mkdir()
+    app, sitl = _fly_against_sitl(workdir, ["--lockstep", "--lockstep-period", "1.0", "--duration", str(step_sim_s)],
+                                  params, True, timeout_s)
+    stepper = app.stepper
+    lat = [v * 1e3 for v in stepper.step_latency_s]
+    out: dict = {}
+    if lat:
+        out.update({"control_steps": len(lat), "step_latency_median_ms": round(statistics.median(lat), 3),
+                    "step_latency_p99_ms": round(_percentile(lat, 0.99), 3),
+                    "step_latency_max_ms": round(max(lat), 3)})
+        for part, values in (("average", stepper.average_latency_s), ("judge", stepper.judge_latency_s),
+                             ("core", stepper.core_latency_s)):
+            out[f"{part}_latency_median_ms"] = round(statistics.median(values) * 1e3, 3)
+    out["lockstep_sim_speedup"] = sitl["speedup"]
+    out["lockstep_msgs_per_s"] = round(app.messages_from_fc / max(sitl["wall_s"], 1e-9), 1)
+    return {prefix + key: value for key, value in out.items()}
+
+
 def run(step_sim_s: float = 6000.0, free_sim_s: float = 4000.0, timeout_s: float = 300.0) -> dict:
     """The three measurements (see the module docstring) as a flat dict of numbers."""
     params = "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\nCOMP_SP_RATE_HZ 2.5\n"
     out: dict = {}
     with tempfile.TemporaryDirectory(prefix="fcmpc-bench-companion-") as tmp:
         workdir = Path(tmp)
-        (workdir / "lockstep").mkdir()
-        app, sitl = _fly_against_sitl(workdir / "lockstep", ["--lockstep", "--lockstep-period", "1.0", "--duration",
-                                                             str(step_sim_s)], params, True, timeout_s)
-        stepper = app.stepper
-        lat = [v * 1e3 for v in stepper.step_latency_s]
-        if lat:
-            out.update({"control_steps": len(lat), "step_latency_median_ms": round(statistics.median(lat), 3),
-                        "step_latency_p99_ms": round(_percentile(lat, 0.99), 3),
-                        "step_latency_max_ms": round(max(lat), 3)})
-            for part, values in (("average", stepper.average_latency_s), ("judge", stepper.judge_latency_s),
-                                 ("core", stepper.core_latency_s)):
-                out[f"{part}_latency_median_ms"] = round(statistics.median(values) * 1e3, 3)
-        out["lockstep_sim_speedup"] = sitl["speedup"]
-        out["lockstep_msgs_per_s"] = round(app.messages_from_fc / max(sitl["wall_s"], 1e-9), 1)
+        out.update(_lockstep(workdir / "lockstep", params, step_sim_s, timeout_s))
+        paper = _lockstep(workdir / "paper", params + PAPER_ESTIMATOR, step_sim_s, timeout_s, "paper_estimator_")
+        out.update({key: value for key, value in paper.items() if "latency" in key})
         (workdir / "free").mkdir()
         app, sitl = _fly_against_sitl(workdir / "free", ["--speedup", "0", "--duration", str(free_sim_s), "--tlog"],
                                       params, False, timeout_s)

@@ -29,13 +29,15 @@ REFERENCE_COMMIT = "9a267ba"
 REPO = Path(__file__).resolve().parents[1]
 
 # our row -> the reference's row measuring the same work (otherwise rows pair by name)
-SAME_WORKLOAD = {"mission step (cruise), Fc-MPC, the paper's estimator": "mission step (cruise), Fc-MPC"}
+SAME_WORKLOAD = {"mission step (cruise), Fc-MPC, the paper's estimator": "mission step (cruise), Fc-MPC",
+                 "companion paper_estimator_step_latency_median_ms": "companion step_latency_median_ms"}
 
 # rows whose work grew after the reference: said beside the figure
 WIDER_WORK = {
     "mission step (cruise), Fc-MPC": "ours runs the error-state filter too (issue 14)",
     "mission step (cruise), Fc-MPC, fusing every step": "ours runs the error-state filter too (issue 14)",
     "companion step_latency_median_ms": "ours runs the error-state filter and the plausibility judge too",
+    "companion paper_estimator_step_latency_median_ms": "ours runs the plausibility judge too",
 }
 
 # the speed-up issue 13 asks for: its "today" figure over its target (higher is faster for the simulator)
@@ -45,6 +47,7 @@ ISSUE_SPEEDUP = {
     "Monte Carlo, 50 runs x 3 controllers": 22.5 / 10.0,
     "SITL speed-up over real time": 2000.0 / 1208.0,
     "companion step_latency_median_ms": 2.0 / 1.0,
+    "companion paper_estimator_step_latency_median_ms": 2.0 / 1.0,
 }
 
 class ReferenceRunError(RuntimeError):
