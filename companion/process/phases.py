@@ -8,7 +8,8 @@ transitions do.
              GUIDED (ArduPilot) or, after >= 1 s of setpoints, OFFBOARD (PX4), then arm, backing
              off when the FC refuses; with 0 the operator does so. Armed in GUIDED/OFFBOARD: the
              mission starts (``engaged``).
-``running``  stream the command; every NAV_PERIOD_S of mission time a control step. The mission
+``running``  stream the command; every NAV_PERIOD_S of mission time a control step, whose new
+             command is streamed at once (not a tick later). The mission
              pauses whenever the vehicle is not following (failsafe, or not armed in
              GUIDED/OFFBOARD). A mode change the companion did not command is respected: the
              autopilot's own failsafe is waited out, a pilot's or ground station's pauses the
@@ -234,13 +235,19 @@ class Phases:
             self.resume()
         if reasons:
             return False
+        # the stream first: its cadence is the FC's proof of life (PX4 leaves OFFBOARD after
+        # COM_OF_LOSS_T without one), whatever the step below costs
         sent = app.out.stream_command(app.command) if app.command is not None else False
         if not following:
             if self.our_hold or (self.fc_failsafe_hold and not app.fc_view.fc_failsafe):
                 self.engage(now)   # our failsafe's hold, or the FC's own failsafe cleared: take it back
             return sent
         if app.mission_time(now) >= app.next_step_m:
+            previous = app.command
             app.stepper.step(app.next_step_m)
+            if app.state == State.RUNNING and app.command is not None and app.command is not previous:
+                # the step's new command goes out now, not a tick (1 / COMP_SP_RATE_HZ) later
+                sent = app.out.stream_command(app.command) or sent
         return sent
 
     def resume(self) -> None:

@@ -11,7 +11,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
 from companion.registry import READINGS
-from tests.companion.process.rig import GOOD, _msg, _run_step, _sent
+from tests.companion.process.rig import GOOD, FakeMission, _msg, _run_step, _sent
 
 
 @pytest.mark.parametrize("bad,why", [
@@ -51,6 +51,34 @@ def test_good_step_streams_and_publishes(rig):
     [est] = [m for m in sent if m.get_type() == "COMMAND_INT"]
     assert est.command == mavlink.MAV_CMD_EXTERNAL_POSITION_ESTIMATE and est.x == 325_000_000
     assert est.param3 == pytest.approx(800.0) and math.isnan(est.z)
+
+
+def test_a_steps_new_command_is_streamed_in_the_tick_that_made_it(rig):
+    # streamed only before the step, the new course waited a tick (1 / COMP_SP_RATE_HZ); the
+    # old one still goes out first, keeping the stream's cadence whatever the step costs
+    app, fc = rig
+    app.mission = FakeMission(GOOD)
+    # the course flown so far (no estimate: the stand-in core has nothing to judge against)
+    app.command = replace(GOOD, course_rad=0.4, step=4, est_lat_deg=math.nan)
+    app.mag.averager.add(0.5, 1.0, 50.0)
+    app.next_step_m = app.mission_time()                              # a step is due now
+    app.next_tick = -math.inf
+    app.tick()
+    old, new = [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+    assert old.yaw == pytest.approx(0.4) and new.yaw == pytest.approx(GOOD.course_rad) and app.command is GOOD
+
+
+def test_a_step_that_ends_the_mission_streams_no_setpoint_after_it(rig):
+    app, fc = rig
+    app.mission = FakeMission(replace(GOOD, done=True, phase="arrived", speed_mps=0.0))
+    app.command = replace(GOOD, est_lat_deg=math.nan)
+    app.mag.averager.add(0.5, 1.0, 50.0)
+    app.next_step_m = app.mission_time()
+    app.next_tick = -math.inf
+    app.tick()
+    assert app.state == State.DONE
+    [before] = [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]   # the stream's, before the step
+    assert before.yaw == pytest.approx(GOOD.course_rad)
 
 
 def test_odometry_when_selected(rig):
