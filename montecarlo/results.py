@@ -52,6 +52,8 @@ COLUMNS = (("median (km)", "median_remaining_km", "{:.2f}"),
            ("mean (km)", "remaining_km", "{:.2f}"),
            ("p90 (km)", "p90_remaining_km", "{:.2f}"),
            ("inside own 95 % ellipse", "ellipse95_pct", "{:.0f} %"),
+           ("predicted 95 % radius (km)", "pred_r95_km", "{:.1f}"),
+           ("inside predicted 95 %", "pred95_pct", "{:.0f} %"),
            ("arrived", "arrived", "{:.0f}"))
 
 
