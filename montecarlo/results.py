@@ -57,16 +57,17 @@ COLUMNS = (("median (km)", "median_remaining_km", "{:.2f}"),
            ("arrived", "arrived", "{:.0f}"))
 
 
-def run_row(row: Row, runs: int, out: Path) -> dict:
-    """Fly one row with ``fcmpc-montecarlo`` and return its Fc-MPC summary plus the p90 of its runs."""
-    from scripts.montecarlo import main as montecarlo_main
+def run_row(row: Row, runs: int, out: Path, root: Path) -> dict:
+    """Fly one row with the ``fcmpc-montecarlo`` command of the checkout at ``root`` and return its
+    Fc-MPC summary plus the p90 of its runs."""
     import csv
+    import sys
 
-    folder = out / row.key
+    folder = (out / row.key).resolve()
     argv = [*row.argv, "--runs", str(runs), "--out", str(folder), "--no-plots", "--quiet"]
-    code = montecarlo_main(argv)
-    if code != 0:
-        raise RuntimeError(f"fcmpc-montecarlo {' '.join(argv)} exited {code}")
+    done = subprocess.run([sys.executable, "-m", "scripts.montecarlo", *argv], cwd=root)
+    if done.returncode != 0:
+        raise RuntimeError(f"fcmpc-montecarlo {' '.join(argv)} exited {done.returncode}")
     (summary_file,) = folder.glob("*/summary.json")
     summary = json.loads(summary_file.read_text())["summary"]["Fc-MPC"]
     with open(summary_file.with_name("runs.csv"), newline="") as handle:
@@ -128,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", default=".", help="the checkout whose docs/results.md and README.md to write")
     args = parser.parse_args(argv)
     root = Path(args.root)
-    results = [(row, run_row(row, args.runs, Path(args.out))) for row in ROWS]
+    results = [(row, run_row(row, args.runs, Path(args.out), root)) for row in ROWS]
     commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
     (root / "docs" / "results.md").write_text(render(results, args.runs, commit, datetime.now(timezone.utc)))
