@@ -129,9 +129,9 @@ with the value it kept and a STATUSTEXT naming the range. It writes every accept
 Files:
 
 - `params/defaults.parm`: every parameter at its default, each preceded by its description,
-  range and unit as `#` comments. MAVProxy (`param load defaults.parm`, which strips what
-  follows `#`), Mission Planner (*Config > Full Parameter List > Load from file*, which skips `#`
-  lines) and the companion's own `--params FILE` read it. QGroundControl's *Load from file*
+  range and unit as `#` comments. MAVProxy's `param load` (which strips what follows `#`), Mission
+  Planner's parameter-file reader (which skips lines starting with `#`) and the companion's own
+  `--params FILE` read it. QGroundControl's *Load from file*
   reads only its own tab-separated format (`SYSID COMPID NAME VALUE TYPE`); save the list from
   QGroundControl once and edit that file instead.
 - `docs/parameters.json`: the same metadata in the MAVLink component-metadata parameter format
