@@ -30,7 +30,7 @@ from companion.nav.mission import FROZEN_IN_FLIGHT
 from companion.params import NavConfig, format_value, write_text_atomically
 from companion.registry import REGISTRY, SPEC_BY_NAME, ParamSpec
 
-__all__ = ["GENERATED", "GROUPS", "group_of", "when_applied", "parm_text", "markdown_text", "metadata_json",
+__all__ = ["APPLIES", "GENERATED", "GROUPS", "group_of", "when_applied", "parm_text", "markdown_text", "metadata_json",
            "stale_files", "write_files", "main"]
 
 # the groups, by name prefix (QGroundControl groups an unknown component's parameters the same
