@@ -61,9 +61,9 @@ def test_the_running_companion_says_ready_and_feeds_the_watchdog(tmp_path):
 BLUEOS = REPO / "deploy" / "blueos"
 BLUEOS_LABELS = ("version", "permissions", "authors", "company", "readme", "links", "type", "tags", "requirements")
 BLUEOS_TYPES = ("device-integration", "example", "theme", "other", "tool")
-# BlueOS's default MAVLink endpoint for ground stations and extensions: "GCS Server Link", a UDP server on
-# the host's 0.0.0.0:14550 (core/services/ardupilot_manager/autopilot_manager.py)
-BLUEOS_GCS_SERVER = ("host.docker.internal", 14550)
+# BlueOS's default MAVLink endpoint for onboard programs: "Internal Link", a TCP server on the host's
+# 127.0.0.1:5777, persistent and protected (core/services/ardupilot_manager/autopilot_manager.py)
+BLUEOS_INTERNAL_LINK = ("127.0.0.1", 5777)
 
 
 def _dockerfile():
@@ -135,12 +135,11 @@ def test_blueos_permissions_are_a_container_payload_that_matches_the_command():
 
     parser = build_parser()
     args = parser.parse_args(command[1:])       # the companion's own parser accepts the command
-    # MAVLink: out to BlueOS's GCS Server Link, the port of the companion's own default link
+    # MAVLink: a client of BlueOS's Internal Link, on the host's loopback, hence the host's network
     scheme, _, where = args.connect.partition(":")
     host_name, port = where.rsplit(":", 1)
-    assert scheme == "udpout" and (host_name, int(port)) == BLUEOS_GCS_SERVER
-    assert int(parser.get_default("connect").rsplit(":", 1)[1]) == BLUEOS_GCS_SERVER[1]
-    assert f"{host_name}:host-gateway" in host["ExtraHosts"]
+    assert scheme == "tcp" and (host_name, int(port)) == BLUEOS_INTERNAL_LINK
+    assert host["NetworkMode"] == "host"
     # what the command serves is what is exposed: a listening link (udpin/tcpin) and the status page
     served = set()
     if scheme in ("udpin", "udp", "tcpin"):
@@ -154,32 +153,36 @@ def test_blueos_permissions_are_a_container_payload_that_matches_the_command():
         assert any(path == target or path.startswith(target + "/") for target in binds.values()), path
 
 
-def test_the_blueos_command_runs_the_companion_which_speaks_first_to_the_endpoint(tmp_path):
-    """The image's command as it is, with the container's /data and host.docker.internal:14550
-    mapped onto a temporary folder and a loopback port: the companion starts with defaults it
-    creates and its first HEARTBEAT (component 191) reaches BlueOS's end of the link."""
+def test_the_blueos_command_runs_the_companion_which_speaks_to_the_endpoint(tmp_path):
+    """The image's command as it is, with the container's /data and BlueOS's Internal Link mapped
+    onto a temporary folder and a loopback TCP server: the companion starts with the defaults it
+    creates, connects, and its HEARTBEAT (component 191) reaches BlueOS's end of the link."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     data = str(tmp_path / "data")
-    port = free_port()
-    endpoint = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    endpoint.bind(("127.0.0.1", port))
-    endpoint.settimeout(60.0)
-    command = [arg.replace("/data", data).replace(f"host.docker.internal:{BLUEOS_GCS_SERVER[1]}",
-                                                  f"127.0.0.1:{port}") for arg in _command()[1:]]
+    server = socket.create_server(("127.0.0.1", free_port()))
+    server.settimeout(60.0)
+    internal_link = "{}:{}".format(*BLUEOS_INTERNAL_LINK)
+    command = [arg.replace("/data", data).replace(internal_link, "127.0.0.1:{}".format(server.getsockname()[1]))
+               for arg in _command()[1:]]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-m", "companion.app", *command, "--max-wall-s", "120"],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
+        link, _ = server.accept()
+        link.settimeout(60.0)
         decoder = mavlink.MAVLink(None)
         heartbeat = None
         while heartbeat is None:
-            for message in decoder.parse_buffer(endpoint.recv(2048)) or []:
+            chunk = link.recv(2048)
+            assert chunk, "the companion closed the link"
+            for message in decoder.parse_buffer(chunk) or []:
                 if message.get_type() == "HEARTBEAT":
                     heartbeat = message
         assert heartbeat.get_srcComponent() == 191
         assert Path(data, "logs").is_dir()
+        link.close()
     finally:
         proc.terminate()
         proc.wait(timeout=30)
-        endpoint.close()
+        server.close()
