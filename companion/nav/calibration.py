@@ -85,8 +85,8 @@ class CalibrationLimits:
 class CalibrationFit:
     """A hard/soft-iron calibration ``c = soft_iron @ (m - offset_nt)`` and its quality.
 
-    ``field_nt``: the model's total intensity the fit is scaled to; ``residual_nt``: rms of
-    ``|c| - field_nt`` over the samples; ``cell_share``: share of the sphere's cells visited;
+    ``field_nt``: the model's total intensity the fit is scaled to (the mean, if one per
+    sample); ``residual_nt``: rms of ``|c| - |B|`` over the samples; ``cell_share``: share of the sphere's cells visited;
     ``scatter``: eigenvalues of the corrected directions' scatter, ascending; ``samples``: count.
     """
 
@@ -195,18 +195,21 @@ def _unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p[:3], w
 
 
-def fit_calibration(samples_nt: ArrayLike, field_nt: float,
+def fit_calibration(samples_nt: ArrayLike, field_nt: float | ArrayLike,
                     limits: CalibrationLimits = CalibrationLimits()) -> CalibrationFit:
     """The calibration of body-frame samples (n, 3, nT) of a field of total intensity
-    ``field_nt`` (the model's at the known position); :class:`CalibrationRefused` naming the
-    reason when the samples are too few, admit no ellipsoid, cover too few directions or fit
-    it too loosely. Non-finite samples are dropped first."""
+    ``field_nt`` (the model's at the known position: one value, or one per sample for a vehicle
+    that travelled); :class:`CalibrationRefused` naming the reason when the samples are too few,
+    admit no ellipsoid, cover too few directions or fit it too loosely. Samples with a
+    non-finite component are dropped first."""
     from scipy.optimize import least_squares
 
     m = np.asarray(samples_nt, dtype=float).reshape(-1, 3)
-    m = m[np.isfinite(m).all(axis=1)]
-    if not (math.isfinite(field_nt) and field_nt > 0.0):
-        raise ValueError(f"field_nt must be a positive number of nT, got {field_nt!r}")
+    f = np.broadcast_to(np.asarray(field_nt, dtype=float), (len(m),))
+    if not (np.isfinite(f).all() and (f > 0.0).all()):
+        raise ValueError(f"field_nt must be positive numbers of nT, got {field_nt!r}")
+    keep = np.isfinite(m).all(axis=1)
+    m, f = m[keep], f[keep]
     if len(m) < limits.min_samples:
         raise CalibrationRefused(f"{len(m)} finite magnetometer samples; a calibration needs at least "
                                  f"{limits.min_samples}")
@@ -221,12 +224,13 @@ def fit_calibration(samples_nt: ArrayLike, field_nt: float,
             f"the samples lie on no ellipsoid (directions about their mean cover {100 * share:.0f} % of the "
             f"sphere, smallest scatter {scatter[0]:.3f}): turn the vehicle through more attitudes")
     centre, shape = algebraic
-    w0 = _sym_sqrt(shape) * field_nt / spread
+    f_mean = float(f.mean())
+    w0 = _sym_sqrt(shape) * f_mean / spread
     start = np.concatenate([mean + spread * centre, w0[_UPPER]])
 
     def residuals(p: np.ndarray) -> np.ndarray:
         o, w = _unpack(p)
-        return np.linalg.norm((m - o) @ w, axis=1) - field_nt   # w is symmetric: (m - o) @ w = (w (m - o))^T
+        return np.linalg.norm((m - o) @ w, axis=1) - f   # w is symmetric: (m - o) @ w = (w (m - o))^T
 
     solution = least_squares(residuals, start, method="lm", x_scale=np.abs(start) + 1e-3, max_nfev=500)
     offset, w = _unpack(solution.x)
@@ -234,11 +238,11 @@ def fit_calibration(samples_nt: ArrayLike, field_nt: float,
         values, vectors = np.linalg.eigh(w)
         w = (vectors * np.abs(values)) @ vectors.T
     corrected = (m - offset) @ w
-    residual = float(np.sqrt(np.mean((np.linalg.norm(corrected, axis=1) - field_nt) ** 2)))
+    residual = float(np.sqrt(np.mean((np.linalg.norm(corrected, axis=1) - f) ** 2)))
     share, scatter = direction_coverage(corrected)
     fit = CalibrationFit(tuple(float(v) for v in offset),  # type: ignore[arg-type]
                          tuple(tuple(float(v) for v in row) for row in w),  # type: ignore[arg-type]
-                         float(field_nt), residual, share, scatter, len(m))
+                         f_mean, residual, share, scatter, len(m))
     problems = []
     if share < limits.min_cell_share:
         problems.append(f"the directions cover {100 * share:.0f} % of the sphere's {SPHERE_CELLS} cells "
@@ -246,8 +250,8 @@ def fit_calibration(samples_nt: ArrayLike, field_nt: float,
     if scatter[0] < limits.min_scatter:
         problems.append(f"their smallest scatter eigenvalue is {scatter[0]:.3f} (needs {limits.min_scatter:.3f}; "
                         "a turn about one axis only leaves one near 0)")
-    if residual > limits.max_residual * field_nt:
-        problems.append(f"the residual is {residual:.0f} nT rms, {100 * residual / field_nt:.1f} % of |B| "
+    if residual > limits.max_residual * f_mean:
+        problems.append(f"the residual is {residual:.0f} nT rms, {100 * residual / f_mean:.1f} % of |B| "
                         f"(at most {100 * limits.max_residual:.0f} %)")
     if problems:
         raise CalibrationRefused("calibration refused: " + "; ".join(problems) + ": turn the vehicle through "
@@ -264,16 +268,34 @@ def companion_params(fit: CalibrationFit) -> dict[str, float]:
     return out
 
 
-def ardupilot_compass_params(fit: CalibrationFit, compass: int = 1) -> dict[str, float]:
-    """ArduPilot's equivalents: ``corrected = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z],
-    [ODI_Y, ODI_Z, DIA_Z]] (raw + OFS)`` with OFS in milligauss, added (so ``-offset``).
+def ardupilot_compass_params(fit: CalibrationFit, compass: int = 1,
+                             current: dict[str, float] | None = None) -> tuple[dict[str, float], float]:
+    """ArduPilot's equivalents of ``fit`` and the angle (deg) of the rotation they leave out.
 
-    They calibrate the field the fit was made on: when that field was already corrected by the
-    flight controller's own COMPASS_* values (ArduPilot logs and streams the corrected field),
-    compose first (:meth:`MagCalibration.then`)."""
+    ArduPilot corrects ``[[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]]
+    (raw + OFS)``, OFS in milligauss and added (so ``-offset``). ArduPilot logs and streams the
+    field it has already corrected with the ``current`` COMPASS_* values: a fit of that field is
+    composed with them, ``W M (raw + OFS - M^-1 o)``, and ``W M``, not symmetric in general, is
+    replaced by its symmetric polar factor (same magnitudes, directions turned by the returned
+    angle). Without ``current`` the fitted field is taken as the raw one (angle 0).
+    """
     prefix, suffix = "COMPASS_", "" if compass == 1 else str(compass)
-    o, w = fit.offset_nt, fit.soft_iron
-    out = {f"{prefix}OFS{suffix}_{a}": -o[k] / MILLIGAUSS_TO_NT for k, a in enumerate("XYZ")}
-    out.update({f"{prefix}DIA{suffix}_{a}": w[k][k] for k, a in enumerate("XYZ")})
-    out.update({f"{prefix}ODI{suffix}_X": w[0][1], f"{prefix}ODI{suffix}_Y": w[0][2], f"{prefix}ODI{suffix}_Z": w[1][2]})
-    return out
+    o, w = np.array(fit.offset_nt), np.array(fit.soft_iron)
+    old_ofs, old_m = np.zeros(3), np.eye(3)
+    if current:
+        def value(kind: str, axis: str, default: float) -> float:
+            return float(current.get(f"{prefix}{kind}{suffix}_{axis}", default))
+        old_ofs = np.array([value("OFS", a, 0.0) for a in "XYZ"]) * MILLIGAUSS_TO_NT
+        dia = [value("DIA", a, 1.0) or 1.0 for a in "XYZ"]   # ArduPilot reads DIA 0 as 1 (never calibrated)
+        odi = [value("ODI", a, 0.0) for a in "XYZ"]
+        old_m = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+    total = w @ old_m
+    symmetric = _sym_sqrt(total.T @ total)
+    rotation = total @ np.linalg.inv(symmetric)
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1.0) / 2.0))))
+    ofs = (old_ofs - np.linalg.solve(old_m, o)) / MILLIGAUSS_TO_NT
+    out = {f"{prefix}OFS{suffix}_{a}": float(ofs[k]) for k, a in enumerate("XYZ")}
+    out.update({f"{prefix}DIA{suffix}_{a}": float(symmetric[k, k]) for k, a in enumerate("XYZ")})
+    out.update({f"{prefix}ODI{suffix}_X": float(symmetric[0, 1]), f"{prefix}ODI{suffix}_Y": float(symmetric[0, 2]),
+                f"{prefix}ODI{suffix}_Z": float(symmetric[1, 2])})
+    return out, angle

@@ -98,14 +98,15 @@ def test_corrected_field_has_the_models_magnitude(log171_mag) -> None:
                                        tuple(comp[f"MAG_SCALE_{a}"] for a in "XYZ"),
                                        (comp["MAG_SOFT_XY"], comp["MAG_SOFT_XZ"], comp["MAG_SOFT_YZ"]))
     assert np.allclose(again.apply(tuple(mag[0])), cal.apply(tuple(mag[0])))
-    ap = ardupilot_compass_params(fit)
+    ap, angle = ardupilot_compass_params(fit)
+    assert angle == pytest.approx(0.0, abs=1e-6)
     matrix = np.array([[ap["COMPASS_DIA_X"], ap["COMPASS_ODI_X"], ap["COMPASS_ODI_Y"]],
                        [ap["COMPASS_ODI_X"], ap["COMPASS_DIA_Y"], ap["COMPASS_ODI_Z"]],
                        [ap["COMPASS_ODI_Y"], ap["COMPASS_ODI_Z"], ap["COMPASS_DIA_Z"]]])
     ofs_mgauss = np.array([ap[f"COMPASS_OFS_{a}"] for a in "XYZ"])
     ardupilot = matrix @ (mag[0] / MILLIGAUSS_TO_NT + ofs_mgauss) * MILLIGAUSS_TO_NT
     assert np.allclose(ardupilot, cal.apply(tuple(mag[0])))
-    assert set(ardupilot_compass_params(fit, 2)) == {f"COMPASS_{k}2_{a}" for k in ("OFS", "DIA", "ODI")
+    assert set(ardupilot_compass_params(fit, 2)[0]) == {f"COMPASS_{k}2_{a}" for k in ("OFS", "DIA", "ODI")
                                                      for a in "XYZ"}
 
 
@@ -140,3 +141,25 @@ def test_direction_coverage_of_a_uniform_sphere() -> None:
     share, scatter = direction_coverage(u)
     assert share == 1.0
     assert scatter == pytest.approx((1 / 3, 1 / 3, 1 / 3), abs=0.02)
+
+
+def test_ardupilot_equivalents_compose_with_the_parameters_in_force(log171_mag) -> None:
+    """A field already corrected by COMPASS_OFS/DIA/ODI: the new values calibrate the raw one."""
+    _, mag, field_nt = log171_mag
+    current = {"COMPASS_OFS_X": 120.0, "COMPASS_OFS_Y": -40.0, "COMPASS_OFS_Z": 65.0,
+               "COMPASS_DIA_X": 1.02, "COMPASS_DIA_Y": 0.97, "COMPASS_DIA_Z": 1.0,
+               "COMPASS_ODI_X": 0.01, "COMPASS_ODI_Y": -0.02, "COMPASS_ODI_Z": 0.015}
+    old_m = np.array([[1.02, 0.01, -0.02], [0.01, 0.97, 0.015], [-0.02, 0.015, 1.0]])
+    old_ofs = np.array([120.0, -40.0, 65.0])
+    raw_mgauss = np.linalg.solve(old_m, (mag / MILLIGAUSS_TO_NT).T).T - old_ofs   # what the sensor read
+    fit = fit_calibration(mag, field_nt)
+    ap, angle = ardupilot_compass_params(fit, 1, current)
+    assert angle < 1.0
+    matrix = np.array([[ap["COMPASS_DIA_X"], ap["COMPASS_ODI_X"], ap["COMPASS_ODI_Y"]],
+                       [ap["COMPASS_ODI_X"], ap["COMPASS_DIA_Y"], ap["COMPASS_ODI_Z"]],
+                       [ap["COMPASS_ODI_Y"], ap["COMPASS_ODI_Z"], ap["COMPASS_DIA_Z"]]])
+    new = (raw_mgauss + np.array([ap[f"COMPASS_OFS_{a}"] for a in "XYZ"])) @ matrix.T * MILLIGAUSS_TO_NT
+    ours = np.array([fit.calibration.apply(tuple(m)) for m in mag])
+    assert np.allclose(np.linalg.norm(new, axis=1), np.linalg.norm(ours, axis=1), rtol=1e-9)
+    cos = np.sum(new * ours, axis=1) / np.linalg.norm(new, axis=1) / np.linalg.norm(ours, axis=1)
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() <= angle + 1e-6
