@@ -21,7 +21,7 @@ from replay.models import log_date, select_model
 from replay.records import ReplayEvaluation
 from replay.segments import find_flights
 
-__all__ = ["LogEvaluation", "apply_calibration", "evaluate_log", "evaluate"]
+__all__ = ["LogEvaluation", "apply_calibration", "evaluate_boots", "evaluate_log", "evaluate"]
 
 
 @dataclass
@@ -59,14 +59,28 @@ def evaluate_log(
     ``calibrate``: fit the magnetometer's hard and soft iron on each boot's samples against the
     model's |B| at its first fix (:mod:`replay.calibrate`), evaluate with it applied, and keep
     each window's fix error before it (``fcmpc-replay`` does, unless ``--no-calibration``)."""
-    boots = read_boots(path, mag_instance)
+    return evaluate_boots(read_boots(path, mag_instance), model_spec, windows_s, prior_offset_km, crash_guard_s,
+                          date, calibrate)
+
+
+def evaluate_boots(
+    boots: list[LogData],
+    model_spec: str | None = None,
+    windows_s: tuple[float, ...] = DEFAULT_WINDOWS_S,
+    prior_offset_km: float = 10.0,
+    crash_guard_s: float = 10.0,
+    date: str | None = None,
+    calibrate: bool = False,
+) -> LogEvaluation:
+    """:func:`evaluate_log` of boots already read (or changed: a known distortion applied)."""
+    path = boots[0].path if boots else ""
     result = LogEvaluation(str(path), len(boots))
     errors: list[str] = []
     for data in boots:
         name = f"boot {data.boot + 1} of {data.boots}"
         if len(data.gps) < 2 or len(data.mag) < 2 or len(data.att) < 2:
             result.skipped.append(f"{name}: not evaluated ({len(data.gps)} 3D GPS fixes, {len(data.mag)} "
-                                  f"magnetometer {mag_instance} and {len(data.att)} attitude samples; "
+                                  f"magnetometer {data.mag_instance} and {len(data.att)} attitude samples; "
                                   "needs at least two of each)")
             continue
         when = log_date(data, date)
@@ -88,10 +102,10 @@ def evaluate_log(
             try:
                 ev = evaluate_flight(part, flight, model, model_note, when, windows_s, prior_offset_km, crash_guard_s)
                 if fit is not None:
-                    before = {r.window_s: r.fix_median_m for r in ev.fix_rows}
+                    before = ev.fix_rows
                     ev = evaluate_flight(apply_calibration(part, fit.calibration), flight, model, model_note, when,
                                          windows_s, prior_offset_km, crash_guard_s)
-                    ev.fix_median_before_m = before
+                    ev.fix_rows_before = before
             except ValueError as err:  # a flight without magnetometer or attitude samples in its window
                 result.skipped.append(f"{name}, flight {k + 1}: not evaluated: {err}")
                 continue

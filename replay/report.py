@@ -55,8 +55,8 @@ def format_log_report(result: LogEvaluation) -> str:
         lines.append(f"- `{label}/`: {_unit_words(ev) or 'the only flight'}, judged {seg.nav_start_s:.1f}-"
                      f"{seg.end_s:.1f} s; fix median "
                      + (f"{_km(fix.fix_median_m)} km over {fix.window_s:g} s ({_failed(fix)})" if fix else "n/a")
-                     + (f" (before the calibration {_km(ev.fix_median_before_m[fix.window_s])} km)"
-                        if fix and fix.window_s in ev.fix_median_before_m else "")
+                     + "".join(f" (before the calibration {_km(b.fix_median_m)} km, {_failed(b)})"
+                               for b in ev.fix_rows_before if fix and b.window_s == fix.window_s)
                      + "".join(f"; warning: {w.split(':')[0]}" for w in ev.warnings))
     for note in result.skipped:
         lines.append(f"- not evaluated: {note}")
@@ -91,7 +91,7 @@ def format_report(ev: ReplayEvaluation) -> str:
     add(f"- Samples: {counts}" + (f"; flagged: {ev.flagged}" if ev.flagged else "") + "."
         + (f" ({ev.source_note})" if ev.source_note else ""))
     add(f"- Magnetometer: instance {ev.mag_instance} (body field as logged, i.e. after the flight controller's "
-        "offsets and soft-iron correction" + ("; then the calibration of section 0" if ev.fix_median_before_m else "")
+        "offsets and soft-iron correction" + ("; then the calibration of section 0" if ev.fix_rows_before else "")
         + f"); {ev.spikes_rejected} samples rejected by the "
         f"{SPIKE_NT:.0f} nT spike filter.")
     add("- Segments, chosen from the data: " + "; ".join(seg.rules) + ".")
@@ -108,12 +108,14 @@ def _calibration_section(ev: ReplayEvaluation) -> list[str]:
         return []
     lines = ["## 0. Magnetometer calibration (fcmpc-calibrate's fit; --no-calibration replays the log as recorded)",
              "", *(f"    {line}" for line in ev.calibration.splitlines()), ""]
-    if ev.fix_median_before_m:
+    if ev.fix_rows_before:
         lines += ["| Window (s) | Fix error median before (km) | after (km) | before / after |", "|---|---|---|---|"]
         for r in ev.fix_rows:
-            before = ev.fix_median_before_m.get(r.window_s, math.nan)
+            b = next((x for x in ev.fix_rows_before if x.window_s == r.window_s), None)
+            before = b.fix_median_m if b else math.nan
             ratio = before / r.fix_median_m if r.fix_median_m > 0 else math.nan
-            lines.append(f"| {r.window_s:g} | {_km(before)} | {_km(r.fix_median_m)} | {_f(ratio, 1)} |")
+            lines.append(f"| {r.window_s:g} | {_km(before)} ({_failed(b)}) | {_km(r.fix_median_m)} ({_failed(r)}) "
+                         f"| {_f(ratio, 1)} |")
         lines.append("")
     return lines
 
