@@ -16,7 +16,10 @@ two ``.parm`` files a ground station loads:
   corrected: the log's own COMPASS_* values (DataFlash ``PARM``, tlog ``PARAM_VALUE``) are
   composed in; a log without them is taken as raw.
 
-A boot whose samples cover too few directions is refused with the reason (exit 2).
+A boot whose samples cover too few directions for the full fit but whose heading went round a
+full circle (a boat, a car) gets the level fit (:func:`~companion.nav.calibration.fit_level_calibration`,
+with the log's roll and pitch and the model's horizontal and vertical components); one with
+neither is refused with the reasons (exit 2).
 """
 from __future__ import annotations
 
@@ -34,7 +37,9 @@ from companion.nav.calibration import (
     CalibrationRefused,
     ardupilot_compass_params,
     companion_params,
+    down_in_body,
     fit_calibration,
+    fit_level_calibration,
 )
 from companion.params import format_value, write_parm_file
 from replay.logdata import CSV, ULOG, LogData
@@ -62,13 +67,25 @@ def calibrate_boot(data: LogData, model_spec: str | None = None, date: str | Non
     when = log_date(data, date)
     model, model_note = select_model(model_spec, when)
     lat, lon, alt = (float(v) for v in data.gps[0, 1:4])
-    field_nt = float(model.elements(lat, lon, alt, when.decimal_year).f_nt)
+    field = model.elements(lat, lon, alt, when.decimal_year)
+    field_nt = float(field.f_nt)
     note = (f"|B| = {field_nt:.0f} nT from {model_note} at the first 3D fix "
             f"({lat:.5f}, {lon:.5f}, {alt:.0f} m)")
     try:
         return BootCalibration(data.boot, fit_calibration(data.mag[:, 1:4], field_nt), "", note)
     except CalibrationRefused as err:
-        return BootCalibration(data.boot, None, str(err), note)
+        full = str(err)
+    if len(data.att) < 2:
+        return BootCalibration(data.boot, None, full, note)
+    # turns about the vertical only (a boat, a car): the level fit with the attitude's roll and pitch
+    t = data.mag[:, 0]
+    down = down_in_body(np.interp(t, data.att[:, 0], data.att[:, 1]), np.interp(t, data.att[:, 0], data.att[:, 2]))
+    try:
+        fit = fit_level_calibration(data.mag[:, 1:4], down, float(field.h_nt), float(field.z_nt))
+    except CalibrationRefused as err:
+        return BootCalibration(data.boot, None, f"{full.splitlines()[0]}; {str(err).splitlines()[0]}", note)
+    return BootCalibration(data.boot, fit, "", note + f" (H {float(field.h_nt):.0f} nT, Z {float(field.z_nt):.0f} nT; "
+                           f"the full fit was refused: {full.splitlines()[0].removeprefix('calibration refused: ')})")
 
 
 def fc_compass_values(path: str | os.PathLike[str], compass: int = 1) -> dict[str, float]:

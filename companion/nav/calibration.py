@@ -23,6 +23,12 @@ the hard-iron offset (nT, subtracted) and ``W`` a symmetric soft-iron matrix cho
    dimensions: too little coverage is refused with :class:`CalibrationRefused`, which says what
    was measured against what is needed.
 
+A vehicle that only turns about its vertical axis (a boat's or a car's circles) gives a ring of
+directions: the full fit is refused, and :func:`fit_level_calibration` fits what a ring can
+tell, with the attitude's roll and pitch and the model's horizontal and vertical components:
+the hard iron (3), the horizontal soft iron (x-x, x-y, y-y) and a vertical scale taken as the
+mean of the horizontal ones (it cannot be told from the vertical hard iron on a ring).
+
 No library fit is used: the PyPI packages for magnetometer calibration (magcal, magyc,
 circuitpython-mag-cal) are single-author tools without a maintained release line; the fit is
 twenty lines of numpy and scipy.
@@ -52,6 +58,8 @@ __all__ = [
     "CalibrationFit",
     "CalibrationRefused",
     "fit_calibration",
+    "fit_level_calibration",
+    "down_in_body",
     "direction_coverage",
     "ardupilot_compass_params",
     "companion_params",
@@ -97,6 +105,7 @@ class CalibrationFit:
     cell_share: float
     scatter: Vector3
     samples: int
+    level: bool = False   # fitted by fit_level_calibration: cell_share is then the share of heading sectors
 
     @property
     def calibration(self) -> MagCalibration:
@@ -110,8 +119,10 @@ class CalibrationFit:
             "soft iron: " + "; ".join(" ".join(f"{v:+.4f}" for v in row) for row in w),
             f"scaled to the model's |B| = {self.field_nt:.0f} nT; residual {self.residual_nt:.0f} nT rms "
             f"({100.0 * self.residual_nt / self.field_nt:.2f} %) over {self.samples} samples",
-            f"coverage: {100.0 * self.cell_share:.0f} % of {SPHERE_CELLS} sphere cells, direction scatter "
-            f"eigenvalues {', '.join(f'{v:.3f}' for v in self.scatter)} (uniform sphere 0.333)",
+            (f"level fit (turns about the vertical): {100.0 * self.cell_share:.0f} % of {_SECTORS} heading sectors; "
+             "vertical soft iron taken as the horizontal mean" if self.level else
+             f"coverage: {100.0 * self.cell_share:.0f} % of {SPHERE_CELLS} sphere cells")
+            + f", direction scatter eigenvalues {', '.join(f'{v:.3f}' for v in self.scatter)} (uniform sphere 0.333)",
         ])
 
     def status_text(self) -> str:
@@ -256,6 +267,83 @@ def fit_calibration(samples_nt: ArrayLike, field_nt: float | ArrayLike,
     if problems:
         raise CalibrationRefused("calibration refused: " + "; ".join(problems) + ": turn the vehicle through "
                                  "more attitudes (pitch and roll as well as yaw)\n" + fit.describe())
+    return fit
+
+
+def down_in_body(roll_rad: ArrayLike, pitch_rad: ArrayLike) -> np.ndarray:
+    """Unit vectors (n, 3) of NED's down in the body frame (ZYX Euler, :mod:`companion.frames`):
+    the last row of the body-to-NED matrix, which yaw does not change."""
+    roll, pitch = np.asarray(roll_rad, dtype=float), np.asarray(pitch_rad, dtype=float)
+    return np.column_stack([-np.sin(pitch), np.sin(roll) * np.cos(pitch), np.cos(roll) * np.cos(pitch)])
+
+
+def fit_level_calibration(samples_nt: ArrayLike, down_body: ArrayLike, horizontal_nt: float, vertical_nt: float,
+                          limits: CalibrationLimits = CalibrationLimits()) -> CalibrationFit:
+    """The calibration of a vehicle that turned about its vertical axis (samples (n, 3) nT with
+    ``down_body`` (n, 3) from :func:`down_in_body`): the corrected field's horizontal magnitude
+    is made the model's ``horizontal_nt`` and its down component ``vertical_nt``.
+
+    ``cell_share`` is then the share of 12 sectors of heading the horizontal field visited
+    (refused below 3/4: turn a full circle) and ``scatter`` the direction scatter as for
+    :func:`fit_calibration` (reported, not judged)."""
+    from scipy.optimize import least_squares
+
+    m = np.asarray(samples_nt, dtype=float).reshape(-1, 3)
+    d = np.asarray(down_body, dtype=float).reshape(-1, 3)
+    if len(d) != len(m):
+        raise ValueError(f"down_body has {len(d)} rows for {len(m)} samples")
+    if not (math.isfinite(horizontal_nt) and horizontal_nt > 0.0 and math.isfinite(vertical_nt)):
+        raise ValueError(f"horizontal_nt {horizontal_nt!r} and vertical_nt {vertical_nt!r} must be finite, "
+                         "the first positive")
+    keep = np.isfinite(m).all(axis=1) & np.isfinite(d).all(axis=1)
+    m, d = m[keep], d[keep]
+    if len(m) < limits.min_samples:
+        raise CalibrationRefused(f"{len(m)} finite magnetometer samples with attitude; a calibration needs at "
+                                 f"least {limits.min_samples}")
+    field = math.hypot(horizontal_nt, vertical_nt)
+
+    def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = np.array([[p[3], p[4], 0.0], [p[4], p[5], 0.0], [0.0, 0.0, 0.5 * (p[3] + p[5])]])
+        return p[:3], w
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        o, w = unpack(p)
+        c = (m - o) @ w
+        down = np.sum(c * d, axis=1)
+        across = np.sqrt(np.maximum(np.sum(c * c, axis=1) - down * down, 0.0))
+        return np.concatenate([across - horizontal_nt, down - vertical_nt])
+
+    centre = m.mean(axis=0)
+    level = m - centre - np.sum((m - centre) * d, axis=1)[:, None] * d
+    radius = float(np.sqrt(np.mean(np.sum(level * level, axis=1))))
+    if not radius > 0.0:
+        raise CalibrationRefused("the magnetometer samples do not vary: the vehicle did not turn")
+    scale = horizontal_nt / radius
+    start = np.array([centre[0], centre[1], float(np.mean(m[:, 2])) - vertical_nt / scale, scale, 0.0, scale])
+    solution = least_squares(residuals, start, method="lm", x_scale=np.abs(start) + 1e-3, max_nfev=500)
+    offset, w = unpack(solution.x)
+    corrected = (m - offset) @ w
+    residual = float(np.sqrt(np.mean(residuals(solution.x) ** 2)))
+    down = np.sum(corrected * d, axis=1)
+    horizontal = corrected - down[:, None] * d
+    # heading sectors of the horizontal field, in a frame levelled by the attitude (body x projected)
+    ref_x = np.array([1.0, 0.0, 0.0]) - d[:, 0:1] * d
+    ref_y = np.cross(d, ref_x)
+    angle = np.arctan2(np.sum(horizontal * ref_y, axis=1), np.sum(horizontal * ref_x, axis=1))
+    sectors = len(np.unique(np.minimum(((angle + math.pi) / (2 * math.pi) * _SECTORS).astype(int), _SECTORS - 1)))
+    share = sectors / _SECTORS
+    _, scatter = direction_coverage(corrected)
+    fit = CalibrationFit(tuple(float(v) for v in offset),  # type: ignore[arg-type]
+                         tuple(tuple(float(v) for v in row) for row in w),  # type: ignore[arg-type]
+                         field, residual, share, scatter, len(m), level=True)
+    problems = []
+    if share < 0.75:
+        problems.append(f"the heading of the field visited {sectors} of {_SECTORS} sectors (needs 9: a full circle)")
+    if residual > limits.max_residual * field:
+        problems.append(f"the residual is {residual:.0f} nT rms, {100 * residual / field:.1f} % of |B| "
+                        f"(at most {100 * limits.max_residual:.0f} %)")
+    if problems:
+        raise CalibrationRefused("level calibration refused: " + "; ".join(problems) + "\n" + fit.describe())
     return fit
 
 

@@ -19,8 +19,11 @@ from companion.nav.calibration import (
     ardupilot_compass_params,
     companion_params,
     direction_coverage,
+    down_in_body,
     fit_calibration,
+    fit_level_calibration,
 )
+from companion.frames import ned_to_body
 from companion.nav.field import WorldMagneticModel
 from companion.nav.magnetometer import MILLIGAUSS_TO_NT, MagCalibration
 
@@ -31,14 +34,33 @@ LOG171_YEAR = 2015.89
 @pytest.fixture(scope="module")
 def log171_mag(log171: Path) -> tuple[np.ndarray, np.ndarray, float]:
     """(time s, MAG field nT (n, 3), the model's |B| nT at the log's first 3D fix), read with pymavlink."""
+    t, mag, field, _ = _read_log171(log171)
+    return t, mag, float(np.linalg.norm(field))
+
+
+@pytest.fixture(scope="module")
+def log171_attitude(log171: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ATT rows: time s, roll, pitch, yaw rad; the model's field NED nT at the first fix)."""
+    _, _, field, att = _read_log171(log171)
+    return att, field
+
+
+_CACHE: dict[str, tuple] = {}
+
+
+def _read_log171(log171: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    if "log171" in _CACHE:
+        return _CACHE["log171"]
     from pymavlink import mavutil
 
     conn = mavutil.mavlink_connection(str(log171))
-    rows, fix = [], None
+    rows, att, fix = [], [], None
     try:
-        while (msg := conn.recv_match(type=["MAG", "GPS"])) is not None:
+        while (msg := conn.recv_match(type=["MAG", "GPS", "ATT"])) is not None:
             if msg.get_type() == "MAG":   # Copter 3.3: TimeMS since boot, mG
                 rows.append((msg.TimeMS * 1e-3, msg.MagX, msg.MagY, msg.MagZ))
+            elif msg.get_type() == "ATT":
+                att.append((msg.TimeMS * 1e-3, *np.radians((msg.Roll, msg.Pitch, msg.Yaw))))
             elif fix is None and msg.Status >= 3:
                 fix = (msg.Lat, msg.Lng, msg.Alt)
     finally:
@@ -48,8 +70,9 @@ def log171_mag(log171: Path) -> tuple[np.ndarray, np.ndarray, float]:
     import pygeomag
 
     wmm2015 = WorldMagneticModel.from_cof(Path(pygeomag.__file__).resolve().parent / "wmm" / "WMM_2015.COF")
-    field_nt = float(wmm2015.elements(fix[0], fix[1], fix[2], LOG171_YEAR).f_nt)
-    return a[:, 0], a[:, 1:] * MILLIGAUSS_TO_NT, field_nt
+    field = np.array(wmm2015.ned(fix[0], fix[1], fix[2], LOG171_YEAR), dtype=float)
+    _CACHE["log171"] = (a[:, 0], a[:, 1:] * MILLIGAUSS_TO_NT, field, np.array(att))
+    return _CACHE["log171"]
 
 
 def test_model_field_at_log171(log171_mag) -> None:
@@ -163,3 +186,39 @@ def test_ardupilot_equivalents_compose_with_the_parameters_in_force(log171_mag) 
     assert np.allclose(np.linalg.norm(new, axis=1), np.linalg.norm(ours, axis=1), rtol=1e-9)
     cos = np.sum(new * ours, axis=1) / np.linalg.norm(new, axis=1) / np.linalg.norm(ours, axis=1)
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() <= angle + 1e-6
+
+
+LEVEL_W = np.array([[1.1, 0.05, 0.0], [0.05, 0.92, 0.0], [0.0, 0.0, 1.01]])   # W33 = mean of W11, W22
+LEVEL_O = np.array([12000.0, -7000.0, 4000.0])
+
+
+def test_a_level_ring_is_fitted_by_the_level_calibration() -> None:
+    """A boat's two slow circles: refused by the full fit, recovered exactly by the level one."""
+    field = np.array([20000.0, 2000.0, 45000.0])
+    yaw = np.linspace(0.0, 4.0 * np.pi, 400)
+    body = np.array([ned_to_body(tuple(field), 0.0, 0.0, y) for y in yaw])
+    raw = np.linalg.solve(LEVEL_W, body.T).T + LEVEL_O
+    with pytest.raises(CalibrationRefused, match="scatter"):
+        fit_calibration(raw, float(np.linalg.norm(field)))
+    fit = fit_level_calibration(raw, down_in_body(np.zeros(400), np.zeros(400)), float(np.hypot(*field[:2])),
+                                field[2])
+    assert fit.level and fit.cell_share == 1.0
+    assert np.allclose(fit.offset_nt, LEVEL_O, atol=0.5) and np.allclose(fit.soft_iron, LEVEL_W, atol=1e-6)
+    half = slice(0, 100)   # half a circle: refused
+    with pytest.raises(CalibrationRefused, match="sectors"):
+        fit_level_calibration(raw[half], down_in_body(np.zeros(100), np.zeros(100)), float(np.hypot(*field[:2])),
+                              field[2])
+
+
+def test_level_calibration_with_log171s_attitudes(log171_attitude) -> None:
+    """The field seen through log171's airborne attitudes (86-229 s: 419 deg of yaw, tilts up to
+    40 deg), distorted, with 300 nT of noise (seeded): hard iron within 150 nT, soft iron 0.5 %."""
+    att, field = log171_attitude
+    air = att[(att[:, 0] > 86.0) & (att[:, 0] < 229.0)]
+    body = np.array([ned_to_body(tuple(field), r, p, y) for _, r, p, y in air])
+    rng = np.random.default_rng(7)
+    raw = np.linalg.solve(LEVEL_W, body.T).T + LEVEL_O + rng.normal(0.0, 300.0, body.shape)
+    fit = fit_level_calibration(raw, down_in_body(air[:, 1], air[:, 2]), float(np.hypot(*field[:2])), field[2])
+    assert np.abs(np.array(fit.offset_nt) - LEVEL_O).max() < 150.0
+    assert np.abs(np.array(fit.soft_iron) - LEVEL_W).max() < 0.005
+    assert fit.residual_nt == pytest.approx(300.0, rel=0.1)
