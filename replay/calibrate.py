@@ -147,8 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.log}: boot {data.boot + 1} of {data.boots}, magnetometer {args.mag_instance}, "
           f"{len(data.mag)} samples")
     print(result.field_note)
-    if result.fit is None:
-        print(f"fcmpc-calibrate: {result.refused}", file=sys.stderr)
+    if result.fit is None:   # the reason on one line; the refused fit's figures, if any, on stdout
+        reason, *figures = result.refused.splitlines()
+        print("\n".join(figures)) if figures else None
+        print(f"fcmpc-calibrate: {reason}", file=sys.stderr)
         return 2
     fit = result.fit
     print(fit.describe())
