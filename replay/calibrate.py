@@ -149,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     print(result.field_note)
     if result.fit is None:   # the reason on one line; the refused fit's figures, if any, on stdout
         reason, *figures = result.refused.splitlines()
-        print("\n".join(figures)) if figures else None
+        if figures:
+            print("\n".join(figures))
         print(f"fcmpc-calibrate: {reason}", file=sys.stderr)
         return 2
     fit = result.fit
@@ -159,8 +160,12 @@ def main(argv: list[str] | None = None) -> int:
     quality = (f"residual {fit.residual_nt:.0f} nT rms over {fit.samples} samples, "
                f"{100 * fit.cell_share:.0f} % of the sphere's cells")
     companion_path = out / "companion-mag.parm"
-    write_parm_file(companion_path, companion_params(fit), header=f"{source}\n{quality}\n"
-                    "the companion's magnetometer calibration: corrected = soft iron (raw - MAG_OFS)")
+    try:   # a fit beyond the registry's ranges (MAG_SCALE_* 0.2-5, MAG_OFS_* +-3000 mG) is not written
+        write_parm_file(companion_path, companion_params(fit), header=f"{source}\n{quality}\n"
+                        "the companion's magnetometer calibration: corrected = soft iron (raw - MAG_OFS)")
+    except ValueError as err:
+        print(f"fcmpc-calibrate: the fit is outside the companion's parameter ranges: {err}", file=sys.stderr)
+        return 2
     ap, angle = ardupilot_compass_params(fit, args.mag_instance + 1, current)
     composed = (f"composed with the log's {len(current)} COMPASS_* values in force" if current else
                 "the logged field taken as raw (the log holds no COMPASS_* values)")
