@@ -82,3 +82,14 @@ def test_old_generation_position_comes_from_the_local_position_reference(tmp_pat
     (ev,) = evaluate_log(path, model_spec="WMM2015", windows_s=(10.0,), date="2018-06-01").evaluations
     air = ev.di_row("airborne")
     assert abs(air.decl_bias_deg) < 0.5 and abs(air.incl_bias_deg) < 0.5
+
+
+def test_fcmpc_replay_calibrates_by_default(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from replay.cli import main as replay_main
+
+    assert replay_main([str(CURRENT), "--no-plots", "--window-s", "1", "--out", str(tmp_path / "a")]) == 0
+    report = capsys.readouterr().out
+    assert "## 0. Magnetometer calibration" in report and "not applied" in report
+    assert replay_main([str(CURRENT), "--no-plots", "--window-s", "1", "--no-calibration",
+                        "--out", str(tmp_path / "b")]) == 0
+    assert "## 0. Magnetometer calibration" not in capsys.readouterr().out
