@@ -2,16 +2,16 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from tests.scripts.test_replay import REPO
+from tests.scripts.test_replay import _run as _run_module
+
 CURRENT_ULOG = REPO / "tests" / "data" / "ulog" / "px4-2021-sensor-mag.ulg"
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "scripts.calibrate", *args], cwd=REPO, capture_output=True,
-                          text=True, timeout=120)
+    return _run_module(*args, module="scripts.calibrate")
 
 
 def test_a_user_error_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
