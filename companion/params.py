@@ -329,6 +329,7 @@ class CompanionConfig(_FromRegistry):
     diverge_m: float = _from("COMP_DIVERGE_KM", 1e3)
     mag_offset_mgauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    mag_soft_xy_xz_yz: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
     def from_values(cls, values: Mapping[str, float]) -> "CompanionConfig":
@@ -344,6 +345,7 @@ class CompanionConfig(_FromRegistry):
             heartbeat_timeout_s=min(base.heartbeat_timeout_s, ceiling),
             mag_offset_mgauss=tuple(float(merged[f"MAG_OFS_{a}"]) for a in "XYZ"),
             mag_scale=tuple(float(merged[f"MAG_SCALE_{a}"]) for a in "XYZ"),
+            mag_soft_xy_xz_yz=tuple(float(merged[f"MAG_SOFT_{a}"]) for a in ("XY", "XZ", "YZ")),
         )
 
 

@@ -87,7 +87,8 @@ class CompanionApp:
         self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
-        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
+                                                       self.comp_cfg.mag_soft_xy_xz_yz),
                                 self.comp_cfg.spike_nt, track_yaw_offset=self.comp_cfg.trim_max_deg > 0.0)
         self.health = Health(self._limits())
         self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish, self.comp_cfg.feed_blend_mps)
@@ -190,7 +191,8 @@ class CompanionApp:
         self.params_dirty = False
         values = self.params.values
         self.comp_cfg = CompanionConfig.from_values(values)
-        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
+                                                       self.comp_cfg.mag_soft_xy_xz_yz),
                            self.comp_cfg.spike_nt)
         self.mag.track_yaw_offset = self.comp_cfg.trim_max_deg > 0.0
         self.health.limits = self._limits()
