@@ -3,7 +3,7 @@ one station a file, 1-minute changes from a quiet baseline in geomagnetic (dipol
 
 Layout: ``#`` header lines, a column-name line (``Year Month Day Hour Min Sec GeomagLat GeomagLon
 B_NorthGeomag B_EastGeomag B_DownGeomag``), a units line (``[year] ...``), then one line a minute.
-Values above 9000 nT are fill (NaN). The files give the station only in geomagnetic coordinates:
+Fill values (the files write ``NaN``; the data README also names values above 9000 nT) are NaN. The files give the station only in geomagnetic coordinates:
 its geographic position is the inverse dipole transform of the epoch (:mod:`sitl.storms.dipole`),
 and the horizontal change is rotated from dipole to geographic axes by the dipole declination
 there. Checked against the observatories' published positions (FRD, OTT, FUR, WNG, FRN, NEW) to
