@@ -1,4 +1,4 @@
-"""The centred dipole of IGRF at an epoch: its north pole, geomagnetic (dipole) coordinates, and
+"""The centred dipole of the main field at an epoch: its north pole, geomagnetic (dipole) coordinates, and
 the rotation of a field change from dipole axes (north towards the dipole's north pole) to
 geographic axes.
 
@@ -18,13 +18,13 @@ e_m cos delta, d)`` in geographic north, east, down (the vertical is the same). 
 sphere (geocentric latitude): the ellipsoid moves a station's latitude by up to 0.2 degrees,
 below the 0.1-degree precision of the geomagnetic coordinates the GEM files carry.
 
->>> lat, lon = dipole_pole_deg(2003.83)
->>> round(lat, 1), round(lon, 1)
-(79.7, -71.7)
+The pole of an event's epoch is a column of the storm table (``dipole_pole``; the storm modules
+read no field model): for the Halloween storm IGRF-14's at 2003.83, which a test recomputes from
+the IGRF-14 coefficients.
 """
 from __future__ import annotations
 
-from functools import lru_cache
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -34,21 +34,14 @@ from sitl.storms.common import FloatArray
 __all__ = ["dipole_declination_deg", "dipole_pole_deg", "geographic_from_geomagnetic", "rotate_dipole_to_geographic"]
 
 
-@lru_cache(maxsize=16)
-def dipole_pole_deg(year: float) -> tuple[float, float]:
-    """(latitude, longitude) in degrees of IGRF-14's north dipole pole at decimal ``year``."""
-    from sitl.world.igrf import read_shc
+def dipole_pole_deg(g10: float, g11: float, h11: float) -> tuple[float, float]:
+    """(latitude, longitude) in degrees of the north dipole pole of degree-1 Gauss coefficients (nT).
 
-    years, nm, table = read_shc()
-    index = int(np.searchsorted(years, year, side="right")) - 1
-    if not 0 <= index < years.size - 1:
-        raise ValueError(f"IGRF-14 covers {years[0]:.0f}-{years[-1]:.0f}, not {year}")
-    frac = (year - years[index]) / (years[index + 1] - years[index])
-    coefficient = {(int(n), int(m)): (1.0 - frac) * table[k, index] + frac * table[k, index + 1]
-                   for k, (n, m) in enumerate(nm) if n == 1}
-    g10, g11, h11 = coefficient[(1, 0)], coefficient[(1, 1)], coefficient[(1, -1)]
-    b0 = float(np.sqrt(g10 ** 2 + g11 ** 2 + h11 ** 2))
-    return 90.0 - float(np.degrees(np.arccos(-g10 / b0))), float(np.degrees(np.arctan2(-h11, -g11)))
+    >>> [round(v, 2) for v in dipole_pole_deg(-29404.8, -1450.9, 4652.5)]   # IGRF 2020.0
+    [80.59, -72.68]
+    """
+    b0 = math.sqrt(g10 ** 2 + g11 ** 2 + h11 ** 2)
+    return 90.0 - math.degrees(math.acos(-g10 / b0)), math.degrees(math.atan2(-h11, -g11))
 
 
 def _pole_rotation(pole_deg: tuple[float, float]) -> np.ndarray:
@@ -66,15 +59,17 @@ def _unit(lat_deg: ArrayLike, lon_deg: ArrayLike) -> np.ndarray:
     return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
 
 
-def geographic_from_geomagnetic(mlat_deg: ArrayLike, mlon_deg: ArrayLike, year: float) -> tuple[FloatArray, FloatArray]:
-    """Geographic (latitude, longitude in -180..180) of geomagnetic (dipole) coordinates at ``year``."""
-    v = _unit(mlat_deg, mlon_deg) @ _pole_rotation(dipole_pole_deg(year))
+def geographic_from_geomagnetic(mlat_deg: ArrayLike, mlon_deg: ArrayLike,
+                                pole_deg: tuple[float, float]) -> tuple[FloatArray, FloatArray]:
+    """Geographic (latitude, longitude in -180..180) of geomagnetic (dipole) coordinates about the
+    north dipole pole ``pole_deg`` (lat, lon)."""
+    v = _unit(mlat_deg, mlon_deg) @ _pole_rotation(pole_deg)
     return np.degrees(np.arcsin(np.clip(v[..., 2], -1.0, 1.0))), np.degrees(np.arctan2(v[..., 1], v[..., 0]))
 
 
-def dipole_declination_deg(lat_deg: ArrayLike, lon_deg: ArrayLike, year: float) -> FloatArray:
-    """Azimuth (degrees east of geographic north) of the dipole's north pole seen from each point."""
-    plat, plon = np.radians(dipole_pole_deg(year))
+def dipole_declination_deg(lat_deg: ArrayLike, lon_deg: ArrayLike, pole_deg: tuple[float, float]) -> FloatArray:
+    """Azimuth (degrees east of geographic north) of the dipole's north pole ``pole_deg`` seen from each point."""
+    plat, plon = np.radians(pole_deg)
     lat, lon = np.radians(lat_deg), np.radians(lon_deg)
     dlon = plon - lon
     return np.degrees(np.arctan2(np.sin(dlon) * np.cos(plat),

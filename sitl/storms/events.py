@@ -11,7 +11,8 @@ interpolates (inverse-distance weighting, see :mod:`sitl.storms`):
     ``<code>*.txt``; the median over ``baseline_utc`` is removed (:func:`~sitl.storms.deviation.quiet_baseline`).
 ``gem2008``
     changes in dipole axes, ``<code>.txt``: rotated to geographic axes at the station's geographic
-    position (:mod:`sitl.storms.gem2008`, :mod:`sitl.storms.dipole`, the IGRF-14 dipole of the event's epoch).
+    position (:mod:`sitl.storms.gem2008`, :mod:`sitl.storms.dipole`) about the row's ``dipole_pole``
+    (IGRF-14's at the event's epoch; a test recomputes it).
 ``supermag``
     one file, changes in geographic axes (the last three columns); positions from ``coords``.
 
@@ -68,12 +69,15 @@ class StormEvent:
     acknowledgement: str = ""
     baseline_utc: tuple[str, str] | None = None
     coords: dict[str, tuple[float, float]] = field(default_factory=dict)
+    dipole_pole: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.reader not in READERS:
             raise ValueError(f"storm {self.name!r}: reader {self.reader!r} not one of {', '.join(READERS)}")
         if self.reader == "iaga2002" and self.baseline_utc is None:
             raise ValueError(f"storm {self.name!r}: reader iaga2002 needs baseline_utc (a quiet window)")
+        if self.reader == "gem2008" and self.dipole_pole is None:
+            raise ValueError(f"storm {self.name!r}: reader gem2008 needs dipole_pole (the epoch's [lat, lon])")
         for key, value in (("kp", self.kp), ("ring", self.ring)):
             kind = value.partition(":")[0]
             if kind not in INDEX_FORMATS:
@@ -127,7 +131,8 @@ def _iaga(event: StormEvent, folder: Path, stations: tuple[str, ...]) -> list[St
 
 def _gem(event: StormEvent, folder: Path, stations: tuple[str, ...]) -> list[StationDeviation]:
     from sitl.storms.gem2008 import gem_deviation, read_gem2008
-    return [gem_deviation(read_gem2008(folder / f"{code}.txt"), event.year) for code in stations]
+    assert event.dipole_pole is not None   # checked at construction
+    return [gem_deviation(read_gem2008(folder / f"{code}.txt"), event.dipole_pole) for code in stations]
 
 
 def _supermag(event: StormEvent, path: Path, stations: tuple[str, ...]) -> list[StationDeviation]:
@@ -186,6 +191,7 @@ def _table(path: Path) -> tuple[StormEvent, ...]:
                 **{**row, "stations": tuple(row["stations"]), "main_phase_utc": tuple(row["main_phase_utc"]),
                    "route": (tuple(row["route"][0]), tuple(row["route"][1])),
                    "baseline_utc": tuple(row["baseline_utc"]) if "baseline_utc" in row else None,
+                   "dipole_pole": tuple(row["dipole_pole"]) if "dipole_pole" in row else None,
                    "coords": {k.upper(): tuple(v) for k, v in row.get("coords", {}).items()}}))
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise ValueError(f"{path}: event #{index} ({row.get('name', '?')}): {err}") from None

@@ -79,10 +79,10 @@ def read_gem2008(path: str | os.PathLike[str]) -> GemRecord:
                      change[:, 0], change[:, 1], change[:, 2], path)
 
 
-def gem_deviation(record: GemRecord, year: float) -> StationDeviation:
-    """The record in geographic axes at its geographic position (dipole of decimal ``year``). The
-    files carry changes only, so the baseline (``x0_nt`` ...) is NaN."""
-    lat, lon = geographic_from_geomagnetic(record.mlat_deg, record.mlon_deg, year)
-    dn, de = rotate_dipole_to_geographic(record.n_m, record.e_m, dipole_declination_deg(lat, lon, year))
+def gem_deviation(record: GemRecord, pole_deg: tuple[float, float]) -> StationDeviation:
+    """The record in geographic axes at its geographic position, about the north dipole pole
+    ``pole_deg`` (lat, lon) of the epoch. The files carry changes only: the baseline (``x0_nt`` ...) is NaN."""
+    lat, lon = geographic_from_geomagnetic(record.mlat_deg, record.mlon_deg, pole_deg)
+    dn, de = rotate_dipole_to_geographic(record.n_m, record.e_m, dipole_declination_deg(lat, lon, pole_deg))
     return StationDeviation(code=record.code, lat_deg=float(lat), lon_deg=float(lon), time_s=record.time_s,
                             dx_nt=dn, dy_nt=de, dz_nt=record.d, x0_nt=np.nan, y0_nt=np.nan, z0_nt=np.nan)

@@ -32,15 +32,22 @@ def _great_circle_deg(lat1, lon1, lat2, lon2) -> float:
 
 # ------------------------------------------------------------------ dipole and Halloween 2003 (GEM)
 
-def test_dipole_pole_of_2003_is_igrfs():
-    """IGRF's north dipole pole in late 2003: 79.7 N, 71.7 W (IGRF-10 tables: 79.7 N 71.6 W in 2003.5
-    to 79.8 N 71.8 W in 2005), and a point on it sees itself at declination whatever: the rotation
-    of a change pointing at the pole is the pole's azimuth."""
-    lat, lon = dipole_pole_deg(2003.83)
+def test_halloween_rows_dipole_pole_is_igrf14s_of_its_epoch():
+    """The table's dipole pole for the Halloween storm is IGRF-14's at the storm (2003.83, linear
+    between 2000 and 2005), recomputed here from the coefficients (79.7 N, 71.7 W; IGRF-10 printed
+    79.8 N 71.8 W for 2005); from the equator on the pole's meridian the pole is due north, 90 deg
+    east of it at the azimuth the spherical triangle gives."""
+    from sitl.world.igrf import read_shc
+    years, nm, table = read_shc()
+    k = int(np.searchsorted(years, 2003.83)) - 1
+    frac = (2003.83 - years[k]) / (years[k + 1] - years[k])
+    g = {(int(n), int(m)): (1 - frac) * table[i, k] + frac * table[i, k + 1] for i, (n, m) in enumerate(nm) if n == 1}
+    lat, lon = dipole_pole_deg(g[(1, 0)], g[(1, 1)], g[(1, -1)])
+    assert storm_event("halloween2003").dipole_pole == pytest.approx((lat, lon), abs=0.001)
     assert lat == pytest.approx(79.7, abs=0.1) and lon == pytest.approx(-71.7, abs=0.15)
-    # from the equator on the pole's meridian the pole is due north; 90 deg east of it, north-west of north
-    assert dipole_declination_deg(0.0, lon, 2003.83) == pytest.approx(0.0, abs=1e-9)
-    assert dipole_declination_deg(0.0, lon + 90.0, 2003.83) == pytest.approx(-(90.0 - lat), abs=1e-6)
+    pole = (lat, lon)
+    assert dipole_declination_deg(0.0, lon, pole) == pytest.approx(0.0, abs=1e-9)
+    assert dipole_declination_deg(0.0, lon + 90.0, pole) == pytest.approx(-(90.0 - lat), abs=1e-6)
 
 
 def test_dipole_rotation_keeps_the_change_and_turns_it_by_the_dipole_declination():
@@ -68,7 +75,7 @@ def test_gem_reader_and_geographic_positions(shared_data: Path, code: str):
     filled = sum(1 for line in lines if any(v == "NaN" or abs(float(v)) > 9000.0 for v in line[2:]))
     assert np.isnan(np.c_[record.n_m, record.e_m, record.d]).any(axis=1).sum() == filled
     assert filled == {"FRD": 11, "NEW": 55}.get(code, 0)
-    deviation = gem_deviation(record, 2003.83)
+    deviation = gem_deviation(record, storm_event("halloween2003").dipole_pole)
     assert _great_circle_deg(deviation.lat_deg, deviation.lon_deg, *OBSERVATORIES[code]) < 0.35
     np.testing.assert_allclose(np.hypot(deviation.dx_nt, deviation.dy_nt), np.hypot(record.n_m, record.e_m))
     np.testing.assert_array_equal(deviation.dz_nt, record.d)
