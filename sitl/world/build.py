@@ -110,7 +110,7 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
         event = storm_event(storm.event)
         disturbance = storms.StormDisturbance(event.deviations(folder, storm.stations), outside=outside)
     except (OSError, ValueError) as err:
-        raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load storm {storm.event!r} from {folder}: "
+        raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load the storm data of {storm.event!r} from {folder}: "
                                     f"{err} (set FCMPC_DATA_DIR or --data-dir)") from err
     time_map = _storm_time_map(scenario, expected_duration_s)
     kp = _published(event.kp_series, folder, storm.kp_publication, seed, 0) if storm.kp_feed else None
