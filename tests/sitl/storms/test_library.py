@@ -168,25 +168,26 @@ def test_each_storm_is_flown_among_its_stations_through_its_main_phase(shared_da
 
 
 def test_a_new_storm_is_a_table_row(shared_data: Path, tmp_path: Path):
-    """A row naming an existing format is a storm, no code: here Memambetsu alone, from the JMA folder."""
+    """A row naming an existing format is a storm, no code: here Fredericksburg and Ottawa alone, from
+    the GEM folder, with Kp and RC."""
     table = tmp_path / "events.toml"
     table.write_text('''[[event]]
-name = "mmb_only"
-title = "Memambetsu alone"
-reader = "iaga2002"
-data = "storms/jma"
-stations = ["mmb"]
-baseline_utc = ["2011-03-09T13:00:00Z", "2011-03-09T18:00:00Z"]
-main_phase_utc = ["2011-03-10T18:00:00Z", "2011-03-11T05:30:00Z"]
-route = [[44.0, 145.0], [42.0, 146.0]]
-start_utc = "2011-03-10T15:00:00Z"
+name = "frd_ott"
+title = "Halloween 2003 at two stations"
+reader = "gem2008"
+data = "storms/gem2008/2003-10-29"
+stations = ["frd", "ott"]
+dipole_pole = [79.7, -71.75]
+main_phase_utc = ["2003-10-30T16:00:00Z", "2003-10-30T23:00:00Z"]
+route = [[39.0, -77.0], [44.0, -76.0]]
+start_utc = "2003-10-30T12:00:00Z"
 kp = "celestrak:indices/celestrak_SW-All.txt"
 ring = "rc:indices/RC_index.h5"
 ''')
     (event,) = storm_events(table)
-    assert [d.code for d in event.deviations(shared_data)] == ["MMB"]
-    assert round(np.nanmin(event.ring_series(shared_data).value)) == -74
+    assert [d.code for d in event.deviations(shared_data)] == ["FRD", "OTT"]
+    assert round(np.nanmin(event.ring_series(shared_data).value)) == -453
     bad = tmp_path / "bad.toml"
-    bad.write_text(table.read_text().replace('reader = "iaga2002"', 'reader = "nosuch"'))
+    bad.write_text(table.read_text().replace('reader = "gem2008"', 'reader = "nosuch"'))
     with pytest.raises(ValueError, match="reader 'nosuch' not one of"):
         storm_events(bad)
