@@ -10,7 +10,10 @@ Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration r
 ``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
 "true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt), and
 in ``[vehicle]`` the motion errors (``current_mps``, ``speed_scale_sigma``, ``course_bias_deg``,
-``Scenario.motion``). Absent tables leave the paper's ideal world.
+``Scenario.motion``). ``[storm]`` names a row of the storm library (``event``,
+:mod:`sitl.storms.events`) and how its indices are published (``kp_delay_s``, ``kp_error``,
+``ring_delay_s``, ``ring_batch_s``, ``ring_offset_nt``, ``ring_error_nt``: :mod:`sitl.storms.published`).
+Absent tables leave the paper's ideal world.
 """
 from __future__ import annotations
 
