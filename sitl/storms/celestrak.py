@@ -7,6 +7,7 @@ Lines between ``BEGIN OBSERVED`` and ``END OBSERVED``: ``yyyy mm dd BSRN ND Kp1.
 from __future__ import annotations
 
 import os
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -22,12 +23,24 @@ CELESTRAK_FILE = ("indices", "celestrak_SW-All.txt")
 
 def read_celestrak_kp(path: str | os.PathLike[str], start_s: float = -np.inf, end_s: float = np.inf) -> IndexSeries:
     """Kp (thirds as decimals: 5.333 is 5+) of the 3-hour intervals of the observed days that
-    overlap ``[start_s, end_s]`` (POSIX UTC).
+    overlap ``[start_s, end_s]`` (POSIX UTC). The file (25,000 lines) is parsed once per version
+    (path, size, modification time).
 
     Raises:
         StormDataError: no observed block, a short or unparsable line (named), days out of order.
     """
     path = Path(path)
+    stat = path.stat()
+    starts, kp = _observed_kp(path, stat.st_size, stat.st_mtime_ns)
+    keep = (starts + 10800.0 > start_s) & (starts <= end_s)
+    if not keep.any():
+        raise StormDataError(path, None, "no observed Kp in the requested span")
+    return IndexSeries("Kp", starts[keep], 10800.0, kp[keep])
+
+
+@lru_cache(maxsize=2)
+def _observed_kp(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every observed 3-hour interval's start (POSIX s) and Kp in thirds (read-only arrays)."""
     starts: list[float] = []
     values: list[float] = []
     inside = False
@@ -51,11 +64,12 @@ def read_celestrak_kp(path: str | os.PathLike[str], start_s: float = -np.inf, en
         day_s = float(day.astype(np.int64))
         if starts and day_s <= starts[-1]:
             raise StormDataError(path, line_no, f"day {day} does not follow the previous one")
-        if day_s + 86400.0 <= start_s or day_s > end_s:
-            continue
         starts.extend(day_s + 10800.0 * k for k in range(8))
         values.extend(kp)
     if not starts:
-        raise StormDataError(path, None, "no observed Kp in the requested span (no 'BEGIN OBSERVED' block?)")
+        raise StormDataError(path, None, "no observed Kp (no 'BEGIN OBSERVED' block?)")
+    start_arr = np.asarray(starts)
     kp_arr = np.round(np.asarray(values) * 3.0) / 3.0   # 53 -> 5.333: the thirds the tenths stand for
-    return IndexSeries("Kp", np.asarray(starts), 10800.0, kp_arr)
+    start_arr.flags.writeable = False
+    kp_arr.flags.writeable = False
+    return start_arr, kp_arr

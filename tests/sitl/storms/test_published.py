@@ -142,7 +142,7 @@ def test_rc_reader_gives_the_readmes_minima(shared_data):
 def test_celestrak_kp_agrees_with_gfz_definitive_kp(shared_data):
     """CelesTrak's observed Kp (tenths) is GFZ's definitive Kp in thirds over the GFZ excerpt's days
     (read by regular expression, not by a reader under test); 2024-05-11 00-03 UTC is Kp 9."""
-    ck = read_celestrak_kp(shared_data.joinpath(*CELESTRAK_FILE), posix("2024-04-21 00:00"), posix("2024-06-30 00:00"))
+    ck = read_celestrak_kp(shared_data.joinpath(*CELESTRAK_FILE), posix("2024-04-21 00:00"), posix("2024-07-01 00:00"))
     for match in re.finditer(r"^(\d{4}) (\d\d) (\d\d) (?:\S+\s+){4}((?:[\d.]+\s+){8})", shared_data.joinpath(*KP).read_text(), re.M):
         day = posix(f"{match[1]}-{match[2]}-{match[3]} 00:00")
         for k, value in enumerate(match[4].split()):
