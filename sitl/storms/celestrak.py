@@ -22,8 +22,8 @@ CELESTRAK_FILE = ("indices", "celestrak_SW-All.txt")
 
 
 def read_celestrak_kp(path: str | os.PathLike[str], start_s: float = -np.inf, end_s: float = np.inf) -> IndexSeries:
-    """Kp (thirds as decimals: 5.333 is 5+) of the 3-hour intervals of the observed days that
-    overlap ``[start_s, end_s]`` (POSIX UTC). The file (25,000 lines) is parsed once per version
+    """Kp (thirds as decimals: 5.333 is 5+) of the observed 3-hour intervals that overlap
+    ``[start_s, end_s]`` (POSIX UTC). The file (25,000 lines) is parsed once per version
     (path, size, modification time).
 
     Raises:
