@@ -10,8 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl.storms.dipole import (dipole_declination_deg, dipole_pole_deg, geographic_from_geomagnetic,
-                                rotate_dipole_to_geographic)
+from sitl.storms.dipole import dipole_declination_deg, dipole_pole_deg, rotate_dipole_to_geographic
 from sitl.storms.events import storm_event, storm_events
 from sitl.storms.gem2008 import gem_deviation, read_gem2008
 from sitl.storms.supermag import read_supermag
