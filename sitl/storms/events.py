@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 from sitl.storms.common import StormWindow, default_data_dir, utc_s
 from sitl.storms.deviation import StationDeviation, station_deviation
 from sitl.storms.published import IndexSeries
@@ -44,7 +46,6 @@ _INDEX_SPAN_S = 2 * 86400.0   # indices are read from two days before the missio
 
 
 def _decimal_year(time_s: float) -> float:
-    import numpy as np
     stamp = np.datetime64(int(time_s), "s")
     year = stamp.astype("datetime64[Y]")
     start = float(year.astype("datetime64[s]").astype(np.int64))
@@ -136,8 +137,6 @@ def _gem(event: StormEvent, folder: Path, stations: tuple[str, ...]) -> list[Sta
 
 
 def _supermag(event: StormEvent, path: Path, stations: tuple[str, ...]) -> list[StationDeviation]:
-    import numpy as np
-
     from sitl.storms.supermag import read_supermag
     record = read_supermag(path)
     out = []
