@@ -91,8 +91,13 @@ def _plots(args: Namespace, out: Path, scenario: Scenario, rows: list, tracks) -
         from sitl import storms
         from sitl.world.build import build_truth_field
 
+        from sitl.storms.events import storm_event
+        from sitl.world.build import expected_mission_duration_s
+
         truth = build_truth_field(scenario, args.data_dir)
-        window = storms.StormWindow(scenario.name, *scenario.storm.window_posix)
-        storms.plot_disturbance(truth.disturbance, out / "disturbance.png", window)
+        span = (scenario.storm.window_posix if scenario.storm.time_map == "compress" else
+                (scenario.start_posix, scenario.start_posix + expected_mission_duration_s(scenario)))
+        storms.plot_disturbance(truth.disturbance, out / "disturbance.png", storms.StormWindow(scenario.name, *span),
+                                acknowledgement=storm_event(scenario.storm.event).acknowledgement)
         written.append(out / "disturbance.png")
     return written

@@ -10,16 +10,20 @@ Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration r
 ``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
 "true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt), and
 in ``[vehicle]`` the motion errors (``current_mps``, ``speed_scale_sigma``, ``course_bias_deg``,
-``Scenario.motion``). Absent tables leave the paper's ideal world.
+``Scenario.motion``). ``[storm]`` names a row of the storm library (``event``,
+:mod:`sitl.storms.events`) and how its indices are published (``kp_delay_s``, ``kp_error``,
+``ring_delay_s``, ``ring_batch_s``, ``ring_offset_nt``, ``ring_error_nt``: :mod:`sitl.storms.published`).
+Absent tables leave the paper's ideal world.
 """
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
+from sitl.storms.published import KP_NOWCAST, RING_QUICKLOOK, Publication
 from sitl.world.attitude import AttitudeErrorConfig
 from sitl.world.checks import require
 from sitl.world.crustal import CrustalConfig
@@ -97,16 +101,41 @@ class StormConfig:
     NaN to the navigator, as for an operator without that service; the storm is the same."""
 
     enabled: bool = False
+    event: str = "may2024"               # a row of the storm library (sitl/storms/events.toml)
     window_utc: tuple[str, str] = ("2024-05-10T18:00:00Z", "2024-05-11T00:00:00Z")
     time_map: str = "compress"           # "compress": window onto expected duration; "utc": real time
     scale: float = 1.0
-    stations: tuple[str, ...] = ("kak", "gua", "cta", "cnb", "frd")
+    stations: tuple[str, ...] = ()       # empty: the event's stations
     kp_feed: bool = True                 # Kp (the storm's, or a quiet day's) reaches the navigator
-    symh_feed: bool = True               # SYM-H (the storm's, or a quiet day's) reaches the navigator
+    symh_feed: bool = True               # the ring-current index (SYM-H, else RC) reaches the navigator
+    # How the indices are published (world parameters; defaults and sources in sitl.storms.published):
+    # an interval's quick-look value reaches the feed delay_s after its end (ring: after the end of the
+    # hourly batch holding it), off the definitive value by a per-run offset and a per-value scatter.
+    kp_delay_s: float = KP_NOWCAST.delay_s
+    kp_error: float = KP_NOWCAST.scatter_sigma            # 1 sigma, Kp units (rounded to thirds after)
+    ring_delay_s: float = RING_QUICKLOOK.delay_s
+    ring_batch_s: float = RING_QUICKLOOK.batch_s
+    ring_offset_nt: float = RING_QUICKLOOK.offset_sigma   # 1 sigma, drawn once per run
+    ring_error_nt: float = RING_QUICKLOOK.scatter_sigma   # 1 sigma, per value
+
+    def __post_init__(self) -> None:
+        require(self, ("kp_delay_s", "kp_error", "ring_delay_s", "ring_batch_s", "ring_offset_nt", "ring_error_nt"),
+                lambda v: v >= 0.0, "finite and not negative (a delay or a 1-sigma)")
 
     @property
     def window_posix(self) -> tuple[float, float]:
         return tuple(_parse_utc(text).timestamp() for text in self.window_utc)  # type: ignore[return-value]
+
+    @property
+    def kp_publication(self) -> Publication:
+        """How this world's Kp is published (:class:`sitl.storms.published.Publication`)."""
+        return replace(KP_NOWCAST, delay_s=self.kp_delay_s, scatter_sigma=self.kp_error)
+
+    @property
+    def ring_publication(self) -> Publication:
+        """How this world's ring-current index is published."""
+        return replace(RING_QUICKLOOK, delay_s=self.ring_delay_s, batch_s=self.ring_batch_s,
+                       offset_sigma=self.ring_offset_nt, scatter_sigma=self.ring_error_nt)
 
 
 MAIN_FIELD_MODELS = ("wmm", "igrf14", "ardupilot")

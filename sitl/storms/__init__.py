@@ -1,8 +1,12 @@
-"""Real magnetic-storm data (May 2024 'Gannon' storm) and the storm disturbance field of the SITL.
+"""Real magnetic-storm data and the storm disturbance field of the SITL: the storm library.
 
-The simulated vehicle sees ``WMM + storm disturbance`` (paper Section 4.2). This module
-provides the disturbance half, built from INTERMAGNET 1-minute observatory data, and
-readers for the indices that document the storm (OMNI SYM-H/AE, GFZ Kp).
+The simulated vehicle sees ``main field + crust + storm disturbance`` (paper Section 4.2). This
+package provides the disturbance, built from observatory data of real storms (one table of events,
+:mod:`sitl.storms.events`: May 2024 from INTERMAGNET, Halloween 2003 from the GEM challenge files,
+St Patrick's Day 2015 from SuperMAG, March 2011 from JMA), readers for the indices that document
+them (OMNI SYM-H/AE, GFZ and CelesTrak Kp, DTU's RC), and those indices as a vehicle receives them:
+published after a delay, with quick-look errors (:mod:`sitl.storms.published`). What follows
+describes the May 2024 data; the other storms' readers say what differs.
 
 Conventions (see :mod:`companion`)
     * Field vectors are geographic North-East-Down in nT: ``(dn, de, dd)`` = (dX, dY, dZ).
@@ -61,6 +65,10 @@ from __future__ import annotations
 #   disturbance  StormDisturbance: the interpolated disturbance field
 #   timemap      StormTimeMap and sharpest_window
 #   plot         plot_disturbance (matplotlib, lazily)
+#   published    indices as published: IndexSeries, Publication (delays, quick-look errors), PublishedIndex
+#   rc celestrak RC (HDF5) and CelesTrak Kp readers; gem2008, supermag: the other storms' station readers
+#   dipole       IGRF's dipole: geomagnetic coordinates, rotation of dipole axes to geographic
+#   events       the storm library's table (events.toml) and its readers
 #   rates        component_rates, component_walks, component_correlations: how the disturbance moves along a route (a navigator's declared walk)
 from sitl.storms.common import (ACKNOWLEDGEMENT, DEFAULT_STATIONS, KP_FILE, LONG_STORM, OMNI_FILE, QUIET_BASELINE, SHORT_STORM,
                                 SUDDEN_COMMENCEMENT_S, StormDataError, StormWindow, default_data_dir, utc_s)
@@ -71,6 +79,7 @@ from sitl.storms.iaga import IagaRecord, load_stations, read_iaga2002
 from sitl.storms.kp import KpRecord, read_gfz_kp
 from sitl.storms.omni import OmniIndices, read_omni_symh
 from sitl.storms.plot import plot_disturbance
+from sitl.storms.published import IndexSeries, Publication, PublishedIndex
 from sitl.storms.rates import component_correlations, component_rates, component_walks
 from sitl.storms.timemap import StormTimeMap, sharpest_window
 
@@ -84,6 +93,9 @@ __all__ = [
     "SHORT_STORM",
     "SUDDEN_COMMENCEMENT_S",
     "IagaRecord",
+    "IndexSeries",
+    "Publication",
+    "PublishedIndex",
     "KpRecord",
     "OmniIndices",
     "StationDeviation",

@@ -21,6 +21,7 @@ __all__ = ["IagaRecord", "load_stations", "read_iaga2002"]
 
 # IAGA-2002 missing (99999.00) and not-recorded (88888.00) markers.
 _IAGA_MISSING = (99999.0, 88888.0)
+_IAGA_SUFFIXES = (".min", ".txt")   # INTERMAGNET minute files; WDC Kyoto's conversions (JMA)
 
 
 @dataclass(frozen=True, eq=False)
@@ -290,7 +291,7 @@ def load_stations(
     data_dir: str | os.PathLike[str] | None = None,
     stations: Iterable[str] = DEFAULT_STATIONS,
 ) -> dict[str, IagaRecord]:
-    """Read and join every ``<code>*.min`` file of each station (10 and 11 May 2024).
+    """Read and join every ``<code>*.min`` (or ``.txt``) file of each station (10 and 11 May 2024 by default).
 
     Args:
         data_dir: the shared data root (``.../shared/data``), its ``storms`` folder or the
@@ -307,8 +308,8 @@ def load_stations(
     out: dict[str, IagaRecord] = {}
     for code in stations:
         code = code.lower()
-        files = sorted(p for p in folder.glob("*.min") if p.name.lower().startswith(code))
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in _IAGA_SUFFIXES and p.name.lower().startswith(code))
         if not files:
-            raise FileNotFoundError(f"no IAGA-2002 file '{code}*.min' for station {code.upper()} in {folder}")
+            raise FileNotFoundError(f"no IAGA-2002 file '{code}*.min' or '.txt' for station {code.upper()} in {folder}")
         out[code] = _concat([read_iaga2002(p) for p in files])
     return out

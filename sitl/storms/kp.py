@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from sitl.storms.common import FloatArray, StormDataError
+from sitl.storms.published import IndexSeries
 
 __all__ = ["KpRecord", "read_gfz_kp"]
 
@@ -27,8 +28,14 @@ class KpRecord:
     ap_daily: FloatArray
     source: Path
 
+    def series(self) -> IndexSeries:
+        """The definitive Kp as 3-hour intervals (:class:`~sitl.storms.published.IndexSeries`)."""
+        starts = (self.day_s[:, None] + 10800.0 * np.arange(8)[None, :]).ravel()
+        return IndexSeries("Kp", starts, 10800.0, self.kp.ravel())
+
     def kp_at(self, time_s: ArrayLike) -> FloatArray:
-        """Kp of the 3-hour interval containing each POSIX time (NaN outside the file)."""
+        """The definitive Kp of the 3-hour interval containing each POSIX time (NaN outside the
+        file): the truth, not what a feed has at that time (:mod:`sitl.storms.published`)."""
         t = np.asarray(time_s, dtype=np.float64)
         day = np.searchsorted(self.day_s, t, side="right") - 1
         offset = t - self.day_s[np.clip(day, 0, None)]

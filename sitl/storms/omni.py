@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from sitl.storms.common import FloatArray, StormDataError
+from sitl.storms.published import IndexSeries
 
 __all__ = ["OmniIndices", "read_omni_symh"]
 
@@ -31,9 +32,14 @@ class OmniIndices:
     symh_nt: FloatArray
     source: Path
 
+    def series(self) -> IndexSeries:
+        """The definitive SYM-H as 1-minute bins (:class:`~sitl.storms.published.IndexSeries`)."""
+        return IndexSeries("SYM-H", self.time_s, 60.0, self.symh_nt)
+
     def symh_at(self, posix_s: float) -> float:
         """SYM-H (nT) at a POSIX time, linear between the bins' centres (each stamp is a bin's
-        start); NaN outside the record or next to a fill value."""
+        start); NaN outside the record or next to a fill value. The truth (it reaches up to 30 s
+        into the next bin), not what a feed has at that time (:mod:`sitl.storms.published`)."""
         centres = self.time_s + 30.0
         t = float(posix_s)
         if not centres[0] <= t <= centres[-1]:

@@ -25,6 +25,7 @@ def plot_disturbance(
     window: StormWindow | tuple[float, float] | None = None,
     *,
     margin_s: float = 0.0,
+    acknowledgement: str = ACKNOWLEDGEMENT,
 ) -> Figure:
     """Plot each station's dH (eq.-64 dB_H dashed), dX, dY, dZ vs UTC over a window (paper Fig. 5).
 
@@ -33,7 +34,7 @@ def plot_disturbance(
 
     Values are the station deviations times ``disturbance.scale`` (what the simulated
     vehicle would meet at the station); the x axis is storm time (UTC). The figure carries
-    :data:`ACKNOWLEDGEMENT`. Writes ``path_png`` (parents created) and returns the Figure.
+    ``acknowledgement`` (default :data:`ACKNOWLEDGEMENT`, May 2024's; a library storm's is its row's). Writes ``path_png`` (parents created) and returns the Figure.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -72,7 +73,7 @@ def plot_disturbance(
     axes[-1].xaxis.set_major_formatter(mdates.DateFormatter("%m-%d %H:%M"))
     scale_txt = "" if disturbance.scale == 1.0 else f", scale {disturbance.scale:g}"
     fig.suptitle(f"Storm disturbance from quiet baseline - {win}{scale_txt}", fontsize=10)
-    fig.supxlabel(ACKNOWLEDGEMENT, fontsize=8, x=0.01, ha="left")  # laid out below the axes
+    fig.supxlabel(acknowledgement, fontsize=8, x=0.01, ha="left")  # laid out below the axes
     path = Path(path_png)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -16,9 +16,13 @@ with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm dis
     paper's use). Without an explicit value the expected duration is the geodesic length of
     the mission divided by the companion's default cruise speed (``NAV_SPEED_KMH``).
 
-With the storm comes its space-weather feed: the planetary Kp of the storm time (GFZ's
-definitive values, :data:`sitl.storms.KP_FILE`), what a service would give the vehicle
-(:meth:`TruthField.kp`); without the file there is no feed. A world without a storm feeds a
+The storm is a row of the storm library (``[storm] event``, :mod:`sitl.storms.events`: its
+stations, reader and index sources). With it comes its space-weather feed: Kp and the ring-current
+index (SYM-H where published, else RC) *as published* (:mod:`sitl.storms.published`): at a storm
+time, the quick-look value of the last interval published by then, after the ``[storm]`` delays,
+with quick-look errors drawn for ``seed`` (:meth:`TruthField.for_seed` redraws them per run), what a
+service would give the vehicle (:meth:`TruthField.kp`, :meth:`TruthField.symh`); without an index
+file there is no feed. A world without a storm feeds a
 quiet day's indices (Kp 0, SYM-H 0 nT, :func:`sitl.world.magnetic.quiet_index`), and
 ``[storm] kp_feed`` / ``symh_feed`` false withhold either. :func:`storm_component_walks` is how
 fast the disturbance moves along the route, the walk a navigator set up for this world declares.
@@ -100,16 +104,19 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
         return replace(quiet, space_weather=quiet_index if storm.kp_feed else None,
                        ring_current=quiet_index if storm.symh_feed else None)
     from sitl import storms
+    from sitl.storms.events import storm_event
     folder = Path(data_dir) if data_dir is not None else default_data_dir()
     try:
-        disturbance = storms.StormDisturbance.from_data_dir(folder, stations=storm.stations, outside=outside)
+        event = storm_event(storm.event)
+        disturbance = storms.StormDisturbance(event.deviations(folder, storm.stations), outside=outside)
     except (OSError, ValueError) as err:
-        raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load storm data from {folder}: {err} "
-                                    "(set FCMPC_DATA_DIR or --data-dir)") from err
+        raise StormUnavailableError(f"scenario {scenario.name!r}: cannot load the storm data of {storm.event!r} from {folder}: "
+                                    f"{err} (set FCMPC_DATA_DIR or --data-dir)") from err
     time_map = _storm_time_map(scenario, expected_duration_s)
+    kp = _published(event.kp_series, folder, storm.kp_publication, seed, 0) if storm.kp_feed else None
+    ring = _published(event.ring_series, folder, storm.ring_publication, seed, 1) if storm.symh_feed else None
     return replace(quiet, disturbance=disturbance, storm_time_s=time_map.storm_time_s, storm_scale=storm.scale,
-                   space_weather=_space_weather(folder) if storm.kp_feed else None,
-                   ring_current=_ring_current(folder) if storm.symh_feed else None)
+                   space_weather=kp, ring_current=ring)
 
 
 def _storm_time_map(scenario: Scenario, expected_duration_s: float | None = None):
@@ -125,18 +132,15 @@ def _storm_time_map(scenario: Scenario, expected_duration_s: float | None = None
     return storms.StormTimeMap.compress(window, duration)
 
 
-def _space_weather(folder: Path):
-    """Kp at a storm time (POSIX s -> Kp) from the GFZ file in ``folder``, or None without one."""
-    from sitl import storms
-    kp_path = folder / "storms" / storms.KP_FILE
-    return storms.read_gfz_kp(kp_path).kp_at if kp_path.exists() else None
-
-
-def _ring_current(folder: Path):
-    """SYM-H at a storm time (POSIX s -> nT) from the OMNI file in ``folder``, or None without one."""
-    from sitl import storms
-    path = folder / "storms" / storms.OMNI_FILE
-    return storms.read_omni_symh(path).symh_at if path.exists() else None
+def _published(read_series, folder: Path, publication, seed: int, stream: int):
+    """The index of ``read_series(folder)`` as published (storm time POSIX s -> quick-look value),
+    or None (no feed) when its file is absent."""
+    from sitl.storms.published import PublishedIndex
+    try:
+        series = read_series(folder)
+    except FileNotFoundError:
+        return None
+    return PublishedIndex(series, publication, seed, stream)
 
 
 def storm_component_walks(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
@@ -177,17 +181,24 @@ def _storm_disturbance(scenario: Scenario, data_dir: str | os.PathLike[str] | No
     """The scenario's storm disturbance ``(lat, lon, elapsed_s) -> (dN, dE, dZ)`` in nT, less the
     ring current predicted from SYM-H with ``symh_ratio`` (0: none removed), whether or not the
     navigator is fed the index."""
-    truth = build_truth_field(replace(scenario, storm=replace(scenario.storm, symh_feed=True)), data_dir)
+    truth = build_truth_field(scenario, data_dir)
     if truth.disturbance is None:
         raise ValueError(f"scenario {scenario.name!r} has no storm")
     if symh_ratio <= 0.0:
         return truth.storm_ned_nt
-    reference = truth.symh(0.0)
+    # the ring current as it was (definitive, between the bins' centres), not as published
+    from sitl.storms.events import storm_event
+    series = storm_event(scenario.storm.event).ring_series(data_dir)
+    storm_time = _storm_time_map(scenario).storm_time_s
+
+    def ring(elapsed_s):
+        return np.interp(storm_time(np.atleast_1d(elapsed_s)), series.start_s + 0.5 * series.length_s, series.value)
+    reference = float(ring(0.0)[0])
 
     def disturbance(lat, lon, elapsed_s):
         ned = np.array(truth.storm_ned_nt(lat, lon, elapsed_s), dtype=float)
         main = truth.main_ned_nt(lat, lon, scenario.alt_m)
-        change = symh_ratio * (np.array([truth.symh(t) for t in np.atleast_1d(elapsed_s)]) - reference)
+        change = symh_ratio * (ring(elapsed_s) - reference)
         along_h = main[..., :2] / np.hypot(main[..., 0], main[..., 1])[..., None]
         ned[..., :2] -= change[..., None] * along_h
         return ned

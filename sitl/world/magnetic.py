@@ -51,7 +51,10 @@ class TruthField:
     ``crustal_origin`` describe the anomaly field; ``crustal`` is its realisation for one seed
     (:meth:`for_seed`). ``space_weather``: the planetary Kp at a storm time (POSIX seconds ->
     Kp, :meth:`sitl.storms.KpRecord.kp_at`), what a space-weather service reports while the
-    storm is on (:meth:`kp`); ``ring_current`` the SYM-H index likewise (:meth:`symh`).
+    storm is on (:meth:`kp`); ``ring_current`` the ring-current index likewise (:meth:`symh`: SYM-H, or RC
+    for storms without SYM-H). For a storm both are feeds as published
+    (:class:`sitl.storms.published.PublishedIndex`: the last interval published by the storm time,
+    quick-look errors drawn per run by :meth:`for_seed`).
     """
 
     model: WorldMagneticModel
@@ -94,11 +97,17 @@ class TruthField:
         return self.storm_time_s(elapsed_s) if self.storm_time_s is not None else elapsed_s
 
     def for_seed(self, seed: int) -> TruthField:
-        """The same field with the crustal anomaly drawn for ``seed`` (itself when there is none)."""
+        """The same field with the crustal anomaly drawn for ``seed``, and the space-weather feeds'
+        quick-look errors of that run (:meth:`sitl.storms.published.PublishedIndex.for_seed`)."""
+        out = self
+        feeds = {name: getattr(self, name).for_seed(seed) for name in ("space_weather", "ring_current")
+                 if hasattr(getattr(self, name), "for_seed")}
+        if feeds:
+            out = replace(out, **feeds)
         if not self.crustal_config.enabled:
-            return self
+            return out
         rng = np.random.default_rng([int(seed), CRUSTAL_SEED_KEY])
-        return replace(self, crustal=CrustalField.draw(self.crustal_config, rng, *self.crustal_origin))
+        return replace(out, crustal=CrustalField.draw(self.crustal_config, rng, *self.crustal_origin))
 
     def main_ned_nt(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
         """The main-field model alone (..., 3) north/east/down in nT."""

@@ -99,10 +99,14 @@ SEEDS = range(8)
 
 
 def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
-    """Long storm, Fc-MPC with the default filter, seeds 0-7 in-process: without the correction
-    (FUS_SYMH_K 0) the median miss was 17.05 km (8.8-24.5), with it 8.69 km (1.8-15.4; 50 seeds:
-    12.04 -> 5.83 km). Fails if the correction stops paying: the median must stay under 11 km and
-    under 0.65 of the uncorrected one."""
+    """Long storm, Fc-MPC with the default filter, seeds 0-7 in-process, SYM-H and Kp as published
+    (sitl.storms.published: Kp 15 min after its 3-hour interval, SYM-H hourly 30 min late, quick-look
+    errors; in this compressed world those are storm-time delays, 2.7x longer in mission time):
+    without the correction (FUS_SYMH_K 0) the median miss is 44.93 km (40.5-48.3), with it 20.61 km
+    (16.1-24.4). With the indices at no delay and without quick-look errors: 26.36 -> 3.15 km (before
+    the feed was published, Kp was even the interval's own definitive value: 17.05 -> 8.69 km). Fails
+    if the correction stops paying: the median must stay under 24 km and under 0.65 of the
+    uncorrected one."""
     scenario = load_scenario("long_storm")
     truth = build_truth_field(scenario, shared_data)
     misses = {}
@@ -112,4 +116,4 @@ def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
         runs = fly_batch([InProcessFlight(nav, scenario, seed, truth) for seed in SEEDS])
         assert all(r.arrived for r in runs)
         misses[ratio] = statistics.median(r.remaining_m / 1e3 for r in runs)
-    assert misses[1.0] < 11.0 and misses[1.0] < 0.65 * misses[0.0], misses
+    assert misses[1.0] < 24.0 and misses[1.0] < 0.65 * misses[0.0], misses

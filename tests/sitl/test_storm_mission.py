@@ -48,14 +48,15 @@ def test_storm_handling_is_no_worse_than_the_fix_alone(shared_data, name):
 
 def test_without_kp_a_low_sym_h_declares_the_storm(shared_data):
     """A vehicle whose ground station feeds SYM-H but no Kp: SYM-H at or below FUS_SYMH_ON
-    (-50 nT) declares the storm as Kp would. Short storm (SYM-H -209 to -335 nT), the world's Kp
+    (-50 nT) declares the storm as Kp would. Short storm (SYM-H -209 to -335 nT; as published, hourly and
+        30 min late with its quick-look error, about -170 nT at first), the world's Kp
     withheld, seeds 0-3: declared by SYM-H all end under 6 km (measured 1.4-2.8 km, as with Kp);
     with the SYM-H declaration off (FUS_SYMH_ON -3000) over 15 km (measured 30-44 km: the
     innovations find the storm after it has moved the estimate)."""
     storm = load_scenario("short_storm")
     scenario = dataclasses.replace(storm, storm=dataclasses.replace(storm.storm, kp_feed=False))   # no Kp service
     no_kp = build_truth_field(scenario, shared_data)
-    assert math.isnan(no_kp.kp(3600.0)) and no_kp.symh(3600.0) <= -200.0
+    assert math.isnan(no_kp.kp(3600.0)) and no_kp.symh(3600.0) <= -150.0
     values = validate_all(scenario.nav_overrides())
     misses = {on: [fly_in_process(NavConfig.from_values({**values, "FUS_SYMH_ON": on}), scenario, seed, no_kp)
                    .remaining_m for seed in range(4)] for on in (-50.0, -3000.0)}
