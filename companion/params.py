@@ -322,6 +322,8 @@ class CompanionConfig(_FromRegistry):
     feed_blend_mps: float = _from("COMP_FEED_BLEND")
     mag_rate_hz: float = _from("COMP_MAG_HZ")
     trim_max_deg: float = _from("COMP_TRIM_DEG")
+    cal_turns: int = _from("COMP_CAL_TURNS")
+    cal_rate_dps: float = _from("COMP_CAL_DPS")
     mag_timeout_s: float = _from("COMP_MAG_TMO_S")
     att_timeout_s: float = _from("COMP_ATT_TMO_S")
     heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")

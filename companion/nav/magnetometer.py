@@ -388,6 +388,9 @@ class MagProcessor:
     """Message time before which gravity-referenced I is left out (a new command's transient)."""
     track_yaw_offset: bool = False
     """Feed :attr:`yaw_offset` (only the steering trim, ``COMP_TRIM_DEG`` > 0, reads it)."""
+    recorder: object = None
+    """Called as ``recorder(time_s, calibrated_body_nt, roll_rad, pitch_rad)`` for every sample kept
+    (a calibration manoeuvre records them); None: nothing recorded."""
 
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
@@ -468,6 +471,8 @@ class MagProcessor:
             st.last_reject = "spike"
             return False
         self.last_di = (d, i)
+        if self.recorder is not None:
+            self.recorder(time_s, calibrated, rpy[0], rpy[1])
         if self.track_yaw_offset and imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
             self.yaw_offset.add(time_s, rpy[2], calibrated, imu[1])
         if self.paused:

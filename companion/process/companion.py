@@ -31,6 +31,7 @@ from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
+from companion.process.calibration_turn import CalibrationTurn
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.forecast import RouteForecast
@@ -102,6 +103,7 @@ class CompanionApp:
         self.failsafe = FailsafeResponse(self)
         self.preparation = MissionPreparation(self)
         self.forecast = RouteForecast(self.out.say, inline=options.lockstep)
+        self.calturn = CalibrationTurn(self)
         self.stepper = ControlStep(self)
         self.phases = Phases(self)
         self.reporting = Reporting(self)
@@ -238,7 +240,7 @@ class CompanionApp:
 
     def close(self) -> None:
         if self.link.conn is not None and self.link.fc.detected and self.link.fc.guided and self.link.fc.armed \
-                and self.state in (State.RUNNING, State.READY):
+                and self.state in (State.RUNNING, State.READY, State.CALIBRATING):
             self.link.send_hold_mode()   # do not leave a vehicle in GUIDED without a companion
         self.reporting.close()
         self.reporting.write_summary()

@@ -3,13 +3,15 @@
 ::
 
     wait_fc --fc_heard--> startup --averaged/resumed--> ready --engaged--> running --ended/gave_up--> done
-                            ^  ^                  |                   |
-                            |  +---fc_rebooted----+                   |
-                            +---------nav_failed / fc_rebooted--------+
+                            ^  ^                  |  |                ^   |
+                            |  +---fc_rebooted----+  +--calibrate--> calibrating (COMP_CAL_TURNS)
+                            +---------nav_failed / fc_rebooted--------+---+
 
 ``wait_fc``  no flight-controller HEARTBEAT yet.
 ``startup``  streams requested; the vehicle is stationary while D and I are averaged.
 ``ready``    the average is taken; zero setpoints, GUIDED/OFFBOARD and arming (COMP_ARM_ENABLE 1).
+``calibrating``  armed in GUIDED/OFFBOARD, COMP_CAL_TURNS > 0 and a GPS start: the magnetometer's
+             calibration circles, then one more for the start-up average (``engaged``).
 ``running``  armed in GUIDED/OFFBOARD: a control step every NAV_PERIOD_S of mission time.
 ``done``     arrived, failed, or gave up after MAX_RESTARTS navigation failures: hold.
 
@@ -46,6 +48,7 @@ class State:
     WAIT_FC = "wait_fc"
     STARTUP = "startup"
     READY = "ready"
+    CALIBRATING = "calibrating"
     RUNNING = "running"
     DONE = "done"
 
@@ -54,6 +57,7 @@ class Event:
     FC_HEARD = "fc_heard"            # the first flight-controller heartbeat with a time stamp
     AVERAGED = "averaged"            # the stationary start-up window is full, the heading source known
     RESUMED = "resumed"              # a recent saved state: no start-up average, the saved mission goes on
+    CALIBRATE = "calibrate"          # armed in GUIDED/OFFBOARD with COMP_CAL_TURNS: the calibration circles
     ENGAGED = "engaged"              # armed in GUIDED/OFFBOARD and healthy: the mission starts
     ENDED = "ended"                  # the core says arrived or failed
     NAV_FAILED = "nav_failed"        # solver failure, divergence, non-finite command: restart
@@ -68,6 +72,9 @@ TRANSITIONS: dict[tuple[str, str], str] = {
     (State.STARTUP, Event.RESUMED): State.READY,
     (State.STARTUP, Event.FC_REBOOTED): State.STARTUP,
     (State.READY, Event.ENGAGED): State.RUNNING,
+    (State.READY, Event.CALIBRATE): State.CALIBRATING,
+    (State.CALIBRATING, Event.ENGAGED): State.RUNNING,
+    (State.CALIBRATING, Event.FC_REBOOTED): State.STARTUP,
     (State.READY, Event.FC_REBOOTED): State.STARTUP,
     (State.RUNNING, Event.ENDED): State.DONE,
     (State.RUNNING, Event.GAVE_UP): State.DONE,
@@ -76,7 +83,8 @@ TRANSITIONS: dict[tuple[str, str], str] = {
 }
 
 # The FC_STATE value the companion streams in lockstep (4: failsafe, whatever the phase).
-STATE_CODES = {State.WAIT_FC: 0, State.STARTUP: 1, State.READY: 2, State.RUNNING: 3, State.DONE: 5}
+STATE_CODES = {State.WAIT_FC: 0, State.STARTUP: 1, State.READY: 2, State.RUNNING: 3, State.DONE: 5,
+               State.CALIBRATING: 6}
 FAILSAFE_CODE = 4
 
 

@@ -56,6 +56,10 @@ class Phases:
             self.startup(now, reasons)
         if app.state == State.READY:
             sent = self.ready(now, reasons)
+        if app.state == State.CALIBRATING:
+            sent, averaged = app.calturn.tick(now, reasons)
+            if averaged:
+                self.start_mission(now)
         if app.state == State.RUNNING:
             sent = self.running(now, reasons, dt)
         if app.state == State.DONE:
@@ -116,6 +120,9 @@ class Phases:
             if app.resume.pending is not None:
                 app.resume.resume_mission(now)
                 self.was_following = True
+            elif app.calturn.wanted(app.preparation.start_position()[2]):
+                app.machine.fire(Event.CALIBRATE)
+                app.calturn.enter(now)
             else:
                 self.start_mission(now)
             return sent
@@ -328,8 +335,9 @@ class Phases:
         elif app.state == State.RUNNING and app.command is not None:   # no tick on the old clock to go on from
             self.nav_failure(reason, app.command)
             return
-        elif app.state in (State.STARTUP, State.READY, State.RUNNING):
+        elif app.state in (State.STARTUP, State.READY, State.CALIBRATING, State.RUNNING):
             app.out.say(f"FcMPC: {reason}", mavlink.MAV_SEVERITY_WARNING)
+            app.mag.recorder = None
             app.mission = None
         else:
             return

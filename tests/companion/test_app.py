@@ -16,15 +16,17 @@ from tests.processes import wait_for_file
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[str, ...] = ()) -> tuple[dict, dict]:
-    """Simulator (lockstep, ``sim_s`` simulated seconds, ``sitl_args`` more) and companion; their summaries."""
+def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[str, ...] = (),
+         wall_s: float = 60.0) -> tuple[dict, dict]:
+    """Simulator (lockstep, ``sim_s`` simulated seconds, ``sitl_args`` more) and companion; their
+    summaries. ``wall_s``: the hang guard of each process (a lockstep run keeps no wall pace)."""
     port = free_port()
     parm = tmp_path / "companion.parm"
     parm.write_text(parm_text, encoding="utf-8")
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
     companion = subprocess.Popen(
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}", "--params", str(parm),
-         "--log-dir", str(tmp_path / "companion"), "--lockstep", "--max-wall-s", "60", "--quiet", "--no-tlog"],
+         "--log-dir", str(tmp_path / "companion"), "--lockstep", "--max-wall-s", f"{wall_s:g}", "--quiet", "--no-tlog"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wait_for_file(tmp_path / "companion" / "steps.csv", [companion], 60.0)   # its port is bound
     sitl = subprocess.Popen(
@@ -32,7 +34,7 @@ def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[
          str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5", *sitl_args],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        sitl.wait(timeout=60)
+        sitl.wait(timeout=wall_s)
     finally:
         for proc in (sitl, companion):
             if proc.poll() is None:

@@ -1,0 +1,97 @@
+"""The magnetometer's calibration manoeuvre before the mission (issue 47, COMP_CAL_TURNS).
+
+A boat or a ground vehicle cannot be tumbled for a full 3-D calibration, and a calibration made
+standing still misses the motor's field. So, with the start known from GPS, once armed in
+GUIDED/OFFBOARD the companion drives ``COMP_CAL_TURNS`` slow full circles at the cruise speed
+(the course turning at ``COMP_CAL_DPS``), records every kept magnetometer sample with its roll
+and pitch, and fits the hard iron and the horizontal soft iron to the field model's H and Z at
+the start (:func:`companion.nav.calibration.fit_level_calibration`; the motor's field at cruise
+becomes part of the hard iron). The fit, chained onto the MAG_* the samples were corrected with,
+is written to MAG_* (so the ground station sees it and the file keeps it) and said in STATUSTEXT;
+then one more circle is driven with the new calibration and its average, taken with the motor
+running as it will in the mission, is the start-up measurement. A full circle ends where it
+began, so the mission starts at the GPS-known start. A refused fit is said with its reason and
+the mission starts on the stationary start-up average taken before arming, with MAG_* unchanged.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from companion.io.mavlink_link import mavlink
+from companion.nav.calibration import CalibrationRefused, chained, down_in_body, fit_level_calibration, registry_values
+from companion.nav.field import model_for_setting
+from companion.params import validate
+
+__all__ = ["CalibrationTurn"]
+
+
+class CalibrationTurn:
+    """The manoeuvre's state; the calibrating phase (:mod:`companion.process.phases`) drives it."""
+
+    def __init__(self, app) -> None:   # the CompanionApp wiring this part
+        self.app = app
+        self.done = False            # once per process: a restart or a reboot does not circle again
+        self.t0 = math.nan
+        self.fitted = False          # the fit is applied; the last circle is the start-up average
+        self.samples: list[tuple[float, float, float, float, float]] = []
+
+    def wanted(self, source: str) -> bool:
+        """A calibration manoeuvre before this mission: asked for, not yet flown, and a GPS start."""
+        return self.app.comp_cfg.cal_turns > 0 and not self.done and source == "GPS"
+
+    def enter(self, now: float) -> None:
+        app = self.app
+        self.t0, self.fitted, self.samples = now, False, []
+        app.mag.recorder = self._record
+        app.out.say(f"FcMPC: calibrating the magnetometer: {app.comp_cfg.cal_turns} circle(s) at "
+                    f"{app.comp_cfg.cal_rate_dps:g} deg/s, then one for the start-up average")
+
+    def _record(self, time_s: float, calibrated, roll: float, pitch: float) -> None:
+        self.samples.append((*calibrated, roll, pitch))
+
+    def turned_rad(self, now: float) -> float:
+        return math.radians(self.app.comp_cfg.cal_rate_dps) * (now - self.t0)
+
+    def tick(self, now: float, reasons: list[str]) -> tuple[bool, bool]:
+        """Stream this tick's course on the circle; (sent, finished: the start-up average is ready)."""
+        app = self.app
+        if reasons:
+            return False, False
+        turns = app.comp_cfg.cal_turns
+        turned = self.turned_rad(now)
+        if not self.fitted and turned >= 2.0 * math.pi * turns:
+            self._fit()
+        if self.fitted and turned >= 2.0 * math.pi * (turns + 1):
+            app.mag.recorder = None
+            self.done = True
+            return False, True
+        course = turned % (2.0 * math.pi)     # from north, turning right
+        return app.out.stream(course, app.nav_cfg.speed_mps), False
+
+    def _fit(self) -> None:
+        app = self.app
+        self.fitted = True
+        app.mag.recorder = None
+        lat, lon, _ = app.preparation.start_position()
+        c = app.nav_cfg
+        model = model_for_setting(c.year, c.wmm).elements(lat, lon, c.alt_m, c.year)
+        rows = np.array(self.samples, dtype=float).reshape(-1, 5)
+        try:
+            fit = fit_level_calibration(rows[:, :3], down_in_body(rows[:, 3], rows[:, 4]), float(model.h_nt),
+                                        float(model.z_nt))
+            values = {name: validate(name, value) for name, value in
+                      registry_values(chained(app.mag.calibration, fit)).items()}
+        except (CalibrationRefused, ValueError) as err:
+            app.out.say(f"FcMPC: magnetometer calibration refused, MAG_* unchanged: {str(err).splitlines()[0]}"[:200],
+                        mavlink.MAV_SEVERITY_WARNING)
+            return
+        for name, value in values.items():
+            app.params.set_value(name, value)
+        app.apply_params()
+        app.mag.clear()          # the start-up average: the next circle, with the new calibration
+        ofs = ", ".join(f"{values[f'MAG_OFS_{a}']:+.0f}" for a in "XYZ")
+        app.out.say(f"FcMPC: magnetometer calibrated on {len(rows)} samples: residual {fit.residual_nt:.0f} nT rms, "
+                    f"{100.0 * fit.cell_share:.0f} % of headings; MAG_OFS {ofs} mG, soft iron "
+                    f"{values['MAG_SCALE_X']:.3f} {values['MAG_SCALE_Y']:.3f} {values['MAG_SOFT_XY']:+.3f}"[:200])
