@@ -103,7 +103,7 @@ def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
     (FUS_SYMH_K 0) the median miss was 17.05 km (8.8-24.5), with it 8.69 km (1.8-15.4; 50 seeds:
     12.04 -> 5.83 km). Fails if the correction stops paying: the median must stay under 11 km and
     under 0.65 of the uncorrected one."""
-    scenario = load_scenario("long_storm")
+    scenario = load_scenario("paper_long_storm")
     truth = build_truth_field(scenario, shared_data)
     misses = {}
     for ratio in (0.0, 1.0):

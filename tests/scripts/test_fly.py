@@ -114,7 +114,7 @@ def test_a_track_that_ends_moving_is_not_at_rest():
 
 
 def _result(status: str, rest_m: float, **kw) -> FlyResult:
-    base = dict(status=status, exit_code=0, scenario="pacific", seed=0, iterations=5, rest_remaining_m=rest_m,
+    base = dict(status=status, exit_code=0, scenario="paper_pacific", seed=0, iterations=5, rest_remaining_m=rest_m,
                 step_remaining_m=rest_m + 50.0, believed_remaining_m=rest_m - 70.0, came_to_rest=status == "arrived",
                 wall_s=3.0, sim_s=1800.0, out_dir="x", plot_path=None, dest_lat_deg=DEST[0], dest_lon_deg=DEST[1])
     return FlyResult(**{**base, **kw})
@@ -134,9 +134,9 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
     steps = [{"step": k, "msg_time_s": 360.0 * k, "remaining_m": 60_000.0 - 5000.0 * k,
               "est_lat_deg": _along(60_000.0 - 5000.0 * k + 300.0)[0], "est_lon_deg": DEST[1]} for k in range(5)]
     result = _result("interrupted", _dist((points[-1][1], points[-1][2]), DEST))
-    title = title_for(result, "pacific")
+    title = title_for(result, "paper_pacific")
     assert "INTERRUPTED" in title and f"{result.rest_remaining_m / 1000.0:.2f} km" in title
-    path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "pacific")
+    path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "paper_pacific")
     assert path.stat().st_size > 20_000
 
 
