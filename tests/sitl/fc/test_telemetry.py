@@ -37,7 +37,7 @@ def test_heartbeat_px4_convention(sitl):
 
 
 def test_magnetometer_matches_wmm_declination_inclination(sitl):
-    server, client = sitl(speedup=60.0, init_s=0.2)
+    server, client = sitl(scenario="paper_pacific", speedup=60.0, init_s=0.2)   # the truth is WMM
     msgs = client.collect(["RAW_IMU", "ATTITUDE"], 32_000)
     att = {m.time_boot_ms: m for m in msgs if m.get_type() == "ATTITUDE"}
     d_list, i_list = [], []
