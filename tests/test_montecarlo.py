@@ -148,7 +148,7 @@ def test_local_pool_workers_run_one_blas_thread_although_the_parent_loaded_more(
     assert threads["workers"] and all(counts == [1] * len(counts) and counts for counts in threads["workers"])
 
 
-SWEEP = ["--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
+SWEEP = ["--scenario", "paper_pacific", "--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
          "--workers", "1", "--quiet", *SHORT]
 
 
