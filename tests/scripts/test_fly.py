@@ -149,3 +149,16 @@ def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it()
     assert _niceness(0) is None
     lowered = subprocess.run(probe, preexec_fn=_niceness(3), capture_output=True, text=True, check=True)
     assert int(lowered.stdout) == min(own + 3, 19)
+
+
+@pytest.mark.parametrize("scenario, gifted", [("paper_pacific", True), ("pacific", False)])
+def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, capsys, scenario, gifted):
+    """The flight itself stands in (the closed loop is tests/companion's): what fcmpc-fly prints around it."""
+    import scripts.fly
+
+    monkeypatch.setattr(scripts.fly, "fly", lambda options: _result("arrived", 128.0, scenario=options.scenario))
+    assert scripts.fly.main(["--scenario", scenario, "--no-plot"]) == 0
+    printed = capsys.readouterr()
+    said = [line for line in (printed.err + printed.out).splitlines() if "hands the navigator" in line]
+    assert len(said) == (2 if gifted else 0)
+    assert all(line.startswith(f"fcmpc-fly: {scenario} hands") and "the true heading" in line for line in said)
