@@ -133,7 +133,7 @@ def bench_mission_step() -> list[Row]:
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     truth = build_truth_field(scenario)
     rows: list[Row] = []
     for label, overrides, anchor, target in (
@@ -171,10 +171,10 @@ def bench_montecarlo() -> list[Row]:
     from montecarlo.batch import run_montecarlo
     from sitl.scenario import load_scenario
 
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     values = validate_all(scenario.nav_overrides())
     started = time.perf_counter()
-    run_montecarlo("pacific", 50, [0, 1, 2], os.cpu_count() or 1, values, progress=False)
+    run_montecarlo("paper_pacific", 50, [0, 1, 2], os.cpu_count() or 1, values, progress=False)
     wall = time.perf_counter() - started
     return [(f"Monte Carlo, 50 runs x 3 controllers ({os.cpu_count()} workers)",
              f"{wall:.1f} s wall", f"README 22-29 s; {_vs(wall, 'montecarlo', 's')}", "<= 10 s")]

@@ -10,7 +10,7 @@ import numpy as np
 from companion.params import Controller
 from montecarlo.batch import run_montecarlo
 from montecarlo.engines import Engine
-from sitl.scenario import Scenario, ScenarioError, load_scenario
+from sitl.scenario import PAPER_PREFIX, Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 
 __all__ = ["format_budget", "realistic_counterpart", "run_budget"]
@@ -71,10 +71,11 @@ def format_budget(rows: list[dict]) -> str:
 
 
 def realistic_counterpart(scenario: Scenario) -> Scenario:
-    """The ``*_real`` preset a scenario's error sources are switched from (itself if there is none)."""
-    if scenario.name.endswith("_real"):
+    """The realistic preset a scenario's error sources are switched from: a ``paper_*`` preset's
+    realistic namesake (``paper_pacific`` -> ``pacific``), else the scenario itself."""
+    if not scenario.name.startswith(PAPER_PREFIX):
         return scenario
     try:
-        return load_scenario(f"{scenario.name}_real")
+        return load_scenario(scenario.name.removeprefix(PAPER_PREFIX))
     except ScenarioError:
         return scenario

@@ -18,7 +18,7 @@ __all__ = ["PAPER", "format_table", "summarise"]
 
 # The paper's figures (Tables 5-7, and the medians of Section 4.2's text), for the side-by-side.
 PAPER = {
-    "pacific": {
+    "paper_pacific": {
         "LTI-MPC": {"cep_paper_km": 35.18, "terminal_lon": 157.68, "terminal_lat": 28.15, "mean_terminal_miss_km": 3.55,
                     "mean_dev_km": 0.76, "max_dev_km": 1.41, "pmr_pct": 26.04, "iterations": 171,
                     "step_var_km2": 0.19, "length_km": 864.59},
@@ -29,13 +29,13 @@ PAPER = {
                    "mean_dev_km": 0.25, "max_dev_km": 0.35, "pmr_pct": 90.85, "iterations": 164,
                    "step_var_km2": 0.15, "length_km": 812.11},
     },
-    "long_storm": {
+    "paper_long_storm": {
         "LTV-MPC": {"snr_db": 5.09, "iterations": 189, "step_var_km2": 0.80, "length_km": 937.18, "mean_dev_km": 0.60,
                     "max_dev_km": 1.59, "remaining_km": 9.60, "median_remaining_km": 9.19},
         "Fc-MPC": {"snr_db": 5.25, "iterations": 190, "step_var_km2": 0.80, "length_km": 942.12, "mean_dev_km": 0.59,
                    "max_dev_km": 1.56, "remaining_km": 7.60, "median_remaining_km": 8.23},
     },
-    "short_storm": {
+    "paper_short_storm": {
         "LTV-MPC": {"snr_db": 9.93, "iterations": 171, "step_var_km2": 0.45, "length_km": 847.53, "mean_dev_km": 0.27,
                     "max_dev_km": 0.44, "remaining_km": 28.06},
         "Fc-MPC": {"snr_db": 10.06, "iterations": 167, "step_var_km2": 0.41, "length_km": 827.00, "mean_dev_km": 0.20,

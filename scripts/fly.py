@@ -1,7 +1,8 @@
 """fcmpc-fly: the simulator and the companion as two processes on loopback, one mission, one result.
 
-    fcmpc-fly                                  # the Pacific mission, closed-loop, lockstep
+    fcmpc-fly                                  # the Pacific mission in the realistic world, closed-loop, lockstep
     fcmpc-fly --short                          # the first 80 km of it (a minute of wall time less)
+    fcmpc-fly --scenario paper_pacific         # the paper's idealised Pacific (it says what it gives)
     fcmpc-fly --scenario long_storm --seed 3 --compare
     fcmpc-fly --autopilot px4 --speedup 500    # PX4 OFFBOARD, paced instead of lockstep
     fcmpc-fly --fc ardupilot --short           # against real ArduPilot Rover SITL (README: Flying with ArduPilot)
@@ -11,7 +12,9 @@ The run itself is :func:`fcmpc_fly.runner.fly`; this file is the command line. W
 it prints a progress line on stderr about every 10 s of wall time (step, simulated time,
 distance to go as the companion estimates it). At the end it prints where the vehicle came to
 rest (the headline), the true distance at the last control step, what the companion believed,
-and the path of the track plot.
+and the path of the track plot. A world that hands the navigator what a vehicle would not have
+(the paper's idealised ``paper_*`` presets) says so on stderr before it flies and after the result
+(:func:`sitl.gifts.gift_line`).
 
 Exit status: 0 arrived, 1 the mission failed or a process died, 2 bad arguments (one line,
 nothing written), 3 timeout, 130 interrupted by Ctrl-C (the records, ``result.json``, the plot
@@ -33,6 +36,7 @@ import sys  # noqa: E402
 from companion.cli import ArgumentParser, UsageError, param_items, run_main  # noqa: E402
 from fcmpc_fly.results import FlyResult, result_json, summary_lines  # noqa: E402
 from fcmpc_fly.runner import SHORT_KM, FlyOptions, fly, prepare, short_destination, write_short_scenario  # noqa: E402
+from sitl.gifts import gift_line  # noqa: E402
 from sitl.scenario import ScenarioError  # noqa: E402
 
 __all__ = ["FlyOptions", "FlyResult", "fly", "short_destination", "write_short_scenario", "build_parser",
@@ -42,7 +46,9 @@ __all__ = ["FlyOptions", "FlyResult", "fly", "short_destination", "write_short_s
 def build_parser() -> ArgumentParser:
     p = ArgumentParser(prog="fcmpc-fly", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="pacific",
-                   help="bundled scenario (pacific, long_storm, short_storm) or a TOML file; default pacific")
+                   help="bundled scenario (pacific, long_storm, short_storm: realistic; paper_pacific, "
+                        "paper_long_storm, paper_short_storm: the paper's idealised worlds) or a TOML file; "
+                        "default pacific")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulator's noise and INS errors; default 0")
     pace = p.add_mutually_exclusive_group()
     pace.add_argument("--lockstep", action="store_true",
@@ -98,9 +104,12 @@ def _run(argv: list[str] | None) -> int:
                          progress_s=None if args.no_progress or args.json else 10.0, fc=args.fc,
                          fc_instance=args.fc_instance, compass=args.compass)
     try:
-        prepare(options)          # nothing is written before this passes
+        scenario, _, _ = prepare(options)          # nothing is written before this passes
     except ValueError as err:     # ScenarioError, ParamError and the option checks
         raise UsageError(str(err)) from None
+    gifted = gift_line(scenario) if options.fc == "sim" else ""   # real firmware flies in its own world
+    if gifted:
+        print(f"fcmpc-fly: {gifted}", file=sys.stderr, flush=True)
     if options.fc in ("ardupilot", "px4"):
         from fcmpc_fly.firmware import fly_on_ardupilot, fly_on_px4
         from sitl.firmware import FirmwareMissing
@@ -119,6 +128,8 @@ def _run(argv: list[str] | None) -> int:
         lines = summary_lines(result)
         print(f"fcmpc-fly: {lines[0]}")
         print("\n".join(lines[1:]))
+        if gifted:
+            print(f"fcmpc-fly: {gifted}")
     return result.exit_code
 
 

@@ -6,7 +6,7 @@ INS error propagates along the true track, and the companion's measurement is fo
 would be on the vehicle. Two measurement paths, chosen by the scenario's
 ``[sensors] inprocess_samples``:
 
-* analytic (the paper's ideal world, ``pacific`` and the storm presets): D and I of the true
+* analytic (the paper's ideal worlds, ``paper_pacific`` and the paper's storm presets): D and I of the true
   field averaged along the period's path, plus the averaged sensor noise of the scenario
   (:meth:`SensorModel.averaged_di_noise_deg`), one normal each;
 * samples (the realistic presets): every magnetometer and attitude sample of the period is
@@ -38,7 +38,8 @@ average, which a vehicle is not told).
 
 Seeding: one ``numpy.random.SeedSequence(seed)`` spawns independent streams: [0] INS errors,
 [1] measurement noise (analytic D, I or the samples), [2] attitude errors, [3] calibration
-residuals, [4] the analytic F/H/Z noise, [5] the analytic standard errors' scatter; the crustal field is drawn from ``seed`` by
+residuals, [4] the analytic F/H/Z noise, [5] the analytic standard errors' scatter, [6] motion errors,
+[7] accelerometer noise, [8] the true start's GPS error; the crustal field is drawn from ``seed`` by
 :meth:`TruthField.for_seed`. LTI-, LTV- and Fc-MPC meet the same draws for the same seed, and
 the ideal world's streams [0] and [1] are drawn exactly as before the others existed.
 """
@@ -156,8 +157,8 @@ class InProcessFlight:
     def __init__(self, nav: NavConfig, scenario: Scenario, seed: int, truth: TruthField,
                  substep_s: float = 30.0, keep_commands: bool = False, nav_model=None) -> None:
         # (spawn by index: a new stream leaves the older ones, and so every older draw, as they were)
-        ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed = \
-            np.random.SeedSequence(seed).spawn(8)
+        ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed, start_seed = \
+            np.random.SeedSequence(seed).spawn(9)
         self.accel_rng = np.random.default_rng(accel_seed)
         if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
             nav = nav.replace(elements=resolve_elements(nav.elements, compass_derived=True))
@@ -174,9 +175,11 @@ class InProcessFlight:
             wanted = model_for_setting(nav.year, nav.wmm)
             nav_model = truth.model if wanted.name == truth.model.name else wanted
         self.mission = Mission(nav, nav_model)
-        # the mission starts on the true start, a GPS fix with the receiver's noise (denied after)
+        # the navigator starts from a GPS fix (NAV_START), declared with the receiver's noise (denied
+        # after); the vehicle is truly one receiver error away from it (none with exact_start)
         self.mission.set_start_fix(nav.gps_sigma_m)
-        self.state = state = VehicleState(nav.start_lat_deg, nav.start_lon_deg)
+        self.state = state = VehicleState(*scenario.true_start(np.random.default_rng(start_seed),
+                                                               (nav.start_lat_deg, nav.start_lon_deg)))
         sensors = scenario.sensors
         self.sampled = sensors.inprocess_samples
         self.substeps = max(1, int(round(nav.period_s / substep_s)))

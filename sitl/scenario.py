@@ -2,7 +2,10 @@
 
 One scenario file drives the in-process Monte Carlo and the MAVLink simulator alike
 (``sitl/scenarios/*.toml``; ``--scenario pacific`` names a bundled one, a path names any
-file). Bad files raise :class:`ScenarioError` naming the file and the key.
+file). Bad files raise :class:`ScenarioError` naming the file and the key. The bundled presets are
+realistic unless their name starts with ``paper_`` (the paper's idealised worlds, whose gifts to
+the navigator :func:`sitl.gifts.gifts` lists); the older ``*_real`` names are aliases of the
+realistic ones (:data:`ALIASES`).
 
 Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration residuals and
 ``inprocess_samples``), ``[ins]``, ``[storm]``, ``[[faults]]``, and for the realistic world
@@ -13,7 +16,9 @@ in ``[vehicle]`` the motion errors (``current_mps``, ``speed_scale_sigma``, ``co
 ``Scenario.motion``). ``[storm]`` names a row of the storm library (``event``,
 :mod:`sitl.storms.events`) and how its indices are published (``kp_delay_s``, ``kp_error``,
 ``ring_delay_s``, ``ring_batch_s``, ``ring_offset_nt``, ``ring_error_nt``: :mod:`sitl.storms.published`).
-Absent tables leave the paper's ideal world.
+Absent tables leave the paper's ideal world, except the start: the vehicle
+starts where a GPS fix with ``[sensors] gps_noise_m`` puts it around ``[mission] start`` (the start the
+navigator is given) unless ``[mission] exact_start = true`` (:func:`sitl.world.vehicle.true_start`).
 """
 from __future__ import annotations
 
@@ -29,12 +34,15 @@ from sitl.world.checks import require
 from sitl.world.crustal import CrustalConfig
 from sitl.world.ins import InsErrorConfig
 from sitl.world.magerrors import MagErrorConfig
-from sitl.world.vehicle import MotionErrorConfig, VehicleLimits
+from sitl.world.vehicle import MotionErrorConfig, VehicleLimits, true_start
 
 __all__ = ["Scenario", "SensorModel", "StormConfig", "FieldConfig", "Fault", "ScenarioError", "load_scenario",
-           "ins_declaration", "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
+           "ins_declaration", "ALIASES", "PAPER_PREFIX", "SCENARIO_DIR", "MAIN_FIELD_MODELS"]
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+PAPER_PREFIX = "paper_"              # a bundled preset named so is one of the paper's idealised worlds
+# the realistic presets' names before they took the plain ones (issue 46)
+ALIASES = {"pacific_real": "pacific", "long_storm_real": "long_storm", "short_storm_real": "short_storm"}
 FAULT_KINDS = ("mag_off", "mag_stuck", "mag_spike", "mag_nan", "gps_off", "heartbeat_off",
                "link_loss", "link_delay", "link_duplicate", "storm_onset", "fc_reboot")
 
@@ -185,6 +193,9 @@ class Scenario:
     alt_m: float = 0.0
     year: float = 2024.36
     start_utc: str = "2024-05-10T18:00:00Z"
+    # True: the vehicle starts exactly on the start the navigator is given (the paper's gift);
+    # False: a GPS fix's error away from it ([sensors] gps_noise_m, drawn per run)
+    exact_start: bool = False
     vehicle: VehicleLimits = VehicleLimits()
     sensors: SensorModel = SensorModel()
     ins: InsErrorConfig = InsErrorConfig()
@@ -202,6 +213,16 @@ class Scenario:
     def heading_source(self) -> str:
         """Where the flight controller's yaw comes from: ``true``, ``ins`` or ``magnetic``."""
         return self.attitude.heading_source
+
+    def true_start(self, rng, declared: tuple[float, float] | None = None) -> tuple[float, float]:
+        """Where the vehicle truly starts, (lat, lon) in degrees: the start the navigator is given
+        (``declared``, default ``[mission] start``: a GPS fix before take-off) less a receiver error of
+        ``[sensors] gps_noise_m`` drawn from ``rng`` (:func:`sitl.world.vehicle.true_start`); the
+        declared start itself with ``exact_start``."""
+        lat, lon = declared if declared is not None else (self.start_lat_deg, self.start_lon_deg)
+        if self.exact_start:
+            return lat, lon
+        return true_start(lat, lon, self.sensors.gps_noise_m, rng)
 
     @property
     def start_posix(self) -> float:
@@ -259,10 +280,11 @@ def _build(cls, values: dict, path: Path, section: str, convert: dict | None = N
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A bundled scenario by name (``pacific``, ``long_storm``, ``short_storm``) or a TOML path."""
+    """A bundled scenario by name (``pacific``, ``long_storm``, ``short_storm``, their idealised
+    ``paper_*`` versions, ...; an old name of :data:`ALIASES`) or a TOML path."""
     path = Path(name_or_path)
     if not path.suffix:
-        path = SCENARIO_DIR / f"{name_or_path}.toml"
+        path = SCENARIO_DIR / f"{ALIASES.get(str(name_or_path), name_or_path)}.toml"
     if not path.is_file():
         bundled = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
         raise ScenarioError(f"no scenario {name_or_path!r} (bundled: {bundled})")
@@ -275,7 +297,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     if unknown:
         raise ScenarioError(f"{path}: unknown key(s) or table(s): {', '.join(sorted(unknown))}")
     mission = _section(data, "mission", path)
-    unknown = set(mission) - {"start", "destination", "alt_m", "year", "start_utc"}
+    unknown = set(mission) - {"start", "destination", "alt_m", "year", "start_utc", "exact_start"}
     if unknown:
         raise ScenarioError(f"{path}: unknown key(s) in [mission]: {', '.join(sorted(unknown))}")
     try:
@@ -283,6 +305,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         lat0, lon0, lat1, lon1 = float(start[0]), float(start[1]), float(dest[0]), float(dest[1])
     except (KeyError, IndexError, TypeError, ValueError):
         raise ScenarioError(f"{path}: [mission] needs start = [lat, lon] and destination = [lat, lon]") from None
+    if not isinstance(mission.get("exact_start", False), bool):
+        raise ScenarioError(f"{path}: [mission] exact_start must be true or false")
     vehicle = dict(_section(data, "vehicle", path))
     if "max_speed_kmh" in vehicle:
         vehicle["max_speed_mps"] = float(vehicle.pop("max_speed_kmh")) / 3.6
@@ -320,6 +344,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         alt_m=float(mission.get("alt_m", 0.0)),
         year=float(mission.get("year", 2024.36)),
         start_utc=str(mission.get("start_utc", "2024-05-10T18:00:00Z")),
+        exact_start=mission.get("exact_start", False),
         vehicle=_build(VehicleLimits, vehicle, path, "vehicle"),
         sensors=_build(SensorModel, _section(data, "sensors", path), path, "sensors", {"mag_bias_nt": tuple}),
         ins=_build(InsErrorConfig, ins, path, "ins", {"misalign_arcmin": tuple}),

@@ -31,7 +31,7 @@ def test_parse_errors_reads_signs_and_refuses_unknown_sources():
 
 
 def test_switches_set_exactly_their_part_of_the_scenario():
-    real, ideal = load_scenario("pacific_real"), load_scenario("pacific")
+    real, ideal = load_scenario("pacific"), load_scenario("paper_pacific")
     off = with_errors(real, {"heading": False, "crustal": False}, real)
     assert off.attitude == AttitudeErrorConfig() and not off.field_model.crustal.enabled
     assert off.field_model.main == "igrf14" and off.sensors == real.sensors and off.ins == real.ins
@@ -50,7 +50,7 @@ def test_switches_set_exactly_their_part_of_the_scenario():
 
 
 def test_predicted_main_field_error_matches_the_navigators_own_fix():
-    real = load_scenario("pacific_real")
+    real = load_scenario("pacific")
     duration = expected_mission_duration_s(real)
     predicted = predicted_fix_error(real, "main_field", 0, duration, build_truth_field)
     # the IGRF (D, I) at the destination, fixed on WMM by the navigator's Newton iteration
@@ -63,7 +63,7 @@ def test_predicted_main_field_error_matches_the_navigators_own_fix():
 
 
 def test_predicted_noise_error_has_the_averaged_noise_spread():
-    real = load_scenario("pacific_real")
+    real = load_scenario("pacific")
     draws = [predicted_fix_error(real, "noise", seed, 57600.0, build_truth_field) for seed in range(400)]
     nav = model_for_date(real.year).elements(real.dest_lat_deg, real.dest_lon_deg, 0.0, real.year)
     sigma_d, sigma_i = real.sensors.averaged_di_noise_deg(360.0, float(nav.h_nt), float(nav.f_nt))
@@ -73,24 +73,24 @@ def test_predicted_noise_error_has_the_averaged_noise_spread():
 
 
 def test_budget_script_writes_its_table(tmp_path, capsys):
-    code = main(["--scenario", "pacific_real", "--budget", "--runs", "1", "--workers", "1", "--quiet",
+    code = main(["--scenario", "pacific", "--budget", "--runs", "1", "--workers", "1", "--quiet",
                  "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path)])
     assert code == 0
     printed = capsys.readouterr().out
-    rows = json.loads((tmp_path / "pacific_real" / "budget.json").read_text())["rows"]
+    rows = json.loads((tmp_path / "pacific" / "budget.json").read_text())["rows"]
     assert [r["source"] for r in rows] == ["none", "heading", "main_field", "crustal", "calibration", "noise", "motion",
-                                           "ins", "all"]          # no storm in pacific_real
+                                           "ins", "all"]          # no storm in pacific
     for row in rows:
         assert f"| {row['source']} |" in printed and math.isfinite(row["median_km"])
     assert rows[0]["predicted_km"] == 0.0 and rows[-1]["predicted_km"] > 0.0
 
 
 def test_errors_switch_reaches_the_runs(tmp_path, capsys):
-    code = main(["--scenario", "pacific", "--errors", "+main_field", "--runs", "1", "--workers", "1", "--quiet",
+    code = main(["--scenario", "paper_pacific", "--errors", "+main_field", "--runs", "1", "--workers", "1", "--quiet",
                  "--controllers", "fc", "--no-plots", "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path)])
     assert code == 0
     with pytest.raises(SystemExit):
-        main(["--scenario", "pacific", "--errors", "-gravity", "--runs", "1", "--quiet"])
+        main(["--scenario", "paper_pacific", "--errors", "-gravity", "--runs", "1", "--quiet"])
 
 
 @pytest.mark.slow
@@ -108,7 +108,7 @@ def test_main_field_alone_costs_what_the_budget_predicts():
     from companion.params import NavConfig, validate_all
     from sitl.inprocess import fly_in_process
 
-    real = load_scenario("pacific_real")
+    real = load_scenario("pacific")
     scenario = only(real, "main_field")
     truth = build_truth_field(scenario)
     predicted = predicted_fix_error(real, "main_field", 0, expected_mission_duration_s(real), build_truth_field)

@@ -18,12 +18,15 @@ from sitl.scenario import load_scenario
 
 
 def test_montecarlo_writes_table_and_results(tmp_path, capsys):
-    code = main(["--scenario", "pacific", "--runs", "2", "--workers", "1", "--controllers", "ltv,fc",
+    code = main(["--scenario", "paper_pacific", "--runs", "2", "--workers", "1", "--controllers", "ltv,fc",
                  "--out", str(tmp_path), "--quiet"])
     assert code == 0
     printed = capsys.readouterr().out
     assert "Trajectory length (km)" in printed and "812.1" in printed  # the paper's figure beside ours
-    out = tmp_path / "pacific"
+    # the paper's idealised world says what it hands the navigator (sitl.gifts), from its tables
+    [gifted] = [line for line in printed.splitlines() if "hands the navigator" in line]
+    assert gifted.startswith("paper_pacific hands") and "the true heading" in gifted and "exact start" in gifted
+    out = tmp_path / "paper_pacific"
     with open(out / "runs.csv") as handle:
         rows = list(csv.DictReader(handle))
     assert {r["controller"] for r in rows} == {"LTV-MPC", "Fc-MPC"} and len(rows) == 4
@@ -50,7 +53,7 @@ def test_one_wandering_run_does_not_set_the_trajectory_frame():
 
 
 def test_trajectory_plot_counts_the_runs_beyond_the_frame(tmp_path):
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     lat = np.linspace(scenario.start_lat_deg, scenario.dest_lat_deg, 50)
     lon = np.linspace(scenario.start_lon_deg, scenario.dest_lon_deg, 50)
     rows = [_row("Fc-MPC", s, 3.0) for s in range(5)] + [_row("LTI-MPC", 0, 3.0), _row("LTI-MPC", 1, 5000.0)]
@@ -81,9 +84,9 @@ def _specs(seeds: int = 2):
     from companion.params import validate_all
     from montecarlo.batch import plan_runs
 
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     values = validate_all({**scenario.nav_overrides(), "NAV_MAX_STEPS": 12})
-    return list(enumerate(plan_runs("pacific", scenario, seeds, [1, 2], values)))
+    return list(enumerate(plan_runs("paper_pacific", scenario, seeds, [1, 2], values)))
 
 
 def _without_wall(output) -> tuple:
@@ -145,7 +148,7 @@ def test_local_pool_workers_run_one_blas_thread_although_the_parent_loaded_more(
     assert threads["workers"] and all(counts == [1] * len(counts) and counts for counts in threads["workers"])
 
 
-SWEEP = ["--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
+SWEEP = ["--scenario", "paper_pacific", "--sweep", "NAV_PERIOD_S=360,720", "--sweep", "sensors.mag_noise_nt=50,450", "--controllers", "fc",
          "--workers", "1", "--quiet", *SHORT]
 
 
@@ -159,7 +162,7 @@ def test_sweep_writes_one_parquet_row_per_cell_and_seed_and_resumes(tmp_path, ca
     assert main([*SWEEP, "--runs", "2", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "8 runs; 0 already stored, 8 flown" in printed
-    folder = tmp_path / "pacific" / "sweep"
+    folder = tmp_path / "paper_pacific" / "sweep"
     store = RunStore(folder / "runs")
     table = store.read()
     rows = table.to_pylist()
@@ -253,10 +256,10 @@ def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
     """--no-ins: the measurement carries no INS position (ArduPilot, PX4 on MEMS sensors), so auto
     takes the dead-reckoning filter; with the INS on board it takes the INS model."""
     for flag, expected in ((["--no-ins"], "dead_reckoning"), ([], "ins")):
-        code = main(["--scenario", "pacific", "--runs", "1", "--workers", "1", "--controllers", "fc", "--quiet",
+        code = main(["--scenario", "paper_pacific", "--runs", "1", "--workers", "1", "--controllers", "fc", "--quiet",
                      "--no-plots", "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path / expected), *flag])
         assert code == 0
-        with open(tmp_path / expected / "pacific" / "runs.csv") as handle:
+        with open(tmp_path / expected / "paper_pacific" / "runs.csv") as handle:
             [row] = list(csv.DictReader(handle))
         assert row["process_model"] == expected
 
@@ -282,7 +285,7 @@ def test_a_sweep_can_withhold_a_storms_space_weather_feed():
     from montecarlo.runs import apply_scenario_changes, scenario_keys
     from sitl.scenario import load_scenario
 
-    storm = load_scenario("long_storm")
+    storm = load_scenario("paper_long_storm")
     assert scenario_keys(storm)["storm.kp_feed"] is True and scenario_keys(storm)["storm.symh_feed"] is True
     changed = apply_scenario_changes(storm, (("storm.kp_feed", 0.0), ("storm.symh_feed", 1.0)))
     assert (changed.storm.kp_feed, changed.storm.symh_feed) == (False, True)

@@ -15,7 +15,7 @@ farther than ``NAV_FIX_GATE_M`` from the prior estimate whose measurement is als
 filter's own 99.99 % innovation ellipse (``FIX_GATE_PROBABILITY``, chi-square on the element
 count) marks a wrong contour crossing or a disturbed measurement, so
 that step's update is skipped. Judged in kilometres alone, a dead-reckoning filter whose 1-sigma
-had grown past the distance rejected every fix for the rest of the mission (``pacific_real``
+had grown past the distance rejected every fix for the rest of the mission (``pacific``
 without an INS, (I, F), 20 seeds: the worst ended 1,743 km off, mean 114 km; with the ellipse the
 worst is 116 km, mean 37 km). Unless the
 filter dead-reckons and the last ``NAV_REANCHOR_N`` rejected fixes agree on where the vehicle
@@ -57,7 +57,7 @@ FIX_GATE_PROBABILITY = 0.9999   # a fix beyond NAV_FIX_GATE_M is rejected only o
 # conditioned ones are iterated until a Newton step is shorter than FIX_TOL_M. The position after
 # that last step is off by its step's square times the curvature (at most 2.4e-4 per metre over the
 # globe: under 3 cm for a 10 m step), so 10 m loses nothing of a 1 m tolerance and saves the model
-# evaluation that confirmed it (pacific_real: 2.98 -> 2.55 evaluations a step; fixes moved by at
+# evaluation that confirmed it (the realistic pacific: 2.98 -> 2.55 evaluations a step; fixes moved by at
 # most 1.4e-5 m, misses the same to the millimetre).
 FIX_LINEAR_WITHIN_M = 1000.0
 FIX_TOL_M = 10.0

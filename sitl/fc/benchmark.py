@@ -40,7 +40,7 @@ def _count_frames(data: bytes) -> tuple[int, int]:
     return frames, stray
 
 
-def benchmark(duration_sim_s: float = 3600.0, speedup: float | None = None, scenario: str = "pacific",
+def benchmark(duration_sim_s: float = 3600.0, speedup: float | None = None, scenario: str = "paper_pacific",
               extra_args: tuple[str, ...] = ("--cruise", "132.3:13.9"), decode_every: int = 20,
               timeout_s: float = 600.0) -> dict:
     """Speed of the simulator on a scenario, with a reader draining its UDP output.

@@ -33,7 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="MAVLink 2 simulator of an ArduPilot Rover (or PX4) boat flying a geomagnetic-navigation "
                     "scenario faster than real time. Every message carries simulated time.",
     )
-    p.add_argument("--scenario", default="pacific", help="bundled scenario name or TOML path (default pacific)")
+    p.add_argument("--scenario", default="pacific",
+                   help="bundled scenario name or TOML path (default pacific, the realistic Pacific; paper_* are "
+                        "the paper's idealised worlds)")
     p.add_argument("--out", action="append", default=[], metavar="udp:HOST:PORT",
                    help=f"send to HOST:PORT (like ArduPilot SITL/MAVProxy --out); default {DEFAULT_OUT} "
                         "when neither --out nor --master is given. Repeatable")

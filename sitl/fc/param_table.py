@@ -9,8 +9,10 @@ ArduPilot Rover names (``--autopilot ardupilot``, the default)::
     WP_SPEED         m/s, waypoint speed, 0 = CRUISE_SPEED (kept, no waypoints here)
     EK3_SRC1_YAW     EKF3 yaw source: 0 none, 1 compass, 2 GPS (dual-antenna yaw),
                      3 GPS with compass fallback, 6 external nav, 8 GSF
-                     (ArduPilot's AP_NavEKF_Source::SourceYaw); default from the scenario's
-                     heading source: "true" and "ins" -> 2, "magnetic" -> 1
+                     (ArduPilot's AP_NavEKF_Source::SourceYaw); default the source the world's
+                     yaw really comes from (the scenario's heading source): "magnetic" -> 1
+                     compass, "ins" and "true" -> 6 external nav (an INS or a heading sensor
+                     outside the FC; never 2: GPS is denied, so no GNSS yaw)
     COMPASS_USE      1 = the EKF uses the compass
     GPS1_TYPE        0 none, 1 auto, ... 26 (ArduPilot's GPS driver types); default 1
     GPS2_TYPE        the same for a second receiver; default 0
@@ -25,9 +27,10 @@ PX4 names (``--autopilot px4``)::
     COM_OF_LOSS_T    s, offboard setpoint timeout                      [0.1, 60]
     EKF2_MAG_TYPE    0 automatic, 1 magnetic heading, 5 none, 6 init; "magnetic" -> 1,
                      "true"/"ins" -> 5 (heading from elsewhere)
-    EKF2_GPS_CTRL    bitmask: 1 lon/lat, 2 altitude, 4 3D velocity, 8 dual-antenna heading;
-                     "magnetic" -> 7, "true"/"ins" -> 15
-    EKF2_EV_CTRL     bitmask: 1 horizontal position, 2 vertical position, 4 3D velocity, 8 yaw; 0
+    EKF2_GPS_CTRL    bitmask: 1 lon/lat, 2 altitude, 4 3D velocity, 8 dual-antenna heading; 7
+                     (no GNSS heading: GPS is denied)
+    EKF2_EV_CTRL     bitmask: 1 horizontal position, 2 vertical position, 4 3D velocity, 8 yaw;
+                     "true"/"ins" -> 8 (the yaw from outside the FC), "magnetic" -> 0
     SIM_GPS1_ENABLE  as above (a simulator switch, kept under the same name)
 
 Only CRUISE_SPEED, GUID_TIMEOUT / COM_OF_LOSS_T and SIM_GPS1_ENABLE change what the simulator
@@ -44,9 +47,11 @@ __all__ = ["HEADING_SOURCES", "MAV_PARAM_TYPE_INT32", "MAV_PARAM_TYPE_REAL32", "
 
 MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
 HEADING_SOURCES = ("true", "ins", "magnetic")
-_EK3_SRC1_YAW = {"true": 2, "ins": 2, "magnetic": 1}
+# what each heading source of the world is to the FC's EKF: the compass, or a yaw from outside the FC
+# (the INS, or the paper's true-heading sensor), never a GNSS yaw: the stand-in's GPS has no fix
+_EK3_SRC1_YAW = {"true": 6, "ins": 6, "magnetic": 1}
 _EKF2_MAG_TYPE = {"true": 5, "ins": 5, "magnetic": 1}
-_EKF2_GPS_CTRL = {"true": 15, "ins": 15, "magnetic": 7}
+_EKF2_EV_CTRL = {"true": 8, "ins": 8, "magnetic": 0}
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,7 @@ def px4_params(*, sysid: int, setpoint_timeout_s: float, heading_source: str, **
         _real("COM_OF_LOSS_T", setpoint_timeout_s, 0.1, 60.0, "s, offboard setpoint timeout"),
         _int("EKF2_MAG_TYPE", _EKF2_MAG_TYPE[heading_source], 0, 6, (0, 1, 5, 6),
              "0 automatic, 1 magnetic heading, 5 none, 6 init"),
-        _int("EKF2_GPS_CTRL", _EKF2_GPS_CTRL[heading_source], 0, 15, (), "1 lon/lat, 2 alt, 4 vel, 8 dual-antenna yaw"),
-        _int("EKF2_EV_CTRL", 0, 0, 15, (), "1 hor. pos, 2 vert. pos, 4 vel, 8 yaw"),
+        _int("EKF2_GPS_CTRL", 7, 0, 15, (), "1 lon/lat, 2 alt, 4 vel, 8 dual-antenna yaw"),
+        _int("EKF2_EV_CTRL", _EKF2_EV_CTRL[heading_source], 0, 15, (), "1 hor. pos, 2 vert. pos, 4 vel, 8 yaw"),
         _int("SIM_GPS1_ENABLE", 1, 0, 1, (0, 1), "0 = the simulated GPS has no fix"),
     )

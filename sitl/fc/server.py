@@ -47,6 +47,7 @@ from sitl.fc.router import Router
 from sitl.fc.streams import StreamScheduler
 from sitl.fc.telemetry import Telemetry
 from sitl.fc.vehicle import VehicleSim
+from sitl.gifts import gift_line
 from sitl.guidance import DIALECTS, PX4, Guidance
 from sitl.links import Link, open_link, parse_endpoint
 from sitl.mavframe import FrameEncoder
@@ -78,8 +79,8 @@ class SitlServer:
         truth_full = truth if truth is not None else build_truth_field(sc, config.data_dir, config.expected_duration_s,
                                                                        seed=config.seed)
         self.sysid, self.compid = config.sysid, 1
-        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal, rng_motion = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(7))
+        rng_sensors, rng_nav, rng_link, rng_gps, rng_att, rng_cal, rng_motion, rng_start = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(8))
         self.clock = SimClock()
         self.counters = Counters()
         self._stop = threading.Event()
@@ -94,7 +95,7 @@ class SitlServer:
         self.faults = FaultInjector(sc.faults, self.clock, self.counters, self.out.say)
         self.out.faults = self.faults
         self.vehicle = VehicleSim(sc, truth_full, self.clock, self.faults, rng_sensors, rng_nav, rng_gps,
-                                  rng_att=rng_att, rng_cal=rng_cal, rng_motion=rng_motion,
+                                  rng_att=rng_att, rng_cal=rng_cal, rng_motion=rng_motion, rng_start=rng_start,
                                   ins_step_s=config.ins_step_s, wave_roll_deg=config.wave_roll_deg,
                                   wave_pitch_deg=config.wave_pitch_deg)
         self.telemetry = Telemetry(self.out, self.vehicle, self.faults, self.guidance, self.dialect, self.clock,
@@ -304,6 +305,9 @@ class SitlServer:
         print(f"fcmpc-sitl: scenario {self.scenario.name}, {self.dialect.name} boat sysid {self.sysid}, "
               f"links {links}, speed-up {pace}{', lockstep %gs' % c.lockstep_period_s if c.lockstep else ''}, "
               f"records {self.log_dir if self.records.enabled else 'off'}", file=sys.stderr, flush=True)
+        gifted = gift_line(self.scenario)
+        if gifted:
+            print(f"fcmpc-sitl: {gifted}", file=sys.stderr, flush=True)
 
     def _finish(self) -> None:
         if self.out.hold:               # lockstep: what was held since the last boundary (a run ending off one)

@@ -2,8 +2,9 @@
 
 One object holds the world's state at the current simulated instant:
 
-* motion: :func:`sitl.world.vehicle.step_vehicle` towards the commanded ``(course, speed)``
-  (``cmd``), with the scenario's motion errors (current, speed scale, course bias) drawn for the
+* motion: from the true start (:meth:`sitl.scenario.Scenario.true_start`: a GPS error away from the
+  scenario's start, unless ``exact_start``), :func:`sitl.world.vehicle.step_vehicle` towards the
+  commanded ``(course, speed)`` (``cmd``), with the scenario's motion errors (current, speed scale, course bias) drawn for the
   seed, and the NED acceleration and yaw rate the IMU needs;
 * field: the truth field (WMM + storm, :class:`sitl.world.magnetic.TruthField`) at the true
   position, re-evaluated every ``field_step_s``; its storm part is kept for the truth log;
@@ -36,14 +37,16 @@ class VehicleSim:
 
     def __init__(self, scenario: Scenario, truth: TruthField, clock: SimClock, faults, rng_sensors, rng_nav,
                  rng_gps, *, ins_step_s: float, wave_roll_deg: float, wave_pitch_deg: float, rng_att=None,
-                 rng_cal=None, rng_motion=None) -> None:
+                 rng_cal=None, rng_motion=None, rng_start=None) -> None:
         sc = scenario
         self.scenario = scenario
         self.clock = clock
         self.faults = faults            # reads .gps_off, .mag_stuck, .mag_spike_nt
         self.truth_full = truth
         self.truth = truth
-        self.state = VehicleState(sc.start_lat_deg, sc.start_lon_deg, 0.0, 0.0)
+        # the vehicle is truly a GPS error away from the start the navigator is given (NAV_START)
+        start = sc.true_start(rng_start) if rng_start is not None else (sc.start_lat_deg, sc.start_lon_deg)
+        self.state = VehicleState(*start, 0.0, 0.0)
         self.wave = WaveMotion(roll_amp_deg=wave_roll_deg, pitch_amp_deg=wave_pitch_deg)
         errors = make_error_models(sc, rng_att, rng_cal)   # sitl.world's attitude/calibration errors
         self.sensors = SensorSuite(sc.sensors, rng_sensors, errors.attitude, errors.mag, errors.decl_table_deg)

@@ -13,6 +13,9 @@ map without GPS: ArduPilot SITL made 7.94 m/s for 8), and the water moves by ``c
 (the Kuroshio Extension on the Pacific route: 0.1-1 m/s). ``course_rad``/``speed_mps`` in the
 state are then the heading and the speed through the water; ``vel_east/north_mps`` are over
 ground. The ideal world has none of them.
+
+The start (:func:`true_start`): the navigator is given the start a GPS fix reported before take-off;
+the vehicle is truly one receiver error (``gps_noise_m`` per axis, 1 sigma) away from it.
 """
 from __future__ import annotations
 
@@ -22,10 +25,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion import wrap_2pi, wrap_pi
-from companion.nav.geo import metres_per_degree
+from companion.nav.geo import metres_per_degree, offset_position
 from sitl.world.checks import require
 
-__all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "step_vehicle"]
+__all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "step_vehicle",
+           "true_start"]
+
+
+def true_start(lat_deg: float, lon_deg: float, gps_noise_m: float, rng: np.random.Generator) -> tuple[float, float]:
+    """Where the vehicle truly is when the navigator is told it starts at (``lat_deg``, ``lon_deg``), a
+    GPS fix: that fix less a receiver error drawn east and north with ``gps_noise_m`` (1 sigma, m).
+    Without noise, the fix itself (``rng`` untouched).
+
+    >>> true_start(33.0, 152.0, 0.0, np.random.default_rng(0))
+    (33.0, 152.0)
+    """
+    if not gps_noise_m > 0.0:
+        return lat_deg, lon_deg
+    east_m, north_m = rng.normal(0.0, gps_noise_m, 2)
+    lat, lon = offset_position(lat_deg, lon_deg, -east_m, -north_m)
+    return float(lat), float(lon)
 
 
 @dataclass(frozen=True)

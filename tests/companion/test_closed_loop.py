@@ -57,7 +57,8 @@ def assert_close_to_monte_carlo(result: FlyResult, floor_m: float = FLOOR_M) -> 
 
 
 def test_short_pacific_mission_closed_loop(tmp_path):
-    result = fly(FlyOptions(short=True, compare=True, out_dir=str(tmp_path / "run"), timeout_s=HANG_S))
+    result = fly(FlyOptions(scenario="paper_pacific", short=True,
+                            compare=True, out_dir=str(tmp_path / "run"), timeout_s=HANG_S))
     assert_close_to_monte_carlo(result)
     comp = result.companion
     assert comp["setpoints_refused"] == 0 and comp["setpoints_sent"] > 1000 and comp["bad_frames"] == 0
@@ -78,7 +79,8 @@ def test_short_pacific_mission_closed_loop(tmp_path):
 
 
 def test_short_mission_px4_offboard(tmp_path):
-    result = fly(FlyOptions(short=True, short_km=40.0, autopilot="px4", compare=True,
+    result = fly(FlyOptions(scenario="paper_pacific", short=True,
+                            short_km=40.0, autopilot="px4", compare=True,
                             out_dir=str(tmp_path / "run"), timeout_s=HANG_S, tlog=False))
     assert_close_to_monte_carlo(result)
     assert result.companion["fc"]["autopilot"] == "PX4"
@@ -100,9 +102,10 @@ LATENCY_S = 1.0 + 0.4 + 0.1     # one lockstep period (1 s) + one setpoint tick 
 def faulted_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("failsafe")
     faults = tuple(f"{kind}:{at:g}:{dur:g}" for kind, (at, dur) in FAULTS.items())
-    result = fly(FlyOptions(short=True, short_km=60.0, faults=faults, out_dir=str(out / "run"), timeout_s=HANG_S,
+    result = fly(FlyOptions(scenario="paper_pacific", short=True,
+                            short_km=60.0, faults=faults, out_dir=str(out / "run"), timeout_s=HANG_S,
                             tlog=False, sitl_extra=("--tlog",)))
-    start = load_scenario("pacific").start_posix
+    start = load_scenario("paper_pacific").start_posix
     log = mavutil.mavlink_connection(str(out / "run" / "sitl" / "sitl.tlog"))
     setpoints, modes, texts = [], [], []
     while True:

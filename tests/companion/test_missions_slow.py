@@ -23,7 +23,7 @@ pytestmark = pytest.mark.timeout(HANG_S + 300.0)
 
 @pytest.mark.slow
 def test_full_pacific_mission(tmp_path):
-    result = fly(FlyOptions(scenario="pacific", seed=0, compare=True, out_dir=str(tmp_path / "run"),
+    result = fly(FlyOptions(scenario="paper_pacific", seed=0, compare=True, out_dir=str(tmp_path / "run"),
                             timeout_s=HANG_S, tlog=False, nice=YIELD_NICE))
     assert_close_to_monte_carlo(result)
     assert result.iterations > 150

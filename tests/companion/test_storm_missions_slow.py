@@ -87,4 +87,4 @@ def test_short_storm_mission(tmp_path, shared_data):
     wandered to 55 steps over 150 km and took 380 s of a loaded CI run; its accuracy and honesty
     are judged in-process (``tests/sitl/test_storm_mission.py``) and ``fly_storm_and_compare``
     flies it on demand."""
-    fly_storm_and_compare(tmp_path, shared_data, "short_storm")
+    fly_storm_and_compare(tmp_path, shared_data, "paper_short_storm")

@@ -122,7 +122,7 @@ def test_a_quiet_world_feeds_a_quiet_days_indices_unless_withheld(shared_data, f
     """A world without a storm reports Kp 0 and SYM-H 0 nT (a field nothing disturbs) through its
     space-weather feed; ``[storm] kp_feed`` / ``symh_feed`` false withhold either (NaN)."""
     from dataclasses import replace
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     scenario = replace(scenario, storm=replace(scenario.storm, **feeds))
     truth = build_truth_field(scenario, shared_data)
     for elapsed_s in (0.0, 3600.0, 50000.0):
@@ -144,7 +144,7 @@ def test_the_fix_gate_counts_the_elements_the_filter_measures(model):
 
     # the paper world's navigator (no model-error states) with the biases known to 0.001 deg: the
     # position's 20 km is then what the innovation is judged in
-    ideal = load_scenario("pacific").nav_overrides()
+    ideal = load_scenario("paper_pacific").nav_overrides()
     config = NavConfig.from_values(validate_all({**ideal, "NAV_CONTROLLER": 2, "FUS_MODEL": 3, "FUS_B0_DEG": 1e-3,
                                                  "FUS_B0_NT": 1.0}))
 

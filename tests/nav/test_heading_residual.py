@@ -148,7 +148,7 @@ def test_the_window_heading_is_the_magnetic_heading_plus_d_else_the_course_flown
 
 @pytest.mark.slow
 def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellipse(shared_data):
-    """pacific_real (its magnetometer carries a drawn hard- and soft-iron residual), seeds 0-9,
+    """pacific (its magnetometer carries a drawn hard- and soft-iron residual), seeds 0-9,
     the INS filter: with the defaults' heading states at least 9 of 10 final positions lie inside
     the filter's own 95 % ellipse, and more than without them (FUS_BH 0). Measured: 10 and 8 of
     10 (50 seeds: 94 % with them, median miss 15.2 km; 86 % and 18.1 km without)."""
@@ -157,7 +157,7 @@ def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellip
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)
 
     def inside(**changes) -> int:

@@ -74,7 +74,7 @@ def test_a_scenario_declares_its_ins_from_its_ins_table():
     """``[ins]`` gives the declaration: Table 1's scenarios declare exactly the registry's defaults
     (so the presets fly as before); a changed table declares the change; an installation with no
     INS (``onboard = false``) declares nothing."""
-    pacific = load_scenario("pacific")
+    pacific = load_scenario("paper_pacific")
     declared = pacific.nav_overrides()
     assert {name: declared[name] for name in INS_PARAMS[:-1]} == {name: SPEC_BY_NAME[name].default
                                                                    for name in INS_PARAMS[:-1]}
@@ -89,7 +89,7 @@ def test_a_scenario_declares_its_ins_from_its_ins_table():
 def test_the_budget_keeps_the_real_ins_declared_when_it_switches_the_ins_off():
     """A world whose INS happens to be perfect does not tell the navigator so: with the INS
     switched off (``--errors -ins``, the budget's rows) the navigator keeps the real INS's datasheet."""
-    real = load_scenario("pacific_real")
+    real = load_scenario("pacific")
     for scenario in (only(real, None), only(real, "crustal"), with_errors(real, {"ins": False}, real)):
         assert scenario.ins.gyro_bias_degph == 0.0
         overrides = scenario.nav_overrides()
@@ -103,7 +103,7 @@ def test_a_worse_ins_is_honest_only_when_declared(shared_data):
     ellipse) and the median miss is under 1 km; with Table 1 declared instead it is overconfident
     (mean NEES above 20) and ends far off (median miss above 10 km). Measured on seeds 0-29: 0.34 km
     and NEES 1.89 declared, 85 km and NEES 115 with Table 1."""
-    scenario = apply_scenario_changes(load_scenario("pacific"), (("ins.gyro_bias_degph", 0.1),
+    scenario = apply_scenario_changes(load_scenario("paper_pacific"), (("ins.gyro_bias_degph", 0.1),
                                                                  ("ins.gyro_markov_degph", 0.05)))
     truth = build_truth_field(scenario, shared_data)
 

@@ -47,7 +47,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def pacific():
-    return load_scenario("pacific")
+    return load_scenario("paper_pacific")
 
 
 @pytest.fixture(scope="module")

@@ -199,14 +199,14 @@ def test_the_estimator_says_whose_attitude_turns_the_magnetometer(model, source,
 
 @pytest.mark.slow
 def test_local_model_error_states_make_the_realistic_world_filter_honest(shared_data):
-    """pacific_real (IGRF-14 + crust against the navigator's WMM, calibration residuals), six
+    """pacific (IGRF-14 + crust against the navigator's WMM, calibration residuals), six
     seeded missions with the INS filter: with the defaults' local model-error states the median
     of the runs' mean NEES is at most 6.5 and under 0.6 of the same runs' without them
     (FUS_GM_* 0 and a still bias, FUS_BQ_DEG 0.0002). Measured: 4.5 against 9.0 (50 seeds:
     mean NEES 7.2 against 27.4, median miss 22.0 against 40.3 km). Both without the heading
     states (FUS_BH_* 0, which came later and are judged in tests/nav/test_heading_residual.py):
     with them on both sides the local states' share is smaller (2.6 against 3.7)."""
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)
 
     def median_nees(**changes) -> float:
@@ -224,14 +224,14 @@ def test_local_model_error_states_make_the_realistic_world_filter_honest(shared_
 
 @pytest.mark.slow
 def test_the_ins_attitude_in_the_measurement_makes_the_realistic_world_filter_more_honest(shared_data):
-    """pacific_real, whose INS's attitude levels and turns the magnetometer: seeds 0-11 in-process,
+    """pacific, whose INS's attitude levels and turns the magnetometer: seeds 0-11 in-process,
     the runs' mean NEES with FUS_ATT_INS 2 (the misalignment in the measured elements; what the
     scenario's installation declares) is at most 3 and under 0.85 of the same runs' with 0.
     Measured: 2.49 against 3.42 (50 seeds each half: mean NEES 3.06 / 3.14 against 3.41 / 3.38,
     median miss 13.46 / 14.55 against 14.62 / 15.98 km)."""
     from sitl.inprocess import InProcessFlight, fly_batch
 
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)
     assert scenario.nav_overrides()["FUS_ATT_INS"] == 2
 
@@ -312,7 +312,7 @@ def test_nees_and_nis_of_a_seeded_monte_carlo_are_chi_square(shared_data, reques
     (measured 0.85 / 0.85 on these seeds, 0.85-0.93 / 0.85-0.89 on the four groups; with the
     declared FUS_R_DEG it is 0.75 on (D, I), outside). No mission switches the disturbance on (no
     false alarm)."""
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     truth = build_truth_field(scenario, shared_data)
     nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), "NAV_ELEMENTS": requested}))
     m = len(Mission(nav).measured.names)

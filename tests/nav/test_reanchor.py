@@ -63,7 +63,7 @@ def test_never_with_zero_steps():
 # (its [navigator] table: no local model-error states). With them (FUS_GM_* of a real vehicle) the
 # 70 km knock along (I, F)'s weak direction passes the gate at the third step as a 3-sigma local
 # F error (153 nT) and is never rejected again: the states can hide a wrong estimate (README).
-IDEAL_NAVIGATOR = dict(load_scenario("pacific").navigator)
+IDEAL_NAVIGATOR = dict(load_scenario("paper_pacific").navigator)
 
 
 def _fly_knocked(model, fus_model: int, reanchor_n: int, knock_sigma_m: float = 500.0):
@@ -133,7 +133,7 @@ def test_the_filters_gate_is_judged_in_its_own_uncertainty(model):
 
 @pytest.mark.slow
 def test_the_ellipse_gate_keeps_a_dead_reckoning_filter_from_locking_in(monkeypatch):
-    """pacific_real without an INS, (I, F), seed 18, the dead-reckoning filter: with the fix gate
+    """pacific without an INS, (I, F), seed 18, the dead-reckoning filter: with the fix gate
     in kilometres alone its estimate drifted, every later fix was rejected while its own 1-sigma
     grew past the distance, and it ended 1,743 km off after 1000 steps; judged in its innovation
     ellipse it arrives 65 km off (the worst of 20 seeds: 116 km). Flown with epsilon alone
@@ -153,7 +153,7 @@ the mission there (164 km off), which would hide the lock-in this test is about.
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     scenario = replace(scenario, ins=replace(scenario.ins, onboard=False))
     truth = build_truth_field(scenario)
     nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **IDEAL_NAVIGATOR,

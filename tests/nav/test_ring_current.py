@@ -99,7 +99,7 @@ SEEDS = range(8)
 
 
 def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
-    """Long storm, Fc-MPC with the default filter, seeds 0-7 in-process, SYM-H and Kp as published
+    """The paper's long storm, Fc-MPC with the default filter, seeds 0-7 in-process, SYM-H and Kp as published
     (sitl.storms.published: Kp 15 min after its 3-hour interval, SYM-H hourly 30 min late, quick-look
     errors; in this compressed world those are storm-time delays, 2.7x longer in mission time):
     without the correction (FUS_SYMH_K 0) the median miss is 44.93 km (40.5-48.3), with it 20.61 km
@@ -107,7 +107,7 @@ def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
     the feed was published, Kp was even the interval's own definitive value: 17.05 -> 8.69 km). Fails
     if the correction stops paying: the median must stay under 24 km and under 0.65 of the
     uncorrected one."""
-    scenario = load_scenario("long_storm")
+    scenario = load_scenario("paper_long_storm")
     truth = build_truth_field(scenario, shared_data)
     misses = {}
     for ratio in (0.0, 1.0):

@@ -45,7 +45,7 @@ def test_a_start_beyond_the_bounds_is_admitted_and_the_mission_arrives(admit):
     but not the start (-3.9): with the paper's hard bounds (MPC_S_ADMIT 0) the first cruise QP is
     infeasible and the mission fails 792 km out; admitted, it flies back inside and arrives as the
     same seed does with the automatic bounds (0.11 km)."""
-    pacific = load_scenario("pacific")
+    pacific = load_scenario("paper_pacific")
     nav = NavConfig.from_values(validate_all({**pacific.nav_overrides(), "NAV_CONTROLLER": 2, "MPC_S_AUTO": 0,
                                               "MPC_S_MIN_D": -2.0, "MPC_S_ADMIT": admit}))
     result = fly_in_process(nav, pacific, 0, build_truth_field(pacific))

@@ -93,10 +93,10 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(HANG_S + 100.0)]
 
 def _scenario_with_gps(path: Path) -> Path:
     """The bundled Pacific scenario with GPS until a gps_off fault takes it."""
-    text = (SCENARIO_DIR / "pacific.toml").read_text(encoding="utf-8")
+    text = (SCENARIO_DIR / "paper_pacific.toml").read_text(encoding="utf-8")
     text, count = re.subn(r"(?m)^gps_denied_after_s\s*=.*$", "gps_denied_after_s = 1.0e9", text)
     assert count == 1
-    path.write_text(re.sub(r'(?m)^name\s*=\s*"pacific"', 'name = "pacific_gps"', text), encoding="utf-8")
+    path.write_text(re.sub(r'(?m)^name\s*=\s*"paper_pacific"', 'name = "pacific_gps"', text), encoding="utf-8")
     return path
 
 
@@ -106,7 +106,7 @@ class Run:
 
     def __init__(self, out: Path, result) -> None:
         self.result = result
-        self.start = load_scenario("pacific").start_posix
+        self.start = load_scenario("paper_pacific").start_posix
         self.modes: list[tuple[float, int, bool]] = []          # (t, custom_mode, armed) of the FC
         self.texts: list[tuple[float, str]] = []                # STATUSTEXT of the companion (joined chunks)
         self.fc_texts: list[tuple[float, str]] = []

@@ -114,7 +114,7 @@ def test_a_track_that_ends_moving_is_not_at_rest():
 
 
 def _result(status: str, rest_m: float, **kw) -> FlyResult:
-    base = dict(status=status, exit_code=0, scenario="pacific", seed=0, iterations=5, rest_remaining_m=rest_m,
+    base = dict(status=status, exit_code=0, scenario="paper_pacific", seed=0, iterations=5, rest_remaining_m=rest_m,
                 step_remaining_m=rest_m + 50.0, believed_remaining_m=rest_m - 70.0, came_to_rest=status == "arrived",
                 wall_s=3.0, sim_s=1800.0, out_dir="x", plot_path=None, dest_lat_deg=DEST[0], dest_lon_deg=DEST[1])
     return FlyResult(**{**base, **kw})
@@ -134,9 +134,9 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
     steps = [{"step": k, "msg_time_s": 360.0 * k, "remaining_m": 60_000.0 - 5000.0 * k,
               "est_lat_deg": _along(60_000.0 - 5000.0 * k + 300.0)[0], "est_lon_deg": DEST[1]} for k in range(5)]
     result = _result("interrupted", _dist((points[-1][1], points[-1][2]), DEST))
-    title = title_for(result, "pacific")
+    title = title_for(result, "paper_pacific")
     assert "INTERRUPTED" in title and f"{result.rest_remaining_m / 1000.0:.2f} km" in title
-    path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "pacific")
+    path = plot_track(tmp_path / "track.png", start, DEST, _track(points), steps, result, "paper_pacific")
     assert path.stat().st_size > 20_000
 
 
@@ -149,3 +149,16 @@ def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it()
     assert _niceness(0) is None
     lowered = subprocess.run(probe, preexec_fn=_niceness(3), capture_output=True, text=True, check=True)
     assert int(lowered.stdout) == min(own + 3, 19)
+
+
+@pytest.mark.parametrize("scenario, gifted", [("paper_pacific", True), ("pacific", False)])
+def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, capsys, scenario, gifted):
+    """The flight itself stands in (the closed loop is tests/companion's): what fcmpc-fly prints around it."""
+    import scripts.fly
+
+    monkeypatch.setattr(scripts.fly, "fly", lambda options: _result("arrived", 128.0, scenario=options.scenario))
+    assert scripts.fly.main(["--scenario", scenario, "--no-plot"]) == 0
+    printed = capsys.readouterr()
+    said = [line for line in (printed.err + printed.out).splitlines() if "hands the navigator" in line]
+    assert len(said) == (2 if gifted else 0)
+    assert all(line.startswith(f"fcmpc-fly: {scenario} hands") and "the true heading" in line for line in said)

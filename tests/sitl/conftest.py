@@ -162,8 +162,8 @@ def read_tlog(path: Path) -> list:
 
 def gps_scenario(tmp_path: Path, denied_after_s: float = 1e9, name: str = "pacific_gps") -> Path:
     """A copy of the bundled pacific scenario whose GPS keeps its fix (for ground-truth telemetry)."""
-    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text()
-    text = text.replace('name = "pacific"', f'name = "{name}"')
+    text = (REPO / "sitl" / "scenarios" / "paper_pacific.toml").read_text()
+    text = text.replace('name = "paper_pacific"', f'name = "{name}"')
     text = text.replace("gps_denied_after_s = 0.0", f"gps_denied_after_s = {denied_after_s}")
     path = tmp_path / f"{name}.toml"
     path.write_text(text)

@@ -31,7 +31,7 @@ def test_trapezoid_weights_average_a_linear_quantity_exactly():
 
 
 def test_analytic_average_sits_at_the_middle_of_the_period():
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     scenario = replace(scenario, sensors=replace(scenario.sensors, mag_noise_nt=0.0))   # the average alone
     truth = build_truth_field(scenario)
     nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), "NAV_CONTROLLER": 2, "NAV_MAX_STEPS": 60}))

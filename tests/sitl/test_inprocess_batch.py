@@ -36,7 +36,7 @@ def test_stacked_ins_propagation_is_each_models_own_to_the_bit():
 
 def test_missions_flown_side_by_side_are_each_the_mission_flown_alone():
     """Mixed controllers, seeds and control periods (sub-step counts), some ending before others."""
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     truth = build_truth_field(scenario)
     runs = [({"NAV_CONTROLLER": 2, "NAV_MAX_STEPS": 12}, 0), ({"NAV_CONTROLLER": 1, "NAV_MAX_STEPS": 8}, 1),
             ({"NAV_CONTROLLER": 0, "NAV_MAX_STEPS": 10, "NAV_PERIOD_S": 180.0}, 2),
@@ -57,7 +57,7 @@ def test_a_navigator_set_to_another_date_than_the_world_flies_its_own_model():
     navigator picks for its NAV_YEAR. A navigator four and a half years off (NAV_YEAR 2029: WMM2025)
     raised before (WMM2020, the world's, refused 2029); now it flies with its own model, and the
     secular variation it did not expect puts it kilometres off where the matched one is not."""
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     truth = build_truth_field(scenario)
     matched = fly_in_process(NavConfig.from_values(validate_all(scenario.nav_overrides())), scenario, 0, truth)
     dated = fly_in_process(NavConfig.from_values(validate_all({**scenario.nav_overrides(), "NAV_YEAR": 2029.0})),

@@ -62,7 +62,7 @@ def test_ins_attitude_errors_are_the_misalignment_applied_to_the_attitude_matrix
 
 
 def test_ins_heading_error_is_the_ins_models_psi_z_at_the_same_seed():
-    sensors = _quiet(load_scenario("pacific_real").sensors)
+    sensors = _quiet(load_scenario("pacific").sensors)
     config = AttitudeErrorConfig(heading_source="ins")
     ins = InsErrorModel(InsErrorConfig(), np.random.default_rng(3), 33.0)
     twin = InsErrorModel(InsErrorConfig(), np.random.default_rng(3), 33.0)
@@ -82,7 +82,7 @@ def test_ins_heading_error_is_the_ins_models_psi_z_at_the_same_seed():
 
 
 def test_in_process_ins_heading_error_equals_psi_z_of_the_run():
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     scenario = replace(scenario, sensors=_quiet(scenario.sensors), attitude=AttitudeErrorConfig(heading_source="ins"))
     truth = build_truth_field(scenario)
     ins = InsErrorModel(scenario.ins, np.random.default_rng(5), 33.0)
@@ -133,7 +133,7 @@ def test_the_navigators_misalignment_columns_are_what_the_worlds_ins_attitude_do
 
 
 def test_magnetic_heading_makes_d_equal_the_tables_declination_at_the_believed_position():
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     scenario = replace(scenario, sensors=_quiet(scenario.sensors),
                        attitude=AttitudeErrorConfig(heading_source="magnetic", tilt_bias_deg=0.1))
     truth = build_truth_field(scenario, seed=4)
@@ -154,7 +154,7 @@ def test_magnetic_heading_makes_d_equal_the_tables_declination_at_the_believed_p
 
 def test_in_process_magnetic_heading_gives_the_tables_declination_too():
     """The Monte Carlo's sample path: D averaged over a period = the table at the FC's positions."""
-    scenario = load_scenario("pacific_real")
+    scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, seed=2)
     mags = MagErrors.draw(scenario.sensors.mag_errors, np.random.default_rng(8))   # residuals cancel from D
     times = np.linspace(0.0, 360.0, 13)
@@ -185,9 +185,9 @@ def test_true_heading_sensor_has_its_bias_and_gauss_markov_drift():
 
 
 def test_scenario_heading_source_key_and_default():
-    assert load_scenario("pacific").heading_source == "true"
-    assert load_scenario("pacific_real").heading_source == "ins"
-    assert load_scenario("long_storm_real").storm.enabled and load_scenario("short_storm_real").field_model.crustal.enabled
+    assert load_scenario("paper_pacific").heading_source == "true"
+    assert load_scenario("pacific").heading_source == "ins"
+    assert load_scenario("long_storm").storm.enabled and load_scenario("short_storm").field_model.crustal.enabled
     with pytest.raises(ValueError, match="heading_source"):
         AttitudeErrorConfig(heading_source="compass")
 
@@ -207,7 +207,7 @@ def test_truth_main_field_is_igrf_not_the_navigators_wmm():
     # two independent models of the same field: close (under 100 nT), but not the same
     gap = math.dist((a.x_nt, a.y_nt, a.z_nt), (b.x_nt, b.y_nt, b.z_nt))
     assert 5.0 < gap < 100.0
-    truth = build_truth_field(load_scenario("pacific_real"), seed=0)
+    truth = build_truth_field(load_scenario("pacific"), seed=0)
     assert truth.model.name == "IGRF14" and truth.crustal is not None
 
 
@@ -219,7 +219,7 @@ class _LinearStorm:
         return tuple(np.float32(k) * (lat - 30.0) + lon * 1e-2 + t * 1e-3 for k in (3.0, -7.0, 11.0))
 
 
-@pytest.mark.parametrize("name", ["pacific", "pacific_real"])
+@pytest.mark.parametrize("name", ["paper_pacific", "pacific"])
 @pytest.mark.parametrize("storm_scale", [None, 0.0, 1.7])
 def test_point_field_is_the_array_field_bit_for_bit(name, storm_scale):
     truth = build_truth_field(load_scenario(name), seed=3)
@@ -288,7 +288,7 @@ def test_calibration_residuals_have_the_stated_sizes():
 
 def test_sample_path_has_the_analytic_noise_of_the_ideal_world():
     """The ideal world's analytic averaged draw and the sample-by-sample path agree in spread."""
-    sensors = load_scenario("pacific").sensors
+    sensors = load_scenario("paper_pacific").sensors
     field = np.array([30094.0, -2042.8, 29466.8])
     horizontal, total = math.hypot(*field[:2]), float(np.linalg.norm(field))
     sigma_d, sigma_i = sensors.averaged_di_noise_deg(360.0, horizontal, total)
@@ -305,7 +305,7 @@ def test_sample_path_has_the_analytic_noise_of_the_ideal_world():
 
 
 def test_calibration_residual_gives_a_constant_d_error_that_does_not_average_away():
-    sensors = _quiet(load_scenario("pacific_real").sensors)
+    sensors = _quiet(load_scenario("pacific").sensors)
     field = np.array([30094.0, -2042.8, 29466.8])
     mags = MagErrors(np.array([0.0, 150.0, 0.0]), np.zeros((3, 3)), np.zeros(3))   # 150 nT on body y
     settings = SampleSettings(10.0, 150.0, sensors.mag_lsb_nt, (0.0, 0.0, 0.0), 0.0, "true")
@@ -358,7 +358,7 @@ def _fly_before_issue_9(nav: NavConfig, scenario, seed: int, truth) -> tuple[int
 
 
 def test_ideal_preset_flies_exactly_as_before_the_realistic_world():
-    scenario = load_scenario("pacific")
+    scenario = load_scenario("paper_pacific")
     truth = build_truth_field(scenario)
     # the declared measurement noise (FUS_R_SRC 0): the verbatim path below measures no standard
     # errors, and what is compared here is the world's measurement path, not the filter's R; the
@@ -384,7 +384,7 @@ def test_stand_in_attitude_with_a_magnetic_heading_puts_d_on_the_igrf_table(sitl
     from sitl.scenario import SCENARIO_DIR
     from tests.sitl.conftest import body_to_ned
 
-    text = (SCENARIO_DIR / "pacific_real.toml").read_text().replace('heading_source = "ins"',
+    text = (SCENARIO_DIR / "pacific.toml").read_text().replace('heading_source = "ins"',
                                                                       'heading_source = "magnetic"')
     path = tmp_path / "pacific_magnetic.toml"
     path.write_text(text)

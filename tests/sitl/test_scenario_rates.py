@@ -16,7 +16,7 @@ from sitl.world.build import (build_truth_field, expected_mission_duration_s, st
                               storm_component_walks)
 
 
-@pytest.mark.parametrize("name", ["long_storm", "short_storm"])
+@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
 def test_declared_storm_walk_is_the_worlds_own(shared_data, name):
     """The [navigator] table's FUS_BQA_N/E/Z and FUS_BQA_TN/TE/TZ are how the scenario's storm moves
     along its route in mission time (storm_component_walks), to the 0.1 nT/rt(h) and 0.01 h they
@@ -29,7 +29,7 @@ def test_declared_storm_walk_is_the_worlds_own(shared_data, name):
     assert tau[0] == tau[2] == 0.0 and tau[1] > 0.0   # the east reverts within the mission in both
 
 
-@pytest.mark.parametrize("name", ["long_storm", "short_storm"])
+@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
 def test_declared_north_residual_after_the_ring_current_is_the_worlds_own(shared_data, name):
     """FUS_SYMH_N/TN are how the world's north moves once the ring current predicted from its SYM-H
     is removed (storm_component_walks with ratio 1: Gauss-Markov, the prediction's error comes
@@ -41,7 +41,7 @@ def test_declared_north_residual_after_the_ring_current_is_the_worlds_own(shared
     assert declared["FUS_SYMH_TN"] == pytest.approx(tau[0], abs=0.0051) and tau[0] > 0.0
 
 
-@pytest.mark.parametrize("name", ["long_storm", "short_storm"])
+@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
 def test_declared_correlations_of_the_components_are_the_worlds_own(shared_data, name):
     """FUS_BQA_RNE/RNZ/REZ are how the world's storm components change together over one control step
     along the route (storm_component_correlations), and FUS_SYMH_RNE/RNZ the same once the ring
@@ -64,7 +64,7 @@ def test_the_feed_gives_the_storms_symh_as_published_and_nothing_without_a_storm
     (6 and 4 nT 1-sigma: within 40 nT here). The quiet world and a storm switched off give a quiet
     day's 0 nT; a world without the OMNI file has none."""
     from sitl.storms import OMNI_FILE, read_omni_symh, utc_s
-    storm = load_scenario("long_storm")
+    storm = load_scenario("paper_long_storm")
     exact = replace(storm, storm=replace(storm.storm, ring_offset_nt=0.0, ring_error_nt=0.0))
     omni = read_omni_symh(shared_data / "storms" / OMNI_FILE)
 
@@ -76,7 +76,7 @@ def test_the_feed_gives_the_storms_symh_as_published_and_nothing_without_a_storm
     last = truth.ring_current.latest(truth.storm_time_s(15.9 * 3600.0))
     assert last.end_s + 1800.0 <= truth.storm_time_s(15.9 * 3600.0) and truth.symh(15.9 * 3600.0) < -200.0
     off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
-    assert off.symh(0.0) == 0.0 and build_truth_field(load_scenario("pacific")).symh(0.0) == 0.0
+    assert off.symh(0.0) == 0.0 and build_truth_field(load_scenario("paper_pacific")).symh(0.0) == 0.0
     assert math.isnan(replace(truth, ring_current=None).symh(0.0))
     # an operator without a SYM-H service ([storm] symh_feed = false): the same storm, no SYM-H, Kp fed
     unfed = build_truth_field(replace(storm, storm=replace(storm.storm, symh_feed=False)), shared_data)
@@ -125,7 +125,7 @@ def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
     15 min after its end (GFZ's nowcast) and off by its quick-look error (within one Kp here); the quiet world and a storm switched off
     (or scaled to nothing) give a quiet day's Kp 0; without the feed there is none (NaN: the
     navigator's innovations alone decide)."""
-    storm = load_scenario("long_storm")
+    storm = load_scenario("paper_long_storm")
     truth = build_truth_field(storm, shared_data)
     exact = build_truth_field(replace(storm, storm=replace(storm.storm, kp_error=0.0)), shared_data)
     # at 18 UTC the last published interval is 12-15 UTC (15-18 comes at 18:15): Kp 3.667, not 15-18's 7.667
@@ -134,7 +134,7 @@ def test_the_feed_gives_the_storms_kp_and_nothing_without_a_storm(shared_data):
     assert exact.kp(first_9 - 60.0) == pytest.approx(7.667, abs=1e-3)
     assert exact.kp(first_9 + 60.0) == pytest.approx(8.667, abs=1e-3)
     off = build_truth_field(replace(storm, storm=replace(storm.storm, enabled=False)), shared_data)
-    assert off.kp(0.0) == 0.0 and build_truth_field(load_scenario("pacific")).kp(0.0) == 0.0
+    assert off.kp(0.0) == 0.0 and build_truth_field(load_scenario("paper_pacific")).kp(0.0) == 0.0
     assert math.isnan(replace(truth, space_weather=None).kp(0.0))
     assert replace(truth, storm_scale=0.0).kp(0.0) == 0.0
     withheld = replace(storm.storm, enabled=False, kp_feed=False)
@@ -148,7 +148,7 @@ def test_the_feed_reaches_the_navigator_as_a_declared_storm(shared_data):
     """In-process, the storm world's Kp declares the storm from the first step: every command says
     disturbed; so does its SYM-H (below -200 nT) with Kp's threshold out of reach (9: the feed says
     8.667); with SYM-H's out of reach too (-3000 nT) nothing is declared and the first steps are quiet."""
-    scenario = load_scenario("short_storm")
+    scenario = load_scenario("paper_short_storm")
     truth = build_truth_field(scenario, shared_data)
     values = validate_all({**scenario.nav_overrides(), "NAV_MAX_STEPS": 6})
     for changes in ({}, {"FUS_KP_ON": 9.0}):
@@ -165,7 +165,7 @@ def test_real_vehicle_storm_walk_defaults_are_the_10_may_storms_step_in_real_tim
     storm's window played as it happened, "utc"), to the 1 nT/rt(h) and 0.1 h they are written
     with: every component a random walk (the east keeps growing over the mission in real time), the
     north residual after SYM-H Gauss-Markov."""
-    long_storm = load_scenario("long_storm")
+    long_storm = load_scenario("paper_long_storm")
     real_time = replace(long_storm, storm=replace(long_storm.storm, time_map="utc"))
     defaults = validate_all({})
     q, tau = storm_component_walks(real_time, shared_data)

@@ -26,7 +26,7 @@ def test_rotations_and_noise_reproducible():
 
 
 def test_sensor_suite_quantises_and_adds_bias():
-    model = load_scenario("pacific").sensors
+    model = load_scenario("paper_pacific").sensors
     from dataclasses import replace
     model = replace(model, mag_noise_nt=0.0, mag_bias_nt=(150.0, 0.0, -250.0), mag_lsb_nt=100.0)
     suite = SensorSuite(model, np.random.default_rng(1))
@@ -50,9 +50,9 @@ def test_nav_solution_aided_then_inertial():
 
 
 def test_build_truth_field_quiet_is_wmm_and_storm_errors_are_clear(tmp_path):
-    sc = load_scenario("pacific")
+    sc = load_scenario("paper_pacific")
     truth = build_truth_field(sc)
     wmm = truth.model.elements(33.0, 152.0, 0.0, sc.year)
     assert np.allclose(truth.field_ned_nt(33.0, 152.0, 0.0, 123.0), (wmm.x_nt, wmm.y_nt, wmm.z_nt))
     with pytest.raises(StormUnavailableError, match="storm data"):
-        build_truth_field(load_scenario("long_storm"), data_dir=tmp_path)
+        build_truth_field(load_scenario("paper_long_storm"), data_dir=tmp_path)

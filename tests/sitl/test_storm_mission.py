@@ -16,7 +16,7 @@ from sitl.world.build import build_truth_field
 
 @pytest.fixture(scope="module")
 def short_storm(shared_data):
-    scenario = load_scenario("short_storm")
+    scenario = load_scenario("paper_short_storm")
     return scenario, build_truth_field(scenario, shared_data)
 
 
@@ -30,7 +30,7 @@ def test_seeded_short_storm_mission_completes(short_storm):
     assert again.remaining_m == result.remaining_m and again.iterations == result.iterations
 
 
-@pytest.mark.parametrize("name", ["short_storm", "long_storm"])
+@pytest.mark.parametrize("name", ["paper_short_storm", "paper_long_storm"])
 def test_storm_handling_is_no_worse_than_the_fix_alone(shared_data, name):
     """Same seed, the default navigator (the error-state filter with disturbance-gated bias
     states) against the paper's path (FUS_MODEL 1: the geomagnetic fix alone on this route): the
@@ -53,7 +53,7 @@ def test_without_kp_a_low_sym_h_declares_the_storm(shared_data):
     withheld, seeds 0-3: declared by SYM-H all end under 6 km (measured 1.4-2.8 km, as with Kp);
     with the SYM-H declaration off (FUS_SYMH_ON -3000) over 15 km (measured 30-44 km: the
     innovations find the storm after it has moved the estimate)."""
-    storm = load_scenario("short_storm")
+    storm = load_scenario("paper_short_storm")
     scenario = dataclasses.replace(storm, storm=dataclasses.replace(storm.storm, kp_feed=False))   # no Kp service
     no_kp = build_truth_field(scenario, shared_data)
     assert math.isnan(no_kp.kp(3600.0)) and no_kp.symh(3600.0) <= -150.0
@@ -66,7 +66,7 @@ def test_without_kp_a_low_sym_h_declares_the_storm(shared_data):
 def test_quiet_mission_with_the_filter_lands(short_storm):
     """The same seed with the storm off ends within 1.5 km (the filter's quiet miss is 0.2-0.5 km)."""
     scenario, _ = short_storm
-    quiet_truth = build_truth_field(load_scenario("pacific"))
+    quiet_truth = build_truth_field(load_scenario("paper_pacific"))
     nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
     quiet = fly_in_process(nav, scenario, seed=3, truth=quiet_truth)
     assert quiet.remaining_m < 1500.0
@@ -80,7 +80,7 @@ def test_quiet_mission_with_the_filter_lands(short_storm):
 # NEES 0.95; long storm 7.82 km, worst 15.4, NEES 1.09 (a covariance twice its errors). Before the
 # walk along the components (per element, found by the innovations): short storm 18.1 km, NEES
 # 14.0; long storm 11.8 km, NEES 23.0. Limits: (median miss, mean NEES from, to).
-STORM_LIMITS = {"short_storm": (5.5e3, 0.0, 3.0), "long_storm": (5e3, 1.5, 3.0)}
+STORM_LIMITS = {"paper_short_storm": (5.5e3, 0.0, 3.0), "paper_long_storm": (5e3, 1.5, 3.0)}
 
 
 @pytest.mark.slow

@@ -243,9 +243,9 @@ def write(tmp_path, text: str):
 
 
 def test_bundled_and_good_scenarios_load():
-    for name in ("pacific", "long_storm", "short_storm"):
+    for name in ("paper_pacific", "paper_long_storm", "paper_short_storm"):
         assert load_scenario(name).name == name
-    pacific = load_scenario("pacific")
+    pacific = load_scenario("paper_pacific")
     assert pacific.vehicle.max_speed_mps == pytest.approx(60.0 / 3.6)
     assert pacific.ins.misalign_arcmin == pytest.approx((50.0 / 60.0, 50.0 / 60.0, 500.0 / 60.0))
 
@@ -293,7 +293,7 @@ def test_navigator_table_reaches_the_simulated_worlds_but_not_real_firmware(tmp_
     the mission from a scenario but never its [navigator] table."""
     from companion.params import default_values
 
-    ideal, real = load_scenario("pacific"), load_scenario("pacific_real")
+    ideal, real = load_scenario("paper_pacific"), load_scenario("pacific")
     assert ideal.nav_overrides()["FUS_GM_NT"] == 0.0 < default_values()["FUS_GM_NT"]
     assert "FUS_GM_NT" not in real.nav_overrides()
     assert "FUS_GM_NT" not in ideal.nav_overrides(navigator=False)
@@ -351,8 +351,8 @@ def test_the_realistic_scenarios_draw_motion_errors_and_the_ideal_ones_none():
     from sitl.scenario import load_scenario
     from sitl.world.vehicle import MotionErrors
 
-    assert not load_scenario("pacific").motion.active
-    real = load_scenario("pacific_real").motion
+    assert not load_scenario("paper_pacific").motion.active
+    real = load_scenario("pacific").motion
     draws = [MotionErrors.draw(real, np.random.default_rng(s)) for s in range(400)]
     assert np.std([d.current_en_mps[0] for d in draws]) == pytest.approx(real.current_mps, rel=0.15)
     assert np.std([math.degrees(d.course_bias_rad) for d in draws]) == pytest.approx(real.course_bias_deg, rel=0.15)

@@ -24,7 +24,8 @@ pytestmark = pytest.mark.timeout(HANG_S + 100.0)
 
 def test_sustained_offset_is_excluded_said_and_the_mission_arrives(tmp_path):
     out = tmp_path / "run"
-    result = fly(FlyOptions(short=True, short_km=40.0, faults=(f"mag_spike:{OFFSET_AT_S:g}:{OFFSET_S:g}:3000",),
+    result = fly(FlyOptions(scenario="paper_pacific", short=True,
+                            short_km=40.0, faults=(f"mag_spike:{OFFSET_AT_S:g}:{OFFSET_S:g}:3000",),
                             out_dir=str(out), timeout_s=HANG_S, tlog=False, plot=False))
     rows = read_steps_csv(out / "companion" / "steps.csv")
     excluded = [r for r in rows if r["event"] == "excluded"]

@@ -24,7 +24,8 @@ pytestmark = pytest.mark.timeout(HANG_S + 100.0)
 @pytest.fixture(scope="module")
 def lossy_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("lossy") / "run"
-    result = fly(FlyOptions(short=True, short_km=40.0, faults=(f"link_loss:{LOSS_AT_S:g}:{LOSS_S:g}:0.3",),
+    result = fly(FlyOptions(scenario="paper_pacific", short=True,
+                            short_km=40.0, faults=(f"link_loss:{LOSS_AT_S:g}:{LOSS_S:g}:0.3",),
                             out_dir=str(out), timeout_s=HANG_S, tlog=False, plot=False))
     return result, read_steps_csv(out / "companion" / "steps.csv"), \
         json.loads((out / "companion" / "summary.json").read_text())["events"]

@@ -46,7 +46,7 @@ def _steps(path: Path) -> list[dict]:
 
 
 def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
-    options = FlyOptions(short=True, short_km=40.0, tlog=False, quiet=True, timeout_s=HANG_S)
+    options = FlyOptions(scenario="paper_pacific", short=True, short_km=40.0, tlog=False, quiet=True, timeout_s=HANG_S)
     scenario, dest, values = prepare(options)
     scenario_arg = str(write_short_scenario(scenario, dest, tmp_path / "short.toml"))
     parm = tmp_path / "fly.parm"

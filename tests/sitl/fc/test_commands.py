@@ -73,7 +73,8 @@ def test_velocity_setpoint_moves_vehicle_at_commanded_course_and_speed(sitl, tmp
 def test_velocity_setpoint_truth_log_and_timeout(sitl, tmp_path):
     # 10x, not 100x: the stand-in's 3 s setpoint timeout is then 300 ms of this client's wall time,
     # not 30 ms (at 100x a loaded CI machine stalled the client that long and counted 2 timeouts)
-    server, client = sitl(speedup=10.0, init_s=0.2, log_dir=str(tmp_path / "log"))
+    server, client = sitl(scenario="paper_pacific", speedup=10.0, init_s=0.2,   # exact motion: no current
+                          log_dir=str(tmp_path / "log"))
     arm_guided(client)
     t0 = client.time_ms()
     stream_velocity(client, t0 + 30_000, 0.0, 5.0)             # due east at 5 m/s
@@ -121,7 +122,7 @@ def test_nan_and_out_of_limit_setpoints_are_rejected_when_guided(sitl):
 
 
 def test_guided_change_heading_and_speed(sitl):
-    server, client = sitl(speedup=100.0, init_s=0.2)
+    server, client = sitl(scenario="paper_pacific", speedup=100.0, init_s=0.2)   # exact motion
     arm_guided(client)
     assert client.command(mavlink.MAV_CMD_GUIDED_CHANGE_HEADING, 0, 270.0, 0).result == mavlink.MAV_RESULT_ACCEPTED
     assert client.command(mavlink.MAV_CMD_GUIDED_CHANGE_SPEED, 1, 4.0).result == mavlink.MAV_RESULT_ACCEPTED

@@ -22,7 +22,7 @@ FAULTS = ["mag_off:10:5", "mag_stuck:20:5", "mag_spike:30:2:5000", "mag_nan:35:3
 def fault_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faults")
     # one fault from the scenario file ([[faults]]), the others from --fault
-    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text()
+    text = (REPO / "sitl" / "scenarios" / "paper_pacific.toml").read_text()
     text += '\n[[faults]]\nkind = "gps_off"\nat_s = 45.0\nduration_s = 5.0\n'
     scenario = tmp / "pacific_faults.toml"
     scenario.write_text(text)
@@ -32,7 +32,7 @@ def fault_run(tmp_path_factory):
         args += ["--fault", fault]
     summary, log_dir = run_cli(args, tmp)
     messages = read_tlog(log_dir / "sitl.tlog")
-    start = load_scenario("pacific").start_posix
+    start = load_scenario("paper_pacific").start_posix
     for msg in messages:
         msg.sim_s = msg._timestamp - start        # when it was sent, in simulated seconds
     return summary, log_dir, messages
@@ -124,7 +124,7 @@ def test_link_loss_duplicate_delay(fault_run):
 
 
 def test_storm_onset_fault(tmp_path, shared_data):
-    _, log_dir = run_cli(["--scenario", "long_storm", "--speedup", "0", "--duration", "40", "--expected-duration",
+    _, log_dir = run_cli(["--scenario", "paper_long_storm", "--speedup", "0", "--duration", "40", "--expected-duration",
                           "60", "--fault", "storm_onset:20", "--data-dir", str(shared_data),
                           "--out", f"udp:127.0.0.1:{closed_udp_port()}"], tmp_path)
     log = read_truth_csv(log_dir / "truth.csv")
@@ -139,7 +139,7 @@ def test_fc_reboot_restarts_the_boot_clock_disarms_and_keeps_the_position(tmp_pa
                                 "--cruise", "90:5", "--fault", "fc_reboot:20:1", "--tlog",
                                 "--out", f"udp:127.0.0.1:{closed_udp_port()}"], tmp_path)
     messages = read_tlog(log_dir / "sitl.tlog")
-    start = load_scenario("pacific").start_posix
+    start = load_scenario("paper_pacific").start_posix
     for msg in messages:
         msg.sim_s = msg._timestamp - start
     assert summary["counters"]["fault_fc_reboot"] == 1

@@ -11,7 +11,7 @@ from tests.sitl.conftest import COMPANION, REPO
 
 
 def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_ground_station(sitl, shared_data):
-    server, client = sitl(scenario="long_storm", space_weather_feed=FEED_READINGS, speedup=300.0, data_dir=str(shared_data))
+    server, client = sitl(scenario="paper_long_storm", space_weather_feed=FEED_READINGS, speedup=300.0, data_dir=str(shared_data))
     sets = client.collect("PARAM_SET", until_ms=int(3.5 * FEED_PERIOD_S * 1000), timeout=120.0)
     truth = server.vehicle.truth_full
     for msg in sets:
@@ -30,14 +30,14 @@ def test_the_storm_worlds_kp_and_symh_reach_the_companion_every_minute_from_the_
 
 def test_a_quiet_world_feeds_a_quiet_days_kp_and_symh(sitl):
     """A world without a storm: Kp 0 and SYM-H 0 nT, what a service says of a field nothing disturbs."""
-    _, client = sitl(scenario="pacific", space_weather_feed=FEED_READINGS, speedup=300.0)
+    _, client = sitl(scenario="paper_pacific", space_weather_feed=FEED_READINGS, speedup=300.0)
     sets = client.collect("PARAM_SET", until_ms=int(1.5 * FEED_PERIOD_S * 1000), timeout=120.0)
     assert sorted((m.param_id, m.param_value) for m in sets) == [("NAV_KP", 0.0)] * 2 + [("NAV_SYMH", 0.0)] * 2
 
 
 def test_a_world_whose_space_weather_is_withheld_sends_nothing(sitl, tmp_path):
     """``[storm] kp_feed = false``, ``symh_feed = false``: no service reaches this vehicle."""
-    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text(encoding="utf-8")
+    text = (REPO / "sitl" / "scenarios" / "paper_pacific.toml").read_text(encoding="utf-8")
     assert "[storm]\nenabled = false\n" in text
     path = tmp_path / "pacific_no_feed.toml"
     path.write_text(text.replace("[storm]\nenabled = false\n",
@@ -48,6 +48,6 @@ def test_a_world_whose_space_weather_is_withheld_sends_nothing(sitl, tmp_path):
 
 def test_a_ground_station_set_to_feed_sym_h_alone_sends_no_kp(sitl, shared_data):
     """``--space-weather-feed NAV_SYMH``: an operator with SYM-H and no Kp."""
-    _, client = sitl(scenario="long_storm", space_weather_feed=("NAV_SYMH",), speedup=300.0, data_dir=str(shared_data))
+    _, client = sitl(scenario="paper_long_storm", space_weather_feed=("NAV_SYMH",), speedup=300.0, data_dir=str(shared_data))
     sets = client.collect("PARAM_SET", until_ms=int(1.5 * FEED_PERIOD_S * 1000), timeout=120.0)
     assert [m.param_id for m in sets] == ["NAV_SYMH", "NAV_SYMH"]

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.io.fc_params import judge_heading
 from sitl.fc.param_table import (MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32, ardupilot_params, heading_source_of,
                                  px4_params)
 from sitl.fc.params import float_from_int32_bytes, int32_from_float_bytes
@@ -50,8 +51,8 @@ def test_list_read_by_name_and_index(sitl):
     assert ARDUPILOT_NAMES <= set(listed)
     assert sorted(m.param_index for m in listed.values()) == list(range(len(listed)))
     assert len(listed) == len(server.params)
-    # the pacific preset declares no heading source: "true" heading, which ArduPilot takes as GPS yaw (2)
-    assert listed["EK3_SRC1_YAW"].param_value == 2.0 and listed["EK3_SRC1_YAW"].param_type == MAV_PARAM_TYPE_INT32
+    # the default (realistic) pacific preset takes its heading from the INS: ExternalNav (6), never a GNSS yaw
+    assert listed["EK3_SRC1_YAW"].param_value == 6.0 and listed["EK3_SRC1_YAW"].param_type == MAV_PARAM_TYPE_INT32
     assert listed["CRUISE_SPEED"].param_value == pytest.approx(server.guidance.cruise_speed_mps)
     # by name (index -1), then by the index that answer gave
     client.mav.param_request_read_send(1, 1, b"FS_EKF_ACTION", -1)
@@ -113,9 +114,11 @@ def test_px4_serves_its_names_bytewise(sitl):
     assert PX4_NAMES <= set(listed) and ARDUPILOT_NAMES & set(listed) == {"SIM_GPS1_ENABLE"}   # a simulator switch
     decoded = {name: int32_from_float_bytes(m.param_value) for name, m in listed.items()
                if m.param_type == MAV_PARAM_TYPE_INT32}
-    assert decoded["EKF2_MAG_TYPE"] == 5 and decoded["EKF2_GPS_CTRL"] == 15 and decoded["MAV_SYS_ID"] == 1
-    answer = _set(client, "EKF2_GPS_CTRL", float_from_int32_bytes(7), MAV_PARAM_TYPE_INT32)
-    assert int32_from_float_bytes(answer.param_value) == 7 and server.params["EKF2_GPS_CTRL"] == 7.0
+    # the INS's heading (the default pacific): yaw from outside the FC, no GNSS heading (GPS is denied)
+    assert decoded["EKF2_MAG_TYPE"] == 5 and decoded["EKF2_GPS_CTRL"] == 7 and decoded["EKF2_EV_CTRL"] == 8
+    assert decoded["MAV_SYS_ID"] == 1
+    answer = _set(client, "EKF2_GPS_CTRL", float_from_int32_bytes(5), MAV_PARAM_TYPE_INT32)
+    assert int32_from_float_bytes(answer.param_value) == 5 and server.params["EKF2_GPS_CTRL"] == 5.0
     assert _set(client, "COM_OF_LOSS_T", 2.5, MAV_PARAM_TYPE_REAL32).param_value == pytest.approx(2.5)
     assert server.guidance.setpoint_timeout_s == pytest.approx(2.5)
     client.mav.command_long_send(1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
@@ -123,7 +126,7 @@ def test_px4_serves_its_names_bytewise(sitl):
     assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
 
 
-@pytest.mark.parametrize("declared,ek3,mag_type", [(None, 2, 5), ("true", 2, 5), ("ins", 2, 5),
+@pytest.mark.parametrize("declared,ek3,mag_type", [(None, 6, 5), ("true", 6, 5), ("ins", 6, 5),
                                                    ("magnetic", 1, 1)])
 def test_heading_source_sets_the_yaw_source(declared, ek3, mag_type):
     # the key may sit in [attitude] or [sensors], as an attribute or a mapping key; absent means "true"
@@ -137,6 +140,21 @@ def test_heading_source_sets_the_yaw_source(declared, ek3, mag_type):
         ap = {p.name: p.default for p in ardupilot_params(**common)}
         px4 = {p.name: p.default for p in px4_params(**common)}
         assert (ap["EK3_SRC1_YAW"], px4["EKF2_MAG_TYPE"]) == (ek3, mag_type)
+
+
+@pytest.mark.parametrize("source", ["true", "ins", "magnetic"])
+def test_the_advertised_yaw_source_is_the_one_the_world_gives(source):
+    """The companion's own judge (companion.io.fc_params, what fc_view asks) reads the stand-in's
+    parameters as compass-derived exactly when the world's yaw comes from the compass, and no GNSS
+    yaw is advertised: the stand-in's GPS has no fix after take-off (EK3_SRC1_YAW 2 or 3 with a
+    denied GPS, or EKF2_GPS_CTRL's dual-antenna bit, would claim a heading it never gives)."""
+    common = dict(sysid=1, cruise_speed_mps=13.9, setpoint_timeout_s=3.0, max_speed_mps=20.0, speedup=1.0,
+                  heading_source=source)
+    ap = {p.name: p.default for p in ardupilot_params(**common)}
+    px4 = {p.name: p.default for p in px4_params(**common)}
+    for family, values in (("ardupilot", ap), ("px4", px4)):
+        assert judge_heading(family, values).compass_derived is (source == "magnetic"), (family, values)
+    assert ap["EK3_SRC1_YAW"] not in (2.0, 3.0) and not int(px4["EKF2_GPS_CTRL"]) & 8
 
 
 def test_unknown_heading_source_is_a_clear_error():

@@ -23,7 +23,7 @@ def test_heartbeat_identity_and_time(sitl):
     hb = client.wait_mode(HOLD)
     assert hb.system_status == mavlink.MAV_STATE_STANDBY
     st = client.recv("SYSTEM_TIME")
-    start_us = int(load_scenario("pacific").start_posix * 1e6)
+    start_us = int(load_scenario("paper_pacific").start_posix * 1e6)
     assert st.time_unix_usec == start_us + st.time_boot_ms * 1000        # simulated date, not the wall clock
     raw = client.recv("RAW_IMU")
     assert abs(raw.time_usec // 1000 - st.time_boot_ms) < 2000
@@ -37,7 +37,7 @@ def test_heartbeat_px4_convention(sitl):
 
 
 def test_magnetometer_matches_wmm_declination_inclination(sitl):
-    server, client = sitl(speedup=60.0, init_s=0.2)
+    server, client = sitl(scenario="paper_pacific", speedup=60.0, init_s=0.2)   # the truth is WMM
     msgs = client.collect(["RAW_IMU", "ATTITUDE"], 32_000)
     att = {m.time_boot_ms: m for m in msgs if m.get_type() == "ATTITUDE"}
     d_list, i_list = [], []
@@ -49,7 +49,7 @@ def test_magnetometer_matches_wmm_declination_inclination(sitl):
         d_list.append(math.degrees(math.atan2(e, n)))
         i_list.append(math.degrees(math.atan2(d, math.hypot(n, e))))
     assert len(d_list) >= 250
-    sc = load_scenario("pacific")
+    sc = load_scenario("paper_pacific")
     wmm = build_truth_field(sc).model.elements(sc.start_lat_deg, sc.start_lon_deg, 0.0, sc.year)
     # 1-sigma of one sample: noise and the 100 nT quantisation over H (D) or F (I), attitude noise
     quant = 100.0 / math.sqrt(12.0)
@@ -66,13 +66,13 @@ def test_magnetometer_matches_wmm_declination_inclination(sitl):
 
 def test_storm_changes_the_field_by_the_scenario_disturbance(sitl, shared_data):
     # the 6-hour long storm compressed into 60 simulated seconds: the main phase comes quickly
-    server, client = sitl(scenario="long_storm", speedup=40.0, init_s=0.2, expected_duration_s=60.0,
+    server, client = sitl(scenario="paper_long_storm", speedup=40.0, init_s=0.2, expected_duration_s=60.0,
                           data_dir=str(shared_data))
     msgs = client.collect(["RAW_IMU", "ATTITUDE"], 60_000)
     att = {m.time_boot_ms: m for m in msgs if m.get_type() == "ATTITUDE"}
-    sc = load_scenario("long_storm")
+    sc = load_scenario("paper_long_storm")
     storm = build_truth_field(sc, shared_data, expected_duration_s=60.0)
-    quiet = build_truth_field(load_scenario("pacific"))
+    quiet = build_truth_field(load_scenario("paper_pacific"))
     meas, truth, calm = [], [], []
     for raw in (m for m in msgs if m.get_type() == "RAW_IMU" and m.time_usec >= 30_000_000):
         a = att.get(raw.time_usec // 1000)
