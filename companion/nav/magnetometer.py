@@ -1,8 +1,6 @@
 """From body-frame magnetometer samples to the averaged (D, I) of one control period (eq. 2).
 
-Pure: samples in (message time, SI units), results out; no sockets, clocks or files.
-
-Per sample:
+Pure (samples in, in message time and SI units; results out). Per sample:
 
 1. **Calibration**: ``m_cal = W (m_raw - offset)`` (hard iron, then soft iron;
    ``MAG_OFS_*`` in milligauss are subtracted, then the symmetric soft-iron matrix with
@@ -388,9 +386,7 @@ class MagProcessor:
     """Message time before which gravity-referenced I is left out (a new command's transient)."""
     track_yaw_offset: bool = False
     """Feed :attr:`yaw_offset` (only the steering trim, ``COMP_TRIM_DEG`` > 0, reads it)."""
-    recorder: object = None
-    """Called as ``recorder(time_s, calibrated_body_nt, roll_rad, pitch_rad)`` for every sample kept
-    (a calibration manoeuvre records them); None: nothing recorded."""
+    recorder: object = None   # recorder(time_s, calibrated_body_nt, roll_rad, pitch_rad) per sample kept (calibration circles)
 
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
