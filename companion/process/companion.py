@@ -30,6 +30,7 @@ from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import Command, Mission, Phase
+from companion.operator_status import STATUS_PERIOD_WALL_S
 from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
@@ -37,6 +38,7 @@ from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
 from companion.process.mode_commands import ModeCommands
+from companion.process.operator_commands import OperatorCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
@@ -103,6 +105,7 @@ class CompanionApp:
         self.phases = Phases(self)
         self.reporting = Reporting(self)
         self.resume = Resume(self, self._state_path())
+        self.operator = OperatorCommands(self)
         if self.params.load_error:
             self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
                                         f"{self.params.load_error}")
@@ -296,6 +299,8 @@ class CompanionApp:
             self.out.feed_due(self.link.clock.now_s)
         elif msg._type in _PARAM_TYPES:
             self.params.mavlink_packet(msg)
+        elif msg._type == "COMMAND_LONG" and self.operator.addressed(msg) and link.from_allowed_gcs(msg):
+            self.operator.command_long(msg)   # a stranger's gets no reply, as its PARAM_* do not
 
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
@@ -314,6 +319,9 @@ class CompanionApp:
                 self.failsafe.evaluate()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe.active and self.state == State.RUNNING:
                     self.failsafe.act()
+        if wall - self.out.last_status_wall >= STATUS_PERIOD_WALL_S:
+            self.out.last_status_wall = wall
+            self.out.operator_status()
         if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
                 and self._lingered():
             self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1

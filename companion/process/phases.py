@@ -111,7 +111,7 @@ class Phases:
         if reasons:
             return False
         fc = app.link.fc
-        if fc.armed and fc.guided:
+        if fc.armed and fc.guided and not app.operator.held:
             sent = app.out.zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
             if app.resume.pending is not None:
                 app.resume.resume_mission(now)
@@ -129,7 +129,7 @@ class Phases:
         """GUIDED/OFFBOARD then arm, with retries (only with COMP_ARM_ENABLE = 1)."""
         app = self.app
         fc = app.link.fc
-        if not app.comp_cfg.arm_enable:
+        if not app.operator.engage_allowed():   # COMP_ARM_ENABLE 0 (and no operator's start), or held
             return
         conv = fc.conventions
         since = app.out.stream_since
@@ -228,13 +228,17 @@ class Phases:
             if not self.was_following and app.command is not None and app.command.speed_mps > 0.0:
                 app.mag.yaw_offset.new_course(now)   # moving again after a hold: a new record for the trim
         self.was_following = following
-        app.stepper.advance_dead_reckoning(now, dt, following and not reasons)
-        if reasons or not following:
+        held = app.operator.held
+        app.stepper.advance_dead_reckoning(now, dt, following and not reasons and not held)
+        if reasons or not following or held:
             app.clock.pause(app.now)
         else:
             self.resume()
         if reasons:
             return False
+        if held:   # the operator's hold: no command and no step; HOLD is commanded (and retried)
+            app.failsafe.hold_if_guided(now)
+            return app.out.zero_setpoint() if following else False
         # the stream first: its cadence is the FC's proof of life (PX4 leaves OFFBOARD after
         # COM_OF_LOSS_T without one), whatever the step below costs
         sent = app.out.stream_command(app.command) if app.command is not None else False
