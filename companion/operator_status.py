@@ -37,8 +37,9 @@ from dataclasses import dataclass, field
 from companion.io.link.conventions import COMPANION_COMPONENT
 from companion.process.machine import STATE_CODES
 
-__all__ = ["COMPANION_COMPONENT", "DEST_PARAMS", "FAILSAFE_BITS", "FEED_PARAMS", "PHASES", "SPACE_WEATHER_BITS", "StatusReader", "failsafe_bits",
-           "failsafe_names", "space_weather_bits", "space_weather_names"]
+__all__ = ["COMPANION_COMPONENT", "DEST_PARAMS", "FAILSAFE_BITS", "FEED_PARAMS", "PHASES", "SPACE_WEATHER_BITS",
+           "STATUS_PERIOD_WALL_S", "StatusReader", "failsafe_bits", "failsafe_names", "space_weather_bits",
+           "space_weather_names"]
 
 PHASES: dict[int, str] = {code: name for name, code in STATE_CODES.items()}
 STATUS_PERIOD_WALL_S = 1.0

@@ -30,7 +30,6 @@ from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import Command, Mission, Phase
-from companion.operator_status import STATUS_PERIOD_WALL_S
 from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
@@ -299,8 +298,8 @@ class CompanionApp:
             self.out.feed_due(self.link.clock.now_s)
         elif msg._type in _PARAM_TYPES:
             self.params.mavlink_packet(msg)
-        elif msg._type == "COMMAND_LONG" and self.operator.addressed(msg) and link.from_allowed_gcs(msg):
-            self.operator.command_long(msg)   # a stranger's gets no reply, as its PARAM_* do not
+        elif msg._type == "COMMAND_LONG":
+            self.operator.command_long(msg)
 
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
@@ -319,9 +318,7 @@ class CompanionApp:
                 self.failsafe.evaluate()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe.active and self.state == State.RUNNING:
                     self.failsafe.act()
-        if wall - self.out.last_status_wall >= STATUS_PERIOD_WALL_S:
-            self.out.last_status_wall = wall
-            self.out.operator_status()
+        self.out.operator_status_due(wall)
         if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
                 and self._lingered():
             self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1

@@ -40,7 +40,10 @@ class OperatorCommands:
         return msg.target_component == link.component and msg.target_system in (0, link.sysid)
 
     def command_long(self, msg) -> None:
-        """Act on ``msg`` and acknowledge it to its sender."""
+        """Act on ``msg`` and acknowledge it to its sender, if it is addressed to this companion and
+        comes from an allowed ground station (a stranger's gets no reply, as its PARAM_* do not)."""
+        if not (self.addressed(msg) and self.app.link.from_allowed_gcs(msg)):
+            return
         self.received += 1
         if msg.command == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
             result = self.resume() if round(msg.param1) == 1 else self.hold()
@@ -98,6 +101,12 @@ class OperatorCommands:
                                                                     if app.state == State.STARTUP else ""),
                         mavlink.MAV_SEVERITY_NOTICE)
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def held_tick(self, now: float, following: bool) -> bool:
+        """A running tick while held: no command and no step; HOLD commanded (and retried) while the
+        FC is still under guidance, with zero-velocity setpoints meanwhile. True if one was sent."""
+        self.app.failsafe.hold_if_guided(now)
+        return self.app.out.zero_setpoint() if following else False
 
     def select_guided(self) -> None:
         app = self.app

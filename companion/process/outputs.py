@@ -19,7 +19,7 @@ from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
 from companion.nav.steering import trimmed_course_rad
-from companion.operator_status import failsafe_bits, space_weather_bits
+from companion.operator_status import STATUS_PERIOD_WALL_S, failsafe_bits, space_weather_bits
 from companion.process.filter_words import FilterState
 from companion.process.machine import STATE_CODES, State
 from companion.registry import READINGS
@@ -157,6 +157,12 @@ class Outputs:
             return None
         lat, lon = offset_position(pos.lat_deg, pos.lon_deg, -local[2], -local[1])
         return float(lat), float(lon)
+
+    def operator_status_due(self, wall: float) -> None:
+        """The operator's status, once every STATUS_PERIOD_WALL_S of wall time (``wall``: monotonic)."""
+        if wall - self.last_status_wall >= STATUS_PERIOD_WALL_S:
+            self.last_status_wall = wall
+            self.operator_status()
 
     def operator_status(self) -> None:
         """Once a second of wall time: what an operator's ground station shows

@@ -228,17 +228,16 @@ class Phases:
             if not self.was_following and app.command is not None and app.command.speed_mps > 0.0:
                 app.mag.yaw_offset.new_course(now)   # moving again after a hold: a new record for the trim
         self.was_following = following
-        held = app.operator.held
-        app.stepper.advance_dead_reckoning(now, dt, following and not reasons and not held)
-        if reasons or not following or held:
+        flying = following and not app.operator.held     # the operator's hold counts as not following
+        app.stepper.advance_dead_reckoning(now, dt, flying and not reasons)
+        if reasons or not flying:
             app.clock.pause(app.now)
         else:
-            self.resume()
+            app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
         if reasons:
             return False
-        if held:   # the operator's hold: no command and no step; HOLD is commanded (and retried)
-            app.failsafe.hold_if_guided(now)
-            return app.out.zero_setpoint() if following else False
+        if app.operator.held:
+            return app.operator.held_tick(now, following)
         # the stream first: its cadence is the FC's proof of life (PX4 leaves OFFBOARD after
         # COM_OF_LOSS_T without one), whatever the step below costs
         sent = app.out.stream_command(app.command) if app.command is not None else False
@@ -253,10 +252,6 @@ class Phases:
                 # the step's new command goes out now, not a tick (1 / COMP_SP_RATE_HZ) later
                 sent = app.out.stream_command(app.command) or sent
         return sent
-
-    def resume(self) -> None:
-        app = self.app
-        app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
 
     # ------------------------------------------------------------------ running -> startup / done
     def nav_failure(self, reason: str, cmd: Command) -> None:
