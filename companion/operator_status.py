@@ -48,6 +48,8 @@ STATUS_PERIOD_WALL_S = 1.0
 FAILSAFE_BITS: dict[str, int] = {"mag": 1, "attitude": 2, "heartbeat": 4, "params": 8, "nav": 16, "recovering": 32}
 SPACE_WEATHER_BITS: dict[str, int] = {"NAV_KP fresh": 1, "NAV_SYMH fresh": 2, "storm declared": 4,
                                       "disturbance active": 8, "F weighed": 16, "F set aside": 32}
+# NAMED_VALUE_FLOAT / NAMED_VALUE_INT name -> StatusReader field
+NAMED_FIELDS = {"FC_ERR": "sigma_m", "FC_REM": "remaining_m", "FC_FS": "failsafes", "FC_SWX": "space_weather"}
 DEST_PARAMS = ("NAV_DEST_LAT", "NAV_DEST_LON")
 FEED_PARAMS = ("NAV_KP", "NAV_SYMH")
 
@@ -118,18 +120,8 @@ class StatusReader:
             self.cov_ne_m2 = (cov[0], cov[1], cov[7])
             self.velocity_ne_mps = (msg.vx, msg.vy)
             self.estimate_wall_s = wall_s
-        elif mtype == "NAMED_VALUE_FLOAT":
-            name = _text(msg.name)
-            if name == "FC_ERR":
-                self.sigma_m = msg.value
-            elif name == "FC_REM":
-                self.remaining_m = msg.value
-        elif mtype == "NAMED_VALUE_INT":
-            name = _text(msg.name)
-            if name == "FC_FS":
-                self.failsafes = msg.value
-            elif name == "FC_SWX":
-                self.space_weather = msg.value
+        elif mtype in ("NAMED_VALUE_FLOAT", "NAMED_VALUE_INT") and _text(msg.name) in NAMED_FIELDS:
+            setattr(self, NAMED_FIELDS[_text(msg.name)], msg.value)
         elif mtype == "PARAM_VALUE":
             self.params[_text(msg.param_id)] = float(msg.param_value)
         elif mtype == "COMMAND_ACK":
