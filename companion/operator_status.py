@@ -151,7 +151,9 @@ class StatusReader:
         sigma = f"{self.sigma_m:.0f} m" if math.isfinite(self.sigma_m) else "unknown (no estimate yet)"
         out.append(f"fcmpc: distance to go {remaining}, estimate 1-sigma {sigma}")
         if self.estimate is not None:
-            out.append(f"fcmpc: estimate {self.lat_deg:.5f},{self.lon_deg:.5f}")
+            old = wall_s - self.estimate_wall_s
+            out.append(f"fcmpc: estimate {self.lat_deg:.5f},{self.lon_deg:.5f}"
+                       + (f" ({old:.0f} s old)" if old > 3.0 * STATUS_PERIOD_WALL_S else ""))
         if self.destination is not None:
             out.append(f"fcmpc: destination {self.destination[0]:.5f},{self.destination[1]:.5f}")
         if self.space_weather is not None:

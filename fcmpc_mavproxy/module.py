@@ -31,6 +31,7 @@ PARAM_REFRESH_WALL_S = 10.0      # NAV_DEST_* and the feed's values asked for ag
 COMMANDS = {"hold": (mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 0.0),
             "resume": (mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 1.0),
             "start": (mavutil.mavlink.MAV_CMD_MISSION_START, 0.0)}
+MAP_KEYS = ("fcmpc:ellipse", "fcmpc:estimate", "fcmpc:destination")
 USAGE = "usage: fcmpc <status|hold|resume|start|param NAME|help NAME>"
 
 
@@ -67,11 +68,11 @@ def map_shapes(reader: StatusReader) -> list[MapShape]:
         except ValueError:   # no covariance yet (NaN): the estimate alone
             axes = None
         if axes is not None:
-            shapes.append(MapShape("fcmpc:ellipse", "polygon", points=tuple(points), colour=(255, 0, 255)))
+            shapes.append(MapShape(MAP_KEYS[0], "polygon", points=tuple(points), colour=(255, 0, 255)))
         label = "FcMPC" + (f" 95% {axes.semi_major_m:.0f} x {axes.semi_minor_m:.0f} m" if axes is not None else "")
-        shapes.append(MapShape("fcmpc:estimate", "icon", latlon=(lat, lon), icon="purpleplane.png", label=label))
+        shapes.append(MapShape(MAP_KEYS[1], "icon", latlon=(lat, lon), icon="purpleplane.png", label=label))
     if reader.destination is not None:
-        shapes.append(MapShape("fcmpc:destination", "icon", latlon=reader.destination, icon="flag.png",
+        shapes.append(MapShape(MAP_KEYS[2], "icon", latlon=reader.destination, icon="flag.png",
                                label="FcMPC destination"))
     return shapes
 
@@ -118,6 +119,13 @@ class FcmpcModule(mp_module.MPModule):
             self.next_param_request = now + PARAM_REFRESH_WALL_S
             self.request_params()
         self.draw()
+
+    def unload(self) -> None:
+        for mod in self.module_matching("map*"):
+            for key in MAP_KEYS:
+                mod.map.remove_object(key)
+        self.remove_command("fcmpc")
+        super().unload()
 
     # ------------------------------------------------------------------ the command
     def cmd_fcmpc(self, args: list[str]) -> None:

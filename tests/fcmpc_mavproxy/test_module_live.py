@@ -79,6 +79,8 @@ def test_fcmpc_module_against_the_running_companion(tmp_path):
                 console.send(f"fcmpc {word}")
                 for text in (f"fcmpc: {word}: ACCEPTED by the companion", f"FcMPC: {said}", mode):
                     assert _said(console, since, text, 15.0), (text, console.seen[since:])
+            console.send("module unload fcmpc")
+            assert console.wait_for("Unloaded module fcmpc", 15.0), console.seen[-20:]
             assert not [line for line in console.seen if "Traceback" in line or "fcmpc" in line and "rror" in line]
         finally:
             _quit(console)
