@@ -33,6 +33,7 @@ from companion.nav.mission import Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
+from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
@@ -100,6 +101,7 @@ class CompanionApp:
         self.out = Outputs(self)
         self.failsafe = FailsafeResponse(self)
         self.preparation = MissionPreparation(self)
+        self.forecast = RouteForecast(self.out.say, inline=options.lockstep)
         self.stepper = ControlStep(self)
         self.phases = Phases(self)
         self.reporting = Reporting(self)
@@ -346,6 +348,7 @@ class CompanionApp:
         if self.state == State.WAIT_FC:
             self.phases.fc_detected()
         self.fc_view.poll_requests(self.link, now)
+        self.forecast.poll()
         reasons = self.failsafe.evaluate()
         sent = self.phases.tick(now, reasons, dt)
         if self.state == State.RUNNING:
