@@ -51,7 +51,6 @@ from companion.sdnotify import Notifier
 
 __all__ = ["CompanionApp", "apply_live_config"]
 
-_PARAM_TYPES = frozenset({"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"})
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
 WAITING_REPEAT_WALL_S = 30.0      # repeat "waiting for a heartbeat" while no flight controller is heard
 
@@ -298,10 +297,8 @@ class CompanionApp:
             if (self.link.clock.now_s >= self.next_tick or not was_detected) and self.link.clock.started:
                 self.tick()
             self.out.feed_due(self.link.clock.now_s)
-        elif msg._type in _PARAM_TYPES:
-            self.params.mavlink_packet(msg)
-        elif msg._type == "COMMAND_LONG":
-            self.operator.command_long(msg)
+        elif not self.params.mavlink_packet(msg):   # PARAM_* are the parameter server's
+            self.operator.mavlink_packet(msg)       # COMMAND_LONG to 191: the operator's commands
 
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""

@@ -39,10 +39,10 @@ class OperatorCommands:
         link = self.app.link
         return msg.target_component == link.component and msg.target_system in (0, link.sysid)
 
-    def command_long(self, msg) -> None:
-        """Act on ``msg`` and acknowledge it to its sender, if it is addressed to this companion and
-        comes from an allowed ground station (a stranger's gets no reply, as its PARAM_* do not)."""
-        if not (self.addressed(msg) and self.app.link.from_allowed_gcs(msg)):
+    def mavlink_packet(self, msg) -> None:
+        """A COMMAND_LONG addressed to this companion from an allowed ground station: act on it and
+        acknowledge it to its sender (a stranger's gets no reply, as its PARAM_* do not)."""
+        if msg.get_type() != "COMMAND_LONG" or not (self.addressed(msg) and self.app.link.from_allowed_gcs(msg)):
             return
         self.received += 1
         if msg.command == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
