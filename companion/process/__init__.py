@@ -7,6 +7,7 @@
     phases.py       what each phase does on a control tick, and the transitions' actions
     failsafe_response.py  health -> failsafe: enter, hold, recover (rules in companion.failsafe)
     mode_commands.py the mode commands sent and not yet confirmed: ours or the pilot's?
+    operator_commands.py the operator's hold / resume / start (COMMAND_LONG to 191, COMMAND_ACK)
     intake.py       samples in: MAVLink and --sensors samples into the magnetometer pipeline
     preparation.py  start-up and mission preparation: start position, elements, calibration
     plausibility.py is this period's magnetometer one to navigate on? (|F| band, fix jump)

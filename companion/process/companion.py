@@ -39,6 +39,7 @@ from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
 from companion.process.mode_commands import ModeCommands
+from companion.process.operator_commands import OperatorCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
@@ -51,7 +52,6 @@ from companion.sdnotify import Notifier
 
 __all__ = ["CompanionApp", "apply_live_config"]
 
-_PARAM_TYPES = frozenset({"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"})
 LINGER_WALL_S = 0.5               # after done, before exiting: let the last messages go
 WAITING_REPEAT_WALL_S = 30.0      # repeat "waiting for a heartbeat" while no flight controller is heard
 
@@ -108,6 +108,7 @@ class CompanionApp:
         self.phases = Phases(self)
         self.reporting = Reporting(self)
         self.resume = Resume(self, self._state_path())
+        self.operator = OperatorCommands(self)
         if self.params.load_error:
             self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
                                         f"{self.params.load_error}")
@@ -300,8 +301,8 @@ class CompanionApp:
             if (self.link.clock.now_s >= self.next_tick or not was_detected) and self.link.clock.started:
                 self.tick()
             self.out.feed_due(self.link.clock.now_s)
-        elif msg._type in _PARAM_TYPES:
-            self.params.mavlink_packet(msg)
+        elif not self.params.mavlink_packet(msg):   # PARAM_* are the parameter server's
+            self.operator.mavlink_packet(msg)       # COMMAND_LONG to 191: the operator's commands
 
     def idle(self) -> None:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
@@ -320,6 +321,7 @@ class CompanionApp:
                 self.failsafe.evaluate()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe.active and self.state == State.RUNNING:
                     self.failsafe.act()
+        self.out.operator_status_due(wall)
         if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
                 and self._lingered():
             self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1

@@ -19,7 +19,10 @@ from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Command, Phase
 from companion.nav.steering import trimmed_course_rad
-from companion.process.machine import State
+from companion.operator_status import STATUS_PERIOD_WALL_S, failsafe_bits, space_weather_bits
+from companion.process.filter_words import FilterState
+from companion.process.machine import STATE_CODES, State
+from companion.registry import READINGS
 from companion.process.options import FC_POSITION_MAX_AGE_S, STARTUP_GRACE_S
 
 __all__ = ["STREAMS_HZ", "Outputs"]
@@ -42,6 +45,7 @@ class Outputs:
         self.events: list[str] = []       # everything said, with its message time (summary.json)
         self.last_hb_sent = -math.inf
         self.last_hb_sent_wall = -math.inf
+        self.last_status_wall = -math.inf   # the operator's status (companion.operator_status), wall time
         self.stream_since = math.nan      # message time since setpoints stream without a gap
         self.next_feed_s = -math.inf
 
@@ -63,7 +67,7 @@ class Outputs:
         app = self.app
         state = mavlink.MAV_STATE_CRITICAL if app.failsafe_active else (
             mavlink.MAV_STATE_ACTIVE if app.state == State.RUNNING else mavlink.MAV_STATE_STANDBY)
-        self.link.send_heartbeat(state)
+        self.link.send_heartbeat(state, STATE_CODES[app.state])
         self.last_hb_sent = app.now if self.link.clock.started else -math.inf
         self.last_hb_sent_wall = time.monotonic()
 
@@ -154,6 +158,45 @@ class Outputs:
         lat, lon = offset_position(pos.lat_deg, pos.lon_deg, -local[2], -local[1])
         return float(lat), float(lon)
 
+    def operator_status_due(self, wall: float) -> None:
+        """The operator's status, once every STATUS_PERIOD_WALL_S of wall time (``wall``: monotonic)."""
+        if wall - self.last_status_wall >= STATUS_PERIOD_WALL_S:
+            self.last_status_wall = wall
+            self.operator_status()
+
+    def operator_status(self) -> None:
+        """Once a second of wall time: what an operator's ground station shows
+        (:mod:`companion.operator_status` gives the fields their meaning)."""
+        app, link = self.app, self.link
+        if link.conn is None:
+            return
+        cmd = app.command
+        if cmd is not None:
+            estimate = self.current_estimate()
+            if estimate is not None:
+                ee, en, nn = cmd.est_cov_en_m2
+                vn, ve = self.commanded_velocity_ne()
+                link.send_position_cov(estimate[0], estimate[1], (nn, en, ee), vn, ve)
+            for name, value in (("FC_ERR", cmd.est_sigma_m), ("FC_REM", cmd.remaining_m)):
+                if math.isfinite(value):
+                    link.send_named_float(name, value)
+        link.send_named_int("FC_FS", failsafe_bits(app.health.reasons, app.failsafe_active))
+        filt = FilterState.of(app.mission) if app.mission is not None else None
+        fresh = {name: app.params.age_s(name, app.now) <= max_age for name, max_age in READINGS.items()}
+        link.send_named_int("FC_SWX", space_weather_bits(
+            kp_fresh=fresh.get("NAV_KP", False), symh_fresh=fresh.get("NAV_SYMH", False),
+            declared=bool(filt and filt.declared), disturbed=bool(filt and filt.active),
+            f_weighed=filt.f_weighed if filt is not None else None))
+
+    def commanded_velocity_ne(self) -> tuple[float, float]:
+        """The commanded velocity (north, east; m/s) while the vehicle follows it, else zero."""
+        app = self.app
+        following = app.state == State.RUNNING and not app.failsafe_active and not app.clock.paused
+        cmd = app.command if following else None
+        if cmd is None or cmd.done:
+            return 0.0, 0.0
+        return cmd.speed_mps * math.cos(cmd.course_rad), cmd.speed_mps * math.sin(cmd.course_rad)
+
     # ------------------------------------------------------------------ GPS_INPUT
     def feed_due(self, now: float) -> None:
         """Called for every flight-controller message: the feed at 10 Hz of message time (ArduPilot
@@ -199,10 +242,7 @@ class Outputs:
                 feed.correct_to(now, estimate[0], estimate[1], self.feed_sigma())
             self.say(f"FcMPC: FC has no GPS: feeding our position ({feed_message_name(view.family)})",
                      mavlink.MAV_SEVERITY_NOTICE)
-        following = app.state == State.RUNNING and not app.failsafe_active and not app.clock.paused
-        cmd = app.command if following else None
-        vn, ve = (cmd.speed_mps * math.cos(cmd.course_rad), cmd.speed_mps * math.sin(cmd.course_rad)) \
-            if cmd is not None and not cmd.done else (0.0, 0.0)
+        vn, ve = self.commanded_velocity_ne()
         if (vn, ve) != feed.velocity_ne:
             feed.set_velocity(now, vn, ve)
         sample = feed.sample(now)

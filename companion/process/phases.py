@@ -115,7 +115,7 @@ class Phases:
         if reasons:
             return False
         fc = app.link.fc
-        if fc.armed and fc.guided:
+        if fc.armed and fc.guided and not app.operator.held:
             sent = app.out.zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
             if app.resume.pending is not None:
                 app.resume.resume_mission(now)
@@ -136,7 +136,7 @@ class Phases:
         """GUIDED/OFFBOARD then arm, with retries (only with COMP_ARM_ENABLE = 1)."""
         app = self.app
         fc = app.link.fc
-        if not app.comp_cfg.arm_enable:
+        if not app.operator.engage_allowed():   # COMP_ARM_ENABLE 0 (and no operator's start), or held
             return
         conv = fc.conventions
         since = app.out.stream_since
@@ -235,13 +235,16 @@ class Phases:
             if not self.was_following and app.command is not None and app.command.speed_mps > 0.0:
                 app.mag.yaw_offset.new_course(now)   # moving again after a hold: a new record for the trim
         self.was_following = following
-        app.stepper.advance_dead_reckoning(now, dt, following and not reasons)
-        if reasons or not following:
+        flying = following and not app.operator.held     # the operator's hold counts as not following
+        app.stepper.advance_dead_reckoning(now, dt, flying and not reasons)
+        if reasons or not flying:
             app.clock.pause(app.now)
         else:
-            self.resume()
+            app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
         if reasons:
             return False
+        if app.operator.held:
+            return app.operator.held_tick(now, following)
         # the stream first: its cadence is the FC's proof of life (PX4 leaves OFFBOARD after
         # COM_OF_LOSS_T without one), whatever the step below costs
         sent = app.out.stream_command(app.command) if app.command is not None else False
@@ -256,10 +259,6 @@ class Phases:
                 # the step's new command goes out now, not a tick (1 / COMP_SP_RATE_HZ) later
                 sent = app.out.stream_command(app.command) or sent
         return sent
-
-    def resume(self) -> None:
-        app = self.app
-        app.clock.resume(app.now)   # pending mode commands stay: a late HOLD of ours is still ours
 
     # ------------------------------------------------------------------ running -> startup / done
     def nav_failure(self, reason: str, cmd: Command) -> None:

@@ -126,6 +126,8 @@ class Reporting:
             "mag_excluded_steps": app.plausibility.excluded, "resumed_from": app.resume.resumed_from,
             "mode_commands": {"confirmed": app.modes.confirmed, "expired": app.modes.expired,
                               "pending": sorted(p.name for p in app.modes.pending.values())},
+            "operator": {"held": app.operator.held, "start_requested": app.operator.start_requested,
+                         "commands": app.operator.received},
             "events": app.out.events[-200:], "log_dir": str(app.log_dir),
         }
 

@@ -21,6 +21,8 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -49,14 +51,14 @@ def wait_for_companion_heartbeat(port: int, timeout_s: float) -> None:
         conn.close()
 
 
-@pytest.fixture
-def vehicle(tmp_path):
-    """Companion + simulator (real time x5) processes; yields (gcs_port, parm_path) once the
-    companion's heartbeat reaches the ground-station port, so a client's first parameter
-    download already finds component 191."""
+@contextmanager
+def running_vehicle(tmp_path: Path, parm_text: str, speedup: float = 5.0) -> Iterator[tuple[int, Path]]:
+    """Companion (``parm_text`` its parameter file) + simulator (real time x ``speedup``) processes;
+    yields (gcs_port, parm_path) once the companion's heartbeat reaches the ground-station port,
+    so a client's first parameter download already finds component 191."""
     companion_port, gcs_port = free_port(), free_port()
     parm = tmp_path / "companion.parm"
-    parm.write_text("LINK_GCS_ID2 245\n", encoding="utf-8")   # MAVSDK's ground-station id (MAVProxy's is 255)
+    parm.write_text(parm_text, encoding="utf-8")
     env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
     companion = subprocess.Popen(
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{companion_port}", "--params", str(parm),
@@ -67,7 +69,7 @@ def vehicle(tmp_path):
         wait_for_file(tmp_path / "companion" / "steps.csv", procs, 60.0)   # written once its port is bound
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{companion_port}",
-             "--out", f"udp:127.0.0.1:{gcs_port}", "--speedup", "5", "--duration", "900",
+             "--out", f"udp:127.0.0.1:{gcs_port}", "--speedup", f"{speedup:g}", "--duration", "900",
              "--log-dir", str(tmp_path / "sitl"), "--quiet"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         wait_for_companion_heartbeat(gcs_port, 60.0)
@@ -82,6 +84,13 @@ def vehicle(tmp_path):
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(timeout=5)
+
+
+@pytest.fixture
+def vehicle(tmp_path):
+    """:func:`running_vehicle` with MAVSDK's ground-station id allowed (MAVProxy's is 255)."""
+    with running_vehicle(tmp_path, "LINK_GCS_ID2 245\n") as ports:
+        yield ports
 
 
 async def _mavsdk_session(port: int) -> dict:

@@ -31,8 +31,11 @@ class LinkOutputs:
     def time_boot_ms(self) -> int:
         return int(self.clock.now_s * 1000.0) & 0xFFFFFFFF if self.clock.started else 0
 
-    def send_heartbeat(self, state: int = mavlink.MAV_STATE_ACTIVE) -> None:
-        self.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, state)
+    def send_heartbeat(self, state: int = mavlink.MAV_STATE_ACTIVE, custom_mode: int = 0) -> None:
+        """HEARTBEAT of an onboard controller; ``custom_mode`` carries the companion's phase
+        (:mod:`companion.operator_status`)."""
+        self.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, custom_mode,
+                                state)
 
     def send_setpoint(self, course_rad: float, speed_mps: float, max_speed_mps: float) -> bool:
         """SET_POSITION_TARGET_GLOBAL_INT (velocity, with the yaw where the autopilot wants it), or
@@ -95,6 +98,37 @@ class LinkOutputs:
         if len(name) > 10:
             raise ValueError(f"NAMED_VALUE_FLOAT name {name!r} longer than 10 characters")
         self.mav.named_value_float_send(self.time_boot_ms(), name.encode("ascii"), float(value))
+
+    def send_named_int(self, name: str, value: int) -> None:
+        if len(name) > 10:
+            raise ValueError(f"NAMED_VALUE_INT name {name!r} longer than 10 characters")
+        self.mav.named_value_int_send(self.time_boot_ms(), name.encode("ascii"), int(value))
+
+    def send_command_ack(self, command: int, result: int, target_system: int, target_component: int) -> None:
+        """COMMAND_ACK of a command the companion received (to its sender)."""
+        self.mav.command_ack_send(command, result, 0, 0, target_system, target_component)
+
+    def send_position_cov(self, lat_deg: float, lon_deg: float, cov_ne_m2: tuple[float, float, float],
+                          vn_mps: float, ve_mps: float) -> bool:
+        """GLOBAL_POSITION_INT_COV of the navigator's estimate to the ground station: latitude and
+        longitude (degE7), altitude unknown (0, only the horizontal is estimated), velocity north
+        and east (m/s), and the horizontal covariance ``cov_ne_m2`` (north-north, north-east,
+        east-east, m^2) in the 6x6 matrix's first two rows and columns (states lat, lon, alt, vx,
+        vy, vz, row-major); every other entry NaN (unknown). An unknown horizontal covariance is
+        sent as NaN in the first entry, as the message defines."""
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
+            return False
+        cov = [math.nan] * 36
+        nn, ne, ee = (float(v) for v in cov_ne_m2)
+        if all(math.isfinite(v) for v in (nn, ne, ee)):
+            cov[0], cov[1], cov[6], cov[7] = nn, ne, ne, ee
+        lon = ((lon_deg + 180.0) % 360.0) - 180.0
+        vn = float(vn_mps) if math.isfinite(vn_mps) else math.nan
+        ve = float(ve_mps) if math.isfinite(ve_mps) else math.nan
+        self.mav.global_position_int_cov_send(int(self.clock.now_s * 1e6) if self.clock.started else 0,
+                                              mavlink.MAV_ESTIMATOR_TYPE_NAIVE, int(round(lat_deg * 1e7)),
+                                              int(round(lon * 1e7)), 0, 0, vn, ve, math.nan, cov)
+        return True
 
     def send_external_position(self, lat_deg: float, lon_deg: float, sigma_m: float) -> bool:
         """MAV_CMD_EXTERNAL_POSITION_ESTIMATE as COMMAND_INT (ArduPilot accepts it only there).
