@@ -1,0 +1,232 @@
+"""The status page (``fcmpc-companion --http``) of a real companion flying against the stand-in.
+
+One module fixture: the companion with ``--http`` on a free loopback port and the stand-in in
+lockstep for FLOWN_S simulated seconds (probe steps and cruise steps at NAV_PERIOD_S 60). The
+stand-in then exits; the companion keeps running and serving (its state then stands still: the
+mission's message time stops with the stand-in), and the tests read the page, the JSON state, a
+headless Chromium screenshot, and throw bad requests at it.
+"""
+from __future__ import annotations
+
+import http.client
+import json
+import math
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.io.records import read_steps_csv
+from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR
+from tests.ports import free_port
+from tests.processes import wait_for_file
+
+REPO = Path(__file__).resolve().parents[2]
+FLOWN_S = 300.0
+SECRET = "outside-the-records-folder-4f1c"
+HANG_S = 120.0           # a hung-run guard, not a pace
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+class Vehicle:
+    def __init__(self, base: Path, port: int, companion: subprocess.Popen) -> None:
+        self.base, self.port, self.companion = base, port, companion
+        self.records = base / "companion"
+
+    def get(self, path: str, method: str = "GET", body: bytes | None = None,
+            headers: dict | None = None) -> tuple[int, dict, bytes]:
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=20)
+        try:
+            conn.request(method, path, body=body, headers=headers or {})
+            resp = conn.getresponse()
+            return resp.status, dict(resp.getheaders()), resp.read()
+        finally:
+            conn.close()
+
+    def state(self) -> dict:
+        status, _, body = self.get("/state.json")
+        assert status == 200
+        return json.loads(body)
+
+
+@pytest.fixture(scope="module")
+def vehicle(tmp_path_factory):
+    base = tmp_path_factory.mktemp("status")
+    udp, port = free_port(), free_port()
+    parm = base / "companion.parm"
+    parm.write_text("COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n", encoding="utf-8")
+    env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
+    companion = subprocess.Popen(
+        [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{udp}", "--params", str(parm),
+         "--log-dir", str(base / "companion"), "--lockstep", "--max-wall-s", "600", "--quiet", "--http", str(port)],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for_file(base / "companion" / "steps.csv", [companion], HANG_S)   # the page is served from here on
+        sitl = subprocess.run(
+            [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{udp}", "--lockstep", "--duration",
+             str(FLOWN_S), "--log-dir", str(base / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=HANG_S)
+        assert sitl.returncode == 0
+        vehicle = Vehicle(base, port, companion)
+        deadline = time.monotonic() + HANG_S
+        while vehicle.state()["msg_time_s"] < FLOWN_S - 1.0:   # the last snapshot, handed within 0.2 s
+            assert time.monotonic() < deadline and companion.poll() is None
+            time.sleep(0.05)   # the polling interval, not a guess at a duration
+        yield vehicle
+    finally:
+        companion.terminate()
+        try:
+            companion.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            companion.kill()
+            companion.wait(timeout=5)
+
+
+def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):
+    state = vehicle.state()
+    steps = [r for r in read_steps_csv(vehicle.records / "steps.csv") if r["event"] == "step"]
+    last = steps[-1]
+    assert state["state"] == "running" and state["phase"] == last["phase"] == "cruise"
+    assert state["step"] == last["step"] >= 2 and state["mission"] == 1
+    assert math.isfinite(state["est_lat_deg"]) and math.isfinite(state["est_lon_deg"])
+    assert state["est_lat_deg"] == pytest.approx(last["est_lat_deg"], abs=1e-9)
+    assert state["est_lon_deg"] == pytest.approx(last["est_lon_deg"], abs=1e-9)
+    assert 0.0 < state["est_sigma_m"] < 50_000.0 and all(math.isfinite(v) for v in state["est_cov_en_m2"])
+    assert {s["name"] for s in state["sensors"]} >= {"magnetometer", "attitude", "FC heartbeat"}
+    assert any("step 1 phase probe2" in text for text in state["statustexts"])
+    status, headers, body = vehicle.get("/")
+    page = body.decode()
+    assert status == 200 and headers["Content-Type"].startswith("text/html")
+    assert f"running / cruise, mission 1 step {int(last['step'])}" in page
+    assert f"{last['est_lat_deg']:.6f}, {last['est_lon_deg']:.6f}" in page
+    assert page.count("<svg") == 2 and "<script" not in page and "http://" not in page.replace(
+        'xmlns="http://www.w3.org/2000/svg"', "")   # nothing fetched from elsewhere
+    assert "step 1 phase probe2" in page and 'href="/records/steps.csv"' in page
+    # the records: listed, and downloaded as they are on disk
+    status, _, body = vehicle.get("/records/")
+    names = {f["name"] for f in json.loads(body)}
+    assert status == 200 and {"steps.csv", "companion.tlog"} <= names
+    status, headers, body = vehicle.get("/records/steps.csv")
+    assert status == 200 and body == (vehicle.records / "steps.csv").read_bytes()
+    assert headers["Content-Disposition"] == "attachment; filename*=UTF-8''steps.csv"
+    status, headers, body = vehicle.get("/records/companion.tlog", method="HEAD")
+    assert status == 200 and body == b"" and int(headers["Content-Length"]) > 100_000
+
+
+def _colour_pixels(image: np.ndarray, colour: str, tol: float = 12.0) -> int:
+    rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)], dtype=float)
+    return int((np.abs(image[..., :3] * 255.0 - rgb).max(axis=-1) <= tol).sum())
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (Debian: apt-get install chromium); "
+                                             "CI installs it in .ci/run")
+def test_headless_chromium_shows_the_plot(vehicle, tmp_path):
+    from matplotlib.image import imread
+
+    shot = tmp_path / "page.png"
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                        f"--user-data-dir={profile}", f"--screenshot={shot}", "--window-size=1200,900",
+                        f"http://127.0.0.1:{vehicle.port}/"],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=HANG_S, check=True)
+    image = imread(shot)
+    assert image.shape[:2] == (900, 1200)
+    # the plot's colours: the estimate and its track, the ellipse's outline, the destination
+    counts = {name: _colour_pixels(image, colour) for name, colour in
+              (("track", TRACK_COLOUR), ("ellipse", ELLIPSE_COLOUR), ("destination", DEST_COLOUR))}
+    assert all(n >= 100 for n in counts.values()), counts
+    assert float((image[..., :3] < 0.5).mean()) > 0.005, "no text"     # not a blank page
+
+
+def _raw(port: int, data: bytes) -> bytes:
+    """Send ``data`` on a fresh connection; what came back until the server closed or went quiet."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        try:
+            sock.sendall(data)
+            sock.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass   # the server closed on an oversized request while it was still being sent
+        chunks = []
+        try:
+            while chunk := sock.recv(65536):
+                chunks.append(chunk)
+        except OSError:
+            pass
+    return b"".join(chunks)
+
+
+TRAVERSALS = ["/records/../../etc/passwd", "/records/%2e%2e/%2e%2e/etc/passwd", "/records/..%2f..%2fetc%2fpasswd",
+              "/records/%2E%2E%2F%2E%2E%2F%2E%2E%2Fetc%2Fpasswd", "/records//etc/passwd", "/records/%2Fetc%2Fpasswd",
+              "/records/outside.txt", "/records/link_out", "/records/private.key", "/records/.hidden",
+              "/records/sub/inner.txt", "/records/sub%2Finner.txt", "/records/steps.csv%00.txt",
+              "/../../etc/passwd", "/records/....//....//etc/passwd", "/records/%252e%252e/etc/passwd",
+              "/records/" + "../" * 40 + "etc/passwd", "/records/link_dir/" + "x"]
+METHODS = ["POST", "PUT", "DELETE", "PATCH", "OPTIONS", "PROPFIND", "CONNECT"]
+
+
+def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path):
+    outside = vehicle.base / "outside.txt"
+    outside.write_text(SECRET, encoding="utf-8")
+    records = vehicle.records
+    (records / "link_out").symlink_to(outside)
+    (records / "link_dir").symlink_to(vehicle.base)
+    (records / "private.key").write_text(SECRET, encoding="utf-8")
+    (records / "private.key").chmod(0o600)
+    (records / ".hidden").write_text(SECRET, encoding="utf-8")
+    (records / "sub").mkdir()
+    (records / "sub" / "inner.txt").write_text(SECRET, encoding="utf-8")
+    before = vehicle.state()
+    parm_before = (vehicle.base / "companion.parm").read_bytes()
+    steps_before = (records / "steps.csv").read_bytes()
+    secrets = (SECRET.encode(), b"root:")
+
+    status, _, body = vehicle.get("/records/")
+    assert status == 200 and {f["name"] for f in json.loads(body)} & {
+        "link_out", "link_dir", "private.key", ".hidden", "sub"} == set()
+    for path in TRAVERSALS:
+        status, _, body = vehicle.get(path)
+        assert status in (400, 404), (path, status)
+        assert not any(s in body for s in secrets), path
+    for method in METHODS:
+        for path in ("/", "/state.json", "/records/steps.csv", "/records/", "/nowhere"):
+            status, headers, body = vehicle.get(path, method=method, body=b"NAV_SPEED_KMH=99",
+                                                headers={"Content-Type": "application/x-www-form-urlencoded"})
+            assert status in (400, 405), (method, path, status)
+            assert status == 400 or headers.get("Allow") == "GET, HEAD", (method, path, headers)
+    oversized_and_malformed = [
+        b"GET /" + b"A" * 200_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n",                   # request line
+        b"GET / HTTP/1.1\r\nHost: x\r\n" + b"X-Pad: " + b"B" * 200_000 + b"\r\n\r\n",  # one header
+        b"GET / HTTP/1.1\r\nHost: x\r\n" + b"".join(b"X-%d: y\r\n" % i for i in range(20_000)) + b"\r\n",
+        b"POST /records/steps.csv HTTP/1.1\r\nHost: x\r\nContent-Length: 50000000\r\n\r\n" + b"C" * 100_000,
+        b"POST / HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n" + b"10000\r\n" + b"D" * 65536 + b"\r\n" * 2,
+        b"GARBAGE\r\n\r\n", b"GET / HTTP/9.9\r\n\r\n", b"\x00\xff\xfe\r\n\r\n", b"GET /\r\n\r\n",
+        b"GET / HTTP/1.1\r\nno colon here\r\n\r\n", b"GET / HTTP/1.1\r\nHost: x\r\nContent-Length: -5\r\n\r\n",
+        b"GET / HTTP/1.1\r\nHost: x\r\nContent-Length: abc\r\n\r\n",
+        b"GET /records/../../etc/passwd HTTP/1.0\r\n\r\n", b"GET /records/%2e%2e/%2e%2e/etc/passwd HTTP/1.1\r\n\r\n",
+        b"GET http://127.0.0.1/../../etc/passwd HTTP/1.1\r\nHost: x\r\n\r\n",
+        b"GET / HTTP/1.1\r\nHost: x\r\n\r\nGET /records/../../etc/passwd HTTP/1.1\r\n\r\n",   # pipelined
+    ]
+    for data in oversized_and_malformed:
+        answer = _raw(vehicle.port, data)
+        first = answer.split(b"\r\n", 1)[0]
+        assert not any(s in answer for s in secrets), data[:60]
+        if not data.startswith(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"):   # all but the pipelined one: no 200
+            assert b" 200 " not in first, (data[:60], first)
+    # the server still answers, the companion runs, and nothing it holds has changed
+    after = vehicle.state()
+    assert vehicle.companion.poll() is None
+    keys = ("state", "phase", "mission", "step", "restarts", "est_lat_deg", "est_lon_deg", "est_sigma_m",
+            "dest_lat_deg", "dest_lon_deg", "msg_time_s")
+    assert {k: after[k] for k in keys} == {k: before[k] for k in keys}
+    assert (vehicle.base / "companion.parm").read_bytes() == parm_before
+    assert (records / "steps.csv").read_bytes() == steps_before
+    status, _, _ = vehicle.get("/")
+    assert status == 200
