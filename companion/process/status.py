@@ -81,7 +81,7 @@ class StatusPublisher:
                   ("setpoints sent", stats.setpoints_sent), ("setpoints refused", stats.setpoints_refused),
                   ("positions fed", stats.positions_fed), ("failsafes entered", app.health.entered),
                   ("FC reboots", app.link.clock.reboots)),
-            statustexts=tuple(app.out.events[-STATUSTEXTS_KEPT:]))
+            statustexts=tuple(app.out.events[-STATUSTEXTS_KEPT:]), fc_statustexts=tuple(app.fc_view.texts))
 
     def sensors(self) -> tuple[SensorHealth, ...]:
         """The failsafe's inputs (magnetometer, attitude, the FC's heartbeat) against their

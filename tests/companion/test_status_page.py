@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.io.records import read_steps_csv
-from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR
+from companion.io.records import STEP_COLUMNS, StepRecorder, read_steps_csv
+from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR, ellipse_95
+from companion.io.status_page.server import TrackReader, parse_http_address
 from tests.ports import free_port
 from tests.processes import wait_for_file
 
@@ -101,6 +102,7 @@ def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):
     assert 0.0 < state["est_sigma_m"] < 50_000.0 and all(math.isfinite(v) for v in state["est_cov_en_m2"])
     assert {s["name"] for s in state["sensors"]} >= {"magnetometer", "attitude", "FC heartbeat"}
     assert any("step 1 phase probe2" in text for text in state["statustexts"])
+    assert any("GUIDED" in text for text in state["fc_statustexts"])      # the stand-in's, relayed
     status, headers, body = vehicle.get("/")
     page = body.decode()
     assert status == 200 and headers["Content-Type"].startswith("text/html")
@@ -165,7 +167,7 @@ def _raw(port: int, data: bytes) -> bytes:
 
 TRAVERSALS = ["/records/../../etc/passwd", "/records/%2e%2e/%2e%2e/etc/passwd", "/records/..%2f..%2fetc%2fpasswd",
               "/records/%2E%2E%2F%2E%2E%2F%2E%2E%2Fetc%2Fpasswd", "/records//etc/passwd", "/records/%2Fetc%2Fpasswd",
-              "/records/outside.txt", "/records/link_out", "/records/private.key", "/records/.hidden",
+              "/records/outside.txt", "/records/link_out", "/records/.hidden",
               "/records/sub/inner.txt", "/records/sub%2Finner.txt", "/records/steps.csv%00.txt",
               "/../../etc/passwd", "/records/....//....//etc/passwd", "/records/%252e%252e/etc/passwd",
               "/records/" + "../" * 40 + "etc/passwd", "/records/link_dir/" + "x"]
@@ -178,8 +180,6 @@ def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path)
     records = vehicle.records
     (records / "link_out").symlink_to(outside)
     (records / "link_dir").symlink_to(vehicle.base)
-    (records / "private.key").write_text(SECRET, encoding="utf-8")
-    (records / "private.key").chmod(0o600)
     (records / ".hidden").write_text(SECRET, encoding="utf-8")
     (records / "sub").mkdir()
     (records / "sub" / "inner.txt").write_text(SECRET, encoding="utf-8")
@@ -190,7 +190,7 @@ def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path)
 
     status, _, body = vehicle.get("/records/")
     assert status == 200 and {f["name"] for f in json.loads(body)} & {
-        "link_out", "link_dir", "private.key", ".hidden", "sub"} == set()
+        "link_out", "link_dir", ".hidden", "sub"} == set()
     for path in TRAVERSALS:
         status, _, body = vehicle.get(path)
         assert status in (400, 404), (path, status)
@@ -230,3 +230,56 @@ def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path)
     assert (records / "steps.csv").read_bytes() == steps_before
     status, _, _ = vehicle.get("/")
     assert status == 200
+
+
+# --- the parts, without processes -----------------------------------------------------------------
+def test_the_ellipse_holds_95_percent_of_its_gaussian():
+    """Points on the drawn ellipse lie at the 95 % chi-square distance of the covariance, and
+    95 % of a seeded sample of that Gaussian falls inside (binomial 3-sigma over 20,000 draws)."""
+    cov = np.array([[900.0 ** 2, 0.6 * 900.0 * 300.0], [0.6 * 900.0 * 300.0, 300.0 ** 2]])
+    e = ellipse_95((cov[0, 0], cov[0, 1], cov[1, 1]), math.nan)
+    t = np.linspace(0.0, 2.0 * math.pi, 36)
+    c, s = math.cos(e.angle_rad), math.sin(e.angle_rad)
+    pts = np.stack([e.major_m * np.cos(t) * c - e.minor_m * np.sin(t) * s,
+                    e.major_m * np.cos(t) * s + e.minor_m * np.sin(t) * c])
+    d2 = np.einsum("ij,ij->j", pts, np.linalg.solve(cov, pts))
+    assert np.allclose(d2, 5.991464547107979, rtol=1e-9)
+    draws = np.random.default_rng(0).multivariate_normal([0.0, 0.0], cov, size=20_000)
+    along = draws @ np.array([c, s])
+    across = draws @ np.array([-s, c])
+    inside = float(np.mean((along / e.major_m) ** 2 + (across / e.minor_m) ** 2 <= 1.0))
+    assert abs(inside - 0.95) <= 3.0 * math.sqrt(0.95 * 0.05 / 20_000)
+    assert ellipse_95((math.nan,) * 3, 100.0).major_m == pytest.approx(244.77, abs=0.01)   # sqrt(5.991) sigma
+    assert ellipse_95((math.nan,) * 3, math.nan) is None
+
+
+def test_http_address_forms():
+    assert parse_http_address("8080") == ("127.0.0.1", 8080)                  # a port alone: loopback
+    assert parse_http_address("0.0.0.0:8080") == ("0.0.0.0", 8080)
+    assert parse_http_address("[::1]:81") == ("::1", 81)
+    for bad in ("", "host:", ":80", "80000", "host:0", "host:x"):
+        with pytest.raises(ValueError, match="--http"):
+            parse_http_address(bad)
+
+
+def test_track_reader_reads_on_and_never_a_half_written_line(tmp_path):
+    path = tmp_path / "steps.csv"
+    recorder = StepRecorder(path)
+    reader = TrackReader(path)
+    assert reader.read().est_lat_deg == ()
+    recorder.write({"event": "start", "est_lat_deg": 9.0})
+    recorder.write({"event": "step", "est_lat_deg": 1.0, "est_lon_deg": 2.0, "fix_lat_deg": 1.5})
+    row = [""] * len(STEP_COLUMNS)
+    row[STEP_COLUMNS.index("est_lat_deg")], row[STEP_COLUMNS.index("est_lon_deg")] = "3.0", "4.0"
+    row[STEP_COLUMNS.index("event")] = "step"
+    line = ",".join(row) + "\n"
+    with open(path, "a", encoding="utf-8") as handle:              # the writer caught mid-row
+        handle.write(line[:len(line) // 2])
+    track = reader.read()
+    assert track.est_lat_deg == (1.0,) and track.est_lon_deg == (2.0,) and math.isnan(track.fix_lon_deg[0])
+    with open(path, "a", encoding="utf-8") as handle:
+        handle.write(line[len(line) // 2:])                        # the row completed
+    assert reader.read().est_lat_deg == (1.0, 3.0) and reader.read().est_lon_deg == (2.0, 4.0)
+    recorder.close()
+    StepRecorder(path).close()                                      # a new file (a restart): read afresh
+    assert reader.read().est_lat_deg == ()

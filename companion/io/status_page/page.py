@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from html import escape
 from urllib.parse import quote
 
-from companion.io.status_page.plot import Track, ellipse_95, plot_svg
+from companion.io.status_page.plot import ellipse_95
 from companion.io.status_page.snapshot import StatusSnapshot
 
 __all__ = ["REFRESH_S", "RecordFile", "render_page"]
@@ -54,8 +54,9 @@ td{padding:1px 8px 1px 0}.bad{color:#b00;font-weight:bold}.ok{color:#060}
 """
 
 
-def render_page(snap: StatusSnapshot | None, track: Track, records: list[RecordFile]) -> str:
-    """The whole page; ``snap`` None before the companion handed its first snapshot."""
+def render_page(snap: StatusSnapshot | None, plots: str, records: list[RecordFile]) -> str:
+    """The whole page around ``plots`` (SVG, :mod:`.plot`); ``snap`` None before the companion
+    handed its first snapshot."""
     head = (f'<!DOCTYPE html><html><head><meta charset="utf-8"><meta http-equiv="refresh" content="{REFRESH_S}">'
             f'<title>fcmpc companion</title><style>{STYLE}</style></head><body>')
     if snap is None:
@@ -82,13 +83,14 @@ def render_page(snap: StatusSnapshot | None, track: Track, records: list[RecordF
         f"<td>{_num(s.age_s, '.1f', ' s')} old" + (f" (limit {s.limit_s:g} s)" if math.isfinite(s.limit_s) else "")
         + f"</td><td>{escape(s.detail)}</td></tr>" for s in snap.sensors)
     link = _rows((name, str(value)) for name, value in snap.link)
-    texts = escape("\n".join(snap.statustexts)) or "(none yet)"
+    texts = escape("\n".join(reversed(snap.statustexts))) or "(none yet)"
+    fc_texts = escape("\n".join(reversed(snap.fc_statustexts))) or "(none heard)"
     files = "".join(f'<tr><td><a href="/records/{quote(f.name)}">{escape(f.name)}</a></td><td>{_size(f.size_bytes)}</td>'
                     f"<td>{escape(time.strftime('%H:%M:%S', time.gmtime(f.mtime_s)))}</td></tr>" for f in records)
-    return (head + title + when + banner + '<div class="wrap"><div>' + plot_svg(snap, track)
-            + plot_svg(snap, track, close_up=True) + "</div><div>"
+    return (head + title + when + banner + '<div class="wrap"><div>' + plots + "</div><div>"
             + f"<h2>Estimate</h2><table>{estimate}</table><h2>Vehicle</h2><table>{fc}</table>"
             + f"<h2>Sensor and link health</h2><table>{health}</table><table>{link}</table>"
             + f'<h2>Records</h2><table>{files or "<tr><td>(none)</td></tr>"}</table>'
             + '<p><a href="/state.json">state.json</a> &middot; <a href="/records/">records as JSON</a></p>'
-            + f"</div></div><h2>Last STATUSTEXTs</h2><pre>{texts}</pre></body></html>")
+            + f"</div></div><h2>Last STATUSTEXTs, newest first: the companion's</h2><pre>{texts}</pre>"
+            + f"<h2>... and the flight controller's</h2><pre>{fc_texts}</pre></body></html>")

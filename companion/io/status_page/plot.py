@@ -85,6 +85,12 @@ def _nice_step(span_m: float) -> float:
     return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= raw)
 
 
+def _coords(xs: np.ndarray, ys: np.ndarray, fmt: str) -> str:
+    """``fmt`` of each finite (x, y) pair, joined by spaces."""
+    keep = np.isfinite(xs) & np.isfinite(ys)
+    return " ".join(fmt.format(x, y) for x, y in zip(xs[keep].tolist(), ys[keep].tolist()))
+
+
 def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
@@ -124,18 +130,16 @@ def plot_svg(snap: StatusSnapshot, track: Track, close_up: bool = False) -> str:
         cx, cy = float(xs.min() + xs.max()) / 2.0, float(ys.min() + ys.max()) / 2.0
     scale = (SIZE_PX - 2 * MARGIN_PX) / (2.0 * half)                 # px per metre, the same on both axes
 
-    def px(east: float, north: float) -> tuple[float, float]:
+    def px(east, north):   # metres (floats or arrays) -> pixels
         return MARGIN_PX + (east - cx + half) * scale, MARGIN_PX + (cy + half - north) * scale
 
     parts = []
-    points = " ".join(f"{x:.1f},{y:.1f}" for x, y in (px(e, n) for e, n in zip(track_e, track_n))
-                      if math.isfinite(x) and math.isfinite(y))
+    points = _coords(*px(track_e, track_n), "{:.1f},{:.1f}")
     if points:
         parts.append(f'<polyline points="{points}" fill="none" stroke="{TRACK_COLOUR}" stroke-width="2.5"/>')
-    for e, n in zip(fix_e, fix_n):
-        if _finite(e, n):
-            x, y = px(e, n)
-            parts.append(f'<path d="M{x - 4:.1f},{y - 4:.1f}l8,8m0,-8l-8,8" stroke="{FIX_COLOUR}" stroke-width="2"/>')
+    crosses = _coords(*px(fix_e, fix_n), "M{:.1f},{:.1f}m-4,-4l8,8m0,-8l-8,8")
+    if crosses:
+        parts.append(f'<path d="{crosses}" stroke="{FIX_COLOUR}" stroke-width="2"/>')
     x, y = px(0.0, 0.0)
     parts.append(f'<rect x="{x - 6:.1f}" y="{y - 6:.1f}" width="12" height="12" fill="{START_COLOUR}"/>')
     if _finite(dest_e[0], dest_n[0]):

@@ -8,15 +8,16 @@ and the records folder. Nothing the server receives changes either.
 Routes
     ``/``               the page (:mod:`.page`), reloading itself every few seconds
     ``/state.json``     the snapshot as JSON (``null`` before the first)
-    ``/plot.svg``       the plot alone (:mod:`.plot`)
+    ``/plot.svg``       the mission's plot alone (:mod:`.plot`); ``?close_up=1`` the close-up
     ``/records/``       the records folder's files as JSON (name, size, mtime)
     ``/records/NAME``   one of them, as a download
 
 The records folder
     Only what the listing shows is served: regular files directly in the folder, not hidden
     (a leading dot: the companion's temporaries), not symbolic links (where they point is not
-    the folder), and readable by others (a file its owner made private, such as a signing key
-    with mode 0600, stays private). A requested name is served only if it is one of those
+    the folder). Everything else in the folder is served to whoever reaches the page: no
+    secret belongs there (the systemd unit keeps the signing key in /etc/fcmpc; its UMask 0077
+    makes every record mode 0600, so file modes cannot tell a record from a secret). A requested name is served only if it is one of those
     names, exactly, after URL decoding, so ``..``, encoded dots, absolute paths and
     sub-folders find nothing; the file is then opened relative to the folder with
     ``O_NOFOLLOW`` (a file swapped for a link between the listing and the opening is refused).
@@ -58,7 +59,7 @@ from companion.io.status_page.plot import Track, plot_svg
 from companion.io.status_page.snapshot import StatusSnapshot, json_ready
 
 __all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_HEADER_BYTES", "StatusServer", "list_records",
-           "parse_http_address", "read_track"]
+           "TrackReader", "parse_http_address"]
 
 MAX_HEADER_BYTES = 16 * 1024
 MAX_BODY_BYTES = 4 * 1024
@@ -96,24 +97,49 @@ def list_records(folder: Path) -> list[RecordFile]:
             st = entry.stat(follow_symlinks=False)
         except OSError:
             continue
-        if not entry.name.startswith(".") and stat.S_ISREG(st.st_mode) and st.st_mode & stat.S_IROTH:
+        if not entry.name.startswith(".") and stat.S_ISREG(st.st_mode):
             out.append(RecordFile(entry.name, st.st_size, st.st_mtime))
     return sorted(out, key=lambda f: f.name)
 
 
-def read_track(path: Path) -> Track:
+class TrackReader:
     """The steps' estimates and fixes from the records' ``steps.csv`` (rows of ``event`` step),
-    the complete lines only (the companion may be writing the last one)."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return Track()
-    rows = [r for r in parse_steps_csv(text[:text.rfind("\n") + 1]) if r.get("event") == "step"]
+    read on from where the last call stopped, complete lines only (the companion may be writing
+    the last one): a mission of thousands of steps is parsed once, a step at a time."""
 
-    def column(name: str) -> tuple[float, ...]:
-        return tuple(v if isinstance(v := r.get(name), float) else math.nan for r in rows)
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._restart(0)
 
-    return Track(column("est_lat_deg"), column("est_lon_deg"), column("fix_lat_deg"), column("fix_lon_deg"))
+    def _restart(self, inode: int) -> None:
+        self.inode, self.offset, self.header = inode, 0, b""
+        self.columns: dict[str, list[float]] = {name: [] for name in _TRACK_COLUMNS}
+
+    def read(self) -> Track:
+        try:
+            with open(self.path, "rb") as handle:
+                st = os.fstat(handle.fileno())
+                if st.st_ino != self.inode or st.st_size < self.offset:   # another file: start again
+                    self._restart(st.st_ino)
+                handle.seek(self.offset)
+                new = handle.read()
+        except OSError:
+            return Track()
+        complete = new[:new.rfind(b"\n") + 1]
+        if complete:
+            self.offset += len(complete)
+            if not self.header:
+                self.header, _, complete = complete.partition(b"\n")
+            rows = parse_steps_csv((self.header + b"\n" + complete).decode("utf-8", errors="replace"))
+            for row in rows:
+                if row.get("event") == "step":
+                    for name, values in self.columns.items():
+                        value = row.get(name)
+                        values.append(value if isinstance(value, float) else math.nan)
+        return Track(*(tuple(self.columns[name]) for name in _TRACK_COLUMNS))
+
+
+_TRACK_COLUMNS = ("est_lat_deg", "est_lon_deg", "fix_lat_deg", "fix_lon_deg")   # Track's fields, in order
 
 
 class StatusServer:
@@ -124,8 +150,8 @@ class StatusServer:
         self.address, self.port = address, port
         self.sockets = bind_sockets(port, address=address)   # OSError: in use, no such address
         self._snapshot: StatusSnapshot | None = None
-        self._track_key: tuple[int, int] | None = None
-        self._track = Track()
+        self._tracks = TrackReader(self.records_dir / STEPS_FILE)
+        self._plots: tuple[tuple, str] = ((), "")
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
         self._ready = threading.Event()
@@ -158,17 +184,16 @@ class StatusServer:
     def snapshot(self) -> StatusSnapshot | None:
         return self._snapshot
 
-    def track(self) -> Track:
-        """The track, read again only when ``steps.csv`` changed size or time."""
-        path = self.records_dir / STEPS_FILE
-        try:
-            st = path.stat()
-        except OSError:
-            return Track()
-        key = (st.st_size, st.st_mtime_ns)
-        if key != self._track_key:
-            self._track, self._track_key = read_track(path), key
-        return self._track
+    def plots(self, snap: StatusSnapshot, close_up: bool | None = None) -> str:
+        """The mission's plot and the close-up (``close_up`` None), or one of them; drawn again
+        only when the estimate or the track changed (once a step, not once a request)."""
+        track = self._tracks.read()
+        key = (snap.est_lat_deg, snap.est_lon_deg, snap.est_sigma_m, snap.est_cov_en_m2, snap.start_lat_deg,
+               snap.start_lon_deg, snap.dest_lat_deg, snap.dest_lon_deg, len(track.est_lat_deg), close_up)
+        if key != self._plots[0]:
+            svg = "".join(plot_svg(snap, track, close_up=c) for c in ((False, True) if close_up is None else (close_up,)))
+            self._plots = (key, svg)
+        return self._plots[1]
 
     def records(self) -> list[RecordFile]:
         return list_records(self.records_dir)
@@ -208,7 +233,8 @@ def _application(status: StatusServer):
     class Page(Base):
         def get(self) -> None:
             self.set_header("Content-Type", "text/html; charset=utf-8")
-            self.finish(render_page(status.snapshot, status.track(), status.records()))
+            snap = status.snapshot
+            self.finish(render_page(snap, status.plots(snap) if snap is not None else "", status.records()))
 
     class State(Base):
         def get(self) -> None:
@@ -222,7 +248,7 @@ def _application(status: StatusServer):
             if snap is None:
                 raise web.HTTPError(404)
             self.set_header("Content-Type", "image/svg+xml")
-            self.finish(plot_svg(snap, status.track()))
+            self.finish(status.plots(snap, close_up=self.get_query_argument("close_up", "0") == "1"))
 
     class Listing(Base):
         def get(self) -> None:

@@ -58,6 +58,7 @@ class StatusSnapshot:
     fc_armed: bool
     link: tuple[tuple[str, int], ...]   # the link's counters, name and value
     statustexts: tuple[str, ...]        # the last things the companion said, oldest first, "[msg time] text"
+    fc_statustexts: tuple[str, ...] = ()   # the flight controller's last STATUSTEXTs, the same way
 
     def as_json(self) -> dict:
         """A dict for ``json.dumps``: non-finite numbers as ``null`` (JSON has no NaN)."""
