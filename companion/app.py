@@ -75,6 +75,7 @@ from companion.cli import ArgumentParser, UsageError, one_line, run_main
 from companion.io.param_server import ENCODINGS
 from companion.io.sensors.base import SensorError
 from companion.io.sensors.mavlink_source import MAG_MESSAGES
+from companion.io.status_page.address import parse_http_address
 from companion.nav.mission import FROZEN_IN_FLIGHT
 from companion.process.companion import CompanionApp, apply_live_config
 from companion.process.intake import SourceTimeMap, source_kinds
@@ -152,13 +153,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
     p.add_argument("--no-stream-requests", action="store_true",
                    help="do not send MAV_CMD_SET_MESSAGE_INTERVAL (use the FC's configured rates)")
-    p.add_argument("--http", default=None, metavar="ADDRESS:PORT",
+    p.add_argument("--http", default=None, metavar="ADDRESS:PORT", type=_http_address,
                    help="serve the read-only status page (state, estimate plot, health, records to download) "
                         "on ADDRESS:PORT; a PORT alone listens on loopback (127.0.0.1); default off "
                         "(docs/status-page.md)")
     p.add_argument("--max-wall-s", type=float, default=None, help="exit (code 3) after this many wall seconds")
     p.add_argument("--quiet", action="store_true", help="no status lines on stderr")
     return p
+
+
+def _http_address(text: str) -> str:
+    """argparse ``type`` of --http: the text, checked (its one-line error names the option)."""
+    try:
+        parse_http_address(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
 
 
 def options_from_args(args: argparse.Namespace) -> AppOptions:

@@ -35,9 +35,13 @@ class StatusPublisher:
         ValueError); tornado is imported only then."""
         if not app.opts.http:
             return cls(app)
-        from companion.io.status_page.server import StatusServer, parse_http_address
+        from companion.io.status_page.address import parse_http_address
+        from companion.io.status_page.server import StatusServer
 
-        return cls(app, StatusServer(*parse_http_address(app.opts.http), app.log_dir))
+        try:
+            return cls(app, StatusServer(*parse_http_address(app.opts.http), app.log_dir))
+        except OSError as err:   # in use, no such address: one line naming the option
+            raise OSError(err.errno, err.strerror, f"--http {app.opts.http}") from None
 
     def start(self) -> None:
         if self.server is not None:

@@ -25,7 +25,9 @@ import pytest
 
 from companion.io.records import STEP_COLUMNS, StepRecorder, read_steps_csv
 from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR, ellipse_95
-from companion.io.status_page.server import TrackReader, parse_http_address
+from companion.io.status_page.address import parse_http_address
+from companion.io.status_page.server import TrackReader
+from fcmpc_fly.runner import _stop
 from tests.ports import free_port
 from tests.processes import wait_for_file
 
@@ -82,12 +84,7 @@ def vehicle(tmp_path_factory):
             time.sleep(0.05)   # the polling interval, not a guess at a duration
         yield vehicle
     finally:
-        companion.terminate()
-        try:
-            companion.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            companion.kill()
-            companion.wait(timeout=5)
+        _stop(companion)
 
 
 def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):

@@ -85,7 +85,8 @@ def render_page(snap: StatusSnapshot | None, plots: str, records: list[RecordFil
     link = _rows((name, str(value)) for name, value in snap.link)
     texts = escape("\n".join(reversed(snap.statustexts))) or "(none yet)"
     fc_texts = escape("\n".join(reversed(snap.fc_statustexts))) or "(none heard)"
-    files = "".join(f'<tr><td><a href="/records/{quote(f.name)}">{escape(f.name)}</a></td><td>{_size(f.size_bytes)}</td>'
+    files = "".join(f'<tr><td><a href="/records/{quote(f.name)}">{escape(f.name)}</a></td>'
+                    f"<td>{_size(f.size_bytes)}</td>"
                     f"<td>{escape(time.strftime('%H:%M:%S', time.gmtime(f.mtime_s)))}</td></tr>" for f in records)
     return (head + title + when + banner + '<div class="wrap"><div>' + plots + "</div><div>"
             + f"<h2>Estimate</h2><table>{estimate}</table><h2>Vehicle</h2><table>{fc}</table>"

@@ -172,7 +172,8 @@ def _grid(cx: float, cy: float, half: float, px) -> str:
         _, y = px(cx, value)
         out.append(f'<line x1="{MARGIN_PX}" y1="{y:.1f}" x2="{SIZE_PX - MARGIN_PX}" y2="{y:.1f}" class="g"/>'
                    f'<text x="{MARGIN_PX - 4}" y="{y + 4:.1f}" text-anchor="end">{value / div:g}</text>')
-    out.append(f'<text x="{SIZE_PX / 2}" y="{SIZE_PX - 10}" text-anchor="middle">{escape(unit)} east of the start</text>'
+    out.append(f'<text x="{SIZE_PX / 2}" y="{SIZE_PX - 10}" text-anchor="middle">'
+               f'{escape(unit)} east of the start</text>'
                f'<text x="12" y="{SIZE_PX / 2}" text-anchor="middle" transform="rotate(-90 12 {SIZE_PX / 2})">'
                f'{escape(unit)} north of the start</text>')
     return "".join(out)

@@ -17,15 +17,15 @@ The records folder
     (a leading dot: the companion's temporaries), not symbolic links (where they point is not
     the folder). Everything else in the folder is served to whoever reaches the page: no
     secret belongs there (the systemd unit keeps the signing key in /etc/fcmpc; its UMask 0077
-    makes every record mode 0600, so file modes cannot tell a record from a secret). A requested name is served only if it is one of those
-    names, exactly, after URL decoding, so ``..``, encoded dots, absolute paths and
-    sub-folders find nothing; the file is then opened relative to the folder with
-    ``O_NOFOLLOW`` (a file swapped for a link between the listing and the opening is refused).
-    A file still being written (``companion.tlog``, ``steps.csv``) is sent up to the size it
-    had when opened. tornado's own StaticFileHandler is not used for this: it hashes a whole
-    file for its ETag once and keeps the hash, so a growing tlog would be answered
-    ``304 Not Modified`` with an old hash, and it reads a file to its end past the
-    Content-Length it announced.
+    makes every record mode 0600, so file modes cannot tell a record from a secret). A
+    requested name is served only if it is one of those names, exactly, after URL decoding, so
+    ``..``, encoded dots, absolute paths and sub-folders find nothing; the file is then opened
+    relative to the folder with ``O_NOFOLLOW`` (a file swapped for a link between the listing
+    and the opening is refused). A file still being written (``companion.tlog``,
+    ``steps.csv``) is sent up to the size it had when opened. tornado's own StaticFileHandler
+    is not used for this: it hashes a whole file for its ETag once and keeps the hash, so a
+    growing tlog would be answered ``304 Not Modified`` with an old hash, and it reads a file
+    to its end past the Content-Length it announced.
 
 Limits
     Request line and headers :data:`MAX_HEADER_BYTES` (more: the connection is closed), a body
@@ -59,30 +59,13 @@ from companion.io.status_page.plot import Track, plot_svg
 from companion.io.status_page.snapshot import StatusSnapshot, json_ready
 
 __all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_HEADER_BYTES", "StatusServer", "list_records",
-           "TrackReader", "parse_http_address"]
+           "TrackReader"]
 
 MAX_HEADER_BYTES = 16 * 1024
 MAX_BODY_BYTES = 4 * 1024
 IDLE_TIMEOUT_S = 30.0
 CHUNK_BYTES = 64 * 1024
-LOOPBACK = "127.0.0.1"
 STEPS_FILE = "steps.csv"
-
-
-def parse_http_address(text: str) -> tuple[str, int]:
-    """``--http``'s ``ADDRESS:PORT``, ``[IPv6]:PORT`` or ``PORT`` alone (loopback).
-
-    >>> parse_http_address("8080"), parse_http_address("0.0.0.0:80"), parse_http_address("[::1]:8080")
-    (('127.0.0.1', 8080), ('0.0.0.0', 80), ('::1', 8080))
-    """
-    host, sep, port_text = text.strip().rpartition(":")
-    if not sep:
-        host = LOOPBACK
-    elif host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    if not host or not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
-        raise ValueError(f"--http {text!r}: expected ADDRESS:PORT or PORT, the port 1..65535")
-    return host, int(port_text)
 
 
 def list_records(folder: Path) -> list[RecordFile]:
@@ -191,7 +174,8 @@ class StatusServer:
         key = (snap.est_lat_deg, snap.est_lon_deg, snap.est_sigma_m, snap.est_cov_en_m2, snap.start_lat_deg,
                snap.start_lon_deg, snap.dest_lat_deg, snap.dest_lon_deg, len(track.est_lat_deg), close_up)
         if key != self._plots[0]:
-            svg = "".join(plot_svg(snap, track, close_up=c) for c in ((False, True) if close_up is None else (close_up,)))
+            which = (False, True) if close_up is None else (close_up,)
+            svg = "".join(plot_svg(snap, track, close_up=c) for c in which)
             self._plots = (key, svg)
         return self._plots[1]
 
