@@ -28,6 +28,7 @@ class StatusPublisher:
         self.app = app
         self.server = server
         self.last_wall = -math.inf
+        self.failed = False
 
     @classmethod
     def for_options(cls, app) -> StatusPublisher:
@@ -55,9 +56,20 @@ class StatusPublisher:
             self.server.stop()
 
     def maybe_publish(self, wall: float) -> None:
-        if self.server is not None and wall - self.last_wall >= PUBLISH_WALL_S:
-            self.last_wall = wall
-            self.server.publish(self.snapshot())
+        """A new snapshot when PUBLISH_WALL_S has passed. A bug in building it must not stop a
+        vehicle's companion: it is said once on stderr and the page keeps the last snapshot."""
+        if self.server is None or wall - self.last_wall < PUBLISH_WALL_S:
+            return
+        self.last_wall = wall
+        try:
+            snapshot = self.snapshot()
+        except Exception as err:   # noqa: BLE001 - the page is not worth the mission
+            if not self.failed:
+                print(f"fcmpc-companion: status page not updated: {type(err).__name__}: {err}", file=sys.stderr,
+                      flush=True)
+            self.failed = True
+            return
+        self.server.publish(snapshot)
 
     def snapshot(self) -> StatusSnapshot:
         app = self.app

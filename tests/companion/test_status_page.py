@@ -27,6 +27,7 @@ from companion.io.records import STEP_COLUMNS, StepRecorder, read_steps_csv
 from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR, ellipse_95
 from companion.io.status_page.address import parse_http_address
 from companion.io.status_page.server import TrackReader
+from companion.params import default_values
 from fcmpc_fly.runner import _stop
 from tests.ports import free_port
 from tests.processes import wait_for_file
@@ -42,6 +43,7 @@ class Vehicle:
     def __init__(self, base: Path, port: int, companion: subprocess.Popen) -> None:
         self.base, self.port, self.companion = base, port, companion
         self.records = base / "companion"
+        self.before_fc: dict = {}       # /state.json before the stand-in started
 
     def get(self, path: str, method: str = "GET", body: bytes | None = None,
             headers: dict | None = None) -> tuple[int, dict, bytes]:
@@ -69,18 +71,22 @@ def vehicle(tmp_path_factory):
     companion = subprocess.Popen(
         [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{udp}", "--params", str(parm),
          "--log-dir", str(base / "companion"), "--lockstep", "--max-wall-s", "600", "--quiet", "--http", str(port)],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        env=env, stdout=subprocess.DEVNULL, stderr=open(base / "companion.err", "wb"))
     try:
         wait_for_file(base / "companion" / "steps.csv", [companion], HANG_S)   # the page is served from here on
+        vehicle = Vehicle(base, port, companion)
+        vehicle.before_fc = vehicle.state()
         sitl = subprocess.run(
             [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{udp}", "--lockstep", "--duration",
              str(FLOWN_S), "--log-dir", str(base / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=HANG_S)
         assert sitl.returncode == 0
-        vehicle = Vehicle(base, port, companion)
+        # settled: the companion has entered its heartbeat failsafe (COMP_HB_TMO_S of wall time after
+        # the stand-in's last heartbeat; its failsafe row is then in steps.csv), so nothing it holds
+        # changes from here on; its message time by then is the stand-in's last
         deadline = time.monotonic() + HANG_S
-        while vehicle.state()["msg_time_s"] < FLOWN_S - 1.0:   # the last snapshot, handed within 0.2 s
-            assert time.monotonic() < deadline and companion.poll() is None
+        while not ((state := vehicle.state())["failsafe"] and state["msg_time_s"] >= FLOWN_S - 1.0):
+            assert time.monotonic() < deadline and companion.poll() is None, state
             time.sleep(0.05)   # the polling interval, not a guess at a duration
         yield vehicle
     finally:
@@ -88,6 +94,9 @@ def vehicle(tmp_path_factory):
 
 
 def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):
+    early = vehicle.before_fc
+    assert early["state"] == "wait_fc" and early["phase"] == "" and early["est_lat_deg"] is None
+    assert early["dest_lat_deg"] == default_values()["NAV_DEST_LAT"] and early["fc_mode"] == "unknown"
     state = vehicle.state()
     steps = [r for r in read_steps_csv(vehicle.records / "steps.csv") if r["event"] == "step"]
     last = steps[-1]
@@ -108,6 +117,7 @@ def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):
     assert page.count("<svg") == 2 and "<script" not in page and "http://" not in page.replace(
         'xmlns="http://www.w3.org/2000/svg"', "")   # nothing fetched from elsewhere
     assert "step 1 phase probe2" in page and 'href="/records/steps.csv"' in page
+    assert '<div class="banner">FAILSAFE: heartbeat: flight controller silent' in page   # the stand-in is gone
     # the records: listed, and downloaded as they are on disk
     status, _, body = vehicle.get("/records/")
     names = {f["name"] for f in json.loads(body)}
@@ -117,6 +127,7 @@ def test_page_and_state_show_the_phase_and_the_estimate_of_the_records(vehicle):
     assert headers["Content-Disposition"] == "attachment; filename*=UTF-8''steps.csv"
     status, headers, body = vehicle.get("/records/companion.tlog", method="HEAD")
     assert status == 200 and body == b"" and int(headers["Content-Length"]) > 100_000
+    assert b"status page not updated" not in (vehicle.base / "companion.err").read_bytes()
 
 
 def _colour_pixels(image: np.ndarray, colour: str, tol: float = 12.0) -> int:
