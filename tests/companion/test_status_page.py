@@ -26,7 +26,7 @@ import pytest
 from companion.io.records import STEP_COLUMNS, StepRecorder, read_steps_csv
 from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COLOUR, ellipse_95
 from companion.io.status_page.address import parse_http_address
-from companion.io.status_page.server import TrackReader
+from companion.io.status_page.server import MAX_CONNECTIONS, TrackReader
 from companion.params import default_values
 from fcmpc_fly.runner import _stop
 from tests.ports import free_port
@@ -228,8 +228,32 @@ def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path)
         assert not any(s in answer for s in secrets), data[:60]
         if not data.startswith(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"):   # all but the pipelined one: no 200
             assert b" 200 " not in first, (data[:60], first)
-    # the server still answers, the companion runs, and nothing it holds has changed
-    after = vehicle.state()
+    # a flood of idle connections: those beyond MAX_CONNECTIONS are closed at once
+    flood = [socket.create_connection(("127.0.0.1", vehicle.port), timeout=10) for _ in range(MAX_CONNECTIONS + 8)]
+    try:
+        closed = 0
+        for sock in flood[MAX_CONNECTIONS:]:
+            sock.settimeout(5.0)
+            try:
+                closed += sock.recv(1) == b""
+            except ConnectionResetError:
+                closed += 1
+            except TimeoutError:
+                pass        # still open
+        assert closed == 8
+    finally:
+        for sock in flood:
+            sock.close()
+    # the server still answers once it has seen the flood close, the companion runs, and nothing it
+    # holds has changed
+    deadline = time.monotonic() + 30.0
+    while True:
+        try:
+            after = vehicle.state()
+            break
+        except ConnectionError:
+            assert time.monotonic() < deadline, "the server did not answer after the flood"
+            time.sleep(0.05)   # the polling interval
     assert vehicle.companion.poll() is None
     keys = ("state", "phase", "mission", "step", "restarts", "est_lat_deg", "est_lon_deg", "est_sigma_m",
             "dest_lat_deg", "dest_lon_deg", "msg_time_s")

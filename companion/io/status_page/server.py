@@ -31,6 +31,9 @@ Limits
     Request line and headers :data:`MAX_HEADER_BYTES` (more: the connection is closed), a body
     :data:`MAX_BODY_BYTES` (more: 400 and closed; no handler reads one), a connection idle for
     :data:`IDLE_TIMEOUT_S` is closed. Malformed requests are tornado's to refuse (400, closed).
+    At most :data:`MAX_CONNECTIONS` connections are open at once; one more is closed as soon
+    as it is accepted: the server shares the companion's process, and a flood of idle
+    connections must not take the file descriptors its link and records need.
 
 Beside the companion
     The server runs its own asyncio event loop on a daemon thread. The sockets are bound when
@@ -58,10 +61,11 @@ from companion.io.status_page.page import RecordFile, render_page
 from companion.io.status_page.plot import Track, plot_svg
 from companion.io.status_page.snapshot import StatusSnapshot, json_ready
 
-__all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_HEADER_BYTES", "StatusServer", "list_records",
+__all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_CONNECTIONS", "MAX_HEADER_BYTES", "StatusServer", "list_records",
            "TrackReader"]
 
 MAX_HEADER_BYTES = 16 * 1024
+MAX_CONNECTIONS = 64
 MAX_BODY_BYTES = 4 * 1024
 IDLE_TIMEOUT_S = 30.0
 CHUNK_BYTES = 64 * 1024
@@ -185,13 +189,23 @@ class StatusServer:
     async def _serve(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stopping = asyncio.Event()
-        server = HTTPServer(_application(self), max_header_size=MAX_HEADER_BYTES, max_body_size=MAX_BODY_BYTES,
+        server = _BoundedHTTPServer(_application(self), max_header_size=MAX_HEADER_BYTES, max_body_size=MAX_BODY_BYTES,
                             idle_connection_timeout=IDLE_TIMEOUT_S, body_timeout=IDLE_TIMEOUT_S, xheaders=False)
         server.add_sockets(self.sockets)
         self._ready.set()
         await self._stopping.wait()
         server.stop()
         await server.close_all_connections()
+
+
+class _BoundedHTTPServer(HTTPServer):
+    """tornado's HTTPServer refusing connections beyond MAX_CONNECTIONS (closed when accepted)."""
+
+    def handle_stream(self, stream, address) -> None:
+        if len(self._connections) >= MAX_CONNECTIONS:   # HTTPServer's own set of open connections
+            stream.close()
+            return
+        super().handle_stream(stream, address)
 
 
 def _application(status: StatusServer):
