@@ -221,9 +221,12 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MAG_OFS_X", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset subtracted from body x (opposite sign of ArduPilot's COMPASS_OFS_X, which is added)"),
     _p("MAG_OFS_Y", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body y"),
     _p("MAG_OFS_Z", float, 0.0, -3000.0, 3000.0, "mGauss", "hard-iron offset, body z"),
-    _p("MAG_SCALE_X", float, 1.0, 0.2, 5.0, "", "scale applied after the offset, body x"),
+    _p("MAG_SCALE_X", float, 1.0, 0.2, 5.0, "", "soft iron's diagonal, applied after the offset, body x"),
     _p("MAG_SCALE_Y", float, 1.0, 0.2, 5.0, "", "scale, body y"),
     _p("MAG_SCALE_Z", float, 1.0, 0.2, 5.0, "", "scale, body z"),
+    _p("MAG_SOFT_XY", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, x-y (a symmetric matrix with MAG_SCALE_* on its diagonal; fcmpc-calibrate fits it)"),
+    _p("MAG_SOFT_XZ", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, x-z"),
+    _p("MAG_SOFT_YZ", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, y-z"),
 )
 
 SPEC_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in REGISTRY}

@@ -14,10 +14,12 @@ from argparse import Namespace
 from dataclasses import asdict
 from pathlib import Path
 
+from companion.nav.prediction import RoutePrediction, predict_route
+from companion.params import Controller, NavConfig
 from montecarlo.batch import run_montecarlo
 from montecarlo.budget import format_budget, run_budget
 from montecarlo.engines import Engine
-from montecarlo.tables import PAPER, format_table, summarise
+from montecarlo.tables import PAPER, add_prediction, format_table, summarise
 from sitl.scenario import Scenario
 
 __all__ = ["budget_main", "table_main"]
@@ -50,6 +52,10 @@ def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, cont
     wall = time.perf_counter() - started
     storm = scenario.storm.enabled
     summary = summarise(rows, (scenario.dest_lat_deg, scenario.dest_lon_deg))
+    prediction = _prediction(scenario, values) if Controller.FC in controllers else None
+    if prediction is not None:
+        add_prediction(summary, rows, Controller.NAMES[Controller.FC], prediction.arrival_r95_m)
+        print("predicted before flying: " + "; ".join(prediction.lines()))
     out = Path(args.out) / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "runs.csv", "w", newline="") as handle:
@@ -58,6 +64,7 @@ def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, cont
         writer.writerows(asdict(r) for r in rows)
     (out / "summary.json").write_text(json.dumps({"scenario": scenario.name, "runs": args.runs, "wall_s": wall,
                                                   "parameters": values, "summary": summary,
+                                                  "prediction": asdict(prediction) if prediction else None,
                                                   "paper": PAPER.get(scenario.name, {})}, indent=2, default=float))
     print(f"\n{scenario.description}\n{args.runs} runs per controller, {len(rows)} missions in {wall:.1f} s wall "
           f"({args.workers} workers, engine {args.engine})\n")
@@ -66,6 +73,13 @@ def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, cont
         print("\nplots: " + ", ".join(str(p) for p in _plots(args, out, scenario, rows, tracks)))
     print(f"results: {out / 'runs.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def _prediction(scenario: Scenario, values: dict) -> RoutePrediction:
+    """What the vehicle of this world would be told before flying: its heading source and INS
+    as the scenario declares them, the navigator's settings of the runs."""
+    config = NavConfig.from_values({**values, "NAV_CONTROLLER": Controller.FC})
+    return predict_route(config, compass_derived=scenario.heading_source == "magnetic", has_ins=scenario.ins.onboard)
 
 
 def _plots(args: Namespace, out: Path, scenario: Scenario, rows: list, tracks) -> list[Path]:

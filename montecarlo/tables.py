@@ -97,6 +97,9 @@ ROWS_QUIET = [
     ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
     ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
     ("Own 1-sigma at the end, median (km)", "sigma_end_km", "{:.2f}"),
+    ("Predicted before flying (issue 46)", None, None),
+    ("Predicted 95 % radius at arrival (km)", "pred_r95_km", "{:.2f}"),
+    ("Miss inside predicted 95 % (%)", "pred95_pct", "{:.0f}"),
 ]
 ROWS_STORM = [
     ("Signal-to-noise ratio (dB)", "snr_db", "{:.2f}"),
@@ -111,7 +114,19 @@ ROWS_STORM = [
     ("Arrived (runs)", "arrived", "{:.0f}"),
     ("NEES, mean (2 if consistent)", "nees_mean", "{:.2f}"),
     ("Miss inside own 95 % ellipse (%)", "ellipse95_pct", "{:.0f}"),
+    ("Predicted 95 % radius at arrival (km)", "pred_r95_km", "{:.2f}"),
+    ("Miss inside predicted 95 % (%)", "pred95_pct", "{:.0f}"),
 ]
+
+
+def add_prediction(summary: dict, rows: list[RunRow], name: str, r95_m: float) -> None:
+    """The prediction made before flying (:mod:`companion.nav.prediction`) beside what the runs
+    did: its 95 % radius and the share of ``name``'s runs whose miss at rest fell inside it."""
+    miss_km = [r.remaining_km for r in rows if r.controller == name and r.storm == any(x.storm for x in rows)]
+    if name not in summary or not miss_km or not math.isfinite(r95_m):
+        return
+    summary[name]["pred_r95_km"] = r95_m / 1e3
+    summary[name]["pred95_pct"] = 100.0 * float(np.mean([m <= r95_m / 1e3 for m in miss_km]))
 
 
 def format_table(scenario: str, summary: dict, storm: bool) -> str:

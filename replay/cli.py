@@ -43,13 +43,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="the fix's prior is the GPS position moved this far north-east (default 10)")
     parser.add_argument("--crash-guard-s", type=float, default=10.0,
                         help="the airborne span ends this long before a detected crash (default 10)")
+    parser.add_argument("--no-calibration", action="store_true",
+                        help="replay the magnetometer as logged; by default its hard and soft iron are fitted on "
+                             "each boot (fcmpc-calibrate's fit) and applied, and the fix error is reported before "
+                             "and after")
     parser.add_argument("--no-plots", action="store_true")
     args = parser.parse_args(argv)
     # A user error (unreadable or unsupported log, no date, a model that does not cover it) is one
     # line naming the file or option and exit code 2; anything else is a bug and keeps its traceback.
     try:
         result = evaluate_log(args.log, args.model, args.window_s, args.prior_offset_km, args.crash_guard_s,
-                              args.mag_instance, args.date)
+                              args.mag_instance, args.date, calibrate=not args.no_calibration)
     except (SensorError, ValueError, OSError) as err:
         print(f"fcmpc-replay: {err}", file=sys.stderr)
         return 2

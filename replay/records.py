@@ -144,6 +144,10 @@ class ReplayEvaluation:
     warnings: list[str] = field(default_factory=list)
     flight: int = 0  # 1-based number of the flight in its boot; 0 for a recording that is not a flight
     flights: int = 0
+    # the magnetometer calibration fitted on the boot and applied (fcmpc-replay's default): its
+    # description or why it was refused, and the fix rows (one per window length) before it
+    calibration: str = ""
+    fix_rows_before: list[FixRow] = field(default_factory=list)
     # time series for the plots (not in summary.json)
     series: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 

@@ -55,6 +55,8 @@ def format_log_report(result: LogEvaluation) -> str:
         lines.append(f"- `{label}/`: {_unit_words(ev) or 'the only flight'}, judged {seg.nav_start_s:.1f}-"
                      f"{seg.end_s:.1f} s; fix median "
                      + (f"{_km(fix.fix_median_m)} km over {fix.window_s:g} s ({_failed(fix)})" if fix else "n/a")
+                     + "".join(f" (before the calibration {_km(b.fix_median_m)} km, {_failed(b)})"
+                               for b in ev.fix_rows_before if fix and b.window_s == fix.window_s)
                      + "".join(f"; warning: {w.split(':')[0]}" for w in ev.warnings))
     for note in result.skipped:
         lines.append(f"- not evaluated: {note}")
@@ -89,14 +91,33 @@ def format_report(ev: ReplayEvaluation) -> str:
     add(f"- Samples: {counts}" + (f"; flagged: {ev.flagged}" if ev.flagged else "") + "."
         + (f" ({ev.source_note})" if ev.source_note else ""))
     add(f"- Magnetometer: instance {ev.mag_instance} (body field as logged, i.e. after the flight controller's "
-        f"offsets and soft-iron correction); {ev.spikes_rejected} samples rejected by the "
+        "offsets and soft-iron correction" + ("; then the calibration of section 0" if ev.fix_rows_before else "")
+        + f"); {ev.spikes_rejected} samples rejected by the "
         f"{SPIKE_NT:.0f} nT spike filter.")
     add("- Segments, chosen from the data: " + "; ".join(seg.rules) + ".")
     add("")
-    for section in (_di_section, _fix_section, _ins_section, _fused_section, _heading_section,
+    for section in (_calibration_section, _di_section, _fix_section, _ins_section, _fused_section, _heading_section,
                     _closing_sections):
         lines += section(ev)
     return "\n".join(lines) + "\n"
+
+
+def _calibration_section(ev: ReplayEvaluation) -> list[str]:
+    """0. The magnetometer calibration applied, and the fix error before and after it."""
+    if not ev.calibration:
+        return []
+    lines = ["## 0. Magnetometer calibration (fcmpc-calibrate's fit; --no-calibration replays the log as recorded)",
+             "", *(f"    {line}" for line in ev.calibration.splitlines()), ""]
+    if ev.fix_rows_before:
+        lines += ["| Window (s) | Fix error median before (km) | after (km) | before / after |", "|---|---|---|---|"]
+        for r in ev.fix_rows:
+            b = next((x for x in ev.fix_rows_before if x.window_s == r.window_s), None)
+            before = b.fix_median_m if b else math.nan
+            ratio = before / r.fix_median_m if r.fix_median_m > 0 else math.nan
+            lines.append(f"| {r.window_s:g} | {_km(before)} ({_failed(b)}) | {_km(r.fix_median_m)} ({_failed(r)}) "
+                         f"| {_f(ratio, 1)} |")
+        lines.append("")
+    return lines
 
 
 def _di_section(ev: ReplayEvaluation) -> list[str]:

@@ -63,6 +63,10 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--fc-instance", type=int, default=0, metavar="I",
                    help="ArduPilot SITL instance (-I): its TCP ports are 5760 + 10 I; PX4 instance (0-9): the "
                         "companion listens on UDP 14540 + I; default 0")
+    p.add_argument("--compass", choices=("real", "ideal"), default="real",
+                   help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
+                        "noise and motor interference, calibrated as a boat's user does (real, the default), or "
+                        "SITL's perfect one (ideal); see sitl/firmware/compass.py")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -92,7 +96,7 @@ def _run(argv: list[str] | None) -> int:
                          extra_params=param_items(args.param), compare=args.compare, plot=not args.no_plot,
                          tlog=not args.no_tlog, data_dir=args.data_dir,
                          progress_s=None if args.no_progress or args.json else 10.0, fc=args.fc,
-                         fc_instance=args.fc_instance)
+                         fc_instance=args.fc_instance, compass=args.compass)
     try:
         prepare(options)          # nothing is written before this passes
     except ValueError as err:     # ScenarioError, ParamError and the option checks

@@ -4,8 +4,9 @@ Pure: samples in (message time, SI units), results out; no sockets, clocks or fi
 
 Per sample:
 
-1. **Calibration**: ``m_cal = (m_raw - offset) * scale`` per body axis (hard iron, then scale;
-   ``MAG_OFS_*`` in milligauss are subtracted, ``MAG_SCALE_*`` multiply). Note that ArduPilot's
+1. **Calibration**: ``m_cal = W (m_raw - offset)`` (hard iron, then soft iron;
+   ``MAG_OFS_*`` in milligauss are subtracted, then the symmetric soft-iron matrix with
+   ``MAG_SCALE_*`` on its diagonal and ``MAG_SOFT_*`` off it multiplies). Note that ArduPilot's
    ``COMPASS_OFS_*`` are *added* to the raw field: copy them here with the opposite sign.
 2. **Tilt compensation**: the body vector is rotated into NED with the attitude (roll, pitch,
    yaw; ZYX Euler, yaw from true north clockwise) *at the sample's time*, the attitude being
@@ -97,11 +98,14 @@ class MagCalibration:
             raise ValueError(f"MagCalibration.soft_iron must be 3x3, got {self.soft_iron!r}")
 
     @classmethod
-    def from_mgauss(cls, offset_mgauss: Vector3, scale: Vector3) -> MagCalibration:
-        """From the registry's ``MAG_OFS_*`` (mG) and ``MAG_SCALE_*`` (a diagonal soft iron)."""
+    def from_mgauss(cls, offset_mgauss: Vector3, scale: Vector3,
+                    off_diagonal: Vector3 = (0.0, 0.0, 0.0)) -> MagCalibration:
+        """From the registry's ``MAG_OFS_*`` (mG), ``MAG_SCALE_*`` (the soft iron's diagonal) and
+        ``MAG_SOFT_XY/XZ/YZ`` (its symmetric off-diagonal entries)."""
         sx, sy, sz = (float(v) for v in scale)
+        xy, xz, yz = (float(v) for v in off_diagonal)
         return cls(tuple(float(o) * MILLIGAUSS_TO_NT for o in offset_mgauss),
-                   ((sx, 0.0, 0.0), (0.0, sy, 0.0), (0.0, 0.0, sz)))
+                   ((sx, xy, xz), (xy, sy, yz), (xz, yz, sz)))
 
     def apply(self, mag_body_nt: Vector3) -> Vector3:
         """``soft_iron @ (m - offset)`` in nT."""

@@ -33,6 +33,7 @@ from companion.nav.mission import Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
+from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
@@ -87,7 +88,8 @@ class CompanionApp:
         self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
-        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
+                                                       self.comp_cfg.mag_soft_xy_xz_yz),
                                 self.comp_cfg.spike_nt, track_yaw_offset=self.comp_cfg.trim_max_deg > 0.0)
         self.health = Health(self._limits())
         self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish, self.comp_cfg.feed_blend_mps)
@@ -100,6 +102,7 @@ class CompanionApp:
         self.out = Outputs(self)
         self.failsafe = FailsafeResponse(self)
         self.preparation = MissionPreparation(self)
+        self.forecast = RouteForecast(self.out.say, inline=options.lockstep)
         self.stepper = ControlStep(self)
         self.phases = Phases(self)
         self.reporting = Reporting(self)
@@ -190,7 +193,8 @@ class CompanionApp:
         self.params_dirty = False
         values = self.params.values
         self.comp_cfg = CompanionConfig.from_values(values)
-        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale),
+        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
+                                                       self.comp_cfg.mag_soft_xy_xz_yz),
                            self.comp_cfg.spike_nt)
         self.mag.track_yaw_offset = self.comp_cfg.trim_max_deg > 0.0
         self.health.limits = self._limits()
@@ -346,6 +350,7 @@ class CompanionApp:
         if self.state == State.WAIT_FC:
             self.phases.fc_detected()
         self.fc_view.poll_requests(self.link, now)
+        self.forecast.poll()
         reasons = self.failsafe.evaluate()
         sent = self.phases.tick(now, reasons, dt)
         if self.state == State.RUNNING:

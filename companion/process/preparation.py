@@ -62,6 +62,7 @@ class MissionPreparation:
         config = self.mission_config(lat, lon, code)
         if not self.fits(config):
             self.prepared = Mission(config)
+            app.forecast.request(config)
         self._prepared_for = app.nav_cfg   # (a parameter change builds a new NavConfig)
 
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from companion.params import write_parm_file
 from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
+from sitl.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
 from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 __all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH"]
@@ -45,6 +46,7 @@ class FirmwareFlight:
     timeout_s: float = 7200.0
     deny_gps_at_arming: bool = True
     quiet: bool = False
+    compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
 
 
 @dataclass
@@ -55,6 +57,7 @@ class FirmwareRun:
     wall_s: float
     companion_exit: int | None
     gps_denied_at_s: float = math.nan
+    notes: tuple[str, ...] = ()     # what was done to the firmware before the companion started
 
 
 def _say(flight: FirmwareFlight, text: str) -> None:
@@ -68,8 +71,10 @@ class _ArduPilotRig:
     name = "ArduPilot SITL"
 
     def __init__(self, flight: FirmwareFlight, out: Path) -> None:
+        self.compass = flight.compass
         self.sitl = ArduPilotSitl(workdir=out / "ardupilot", instance=flight.instance, home=flight.start,
-                                  speedup=flight.speedup, start_unix_s=flight.start_unix_s, binary=ardupilot_binary())
+                                  speedup=flight.speedup, start_unix_s=flight.start_unix_s, binary=ardupilot_binary(),
+                                  params=ardupilot_compass_params(flight.compass))
 
     def start(self) -> FirmwareMonitor:
         self.sitl.start()
@@ -77,6 +82,10 @@ class _ArduPilotRig:
         monitor = FirmwareMonitor(self.sitl.serial0, rates_hz={"SIMSTATE": 1.0, "VFR_HUD": 1.0, "GPS_RAW_INT": 1.0})
         monitor.start()
         return monitor
+
+    def prepare(self, monitor: FirmwareMonitor) -> list[str]:
+        """Before the companion starts: a real compass is calibrated as a boat's user does it."""
+        return [calibrate_fixed_yaw(monitor)] if self.compass == "real" else []
 
     @property
     def companion_url(self) -> str:
@@ -111,6 +120,7 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
     monitor = None
     denied_at = math.nan
     status, message = "error", ""
+    notes: list[str] = []
     # SIGTERM (a supervisor, `kill`, `timeout`) stops the flight as Ctrl-C does: the records and the
     # result are still written (it used to end the process with nothing but the companion's steps).
     # SIGINT gets the handler explicitly too: a job started in the background by a non-interactive
@@ -120,6 +130,9 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
         if threading.current_thread() is threading.main_thread() else {}
     try:
         monitor = rig.start()
+        notes = rig.prepare(monitor)
+        for note in notes:
+            _say(flight, note)
         companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", rig.companion_url, "--params", str(parm), "--log-dir",
              str(out / "companion"), "--exit-when-done", "--quiet"],
@@ -171,7 +184,7 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
             signal.signal(signum, handler)
     truth = _write_truth(out / "truth.csv", monitor.truth if monitor is not None else [])
     return FirmwareRun(status, message, truth, time.monotonic() - wall0,
-                       companion.returncode if companion is not None else None, denied_at)
+                       companion.returncode if companion is not None else None, denied_at, tuple(notes))
 
 
 def _raise_interrupt(signum: int, frame) -> None:  # noqa: ARG001

@@ -64,6 +64,13 @@ class FirmwareMonitor:
         self._groundspeed = math.nan
         self._chunks: dict[tuple[int, int], str] = {}
         self._hello_wall_s = -math.inf
+        self.acks: dict[int, int] = {}          # COMMAND_ACK results of the autopilot, by command
+        self.params: dict[str, float] = {}      # PARAM_VALUEs the autopilot sent
+
+    @property
+    def gps_fix(self) -> int:
+        """GPS_RAW_INT's fix type, as last reported (0 before any)."""
+        return self._gps_fix
 
     def _statustext(self, msg) -> None:
         """One text per STATUSTEXT, or per id across its 50-character chunks (MAVLink 2)."""
@@ -114,6 +121,14 @@ class FirmwareMonitor:
         raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
         self.conn.mav.param_set_send(self.target_system, 1, name.encode("ascii"), raw, mavlink.MAV_PARAM_TYPE_INT32)
 
+    def read_params(self, names, timeout_wall_s: float = 30.0) -> dict[str, float]:
+        """Ask for each named parameter (PARAM_REQUEST_READ) and wait for their values."""
+        for name in names:
+            self.params.pop(name, None)
+            self.conn.mav.param_request_read_send(self.target_system, 1, name.encode("ascii"), -1)
+        self.pump(lambda m: all(n in m.params for n in names), timeout_wall_s, f"the values of {', '.join(names)}")
+        return {name: self.params[name] for name in names}
+
     def pump(self, until, timeout_wall_s: float, what: str = "condition") -> None:
         """Read messages until ``until(self)`` is true; TimeoutError after ``timeout_wall_s``."""
         deadline = time.monotonic() + timeout_wall_s
@@ -143,6 +158,11 @@ class FirmwareMonitor:
             self.mode, self.armed = msg.custom_mode, bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         elif mtype == "STATUSTEXT":
             self._statustext(msg)
+        elif mtype == "COMMAND_ACK" and msg.get_srcSystem() == self.target_system:
+            self.acks[msg.command] = msg.result
+        elif mtype == "PARAM_VALUE" and msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == 1:
+            name = msg.param_id.decode("ascii", "replace") if isinstance(msg.param_id, bytes) else msg.param_id
+            self.params[name.rstrip("\x00")] = float(msg.param_value)
         elif mtype == "GPS_RAW_INT":
             self._gps_fix = msg.fix_type
         elif mtype == "VFR_HUD":

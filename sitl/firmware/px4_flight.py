@@ -67,6 +67,10 @@ class Px4Rig:
                                f"see {self.sitl.log_path}") from None
         return monitor
 
+    def prepare(self, monitor: FirmwareMonitor) -> list[str]:   # noqa: ARG002
+        """SIH's magnetometer keeps its own noise; nothing to calibrate before the companion starts."""
+        return []
+
     @property
     def companion_url(self) -> str:
         return self.sitl.companion_url

@@ -181,3 +181,13 @@ def test_the_companion_process_runs_one_blas_thread():
     done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout) and set(json.loads(done.stdout)) == {1}
+
+
+def test_the_route_is_predicted_before_the_mission(tmp_path):
+    """READY: the companion predicts the route it is about to fly and says it once: the elements
+    for the flight controller's heading, their gradients' angle and the miss it expects."""
+    _, companion = _run(tmp_path, "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 60\n")
+    said = [e for e in companion["events"] if "FcMPC: route: " in e]
+    assert len(said) >= 2, said
+    assert said[0].endswith("deg apart") and "elements (D, I, F)" in said[0], said
+    assert "predicted miss" in said[1] and "95 % within" in said[1], said

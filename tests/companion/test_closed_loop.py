@@ -51,7 +51,7 @@ def assert_close_to_monte_carlo(result: FlyResult, floor_m: float = FLOOR_M) -> 
     # (FUS_MODEL 0 on a vehicle) takes 23 steps on the short mission where the in-process run takes
     # 17 (both arrive within 0.5 km); the bound was max(5, 15 %) before. Not a defect found: the fix-alone
     # estimate dithers around the 500 m arrival threshold, and in-process Table 3 itself takes 17-23
-    # steps over seeds 0-11 (docs/estimation-notes.md, "Table 3's 23 steps closed loop").
+    # steps over seeds 0-11 (docs/notes/estimation-notes.md, "Table 3's 23 steps closed loop").
     assert abs(result.iterations - result.mc_iterations) <= max(8, 0.15 * result.mc_iterations)
     assert result.plot_path and Path(result.plot_path).stat().st_size > 10_000
 

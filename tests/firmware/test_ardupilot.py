@@ -17,6 +17,7 @@ from companion.io.mavlink_link import MessageClock
 from companion.io.records import read_steps_csv
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.io.sensors.mavlink_source import MavlinkDecoder
+from sitl.firmware.compass import ARDUPILOT_REAL, ardupilot_compass_params, calibrate_fixed_yaw
 from tests.firmware.conftest import assert_forward_on as _assert_forward_on
 from tests.firmware.conftest import moving_pairs as _moving
 
@@ -41,6 +42,20 @@ def test_noise_free_compass_starts_and_every_quadrant_is_driven_forward(rig_fact
     courses = [(90.0 - p) % 360.0 for p in probes]
     _assert_forward_on(mon.truth, t1 + 15.0, t2, courses[0])
     _assert_forward_on(mon.truth, t2 + 15.0, t2 + 58.0, courses[1])
+
+
+def test_a_boats_compass_calibration_learns_the_hard_iron_only(rig_factory):
+    """The real compass calibrated as a boat's user does (MAV_CMD_FIXED_MAG_CAL_YAW at the true
+    heading, GPS position, ArduPilot's own field tables): ArduPilot's offsets come within 10 mGauss
+    of the installation's hard iron (its soft iron and noise keep them from exact), and nothing learns
+    the soft iron, which the companion then meets in flight."""
+    rig = rig_factory("calibration", params=ardupilot_compass_params("real"))
+    words = calibrate_fixed_yaw(rig.monitor)
+    learnt = rig.monitor.read_params(("COMPASS_OFS_X", "COMPASS_OFS_Y", "COMPASS_OFS_Z", "COMPASS_DIA_X",
+                                      "COMPASS_ODI_X"))
+    for axis in "XYZ":
+        assert learnt[f"COMPASS_OFS_{axis}"] == pytest.approx(ARDUPILOT_REAL[f"SIM_MAG1_OFS_{axis}"], abs=10.0), words
+    assert learnt["COMPASS_DIA_X"] == pytest.approx(1.0) and learnt["COMPASS_ODI_X"] == pytest.approx(0.0)
 
 
 def test_ardupilot_highres_imu_is_its_compass_field_untruncated_in_its_own_unit(rig_factory):

@@ -164,30 +164,56 @@ def quaternion(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarr
                             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
 
 
-def write_ulog(path: Path, track: Track, unix0: float, gps_every: int = 2) -> Path:
+def write_ulog(path: Path, track: Track, unix0: float, gps_every: int = 2, generation: str = "current") -> Path:
     """A PX4-style ULog of a track: vehicle_magnetometer, vehicle_attitude, sensor_combined,
-    vehicle_gps_position (with time_utc_usec) and vehicle_status (arming_state 2 = armed)."""
+    vehicle_gps_position (with time_utc_usec) and vehicle_status (arming_state 2 = armed).
+
+    ``generation="px4-1.6"``: the 1.6-era schema instead: the magnetometer in
+    ``sensor_combined.magnetometer_ga`` (with its relative timestamp) and the position only in
+    ``vehicle_local_position`` (x north, y east, z down from ``ref_lat``/``ref_lon``/``ref_alt``,
+    ``xy_global``); no GPS topic, so no date."""
+    from companion.nav.geo import enu_offset
     from tests.replay.ulog_writer import ULogWriter
 
+    old = generation == "px4-1.6"
     w = ULogWriter()
-    w.topic("vehicle_magnetometer", [("uint64_t", "timestamp"), ("float[3]", "magnetometer_ga")])
     w.topic("vehicle_attitude", [("uint64_t", "timestamp"), ("float[4]", "q")])
-    w.topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
-                                ("float[3]", "accelerometer_m_s2")])
-    w.topic("vehicle_gps_position", [("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec"), ("int32_t", "lat"),
-                                     ("int32_t", "lon"), ("int32_t", "alt"), ("float", "eph"),
-                                     ("float", "vel_n_m_s"), ("float", "vel_e_m_s"), ("uint8_t", "fix_type")])
+    if old:
+        w.topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
+                                    ("float[3]", "accelerometer_m_s2"), ("float[3]", "magnetometer_ga"),
+                                    ("int32_t", "magnetometer_timestamp_relative")])
+        w.topic("vehicle_local_position", [("uint64_t", "timestamp"), ("uint64_t", "ref_timestamp"),
+                                           ("double", "ref_lat"), ("double", "ref_lon"), ("float", "x"),
+                                           ("float", "y"), ("float", "z"), ("float", "vx"), ("float", "vy"),
+                                           ("float", "ref_alt"), ("float", "eph"), ("bool", "xy_global")])
+    else:
+        w.topic("vehicle_magnetometer", [("uint64_t", "timestamp"), ("float[3]", "magnetometer_ga")])
+        w.topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
+                                    ("float[3]", "accelerometer_m_s2")])
+        w.topic("vehicle_gps_position", [("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec"), ("int32_t", "lat"),
+                                         ("int32_t", "lon"), ("int32_t", "alt"), ("float", "eph"),
+                                         ("float", "vel_n_m_s"), ("float", "vel_e_m_s"), ("uint8_t", "fix_type")])
     w.topic("vehicle_status", [("uint64_t", "timestamp"), ("uint8_t", "arming_state")])
     q = quaternion(track.roll, track.pitch, track.yaw)
+    ref = (float(track.lat[0]), float(track.lon[0]), float(track.alt[0]))
     for k, t in enumerate(track.t):
         us = int(round(t * 1e6))
-        w.add("vehicle_magnetometer", (us, tuple(track.mag_nt[k] / 1e5)))
         w.add("vehicle_attitude", (us, tuple(q[k])))
-        w.add("sensor_combined", (us, (0.0, 0.0, 0.0), tuple(track.acc[k])))
+        if old:
+            w.add("sensor_combined", (us, (0.0, 0.0, 0.0), tuple(track.acc[k]), tuple(track.mag_nt[k] / 1e5), 0))
+        else:
+            w.add("vehicle_magnetometer", (us, tuple(track.mag_nt[k] / 1e5)))
+            w.add("sensor_combined", (us, (0.0, 0.0, 0.0), tuple(track.acc[k])))
         if k % gps_every == 0:
-            w.add("vehicle_gps_position", (us, int((unix0 + t) * 1e6), int(round(track.lat[k] * 1e7)),
-                                           int(round(track.lon[k] * 1e7)), int(round(track.alt[k] * 1e3)), 0.8,
-                                           track.vn[k], track.ve[k], 3))
+            if old:
+                east, north = enu_offset(ref[0], ref[1], float(track.lat[k]), float(track.lon[k]))
+                w.add("vehicle_local_position", (us, 0, ref[0], ref[1], float(north), float(east),
+                                                 ref[2] - float(track.alt[k]), track.vn[k], track.ve[k], ref[2],
+                                                 0.8, True))
+            else:
+                w.add("vehicle_gps_position", (us, int((unix0 + t) * 1e6), int(round(track.lat[k] * 1e7)),
+                                               int(round(track.lon[k] * 1e7)), int(round(track.alt[k] * 1e3)), 0.8,
+                                               track.vn[k], track.ve[k], 3))
         if k % 10 == 0:
             w.add("vehicle_status", (us, 2 if track.armed[k] else 1))
     return w.write(path)
