@@ -45,7 +45,6 @@ from companion.process.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
 from companion.process.resume import Resume
-from companion.process.status import StatusPublisher
 from companion.registry import READINGS
 from companion.sdnotify import Notifier
 
@@ -107,7 +106,6 @@ class CompanionApp:
         self.phases = Phases(self)
         self.reporting = Reporting(self)
         self.resume = Resume(self, self._state_path())
-        self.status = StatusPublisher.for_options(self)   # --http: the status page, its port bound now
         if self.params.load_error:
             self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
                                         f"{self.params.load_error}")
@@ -231,7 +229,6 @@ class CompanionApp:
         except BaseException:
             self.intake.close_source()
             raise
-        self.status.start()
         self.reporting.open(self.log_dir / "steps.csv")
         self.out.heartbeat()   # a udpout link must speak first
         self.notifier.ready()
@@ -247,7 +244,6 @@ class CompanionApp:
         self.reporting.write_summary()
         self.link.close()
         self.intake.close_source()
-        self.status.stop()
 
     def request_stop(self) -> None:
         self._stop = True
@@ -329,7 +325,7 @@ class CompanionApp:
             self.out.say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
                          mavlink.MAV_SEVERITY_WARNING)
             self.exit_code = 3
-        self.status.maybe_publish(wall)
+        self.reporting.publish_status(wall)   # --http: the status page
 
     def _lingered(self) -> bool:
         """--exit-when-done: ``--linger-s`` of message time passed since the mission ended (the
