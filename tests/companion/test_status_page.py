@@ -262,6 +262,8 @@ def test_bad_requests_read_nothing_outside_and_change_nothing(vehicle, tmp_path)
     assert (records / "steps.csv").read_bytes() == steps_before
     status, _, _ = vehicle.get("/")
     assert status == 200
+    said = (vehicle.base / "companion.err").read_bytes()     # --quiet: only what went wrong
+    assert b"Traceback" not in said and b"Uncaught" not in said and b"ERROR" not in said, said[-2000:]
 
 
 # --- the parts, without processes -----------------------------------------------------------------

@@ -54,6 +54,8 @@ from urllib.parse import quote
 
 from tornado import web
 from tornado.httpserver import HTTPServer
+from tornado.httputil import responses
+from tornado.iostream import StreamClosedError
 from tornado.netutil import bind_sockets
 
 from companion.io.records import parse_steps_csv
@@ -61,8 +63,8 @@ from companion.io.status_page.page import RecordFile, render_page
 from companion.io.status_page.plot import Track, plot_svg
 from companion.io.status_page.snapshot import StatusSnapshot, json_ready
 
-__all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_CONNECTIONS", "MAX_HEADER_BYTES", "StatusServer", "list_records",
-           "TrackReader"]
+__all__ = ["CHUNK_BYTES", "IDLE_TIMEOUT_S", "MAX_BODY_BYTES", "MAX_CONNECTIONS", "MAX_HEADER_BYTES", "StatusServer",
+           "TrackReader", "list_records"]
 
 MAX_HEADER_BYTES = 16 * 1024
 MAX_CONNECTIONS = 64
@@ -223,7 +225,7 @@ def _application(status: StatusServer):
 
         def write_error(self, status_code: int, **kwargs) -> None:   # no traceback, no page of ours
             self.set_header("Content-Type", "text/plain; charset=utf-8")
-            self.finish(f"{status_code} {self._reason}\n")
+            self.finish(f"{status_code} {responses.get(status_code, 'Error')}\n")
 
         def head(self, *args) -> None:
             return self.get(*args)
@@ -282,7 +284,10 @@ def _application(status: StatusServer):
                         break   # truncated meanwhile: the client sees a short body
                     left -= len(chunk)
                     self.write(chunk)
-                    await self.flush()
+                    try:
+                        await self.flush()
+                    except StreamClosedError:
+                        return   # the client went away
 
     return web.Application([(r"/", Page), (r"/state\.json", State), (r"/plot\.svg", Plot),
                             (r"/records/", Listing), (r"/records/(.+)", Download)],
