@@ -47,6 +47,10 @@ Failsafes (:mod:`companion.failsafe`)
 Records (``--log-dir``, default ``out/companion/<time>-<pid>``): ``companion.tlog`` (both
 directions), ``steps.csv`` (:mod:`companion.io.records`), ``summary.json``.
 
+Status page (``--http ADDRESS:PORT``, off by default): a read-only web page on the board with
+the phase, the estimate, its ellipse and the track, health and the records to download
+(:mod:`companion.io.status_page`, docs/status-page.md).
+
 Sensor sources (``--sensors SPEC``): a magnetometer, attitude or GPS beside the link replaces
 the flight controller's kind; see :mod:`companion.process.intake`.
 """
@@ -71,6 +75,7 @@ from companion.cli import ArgumentParser, UsageError, one_line, run_main
 from companion.io.param_server import ENCODINGS
 from companion.io.sensors.base import SensorError
 from companion.io.sensors.mavlink_source import MAG_MESSAGES
+from companion.io.status_page.address import parse_http_address
 from companion.nav.mission import FROZEN_IN_FLIGHT
 from companion.process.companion import CompanionApp, apply_live_config
 from companion.process.intake import SourceTimeMap, source_kinds
@@ -148,9 +153,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tlog", action="store_true", help="do not record companion.tlog")
     p.add_argument("--no-stream-requests", action="store_true",
                    help="do not send MAV_CMD_SET_MESSAGE_INTERVAL (use the FC's configured rates)")
+    p.add_argument("--http", default=None, metavar="ADDRESS:PORT", type=_http_address,
+                   help="serve the read-only status page (state, estimate plot, health, records to download) "
+                        "on ADDRESS:PORT; a PORT alone listens on loopback (127.0.0.1); default off "
+                        "(docs/status-page.md)")
     p.add_argument("--max-wall-s", type=float, default=None, help="exit (code 3) after this many wall seconds")
     p.add_argument("--quiet", action="store_true", help="no status lines on stderr")
     return p
+
+
+def _http_address(text: str) -> str:
+    """argparse ``type`` of --http: the text, checked (its one-line error names the option)."""
+    try:
+        parse_http_address(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
 
 
 def options_from_args(args: argparse.Namespace) -> AppOptions:
@@ -159,7 +177,8 @@ def options_from_args(args: argparse.Namespace) -> AppOptions:
                       mag_message=args.mag_message, startup_s=args.startup_s, tlog=not args.no_tlog,
                       request_streams=not args.no_stream_requests, max_wall_s=args.max_wall_s, quiet=args.quiet,
                       sensors=args.sensors, linger_s=args.linger_s, state=args.state,
-                      fc_compid=args.fc_compid, signing_key=args.signing_key, signing_link_id=args.signing_link_id)
+                      fc_compid=args.fc_compid, signing_key=args.signing_key, signing_link_id=args.signing_link_id,
+                      http=args.http)
 
 
 def _run(argv: list[str] | None) -> int:

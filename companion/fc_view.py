@@ -27,6 +27,7 @@ All times are message time.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from companion.io.fc_params import HEADING_PARAMS, FcParamReader, HeadingVerdict, judge_heading
@@ -37,6 +38,7 @@ __all__ = ["FcView", "ArmingBackoff", "GPS_FIX_MAX_AGE_S", "PUBLISH_GPS_INPUT"]
 
 GPS_FIX_MAX_AGE_S = 3.0       # no GPS_RAW_INT with a 3D fix for this long: the FC has no GPS
 PUBLISH_GPS_INPUT = 3         # COMP_POS_PUB value
+FC_TEXTS_KEPT = 20            # the flight controller's last STATUSTEXTs kept (the status page shows them)
 ARM_BACKOFF_FIRST_S = 2.0
 ARM_BACKOFF_MAX_S = 60.0
 
@@ -75,6 +77,7 @@ class FcView:
         self.arming = ArmingBackoff()
         self.prearm_text = ""
         self.fc_failsafe = ""                 # the FC's own failsafe in force ("EKF failsafe"), "" when none
+        self.texts: deque[str] = deque(maxlen=FC_TEXTS_KEPT)   # its last STATUSTEXTs, "[message time] text"
         self._verdict: HeadingVerdict | None = None
 
     # --- receive ---------------------------------------------------------------------------
@@ -104,6 +107,8 @@ class FcView:
             self.reader.packet(msg)
         elif mtype == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", errors="replace")
+            if msg.get_srcComponent() != 191:
+                self.texts.append(f"[{now_s:10.1f}] {text.strip()}")
             if text.startswith(("PreArm:", "Arm:", "Arming denied", "Preflight Fail")):
                 self.prearm_text = text.strip()
             elif "failsafe" in text.lower() and msg.get_srcComponent() != 191:

@@ -41,6 +41,7 @@ CASES = [
     ("fcmpc-sitl", ["--speedup", "fast"], "--speedup"),
     ("fcmpc-companion", ["--params", "missing.parm"], "missing.parm"),
     ("fcmpc-companion", ["--param-encoding", "nonsense"], "--param-encoding"),
+    ("fcmpc-companion", ["--http", "board:http"], "--http 'board:http'"),
     ("fcmpc-montecarlo", ["--scenario", "pacifc"], "'pacifc'"),
     ("fcmpc-montecarlo", ["--params", "missing.parm"], "missing.parm"),
     ("fcmpc-montecarlo", ["--params", "{bad_parm}"], "bad.parm:2"),

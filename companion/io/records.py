@@ -36,12 +36,13 @@ sent_course_deg     the course the setpoints carry: course_deg plus the FC's yaw
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
 from pathlib import Path
 
-__all__ = ["STEP_COLUMNS", "StepRecorder", "write_summary", "read_steps_csv"]
+__all__ = ["STEP_COLUMNS", "StepRecorder", "parse_steps_csv", "read_steps_csv", "write_summary"]
 
 STEP_COLUMNS = (
     "wall_time_s", "msg_time_s", "mission_time_s", "mission", "step", "phase", "decl_deg", "incl_deg", "f_nt", "samples",
@@ -98,18 +99,30 @@ def write_summary(path: str | os.PathLike, summary: dict) -> None:
 
 def read_steps_csv(path: str | os.PathLike) -> list[dict]:
     """Rows of a steps.csv with numbers as floats (text columns kept as text)."""
+    with open(path, newline="", encoding="utf-8") as handle:
+        return parse_steps_csv(handle.read())
+
+
+def parse_steps_csv(text: str) -> list[dict]:
+    """Rows of a steps.csv's text with numbers as floats (text columns kept as text); a row cut
+    short (a reader racing the writer) has NaN or "" for the columns it lacks.
+
+    >>> [(r["step"], r["phase"], r["remaining_m"]) for r in parse_steps_csv("step,phase,remaining_m\\n3,cruise,\\n")]
+    [(3.0, 'cruise', nan)]
+    """
     text_columns = {"phase", "ins_source", "event", "reason"}
     rows = []
-    with open(path, newline="", encoding="utf-8") as handle:
-        for raw in csv.DictReader(handle):
-            row = {}
-            for key, value in raw.items():
-                if key in text_columns:
+    for raw in csv.DictReader(io.StringIO(text, newline="")):
+        row = {}
+        for key, value in raw.items():
+            if key is None:                 # more fields than columns: not ours
+                continue
+            if key in text_columns:
+                row[key] = value or ""
+            else:
+                try:
+                    row[key] = float(value) if value else math.nan
+                except ValueError:
                     row[key] = value
-                else:
-                    try:
-                        row[key] = float(value) if value != "" else math.nan
-                    except ValueError:
-                        row[key] = value
-            rows.append(row)
+        rows.append(row)
     return rows

@@ -14,6 +14,7 @@
     control_step.py one control step: measurement -> core -> checks; the INS position
     outputs.py      what leaves: STATUSTEXT, heartbeat, setpoints, estimates, GPS_INPUT feed
     reporting.py    steps.csv rows and summary.json
+    status.py       --http: the status page's snapshot, handed to its server (companion.io.status_page)
     resume.py       the navigator's state saved every step; resume after a crash, or start from it
     mission_clock.py mission time = message time minus the pauses
     companion.py    CompanionApp: the receive hook, the periodic hooks and the run loop

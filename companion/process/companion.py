@@ -329,6 +329,7 @@ class CompanionApp:
             self.out.say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
                          mavlink.MAV_SEVERITY_WARNING)
             self.exit_code = 3
+        self.reporting.publish_status(wall)   # --http: the status page
 
     def _lingered(self) -> bool:
         """--exit-when-done: ``--linger-s`` of message time passed since the mission ended (the

@@ -37,3 +37,4 @@ class AppOptions:
     fc_compid: int | None = None        # pin the FC's component too (default: the first autopilot's)
     signing_key: str | None = None      # MAVLink 2 signing key file
     signing_link_id: int = 0
+    http: str | None = None             # the status page's ADDRESS:PORT (PORT alone: loopback); None: off

@@ -1,4 +1,5 @@
-"""Records (``--log-dir``): a row of ``steps.csv`` per control step and per event, and ``summary.json``.
+"""Records (``--log-dir``): a row of ``steps.csv`` per control step and per event, and ``summary.json``;
+with ``--http`` the status page, which shows the state and serves the records (:mod:`companion.process.status`).
 
 The files' formats are :mod:`companion.io.records`'s; this part says what goes in them.
 """
@@ -14,6 +15,7 @@ from companion.io.records import StepRecorder, write_summary
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.mission import Command, Measurement, Phase
 from companion.process.options import GPS_START_MAX_AGE_S
+from companion.process.status import StatusPublisher
 
 __all__ = ["Reporting", "percentile"]
 
@@ -37,13 +39,20 @@ class Reporting:
     def __init__(self, app) -> None:   # the CompanionApp wiring this part
         self.app = app
         self.recorder: StepRecorder | None = None
+        self.status = StatusPublisher.for_options(app)   # --http: its port bound now (in use: OSError)
 
     def open(self, path: Path) -> None:
+        self.status.start()   # before steps.csv: once the file exists, the page answers
         self.recorder = StepRecorder(path)
 
     def close(self) -> None:
         if self.recorder is not None:
             self.recorder.close()
+        self.status.stop()
+
+    def publish_status(self, wall: float) -> None:
+        """The loop's idle hook: the status page's snapshot, at most every PUBLISH_WALL_S."""
+        self.status.maybe_publish(wall)
 
     def record_step(self, cmd: Command, meas: Measurement, avg, ins_source: str, latency: float, event: str,
                     reason: str) -> None:
