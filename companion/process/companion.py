@@ -31,10 +31,8 @@ from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import Command, Mission, Phase
 from companion.params import CompanionConfig, NavConfig
-from companion.process.calibration_turn import CalibrationTurn
 from companion.process.control_step import ControlStep
 from companion.process.failsafe_response import FailsafeResponse
-from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
@@ -102,8 +100,6 @@ class CompanionApp:
         self.out = Outputs(self)
         self.failsafe = FailsafeResponse(self)
         self.preparation = MissionPreparation(self)
-        self.forecast = RouteForecast(self.out.say, inline=options.lockstep)
-        self.calturn = CalibrationTurn(self)
         self.stepper = ControlStep(self)
         self.phases = Phases(self)
         self.reporting = Reporting(self)
@@ -122,8 +118,7 @@ class CompanionApp:
         self.command: Command | None = None
         self.last_phase = ""
         self.exit_code: int | None = None
-        self.done_wall = math.nan
-        self.done_msg_s = math.nan        # message time the mission ended
+        self.done_wall = self.done_msg_s = math.nan    # wall and message time the mission ended
         self._stop = False
         self.params_dirty = False
         # clocks and timers (message time unless *_wall)
@@ -350,7 +345,7 @@ class CompanionApp:
         if self.state == State.WAIT_FC:
             self.phases.fc_detected()
         self.fc_view.poll_requests(self.link, now)
-        self.forecast.poll()
+        self.preparation.forecast.poll()
         reasons = self.failsafe.evaluate()
         sent = self.phases.tick(now, reasons, dt)
         if self.state == State.RUNNING:

@@ -28,6 +28,7 @@ import time
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.mission import Command, Phase, uses_filter
+from companion.process.calibration_turn import CalibrationTurn
 from companion.process.machine import Event, State
 from companion.process.options import MAX_RESTARTS
 
@@ -46,6 +47,7 @@ class Phases:
         self.fc_failsafe_hold = ""      # the FC's own failsafe that took it out of GUIDED (re-engage when cleared)
         self.our_hold = False           # the FC left GUIDED for a mode we commanded (re-engage when healthy)
         self.was_following = False
+        self.calturn = CalibrationTurn(app)    # the magnetometer's calibration circles (COMP_CAL_TURNS)
 
     def tick(self, now: float, reasons: list[str], dt: float) -> bool:
         """The current phase's work this tick (a phase entered on the way runs too); True if a
@@ -57,7 +59,7 @@ class Phases:
         if app.state == State.READY:
             sent = self.ready(now, reasons)
         if app.state == State.CALIBRATING:
-            sent, averaged = app.calturn.tick(now, reasons)
+            sent, averaged = self.calturn.tick(now, reasons)
             if averaged:
                 self.start_mission(now)
         if app.state == State.RUNNING:
@@ -120,9 +122,9 @@ class Phases:
             if app.resume.pending is not None:
                 app.resume.resume_mission(now)
                 self.was_following = True
-            elif app.calturn.wanted(app.preparation.start_position()[2]):
+            elif self.calturn.wanted(app.preparation.start_position()[2]):
                 app.machine.fire(Event.CALIBRATE)
-                app.calturn.enter(now)
+                self.calturn.enter(now)
             else:
                 self.start_mission(now)
             return sent
@@ -201,15 +203,7 @@ class Phases:
         if calibration:
             app.out.say(f"FcMPC: {calibration}"[:200])
         app.stepper.step(app.m0, window_limit_s=0.0, avg=startup)
-        estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
-        if estimator is not None and estimator.reason:
-            app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
-        if estimator is not None and estimator.ring_current_removed:
-            app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "
-                        f"its change x FUS_SYMH_K {config.symh_ratio:g} along H"[:200])
-        trim = app.comp_cfg.trim_max_deg
-        app.out.say(f"FcMPC: steering: the measured heading, course trimmed by the FC's yaw error up to {trim:g} deg"
-                    if trim > 0.0 else "FcMPC: steering: the FC's yaw (COMP_TRIM_DEG 0)")
+        say_how_it_navigates(app, config)
 
     # ------------------------------------------------------------------ running
     def running(self, now: float, reasons: list[str], dt: float) -> bool:
@@ -343,3 +337,17 @@ class Phases:
         self.enter_startup(Event.FC_REBOOTED, reason)
         if app.resume.pending is not None:
             app.machine.fire(Event.RESUMED)
+
+
+def say_how_it_navigates(app, config) -> None:
+    """After the mission's first step: the position filter it runs, the ring current it removes,
+    and what it steers by, each in a STATUSTEXT."""
+    estimator = getattr(app.mission, "estimator", None) if app.mission is not None else None
+    if estimator is not None and estimator.reason:
+        app.out.say(f"FcMPC: position filter: {estimator.reason}"[:200])
+    if estimator is not None and estimator.ring_current_removed:
+        app.out.say(f"FcMPC: ring current removed: NAV_SYMH {estimator.symh_reference_nt:g} nT at the start, "
+                    f"its change x FUS_SYMH_K {config.symh_ratio:g} along H"[:200])
+    trim = app.comp_cfg.trim_max_deg
+    app.out.say(f"FcMPC: steering: the measured heading, course trimmed by the FC's yaw error up to {trim:g} deg"
+                if trim > 0.0 else "FcMPC: steering: the FC's yaw (COMP_TRIM_DEG 0)")

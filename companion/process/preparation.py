@@ -16,6 +16,7 @@ from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_inverse
 from companion.nav.mission import Mission
 from companion.params import NavConfig
+from companion.process.forecast import RouteForecast
 from companion.process.options import GPS_START_MAX_AGE_S
 
 __all__ = ["PREPARED_START_M", "MissionPreparation"]
@@ -30,6 +31,7 @@ class MissionPreparation:
         self.app = app
         self.prepared: Mission | None = None   # built while READY, used at arming if nothing changed
         self._prepared_for = None              # the NavConfig (parameters) it was last found to serve
+        self.forecast = RouteForecast(app.out.say, inline=app.opts.lockstep)   # the route said before it
 
     def startup_window(self) -> float:
         """Seconds of stationary averaging before the first step (--startup-s, else NAV_PERIOD_S)."""
@@ -62,7 +64,7 @@ class MissionPreparation:
         config = self.mission_config(lat, lon, code)
         if not self.fits(config):
             self.prepared = Mission(config)
-            app.forecast.request(config)
+            self.forecast.request(config)
         self._prepared_for = app.nav_cfg   # (a parameter change builds a new NavConfig)
 
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:
