@@ -18,6 +18,7 @@ from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
+from companion.nav.heading import window_heading_rad
 from companion.nav.mission import CORE_ERROR, Measurement, Phase
 from companion.nav.steering import is_new_course
 from companion.process.filter_words import FilterWords
@@ -205,7 +206,8 @@ class ControlStep:
         # follow a storm it has recognised) are removed and their uncertainty widens the bound;
         # judged against the start-up calibration alone, a storm the filter was tracking drove the
         # implied jump past the bound and every later step was excluded (short storm, seed 0)
-        bias, bias_sigma = navigator_bias(mission)
+        velocity = np.array([cmd.speed_mps * math.sin(cmd.course_rad), cmd.speed_mps * math.cos(cmd.course_rad)])
+        bias, bias_sigma = navigator_bias(mission, window_heading_rad(meas, velocity))
         noise = np.hypot(element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}), bias_sigma)
         judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
                           meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,

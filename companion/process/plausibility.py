@@ -105,17 +105,22 @@ def f_offset_nt(model: WorldMagneticModel, elements: ElementSet, year: float, al
     return float(f_nt - f_bias - model_f_nt)
 
 
-def navigator_bias(mission) -> tuple[np.ndarray, np.ndarray]:
+def navigator_bias(mission, heading_rad: float = math.nan) -> tuple[np.ndarray, np.ndarray]:
     """What a steering-pair measurement carries besides the field for ``mission`` (a
     :class:`companion.nav.mission.Mission`), in element units: the bias its navigator removes before
     the fix, and that bias's 1-sigma. Table 3's path: the start-up calibration, taken as exact. The
     error-state filter: its bias states (the calibration, the model's error, a storm it has
-    recognised) and their uncertainty, as of its last update; before its first step, nothing known
-    (zero bias, its prior 1-sigma)."""
+    recognised) and their uncertainty, as of its last update, with its heading states (the
+    magnetometer's calibration residual, which turns with the vehicle) taken at ``heading_rad``, the
+    true heading of the window judged, as the filter's step will take them (NaN: not known); before
+    its first step, nothing known (zero bias, its prior 1-sigma). Taken at the last window's heading
+    instead, a turn made the residual's change a "jump": the realistic Pacific, closed loop, had every
+    period after take-off excluded (fix would jump 146-349 km against a 59-81 km bound)."""
     n = len(mission.elements.names)
     estimator = getattr(mission, "estimator", None)
     f = estimator.filter if estimator is not None else None
     if f is not None:
+        f.set_heading(heading_rad)
         return f.bias[:n], f.bias_sigma[:n]
     if estimator is not None:
         s = estimator.settings.bias

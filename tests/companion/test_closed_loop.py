@@ -159,3 +159,18 @@ def test_mission_completes_after_the_faults(faulted_run):
     assert max(result.step_remaining_m, result.rest_remaining_m) <= ISSUE_MISS_M, \
         f"missed by {result.step_remaining_m:.0f} m (last step), {result.rest_remaining_m:.0f} m (at rest)"
     assert result.companion["failsafes"] >= 3
+
+
+def test_realistic_short_mission_navigates_on_every_period(tmp_path):
+    """The realistic world (the default `pacific`: IGRF-14 and crust against WMM, INS heading,
+    calibration residuals that turn with the vehicle, currents, a drawn start), closed loop: the
+    companion's plausibility judge takes each period as the filter will see it, its heading states at
+    the window's heading, so no period is excluded when the vehicle turns (before, every period after
+    take-off was: "fix would jump 146-349 km", and the vehicle flew its last command on for good),
+    and the mission arrives."""
+    result = fly(FlyOptions(scenario="pacific", short=True, short_km=60.0, compare=True,
+                            out_dir=str(tmp_path / "run"), timeout_s=HANG_S))
+    assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
+    events = json.loads((tmp_path / "run" / "companion" / "summary.json").read_text())["events"]
+    assert not [e for e in events if "implausible" in e or "sustained" in e], events
+    assert math.isfinite(result.rest_remaining_m) and math.isfinite(result.mc_remaining_m)
