@@ -3,6 +3,8 @@ route's grid against an independent direct sum at points, the cache, and routes 
 and on the equator (across the antimeridian) building their truth."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,18 @@ def test_the_crust_grid_refuses_another_altitude(tmp_path):
     assert grid.ned_nt(30.0, 155.0, 99.0).shape == (3,)
     with pytest.raises(ValueError, match="at 0 m"):
         grid.ned_nt(30.0, 155.0, 5000.0)
+
+
+def test_route_anomaly_is_the_crust_and_what_the_map_misses(tmp_path):
+    from companion.nav.field import load_wmm
+    from sitl.world.anomaly import plot_crust_anomaly, route_anomaly
+
+    ideal = build_truth_field(load_scenario("pacific"))     # the map is the territory: nothing to see
+    none = route_anomaly(ideal, (33.0, 152.0), (28.0, 158.0), 0.0, load_wmm("WMM2020"), points=20)
+    assert np.all(none.crust == 0.0) and np.allclose(none.map_error, 0.0, atol=1e-9)
+    grid = crust_grid_for_route((33.0, 152.0), (28.0, 158.0), 0.0, min_degree=16, max_degree=60, cache=tmp_path)
+    real = route_anomaly(replace(ideal, crust=grid), (33.0, 152.0), (28.0, 158.0), 0.0, load_wmm("WMM2020"), 20)
+    assert real.distance_km[-1] == pytest.approx(799.2, abs=1.0)
+    assert np.allclose(real.crust, real.map_error)           # the truth's main field is the map's here
+    assert 1.0 < np.abs(real.crust[:, 0]).max() < 300.0      # dF of the long-wavelength crust, nT
+    assert plot_crust_anomaly(tmp_path / "a.png", real).stat().st_size > 10_000
