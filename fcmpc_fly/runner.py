@@ -237,6 +237,10 @@ def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
     if options.lockstep:
         values["COMP_SP_RATE_HZ"] = SETPOINT_RATE_HZ
     values = validate_all({**values, **options.extra_params})
+    # the route's real crust: synthesised here the first time (seconds; cached), so a missing
+    # coefficient file is said now and the simulator starts on the cached grid
+    from sitl.world.build import crust_grid
+    crust_grid(scenario, options.data_dir)
     return scenario, dest, values
 
 

@@ -26,6 +26,7 @@ run on a route synthesises (a few tens of seconds at degree 790), every later on
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -227,6 +228,8 @@ def crust_grid_for_route(start: tuple[float, float], destination: tuple[float, f
     if target.exists():
         with np.load(target) as saved:
             return CrustGrid(saved["lat_deg"], saved["lon_deg"], saved["ned_nt"], float(saved["alt_m"]), label)
+    logging.getLogger(__name__).info("synthesising %s degrees %d-%d for the route's box (once; cached in %s)",
+                                     path.name, min_degree, max_degree, folder)
     _, gh = read_emm(path)
     grid = synthesise_crust_grid(gh, min_degree, max_degree, lat_range, lon_range, alt_m, label)
     folder.mkdir(parents=True, exist_ok=True)
