@@ -42,7 +42,7 @@ EMM_FILE = Path("crust") / "EMM2017.COF"
 """The coefficient file, relative to the real data folder (:func:`sitl.storms.default_data_dir`)."""
 CRUST_MIN_DEGREE = 16   # EMM2017's crust begins where its core field ends (degree 15)
 CRUST_MAX_DEGREE = 790  # its last degree: 51 km wavelength
-ROUTE_MARGIN_DEG = 3.0  # the box around start and destination (330 km): room for the vehicle's wander
+ROUTE_MARGIN_DEG = 10.0  # the box around start and destination (1100 km): room for a lost vehicle's wander
 ALT_TOLERANCE_M = 100.0  # evaluation this far from the grid's altitude is refused (upward continuation)
 
 _WGS84_A_M = 6378137.0
