@@ -1,4 +1,4 @@
-"""The World Magnetic Model: NOAA ``.COF`` coefficient files, validity span, field elements.
+"""The World Magnetic Model (and WMMHR): NOAA ``.COF`` coefficient files, validity span, field elements.
 
 The navigation state is the pair of magnetic elements ``S = (D, I)`` of the paper's eq. 1-2,
 declination ``D = atan2(Y, X)`` (positive east of true north) and inclination
