@@ -64,14 +64,19 @@ def validate_all(values: Mapping[str, float]) -> dict[str, float | int]:
 
 def combination_error(values: Mapping[str, float]) -> str | None:
     """Why these values, each within its range, cannot make a mission (None: they can): a field
-    model forced by NAV_WMM that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
+    model forced by NAV_WMM, or the map NAV_MAP chose, that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
     NAV_PROBE2_DEG within 11.5 degrees of parallel (the gradient needs two independent moves)."""
     from companion.nav.gradient import MIN_MOVE_SINE   # the core's own bounds (here: no import cycle)
-    from companion.nav.wmm import WMM_NAMES, load_wmm
+    from companion.nav.wmm import MAP_WMMHR, WMM_NAMES, load_wmm, model_for_setting
 
     name = WMM_NAMES.get(int(values["NAV_WMM"]))
     year = float(values["NAV_YEAR"])
-    if name is not None:
+    if int(values.get("NAV_MAP", 0)) == MAP_WMMHR:
+        try:
+            model_for_setting(year, 0, MAP_WMMHR)
+        except ValueError as err:
+            return str(err)
+    elif name is not None:
         model = load_wmm(name)
         if not model.valid_from <= year < model.valid_until:
             return (f"{name} covers {model.valid_from:.2f}..{model.valid_until:.2f}, not NAV_YEAR {year:g} "
@@ -205,6 +210,7 @@ class NavConfig(_FromRegistry):
     alt_m: float = _from("NAV_ALT_M")
     year: float = _from("NAV_YEAR")
     wmm: int = _from("NAV_WMM")
+    nav_map: int = _from("NAV_MAP")
     speed_mps: float = _from("NAV_SPEED_KMH", _KMH_TO_MPS)
     period_s: float = _from("NAV_PERIOD_S")
     arrive_m: float = _from("NAV_ARRIVE_M")

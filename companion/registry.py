@@ -93,6 +93,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("NAV_ALT_M", float, 0.0, -500.0, 20000.0, "m", "altitude above the ellipsoid used for the field model"),
     _p("NAV_YEAR", float, 2024.36, 2020.0, 2029.99, "year", "decimal year for the field model (paper: 2024.36)"),
     _p("NAV_WMM", int, 0, 0, 2, "", "field model: 0 by date (WMM2020 before 2024.87), 1 WMM2020, 2 WMM2025"),
+    _p("NAV_MAP", int, 0, 0, 1, "", "the navigator's field map: 0 the WMM (the paper's; NAV_WMM picks which), 1 WMMHR-2025 (degree 133: also the crust's wavelengths down to 300 km; covers NAV_YEAR 2024.87-2030, never extrapolated)"),
     _p("NAV_SPEED_KMH", float, 50.0, 1.0, 300.0, "km/h", "cruise speed v (Table 4)"),
     _p("NAV_PERIOD_S", float, 360.0, 1.0, 7200.0, "s", "control period T (Table 4 gives 10 without unit; see README)"),
     _p("NAV_LOOKAHEAD_M", float, 10000.0, 0.0, 1e6, "m", "Fc-MPC aims this far ahead on the start-destination geodesic; 0 aims at the destination"),

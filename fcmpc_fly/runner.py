@@ -238,6 +238,10 @@ def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
     if options.lockstep:
         values["COMP_SP_RATE_HZ"] = SETPOINT_RATE_HZ
     values = validate_all({**values, **options.extra_params})
+    # the route's real crust: synthesised here the first time (seconds; cached), so a missing
+    # coefficient file is said now and the simulator starts on the cached grid
+    from sitl.world.build import crust_grid
+    crust_grid(scenario, options.data_dir)
     return scenario, dest, values
 
 
@@ -408,6 +412,9 @@ def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float
             path = plot_track(out / "track.png", (scenario.start_lat_deg, scenario.start_lon_deg), dest, truth, steps,
                               result, scenario.name + (" (short)" if options.short else ""))
             result = replace(result, plot_path=str(path))
+            from sitl.world.anomaly import write_route_anomaly
+            write_route_anomaly(out / "crust_anomaly.png", scenario,
+                                {**scenario.nav_overrides(), **options.extra_params}, options.data_dir)
         except Exception as exc:  # noqa: BLE001 - a plot must not hide the result
             result = replace(result, message=(result.message + "; " if result.message else "") + f"plot failed: {exc}")
     write_result(out, result)

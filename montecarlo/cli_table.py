@@ -70,7 +70,7 @@ def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, cont
           f"({args.workers} workers, engine {args.engine})\n")
     print(format_table(scenario.name, summary, storm))
     if not args.no_plots:
-        print("\nplots: " + ", ".join(str(p) for p in _plots(args, out, scenario, rows, tracks)))
+        print("\nplots: " + ", ".join(str(p) for p in _plots(args, out, scenario, rows, tracks, values)))
     print(f"results: {out / 'runs.csv'}, {out / 'summary.json'}")
     return 0
 
@@ -82,11 +82,14 @@ def _prediction(scenario: Scenario, values: dict) -> RoutePrediction:
     return predict_route(config, compass_derived=scenario.heading_source == "magnetic", has_ins=scenario.ins.onboard)
 
 
-def _plots(args: Namespace, out: Path, scenario: Scenario, rows: list, tracks) -> list[Path]:
-    """The tracks and misses, and for a storm the disturbance along the route."""
+def _plots(args: Namespace, out: Path, scenario: Scenario, rows: list, tracks, values: dict) -> list[Path]:
+    """The tracks and misses, the crustal anomaly along the route (and what the map misses), and
+    for a storm the disturbance along the route."""
     from montecarlo.plots import plot_results
+    from sitl.world.anomaly import write_route_anomaly
 
     written = plot_results(out, scenario, rows, tracks, scenario.storm.enabled)
+    written.append(write_route_anomaly(out / "crust_anomaly.png", scenario, values, args.data_dir))
     if scenario.storm.enabled:
         from sitl import storms
         from sitl.world.build import build_truth_field

@@ -8,7 +8,8 @@ Sources (names for ``fcmpc-montecarlo --errors`` and ``--budget``):
 ``main_field``
     IGRF-14 as the truth's main field while the navigator keeps WMM; off: the truth is WMM.
 ``crustal``
-    the seeded crustal anomaly field; off: none.
+    the crust: the real one (EMM2017, ``[field] crust``) and the seeded anomaly field, as the
+    realistic preset has them; off: none.
 ``calibration``
     the hard/soft-iron residuals and temperature drift; off: a perfect calibration.
 ``noise``
@@ -77,7 +78,8 @@ def with_errors(scenario: Scenario, switches: dict[str, bool], real: Scenario) -
             s = replace(s, field_model=replace(s.field_model, main=real.field_model.main if on else "wmm"))
         elif name == "crustal":
             crustal = real.field_model.crustal if on else replace(real.field_model.crustal, enabled=False)
-            s = replace(s, field_model=replace(s.field_model, crustal=crustal))
+            s = replace(s, field_model=replace(s.field_model, crustal=crustal,
+                                               crust=real.field_model.crust if on else "none"))
         elif name == "calibration":
             keys = ("mag_hard_iron_resid_nt", "mag_soft_iron_resid", "mag_temp_coeff_nt_per_k", "mag_temp_swing_k")
             s = replace(s, sensors=replace(s.sensors, **{k: getattr(real.sensors, k) if on else 0.0 for k in keys}))

@@ -172,7 +172,7 @@ class InProcessFlight:
         if nav_model is None and scenario.field_model.main == "wmm":
             # the ideal world: the navigator's WMM is the truth's own, when it is the model the
             # navigator picks for its NAV_YEAR (a navigator set to another date picks its own)
-            wanted = model_for_setting(nav.year, nav.wmm)
+            wanted = model_for_setting(nav.year, nav.wmm, nav.nav_map)
             nav_model = truth.model if wanted.name == truth.model.name else wanted
         self.mission = Mission(nav, nav_model)
         # the navigator starts from a GPS fix (NAV_START), declared with the receiver's noise (denied

@@ -9,7 +9,8 @@ realistic ones (:data:`ALIASES`).
 
 Tables: ``[mission]``, ``[vehicle]``, ``[sensors]`` (including the calibration residuals and
 ``inprocess_samples``), ``[ins]``, ``[storm]``, ``[[faults]]``, and for the realistic world
-``[field]`` (``main = "wmm" | "igrf14"``, ``crustal = true`` with ``crustal_rms_down_nt``,
+``[field]`` (``main = "wmm" | "igrf14"``, ``crust = "emm2017" | "none"`` with ``crust_min_degree``,
+``crust_max_degree``; ``crustal = true`` with ``crustal_rms_down_nt``,
 ``crustal_correlation_length_m``, ``crustal_waves``) and ``[attitude]`` (``heading_source =
 "true" | "ins" | "magnetic"``, exposed as ``Scenario.heading_source``; biases, drift, tilt), and
 in ``[vehicle]`` the motion errors (``current_mps``, ``speed_scale_sigma``, ``course_bias_deg``,
@@ -147,6 +148,7 @@ class StormConfig:
 
 
 MAIN_FIELD_MODELS = ("wmm", "igrf14", "ardupilot")
+CRUST_MODELS = ("none", "emm2017")
 
 
 @dataclass(frozen=True)
@@ -155,16 +157,27 @@ class FieldConfig:
 
     ``main = "wmm"`` is the navigator's own model (the paper's ideal world: the map is the
     territory); ``"igrf14"`` is IGRF-14 (:mod:`sitl.world.igrf`); ``"ardupilot"`` ArduPilot's own
-    10-degree tables, the world ArduPilot SITL flies in (:mod:`sitl.world.fc_tables`). The crustal field
-    (:mod:`sitl.world.crustal`) is drawn per run from the run's seed.
+    10-degree tables, the world ArduPilot SITL flies in (:mod:`sitl.world.fc_tables`). ``crust =
+    "emm2017"`` adds the real crust, EMM2017 degrees ``crust_min_degree``..``crust_max_degree``
+    synthesised on the route's grid (:mod:`sitl.world.emm`); ``"none"`` leaves it out. The seeded
+    anomaly field (``crustal = true``, :mod:`sitl.world.crustal`) is drawn per run from the run's
+    seed: alone, an unmapped ocean's statistics; beside EMM2017, an option for the scales below its
+    51 km.
     """
 
     main: str = "wmm"
     crustal: CrustalConfig = CrustalConfig()
+    crust: str = "none"
+    crust_min_degree: int = 16
+    crust_max_degree: int = 790
 
     def __post_init__(self) -> None:
         if self.main not in MAIN_FIELD_MODELS:
             raise ValueError(f"main must be one of {', '.join(MAIN_FIELD_MODELS)}, not {self.main!r}")
+        if self.crust not in CRUST_MODELS:
+            raise ValueError(f"crust must be one of {', '.join(CRUST_MODELS)}, not {self.crust!r}")
+        if not 1 <= self.crust_min_degree <= self.crust_max_degree:
+            raise ValueError(f"crust degrees {self.crust_min_degree}-{self.crust_max_degree}: need 1 <= min <= max")
 
 
 @dataclass(frozen=True)

@@ -34,9 +34,11 @@ def test_switches_set_exactly_their_part_of_the_scenario():
     real, ideal = load_scenario("pacific"), load_scenario("paper_pacific")
     off = with_errors(real, {"heading": False, "crustal": False}, real)
     assert off.attitude == AttitudeErrorConfig() and not off.field_model.crustal.enabled
+    assert real.field_model.crust == "emm2017" and off.field_model.crust == "none"   # the real crust too
     assert off.field_model.main == "igrf14" and off.sensors == real.sensors and off.ins == real.ins
     on = with_errors(ideal, {"crustal": True, "calibration": True}, real)
     assert on.field_model.crustal == real.field_model.crustal and on.field_model.main == "wmm"
+    assert ideal.field_model.crust == "none" and on.field_model.crust == "emm2017"
     assert on.sensors.mag_hard_iron_resid_nt == real.sensors.mag_hard_iron_resid_nt
     assert on.sensors.mag_noise_nt == ideal.sensors.mag_noise_nt and on.sensors.inprocess_samples
     nothing = only(real, None)

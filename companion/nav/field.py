@@ -5,10 +5,11 @@ The navigation state is the pair of magnetic elements ``S = (D, I)`` of the pape
 modules, one idea each, and is re-exported here so callers keep one import:
 
 * :mod:`companion.nav.harmonics`: the spherical-harmonic sums of a degree-12 model (the WMM
-  technical report's algorithm), pure numpy;
+  technical report's algorithm), pure numpy; :mod:`companion.nav.highdegree` the same sums at
+  any degree by the stable recursion (WMMHR-2025, degree 133);
 * :mod:`companion.nav.wmm`: :class:`WorldMagneticModel` (NOAA ``.COF`` files, by default the
   copies shipped with pygeomag; validity span; :class:`FieldElements`), :func:`load_wmm`,
-  :func:`model_for_date`, :func:`model_for_setting`;
+  :func:`model_for_date`, :func:`model_for_setting` (NAV_WMM, and NAV_MAP's choice of WMM or WMMHR);
 * :mod:`companion.nav.fix`: :func:`decl_incl_gradient` / :func:`element_gradient` (G in element
   units per metre) and :func:`geomagnetic_fix` / :func:`element_fix` (eq. 49, Newton from a prior), :func:`fix_covariance`.
 """

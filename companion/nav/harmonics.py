@@ -31,10 +31,12 @@ rotation back to the geodetic frame turns with ``dpsi/dphi = dphi'/dphi - 1``.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["REFERENCE_RADIUS_M", "WMM_DEGREE", "HarmonicSums", "schmidt_polynomials"]
+__all__ = ["REFERENCE_RADIUS_M", "WMM_DEGREE", "GeocentricPoint", "HarmonicSums", "field_and_slopes_from_sums",
+           "geocentric_point", "schmidt_polynomials"]
 
 WMM_DEGREE = 12
 """Maximum spherical-harmonic degree (and order) of the standard WMM."""
@@ -108,6 +110,61 @@ def _slope_matrices(m: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarra
                        ("P", (n + 1.0) * (n + 2.0)), ("mPc", m)])
     quadrature = matrix([("mPc", one), ("dmPc", one), ("mPc", n + 2.0), ("dP", m), ("P", m * (n + 1.0))])
     return in_phase, quadrature
+
+
+@dataclass(frozen=True)
+class GeocentricPoint:
+    """A geodetic point in geocentric spherical terms: ``s``, ``c`` the sine and cosine of the
+    geocentric latitude phi', ``r`` the radius (m), ``cos_psi``, ``sin_psi`` of ``psi = phi' - phi``,
+    ``meridian_plus_h`` the meridian radius of curvature plus the altitude (m)."""
+
+    s: float
+    c: float
+    r: float
+    cos_psi: float
+    sin_psi: float
+    meridian_plus_h: float
+
+
+def geocentric_point(lat_deg: float, alt_m: float) -> GeocentricPoint:
+    """Geodetic latitude and altitude on WGS84 -> :class:`GeocentricPoint`."""
+    phi = math.radians(lat_deg)
+    sin_phi, cos_phi = math.sin(phi), math.cos(phi)
+    w2 = 1.0 - _WGS84_E2 * sin_phi * sin_phi
+    prime_vertical = _WGS84_A_M / math.sqrt(w2)
+    p = (prime_vertical + alt_m) * cos_phi
+    z = (prime_vertical * (1.0 - _WGS84_E2) + alt_m) * sin_phi
+    r = math.hypot(p, z)
+    s, c = z / r, p / r
+    return GeocentricPoint(s, c, r, c * cos_phi + s * sin_phi, s * cos_phi - c * sin_phi,
+                           prime_vertical * (1.0 - _WGS84_E2) / w2 + alt_m)
+
+
+def field_and_slopes_from_sums(a_sums, b_sums, point: GeocentricPoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(X, Y, Z) in nT, geodetic north/east/down, and its derivatives along geodetic latitude and
+    longitude (nT per radian), from the twelve geocentric sums of a model at ``point``.
+
+    ``a_sums`` (in-phase, ``k = (a/r)^(n+2) (g cos m lon + h sin m lon)``): sum k dP/dphi',
+    sum (n+1) k P, sum k d2P/dphi'2, sum (n+1) k dP/dphi', sum (n+2) k dP/dphi',
+    sum (n+1)(n+2) k P, sum m k (m P / c); ``b_sums`` (quadrature, ``q = (a/r)^(n+2)
+    (g sin m lon - h cos m lon)``): sum q (m P / c), sum q d(m P / c)/dphi', sum (n+2) q (m P / c),
+    sum m q dP/dphi', sum m (n+1) q P. Then X' = -a0, Z' = -a1, Y' = b0, and the module
+    docstring's chain rule through phi', r and psi."""
+    cos_psi, sin_psi, r = point.cos_psi, point.sin_psi, point.r
+    x_p, z_p, y_p = -a_sums[0], -a_sums[1], b_sums[0]
+    dphi_prime = point.meridian_plus_h * cos_psi / r       # dphi'/dphi
+    dr_over_r = point.meridian_plus_h * sin_psi / r        # (dr/dphi) / r
+    dx_p = -a_sums[2] * dphi_prime + a_sums[4] * dr_over_r
+    dz_p = -a_sums[3] * dphi_prime + a_sums[5] * dr_over_r
+    dy_p = b_sums[1] * dphi_prime - b_sums[2] * dr_over_r
+    x = x_p * cos_psi - z_p * sin_psi
+    z_down = x_p * sin_psi + z_p * cos_psi
+    dpsi = dphi_prime - 1.0
+    lx, ly, lz = b_sums[3], a_sums[6], b_sums[4]
+    return (np.array([x, y_p, z_down]),
+            np.array([dx_p * cos_psi - dz_p * sin_psi - z_down * dpsi, dy_p,
+                      dx_p * sin_psi + dz_p * cos_psi + x * dpsi]),
+            np.array([lx * cos_psi - lz * sin_psi, ly, lx * sin_psi + lz * cos_psi]))
 
 
 class HarmonicSums:
@@ -206,17 +263,8 @@ class HarmonicSums:
         two matrix products with constant matrices (:func:`_slope_matrices`) and a polynomial
         in s. The field agrees with :meth:`ned_scalar` to rounding; the slopes with central
         differences of it to the differences' own error (tests)."""
-        phi = math.radians(lat_deg)
-        sin_phi, cos_phi = math.sin(phi), math.cos(phi)
-        w2 = 1.0 - _WGS84_E2 * sin_phi * sin_phi
-        prime_vertical = _WGS84_A_M / math.sqrt(w2)
-        meridian_plus_h = prime_vertical * (1.0 - _WGS84_E2) / w2 + alt_m
-        p = (prime_vertical + alt_m) * cos_phi
-        z = (prime_vertical * (1.0 - _WGS84_E2) + alt_m) * sin_phi
-        r = math.hypot(p, z)
-        s, c = z / r, p / r
-        cos_psi = c * cos_phi + s * sin_phi
-        sin_psi = s * cos_phi - c * sin_phi
+        point = geocentric_point(lat_deg, alt_m)
+        s, c, r = point.s, point.c, point.r
 
         q_all = (np.power(s, self._powers) @ self._q_dq_ddq_poly_t).reshape(3, self._m.size)   # Q, Q', Q''
         u = np.power(c, self._c_exponents)[self._u_c_columns] * q_all[self._u_q_rows]   # (6, 90)
@@ -230,22 +278,8 @@ class HarmonicSums:
         ss = s * s
         # in-phase sums: X', Z', dX'/dphi', dZ'/dphi', r dX'/dr, r dZ'/dr, dY'/dlon (signs below);
         # quadrature sums: Y', dY'/dphi', r dY'/dr, dX'/dlon, dZ'/dlon
-        a_sums = (a[0] + s * a[1] + ss * a[2]).tolist()
-        b_sums = (b[0] + s * b[1] + ss * b[2]).tolist()
-        x_p, z_p, y_p = -a_sums[0], -a_sums[1], b_sums[0]
-        dphi_prime = meridian_plus_h * cos_psi / r       # dphi'/dphi
-        dr_over_r = meridian_plus_h * sin_psi / r        # (dr/dphi) / r
-        dx_p = -a_sums[2] * dphi_prime + a_sums[4] * dr_over_r
-        dz_p = -a_sums[3] * dphi_prime + a_sums[5] * dr_over_r
-        dy_p = b_sums[1] * dphi_prime - b_sums[2] * dr_over_r
-        x = x_p * cos_psi - z_p * sin_psi
-        z_down = x_p * sin_psi + z_p * cos_psi
-        dpsi = dphi_prime - 1.0
-        lx, ly, lz = b_sums[3], a_sums[6], b_sums[4]
-        return (np.array([x, y_p, z_down]),
-                np.array([dx_p * cos_psi - dz_p * sin_psi - z_down * dpsi, dy_p,
-                          dx_p * sin_psi + dz_p * cos_psi + x * dpsi]),
-                np.array([lx * cos_psi - lz * sin_psi, ly, lx * sin_psi + lz * cos_psi]))
+        return field_and_slopes_from_sums((a[0] + s * a[1] + ss * a[2]).tolist(),
+                                          (b[0] + s * b[1] + ss * b[2]).tolist(), point)
 
     def ned(self, lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray | float,
             dt_years: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

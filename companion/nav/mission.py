@@ -158,7 +158,7 @@ class Mission:
                  bias: tuple[float, float] | None = None) -> None:
         self.config = config
         if model is None:
-            model = model_for_setting(config.year, config.wmm)
+            model = model_for_setting(config.year, config.wmm, config.nav_map)
         self.model = model
         self.measured: ElementSet = element_set(config.elements or resolve_elements(0, compass_derived=False))
         self.elements: ElementSet = self.measured.steering()     # what the gradient and the MPC see

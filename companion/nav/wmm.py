@@ -1,4 +1,4 @@
-"""The World Magnetic Model: NOAA ``.COF`` coefficient files, validity span, field elements.
+"""The World Magnetic Model (and WMMHR): NOAA ``.COF`` coefficient files, validity span, field elements.
 
 The navigation state is the pair of magnetic elements ``S = (D, I)`` of the paper's eq. 1-2,
 declination ``D = atan2(Y, X)`` (positive east of true north) and inclination
@@ -21,8 +21,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from companion.nav.harmonics import WMM_DEGREE, HarmonicSums, schmidt_polynomials
+from companion.nav.highdegree import HighDegreeSums
 
-__all__ = ["KEPT_EVALUATIONS", "WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm",
+__all__ = ["KEPT_EVALUATIONS", "MAP_WMMHR", "WMM2025_SWITCH_YEAR", "WMM_NAMES", "FieldElements", "WorldMagneticModel", "load_wmm",
            "model_for_date", "model_for_setting"]
 
 WMM2025_SWITCH_YEAR = 2024.87
@@ -39,7 +40,10 @@ centre (with the INS's attitude, :mod:`companion.nav.navfilter`)."""
 # Points per block in the array path: keeps the (points x 90) temporaries inside the CPU cache.
 _BLOCK = 128
 
-_PYGEOMAG_FILES = {"WMM2020": "WMM_2020.COF", "WMM2025": "WMM_2025.COF"}
+_PYGEOMAG_FILES = {"WMM2020": "WMM_2020.COF", "WMM2025": "WMM_2025.COF", "WMMHR2025": "WMMHR_2025.COF"}
+
+MAP_WMMHR = 1
+"""NAV_MAP's value for WMMHR-2025 (0: the WMM, NAV_WMM picks which)."""
 
 # Arguments of these types take the scalar path of WorldMagneticModel.elements (floats out).
 _SCALAR_TYPES = (float, int, np.floating, np.integer)
@@ -119,7 +123,8 @@ class WorldMagneticModel:
     ) -> None:
         """Build from rows ``(n, m, g_nT, h_nT, g_dot_nT_per_year, h_dot_nT_per_year)``.
 
-        All 90 (n, m) pairs with 1 <= n <= 12, 0 <= m <= n must be present. With
+        Every (n, m) pair with 1 <= n <= degree, 0 <= m <= n must be present; the degree is the
+        file's (12 for the WMM, 133 for WMMHR: :class:`~companion.nav.highdegree.HighDegreeSums`). With
         ``allow_extrapolation`` the model evaluates any year (linear secular variation, which
         degrades quickly outside the 5-year span); otherwise years outside
         [valid_from, valid_until) raise ValueError.
@@ -130,19 +135,24 @@ class WorldMagneticModel:
         self.valid_from = self.epoch if release_year is None else min(self.epoch, float(release_year))
         self.allow_extrapolation = bool(allow_extrapolation)
 
-        n_idx, m_idx, _, _ = schmidt_polynomials(WMM_DEGREE)
-        table = np.zeros((4, WMM_DEGREE + 1, WMM_DEGREE + 1))
-        seen = np.zeros((WMM_DEGREE + 1, WMM_DEGREE + 1), dtype=bool)
         rows = np.asarray(coefficients, dtype=float).reshape(-1, 6)
+        self.degree = degree = max(WMM_DEGREE, int(rows[:, 0].max()) if rows.size else 0)
+        table = np.zeros((4, degree + 1, degree + 1))
+        seen = np.zeros((degree + 1, degree + 1), dtype=bool)
         for n, m, *values in rows:
             n, m = int(n), int(m)
-            if not (1 <= n <= WMM_DEGREE and 0 <= m <= n):
-                raise ValueError(f"{name}: coefficient (n={n}, m={m}) outside degree {WMM_DEGREE}")
+            if not (1 <= n and 0 <= m <= n):
+                raise ValueError(f"{name}: coefficient (n={n}, m={m}) outside 1 <= n, 0 <= m <= n")
             table[:, n, m] = values
             seen[n, m] = True
-        if not seen[n_idx, m_idx].all():
-            raise ValueError(f"{name}: coefficient file lacks some of the {n_idx.size} (n, m) pairs")
-        self._sums = HarmonicSums(table[:, n_idx, m_idx])
+        n_all, m_all = np.tril_indices(degree + 1)
+        if not seen[n_all[n_all >= 1], m_all[n_all >= 1]].all():
+            raise ValueError(f"{name}: coefficient file lacks some of the (n, m) pairs up to degree {degree}")
+        if degree == WMM_DEGREE:
+            n_idx, m_idx, _, _ = schmidt_polynomials(WMM_DEGREE)
+            self._sums = HarmonicSums(table[:, n_idx, m_idx])
+        else:   # WMMHR: the stable recursion (the degree-12 polynomials do not hold at degree 133)
+            self._sums = HighDegreeSums(table)
         self._recent_slopes: dict[tuple[float, float, float, float], tuple] = {}
 
     @classmethod
@@ -260,7 +270,8 @@ def _elements_from_ned(x: float | np.ndarray, y: float | np.ndarray, z: float | 
 
 
 def load_wmm(name: str) -> WorldMagneticModel:
-    """The model ``"WMM2020"`` or ``"WMM2025"`` from the coefficient files shipped with pygeomag (cached).
+    """The model ``"WMM2020"``, ``"WMM2025"`` or ``"WMMHR2025"`` (WMMHR-2025, degree 133) from
+    the coefficient files shipped with pygeomag (cached).
 
     The returned model refuses years outside its span; build one with
     ``WorldMagneticModel.from_cof(path, allow_extrapolation=True)`` to extrapolate.
@@ -301,7 +312,21 @@ def model_for_date(year: float, override: str | None = None) -> WorldMagneticMod
     return model
 
 
-def model_for_setting(year: float, wmm: int) -> WorldMagneticModel:
-    """The model the settings ask for: NAV_WMM ``wmm`` 0 by the date ``year`` (NAV_YEAR,
-    :func:`model_for_date`), 1 WMM2020, 2 WMM2025 (:data:`WMM_NAMES`)."""
+def model_for_setting(year: float, wmm: int, nav_map: int = 0) -> WorldMagneticModel:
+    """The model the settings ask for: NAV_MAP ``nav_map`` 0 the WMM, whose NAV_WMM ``wmm`` 0 picks
+    it by the date ``year`` (NAV_YEAR, :func:`model_for_date`), 1 WMM2020, 2 WMM2025
+    (:data:`WMM_NAMES`); NAV_MAP 1 (:data:`MAP_WMMHR`) WMMHR-2025, degree 133, which holds the
+    crust's wavelengths down to 300 km. WMMHR-2025 covers 2024.87-2030.0 (released 2024-11-13,
+    epoch 2025.0): an earlier date raises ValueError rather than running its secular variation
+    backwards (a mission before its release flies the WMM of its date, as a vehicle then did).
+
+    >>> model_for_setting(2025.5, 0, 1).name
+    'WMMHR2025'
+    """
+    if int(nav_map) == MAP_WMMHR:
+        model = load_wmm("WMMHR2025")
+        if not model.valid_from <= year < model.valid_until:
+            raise ValueError(f"WMMHR2025 covers {model.valid_from:.2f}..{model.valid_until:.2f}, not NAV_YEAR {year:g} "
+                             "(NAV_MAP 1): the map is not extrapolated; fly NAV_MAP 0 (the WMM) or a later date")
+        return model
     return model_for_date(year, WMM_NAMES.get(int(wmm)))

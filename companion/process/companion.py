@@ -82,7 +82,7 @@ class CompanionApp:
         self.notifier = Notifier()   # systemd READY/WATCHDOG (a no-op outside systemd)
         self.nav_cfg = NavConfig.from_values(self.params.values)
         self.comp_cfg = CompanionConfig.from_values(self.params.values)
-        model_for_setting(self.nav_cfg.year, self.nav_cfg.wmm)   # load the coefficients now, not at take-off
+        model_for_setting(self.nav_cfg.year, self.nav_cfg.wmm, self.nav_cfg.nav_map)   # load the coefficients now, not at take-off
         self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
         # --sensors: a sensor source beside the link (built here so a bad spec fails early)
         self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None

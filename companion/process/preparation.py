@@ -129,7 +129,7 @@ class MissionPreparation:
         if not (config.calibrate and source == "GPS" and startup.valid and math.isfinite(startup.f_nt)):
             return None, "" if not config.calibrate else f"not calibrated (start from {source})"
         elements = ELEMENT_SETS[config.elements]
-        model = model_for_setting(config.year, config.wmm)
+        model = model_for_setting(config.year, config.wmm, config.nav_map)
         expected = elements.values(model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year))
         measured = elements.values(replace(startup, incl_deg=self.inclination(startup)))
         bias = elements.difference(measured, expected)

@@ -4,9 +4,10 @@
 :class:`~sitl.world.magnetic.TruthField`: the main field of ``[field] main`` (the World
 Magnetic Model of the scenario's date, :func:`companion.nav.field.model_for_date`, the
 navigator's own model; IGRF-14, :func:`sitl.world.igrf.igrf14_model`; or ArduPilot's own tables,
-:mod:`sitl.world.fc_tables`), the crustal anomaly
-field when ``[field] crustal = true`` (drawn for ``seed``; the Monte Carlo redraws it per run
-with :meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm disturbance of
+:mod:`sitl.world.fc_tables`), the real crust of ``[field] crust = "emm2017"`` on the route's
+grid (:func:`sitl.world.emm.crust_grid_for_route`, cached), the seeded anomaly field when
+``[field] crustal = true`` (drawn for ``seed``; the Monte Carlo redraws it per run with
+:meth:`TruthField.for_seed`), plus, when ``[storm] enabled``, the storm disturbance of
 :mod:`sitl.storms` with the scenario's time rule:
 
 ``utc``
@@ -44,11 +45,12 @@ from companion.nav.geo import geodesic_distance_m
 from companion.params import SPEC_BY_NAME
 from sitl.scenario import Scenario
 from sitl.storms import default_data_dir
+from sitl.world.emm import EMM_FILE, crust_grid_for_route
 from sitl.world.fc_tables import ardupilot_tables
 from sitl.world.igrf import igrf14_model
 from sitl.world.magnetic import TruthField, quiet_index
 
-__all__ = ["StormUnavailableError", "build_truth_field", "expected_mission_duration_s", "main_field_model",
+__all__ = ["StormUnavailableError", "build_truth_field", "crust_grid", "expected_mission_duration_s", "main_field_model",
            "storm_component_correlations", "storm_component_walks"]
 
 
@@ -83,13 +85,25 @@ def main_field_model(scenario: Scenario):
     return model_for_date(scenario.year)
 
 
+def crust_grid(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None):
+    """The scenario's real crust on its route's grid (``[field] crust``), or None without one.
+    ``data_dir`` holds ``crust/EMM2017.COF`` (default :func:`default_data_dir`)."""
+    field = scenario.field_model
+    if field.crust == "none":
+        return None
+    folder = Path(data_dir) if data_dir is not None else default_data_dir()
+    return crust_grid_for_route((scenario.start_lat_deg, scenario.start_lon_deg),
+                                (scenario.dest_lat_deg, scenario.dest_lon_deg), scenario.alt_m,
+                                folder / EMM_FILE, field.crust_min_degree, field.crust_max_degree)
+
+
 def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | None = None,
                       expected_duration_s: float | None = None, outside: str = "hold",
                       seed: int = 0) -> TruthField:
-    """The scenario's true field: main field at ``scenario.year``, crust (drawn for ``seed``)
-    and its storm disturbance, each if the scenario has it.
+    """The scenario's true field: main field at ``scenario.year``, the real crust, the seeded
+    anomaly field (drawn for ``seed``) and its storm disturbance, each if the scenario has it.
 
-    ``data_dir`` holds ``storms/intermagnet`` (default :func:`default_data_dir`);
+    ``data_dir`` holds ``crust/EMM2017.COF`` and ``storms/intermagnet`` (default :func:`default_data_dir`);
     ``expected_duration_s`` is the mission length the ``compress`` rule spreads the storm
     window over (default :func:`expected_mission_duration_s`); ``outside`` is the policy of
     :class:`sitl.storms.StormDisturbance` for storm times past the data (``hold``, ``zero`` or
@@ -98,7 +112,8 @@ def build_truth_field(scenario: Scenario, data_dir: str | os.PathLike[str] | Non
     """
     model = main_field_model(scenario)
     quiet = TruthField(model=model, year=scenario.year, crustal_config=scenario.field_model.crustal,
-                       crustal_origin=(scenario.start_lat_deg, scenario.start_lon_deg)).for_seed(seed)
+                       crustal_origin=(scenario.start_lat_deg, scenario.start_lon_deg),
+                       crust=crust_grid(scenario, data_dir)).for_seed(seed)
     storm = scenario.storm
     if not storm.enabled:   # a quiet day: what a space-weather feed says of it, if it is fed
         return replace(quiet, space_weather=quiet_index if storm.kp_feed else None,

@@ -1,8 +1,9 @@
 """The true magnetic field the simulated vehicle flies through: main field + crust + storm.
 
 ``TruthField`` sums a main-field model (the navigator's own WMM in the paper's ideal world,
-IGRF-14 in the realistic one: :mod:`sitl.world.igrf`), an optional seeded crustal anomaly
-field (:mod:`sitl.world.crustal`) and an optional time-varying storm disturbance
+IGRF-14 in the realistic one: :mod:`sitl.world.igrf`), the real crust along the route (EMM2017
+degrees 16-790 on a grid, :mod:`sitl.world.emm`; the realistic default), an optional seeded
+small-scale anomaly field (:mod:`sitl.world.crustal`) and an optional time-varying storm disturbance
 (:mod:`sitl.storms`). The Monte Carlo and the MAVLink simulator both read the field here, so
 each part changes what either sees in the same way.
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from companion.nav.field import WorldMagneticModel
 from sitl.world.crustal import CrustalConfig, CrustalField
+from sitl.world.emm import CrustGrid
 
 __all__ = ["Disturbance", "TruthField", "decl_incl_from_ned", "CRUSTAL_SEED_KEY", "QUIET_INDEX", "quiet_index"]
 
@@ -47,7 +49,8 @@ class TruthField:
 
     ``model`` is the *truth's* main-field model (not necessarily the navigator's).
     ``storm_time_s`` maps mission elapsed seconds onto the disturbance's own time axis (POSIX
-    UTC seconds); ``storm_scale`` multiplies the disturbance. ``crustal_config`` and
+    UTC seconds); ``storm_scale`` multiplies the disturbance. ``crust`` is the real crust on the
+    route's grid (the same for every seed), or None. ``crustal_config`` and
     ``crustal_origin`` describe the anomaly field; ``crustal`` is its realisation for one seed
     (:meth:`for_seed`). ``space_weather``: the planetary Kp at a storm time (POSIX seconds ->
     Kp, :meth:`sitl.storms.KpRecord.kp_at`), what a space-weather service reports while the
@@ -65,6 +68,7 @@ class TruthField:
     crustal_config: CrustalConfig = CrustalConfig()
     crustal_origin: tuple[float, float] = (0.0, 0.0)
     crustal: CrustalField | None = None
+    crust: CrustGrid | None = None
     space_weather: object = None  # callable POSIX seconds -> Kp, or None
     ring_current: object = None   # callable POSIX seconds -> SYM-H nT, or None
 
@@ -123,8 +127,7 @@ class TruthField:
     def field_ned_nt(self, lat_deg, lon_deg, alt_m, elapsed_s) -> np.ndarray:
         """True field (..., 3) north/east/down in nT."""
         ned = self.main_ned_nt(lat_deg, lon_deg, alt_m)
-        if self.crustal is not None:
-            ned = ned + self.crustal.ned_nt(lat_deg, lon_deg, alt_m)
+        ned = self._add_crust(ned, lat_deg, lon_deg, alt_m)
         storm = self.storm_ned_nt(lat_deg, lon_deg, elapsed_s)
         if storm is not None:
             ned = ned + storm
@@ -138,14 +141,25 @@ class TruthField:
         x, y, z = self.model.ned(lat_deg, lon_deg, alt_m, self.year)
         main_ned = (float(x), float(y), float(z))
         storm = self.storm_ned_nt(lat_deg, lon_deg, elapsed_s)
-        if self.crustal is None and storm is None:
+        if self.crustal is None and self.crust is None and storm is None:
             return main_ned, main_ned
-        ned = np.array(main_ned)
-        if self.crustal is not None:
-            ned = ned + self.crustal.ned_nt(lat_deg, lon_deg, alt_m)
+        ned = self._add_crust(np.array(main_ned), lat_deg, lon_deg, alt_m)
         if storm is not None:
             ned = ned + storm
         return (float(ned[0]), float(ned[1]), float(ned[2])), main_ned
+
+    def crust_ned_nt(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
+        """The crust's part (..., 3) in nT: the real crust plus the seeded small-scale field, each
+        if the world has it (zeros without either)."""
+        shape = np.broadcast_shapes(np.shape(lat_deg), np.shape(lon_deg), np.shape(alt_m))
+        return self._add_crust(np.zeros(shape + (3,)), lat_deg, lon_deg, alt_m)
+
+    def _add_crust(self, ned: np.ndarray, lat_deg, lon_deg, alt_m) -> np.ndarray:
+        if self.crust is not None:
+            ned = ned + self.crust.ned_nt(lat_deg, lon_deg, alt_m)
+        if self.crustal is not None:
+            ned = ned + self.crustal.ned_nt(lat_deg, lon_deg, alt_m)
+        return ned
 
     def decl_incl_deg(self, lat_deg, lon_deg, alt_m, elapsed_s) -> tuple[np.ndarray, np.ndarray]:
         """True (D, I) in degrees."""
