@@ -99,7 +99,7 @@ def test_route_anomaly_is_the_crust_and_what_the_map_misses(tmp_path):
     from companion.nav.field import load_wmm
     from sitl.world.anomaly import plot_crust_anomaly, route_anomaly
 
-    ideal = build_truth_field(load_scenario("pacific"))     # the map is the territory: nothing to see
+    ideal = build_truth_field(load_scenario("paper_pacific"))     # the map is the territory: nothing to see
     none = route_anomaly(ideal, (33.0, 152.0), (28.0, 158.0), 0.0, load_wmm("WMM2020"), points=20)
     assert np.all(none.crust == 0.0) and np.allclose(none.map_error, 0.0, atol=1e-9)
     grid = crust_grid_for_route((33.0, 152.0), (28.0, 158.0), 0.0, min_degree=16, max_degree=60, cache=tmp_path)
