@@ -37,14 +37,16 @@ class Row:
 
 
 ROWS: tuple[Row, ...] = (
-    Row("realistic", "Pacific, WMM as the map, INS heading",
+    Row("realistic", "Pacific, the paper's epoch (2024.36), WMM2020 as the map, INS heading",
         ("--scenario", "pacific", "--controllers", "fc")),
-    Row("realistic", "Pacific, WMMHR as the map, INS heading",
-        ("--scenario", "pacific", "--controllers", "fc", "--param", "NAV_MAP=1")),
-    Row("realistic", "Pacific, WMMHR, compass heading, no INS",
-        ("--scenario", "pacific", "--controllers", "fc", "--param", "NAV_MAP=1",
+    Row("realistic", "Pacific 2025, WMM2025 as the map, INS heading",
+        ("--scenario", "pacific_2025", "--controllers", "fc")),
+    Row("realistic", "Pacific 2025, WMMHR-2025 as the map, INS heading",
+        ("--scenario", "pacific_2025", "--controllers", "fc", "--param", "NAV_MAP=1")),
+    Row("realistic", "Pacific 2025, WMMHR-2025, compass heading, no INS",
+        ("--scenario", "pacific_2025", "--controllers", "fc", "--param", "NAV_MAP=1",
          "--heading-source", "magnetic", "--no-ins")),
-    Row("paper", "Pacific, paper's world (Table 5)",
+    Row("paper", "Pacific, the paper's idealised world (Table 5)",
         ("--scenario", "paper_pacific", "--controllers", "fc")),
 )
 
