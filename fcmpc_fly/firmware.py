@@ -29,7 +29,9 @@ def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
     from sitl.firmware.flight import fly_ardupilot
 
     ardupilot_binary()
-    return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {})
+    # a real compass is calibrated by the companion's circles before the mission (COMP_CAL_TURNS):
+    # ArduPilot's own fixed-yaw calibration learns the offsets only (sitl/firmware/compass.py)
+    return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {"COMP_CAL_TURNS": 1} if options.compass == "real" else {})
 
 
 def fly_on_px4(options: FlyOptions) -> FlyResult:
