@@ -105,7 +105,7 @@ class ArduPilotSitl:
         if self.project_params:
             files.append(project_parm("ardupilot-rover.parm"))
         if self.params:
-            extra = Path(self.workdir) / "extra.parm"
+            extra = Path(self.workdir).resolve() / "extra.parm"   # ArduPilot runs in workdir: an absolute path
             extra.write_text("".join(f"{k} {format_value(float(v))}\n" for k, v in self.params.items()))
             files.append(extra)
         return files
