@@ -67,8 +67,11 @@ class CalibrationTurn:
             app.mag.recorder = None
             self.done = True
             return False, True
-        course = turned % (2.0 * math.pi)     # from north, turning right
-        return app.out.stream(course, app.nav_cfg.speed_mps), False
+        return app.out.stream(*self.velocity(now)), False
+
+    def velocity(self, now: float) -> tuple[float, float]:
+        """(course from north, rad; speed, m/s) on the circle now: turning right from north."""
+        return self.turned_rad(now) % (2.0 * math.pi), self.app.nav_cfg.speed_mps
 
     def _fit(self) -> None:
         app = self.app

@@ -189,8 +189,13 @@ class Outputs:
             f_weighed=filt.f_weighed if filt is not None else None))
 
     def commanded_velocity_ne(self) -> tuple[float, float]:
-        """The commanded velocity (north, east; m/s) while the vehicle follows it, else zero."""
+        """The commanded velocity (north, east; m/s) while the vehicle follows it (the mission's, or
+        the calibration circle's: a position feed that stood still while the boat circled, GPS
+        denied, made ArduPilot's EKF call a variance failsafe), else zero."""
         app = self.app
+        if app.state == State.CALIBRATING and not app.failsafe_active:   # the calibration circle's
+            course, speed = app.phases.calturn.velocity(app.now)
+            return speed * math.cos(course), speed * math.sin(course)
         following = app.state == State.RUNNING and not app.failsafe_active and not app.clock.paused
         cmd = app.command if following else None
         if cmd is None or cmd.done:
