@@ -16,7 +16,7 @@ def _installation(tmp_path: Path) -> Path:
     """The paper's Pacific world with an uncalibrated magnetometer: 3000 nT of hard iron and 2 % of
     soft iron per element (log171's external compass: 213 mG offsets, 1.8 % cross-axis), and GPS
     until 70 s, just past arming (the start must be GPS-known to calibrate against the model)."""
-    text = (REPO / "sitl" / "scenarios" / "pacific.toml").read_text()
+    text = (REPO / "sitl" / "scenarios" / "paper_pacific.toml").read_text()
     text, count = re.subn(r"(?m)^gps_denied_after_s = .*$", "gps_denied_after_s = 70.0", text)
     assert count == 1
     text = re.sub(r"(?m)^\[sensors\]\n", "[sensors]\nmag_hard_iron_resid_nt = 3000.0\nmag_soft_iron_resid = 0.02\n",
