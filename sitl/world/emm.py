@@ -54,7 +54,7 @@ def read_emm(path: str | os.PathLike[str]) -> tuple[float, np.ndarray]:
     """(epoch, coefficients[2, L + 1, L + 1]) of an EMM ``.COF`` file: g in [0], h in [1], nT.
 
     >>> epoch, gh = read_emm(default_emm_file())   # doctest: +SKIP
-    >>> epoch, gh.shape
+    >>> epoch, gh.shape                            # doctest: +SKIP
     (2017.0, (2, 791, 791))
     """
     path = Path(path)
