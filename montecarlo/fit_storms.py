@@ -41,7 +41,7 @@ from companion.params import SPEC_BY_NAME, write_parm_file
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 
 __all__ = ["DEFAULTS_FITTED_ON", "FITTED_ON", "OwnStormError", "STORM_PARAMS", "check_held_out", "fit_storm",
-           "fit_storms", "fitted_on", "leave_one_out", "main", "parm_header", "pool", "storm_params_for",
+           "fit_storms", "fitted_on", "leave_one_out", "main", "parm_header", "parm_name", "pool", "storm_params_for",
            "training_scenario"]
 
 # What the fit writes: every storm-time walk of the registry (FUS_SYMH_K, FUS_KP_ON, FUS_SYMH_ON: see above).
@@ -134,6 +134,11 @@ def parm_header(names: Sequence[str]) -> str:
             "scenario (<name>_real, real time), pooled; FUS_SYMH_K, FUS_KP_ON, FUS_SYMH_ON are not fitted (registry's)")
 
 
+def parm_name(names: Sequence[str]) -> str:
+    """The file name ``fcmpc-fit-storms`` writes for these training storms (under ``params/``)."""
+    return f"storms-{'+'.join(_names(names))}.parm"
+
+
 def fitted_on(path: str | os.PathLike[str]) -> tuple[str, ...] | None:
     """The training storms a ``.parm`` file's header names, or None when it names none."""
     for raw in Path(path).read_text(encoding="utf-8", errors="replace").splitlines():
@@ -189,7 +194,7 @@ def _run(argv: list[str] | None) -> int:
     print(f"{'storm':<{width}} " + " ".join(f"{p[4:]:>9}" for p in STORM_PARAMS))
     for name, fit in {**fits, "pooled": pooled}.items():
         print(f"{name:<{width}} " + " ".join(f"{fit[p]:9.2f}" for p in STORM_PARAMS))
-    out = Path(args.out) if args.out else Path("params") / f"storms-{'+'.join(names)}.parm"
+    out = Path(args.out) if args.out else Path("params") / parm_name(names)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_parm_file(out, pooled, parm_header(names))
     print(f"written: {out} ({FITTED_ON} {','.join(names)})")

@@ -68,7 +68,7 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--storm-params", default=None, metavar="loo|registry|NAMES",
                         help="a storm world's storm-time parameters (montecarlo.fit_storms): loo (default) fitted on "
                              "every other storm of the library, NAMES a comma list of storms to fit on, registry the "
-                             "defaults (fitted on may2024); refused when they were fitted on the world's own storm")
+                             "registry's (fitted on may2024); refused when fitted on the world's own storm")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="override one parameter (repeatable)")
     parser.add_argument("--data-dir", default=None, help="real data folder; default ../shared/data")

@@ -4,12 +4,13 @@ parameters fitted on it and records the training storms; no scenario carries sto
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
 from companion.params import read_parm_file
 from montecarlo.fit_storms import (STORM_PARAMS, OwnStormError, check_held_out, fitted_on, leave_one_out, main,
-                                   pool)
+                                   parm_name, pool)
 from scripts.montecarlo import main as montecarlo_main
 from sitl.scenario import SCENARIO_DIR, load_scenario
 from sitl.storms.events import storm_events
@@ -99,3 +100,15 @@ def test_no_scenario_carries_storm_time_values():
     for path in sorted(SCENARIO_DIR.glob("*.toml")):
         declared = set(load_scenario(path.stem).nav_overrides()) & set(STORM_PARAMS)
         assert not declared, (path.stem, sorted(declared))
+
+
+@pytest.mark.slow
+def test_the_committed_paper_storm_parameters_are_the_fit_without_may2024(shared_data, tmp_path):
+    """params/storms-halloween2003+march2011+stpatrick2015.parm (what the tests of the paper's May 2024
+    worlds fly with) is what fcmpc-fit-storms --loo may2024 writes today."""
+    names = leave_one_out("may2024")
+    committed = Path(__file__).resolve().parents[1] / "params" / parm_name(names)
+    written = tmp_path / "loo.parm"
+    assert main(["--loo", "may2024", "--out", str(written), "--data-dir", str(shared_data)]) == 0
+    assert written.read_text() == committed.read_text()
+    assert fitted_on(committed) == ("halloween2003", "march2011", "stpatrick2015")
