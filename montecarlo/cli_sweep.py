@@ -27,8 +27,10 @@ __all__ = ["sweep_main"]
 
 
 def sweep_main(args: Namespace, scenario_ref: str | Scenario, scenario: Scenario, controllers: list[int],
-               overrides: dict, engine: Engine, check: Callable[[dict, list[int]], None]) -> int:
-    """Run a sweep from parsed arguments; ``check`` refuses a cell's mission before any run."""
+               overrides: dict, engine: Engine, check: Callable[[dict, list[int]], None],
+               storm_params: dict | None = None) -> int:
+    """Run a sweep from parsed arguments; ``check`` refuses a cell's mission before any run;
+    ``storm_params`` (where the storm-time parameters come from) goes into ``summary.json``."""
     if args.budget:
         from companion.cli import UsageError
 
@@ -57,7 +59,8 @@ def sweep_main(args: Namespace, scenario_ref: str | Scenario, scenario: Scenario
     (folder / "summary.json").write_text(json.dumps({"scenario": scenario.name, "axes": [a.name for a in axes],
                                                      "runs_per_cell": args.runs, **counts,
                                                      "runs_per_s": rate, "engine": engine.kind,
-                                                     "workers": workers, "cells": summary}, indent=2, default=float))
+                                                     "workers": workers, "storm_params": storm_params,
+                                                     "cells": summary}, indent=2, default=float))
     cells = len(plan.specs) // max(1, args.runs * len(controllers))
     print(f"\n{scenario.name}: {cells} cells x {len(controllers)} controllers x {args.runs} runs = "
           f"{counts['planned']} runs; {counts['skipped']} already stored, {counts['flown']} flown in "

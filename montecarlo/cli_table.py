@@ -42,9 +42,10 @@ def budget_main(args: Namespace, real: Scenario, values: dict, engine: Engine) -
 
 
 def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, controllers: list[int],
-               engine: Engine) -> int:
+               engine: Engine, storm_params: dict | None = None) -> int:
     """The paper's table for the scenario (a bundled name, or the scenario itself): fly, print,
-    write ``runs.csv`` and ``summary.json``, and the plots unless ``--no-plots``."""
+    write ``runs.csv`` and ``summary.json`` (``storm_params``: where the storm-time parameters come
+    from and the storms they were fitted on), and the plots unless ``--no-plots``."""
     started = time.perf_counter()
     scenario, rows, tracks = run_montecarlo(scenario_ref, args.runs, controllers, args.workers, values,
                                             args.data_dir, progress=not args.quiet, first_seed=args.first_seed,
@@ -63,7 +64,8 @@ def table_main(args: Namespace, scenario_ref: str | Scenario, values: dict, cont
         writer.writeheader()
         writer.writerows(asdict(r) for r in rows)
     (out / "summary.json").write_text(json.dumps({"scenario": scenario.name, "runs": args.runs, "wall_s": wall,
-                                                  "parameters": values, "summary": summary,
+                                                  "parameters": values, "storm_params": storm_params,
+                                                  "summary": summary,
                                                   "prediction": asdict(prediction) if prediction else None,
                                                   "paper": PAPER.get(scenario.name, {})}, indent=2, default=float))
     print(f"\n{scenario.description}\n{args.runs} runs per controller, {len(rows)} missions in {wall:.1f} s wall "

@@ -3,6 +3,8 @@
     fcmpc-montecarlo --runs 50                                  # the realistic Pacific: LTI-, LTV-, Fc-MPC
     fcmpc-montecarlo --scenario paper_pacific --runs 50         # Table 5, in the paper's idealised world
     fcmpc-montecarlo --scenario paper_long_storm --runs 50      # Table 6: LTV- vs Fc-MPC (idealised)
+    fcmpc-montecarlo --scenario halloween2003_real --controllers fc   # a real storm, storm-time parameters
+                                                                # fitted on the other storms (--storm-params loo)
     fcmpc-montecarlo --scenario pacific --errors -heading,+crustal   # switch error sources
     fcmpc-montecarlo --scenario pacific --budget --runs 10           # the error budget
     fcmpc-montecarlo --sweep NAV_PERIOD_S=180,360,720 --sweep MPC_N=2,4,8 --runs 20 --controllers fc
@@ -16,6 +18,10 @@ Without ``--sweep`` it prints the paper's table beside ours and writes ``runs.cs
 ``summary.json`` and plots into ``out/montecarlo/<scenario>/``; with ``--sweep`` one Parquet row
 per run into ``out/montecarlo/<scenario>/sweep/runs/`` (a second call skips the runs stored),
 the per-cell table (``summary.csv``) and line/heat-map plots (``sweep/plots/``).
+
+A storm world is scored leave-one-storm-out: its storm-time parameters fitted on the library's other
+storms (:mod:`montecarlo.fit_storms`), never on its own (refused), and ``summary.json`` names the
+training storms (``storm_params``).
 """
 from __future__ import annotations
 
@@ -36,6 +42,7 @@ from montecarlo.cli_table import budget_main, table_main
 from montecarlo.engines import ENGINES, Engine
 from sitl.gifts import gift_line
 from sitl.scenario import ScenarioError, load_scenario
+from sitl.world.build import StormUnavailableError
 
 CONTROLLER_KEYS = {"lti": Controller.LTI, "ltv": Controller.LTV, "fc": Controller.FC}
 
@@ -58,6 +65,10 @@ def build_parser() -> ArgumentParser:
                              "repeat for the cross product; results per run in Parquet, resumable")
     parser.add_argument("--first-seed", type=int, default=0, help="seed of the first run; default 0")
     parser.add_argument("--params", metavar="FILE", help="a .parm file overlaid on the defaults")
+    parser.add_argument("--storm-params", default=None, metavar="loo|registry|NAMES",
+                        help="a storm world's storm-time parameters (montecarlo.fit_storms): loo (default) fitted on "
+                             "every other storm of the library, NAMES a comma list of storms to fit on, registry the "
+                             "registry's (fitted on may2024); refused when fitted on the world's own storm")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="override one parameter (repeatable)")
     parser.add_argument("--data-dir", default=None, help="real data folder; default ../shared/data")
@@ -91,6 +102,33 @@ def check_missions(values: dict, controllers: list[int]) -> None:
             raise UsageError(f"mission refused: {err}") from None
 
 
+def storm_parameters(args, scenario, from_file: dict) -> tuple[dict, dict | None]:
+    """The storm-time parameters a storm world is scored with and where they come from (recorded in the
+    summary): a ``--params`` file that sets any (its header names its training storms), else
+    ``--storm-params`` (default ``loo``). Refuses (:class:`montecarlo.fit_storms.OwnStormError`)
+    parameters fitted on the world's own storm; a world without a storm gets none."""
+    from montecarlo.fit_storms import DEFAULTS_FITTED_ON, STORM_PARAMS, check_held_out, fitted_on, storm_params_for
+
+    if not scenario.storm.enabled:
+        if args.storm_params:
+            raise UsageError(f"--storm-params: scenario {scenario.name!r} has no storm")
+        return {}, None
+    if args.params and any(name in from_file for name in STORM_PARAMS):
+        if args.storm_params:
+            raise UsageError(f"--storm-params and --params {args.params}, which sets storm-time parameters: choose one")
+        names = fitted_on(args.params)
+        check_held_out(scenario, names)
+        return {}, {"source": f"--params {args.params}", "storms": list(names) if names is not None else None}
+    spec = args.storm_params or "loo"
+    if spec.strip().lower() == "registry":
+        check_held_out(scenario, DEFAULTS_FITTED_ON)
+        return {}, {"source": "registry defaults", "storms": list(DEFAULTS_FITTED_ON)}
+    values, names = storm_params_for(scenario, spec, args.data_dir)
+    print(f"storm parameters fitted on {','.join(names)} (--storm-params {spec}); "
+          + " ".join(f"{k}={v:g}" for k, v in values.items()), flush=True)
+    return values, {"source": f"--storm-params {spec}", "storms": list(names)}
+
+
 def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -111,7 +149,8 @@ def _run(argv: list[str] | None) -> int:
     if gifted:
         print(gifted, flush=True)
     overrides = read_parm_file(args.params) if args.params else {}
-    overrides.update(param_items(args.param))
+    storm_values, fitted = storm_parameters(args, scenario, overrides)
+    overrides = {**storm_values, **overrides, **param_items(args.param)}
     if args.process_model:
         overrides["FUS_MODEL"] = {"ins": 2, "dead_reckoning": 3}[args.process_model]
     values = validate_all({**scenario.nav_overrides(), **overrides})
@@ -129,16 +168,16 @@ def _run(argv: list[str] | None) -> int:
     if args.sweep:
         from montecarlo.cli_sweep import sweep_main
 
-        return sweep_main(args, scenario_ref, scenario, controllers, overrides, engine, check_missions)
+        return sweep_main(args, scenario_ref, scenario, controllers, overrides, engine, check_missions, fitted)
     check_missions(values, controllers)
 
     if args.budget:
         return budget_main(args, real, values, engine)
-    return table_main(args, scenario_ref, values, controllers, engine)
+    return table_main(args, scenario_ref, values, controllers, engine, fitted)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_main("fcmpc-montecarlo", lambda: _run(argv), (ScenarioError,))
+    return run_main("fcmpc-montecarlo", lambda: _run(argv), (ScenarioError, StormUnavailableError))
 
 
 if __name__ == "__main__":

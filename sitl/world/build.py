@@ -26,7 +26,8 @@ service would give the vehicle (:meth:`TruthField.kp`, :meth:`TruthField.symh`);
 file there is no feed. A world without a storm feeds a
 quiet day's indices (Kp 0, SYM-H 0 nT, :func:`sitl.world.magnetic.quiet_index`), and
 ``[storm] kp_feed`` / ``symh_feed`` false withhold either. :func:`storm_component_walks` is how
-fast the disturbance moves along the route, the walk a navigator set up for this world declares.
+fast the disturbance moves along the route: what the navigator's storm walks are fitted from, on
+other storms than the one it is scored on (``fcmpc-fit-storms``, docs/storms.md).
 
 Mission elapsed seconds are the simulator's time since boot. Past the end of the storm
 data the disturbance holds its last value (``outside="hold"``), so a mission that runs

@@ -1,5 +1,6 @@
-"""The storm worlds' space-weather feed, and the storm walk their navigators declare: derived from
-the world's own disturbance (sitl.world.build.storm_component_walks), not tuned."""
+"""The storm worlds' space-weather feed, and how their disturbance walks along the route
+(sitl.world.build.storm_component_walks). No scenario declares its own storm's walk: the navigator's
+are fitted on other storms (montecarlo.fit_storms, tests/test_fit_storms.py)."""
 from __future__ import annotations
 
 import math
@@ -12,49 +13,7 @@ from companion.params import NavConfig, validate_all
 from sitl.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.storms import component_rates, component_walks
-from sitl.world.build import (build_truth_field, expected_mission_duration_s, storm_component_correlations,
-                              storm_component_walks)
-
-
-@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
-def test_declared_storm_walk_is_the_worlds_own(shared_data, name):
-    """The [navigator] table's FUS_BQA_N/E/Z and FUS_BQA_TN/TE/TZ are how the scenario's storm moves
-    along its route in mission time (storm_component_walks), to the 0.1 nT/rt(h) and 0.01 h they
-    are written with."""
-    scenario = load_scenario(name)
-    declared = dict(scenario.navigator)
-    q, tau = storm_component_walks(scenario, shared_data)
-    assert [declared.get(f"FUS_BQA_{c}", math.nan) for c in "NEZ"] == pytest.approx(q, abs=0.051)
-    assert [declared.get(f"FUS_BQA_T{c}", 0.0) for c in "NEZ"] == pytest.approx(tau, abs=0.0051)
-    assert tau[0] == tau[2] == 0.0 and tau[1] > 0.0   # the east reverts within the mission in both
-
-
-@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
-def test_declared_north_residual_after_the_ring_current_is_the_worlds_own(shared_data, name):
-    """FUS_SYMH_N/TN are how the world's north moves once the ring current predicted from its SYM-H
-    is removed (storm_component_walks with ratio 1: Gauss-Markov, the prediction's error comes
-    and goes), to the 0.1 nT/rt(h) and 0.01 h they are written with."""
-    scenario = load_scenario(name)
-    declared = dict(scenario.navigator)
-    q, tau = storm_component_walks(scenario, shared_data, symh_ratio=1.0)
-    assert declared["FUS_SYMH_N"] == pytest.approx(q[0], abs=0.051)
-    assert declared["FUS_SYMH_TN"] == pytest.approx(tau[0], abs=0.0051) and tau[0] > 0.0
-
-
-@pytest.mark.parametrize("name", ["paper_long_storm", "paper_short_storm"])
-def test_declared_correlations_of_the_components_are_the_worlds_own(shared_data, name):
-    """FUS_BQA_RNE/RNZ/REZ are how the world's storm components change together over one control step
-    along the route (storm_component_correlations), and FUS_SYMH_RNE/RNZ the same once the ring
-    current predicted from SYM-H is removed, to the 0.01 they are written with. Removing the ring
-    current leaves E-Z within 0.02 of where it was (it moves the horizontal field along itself:
-    north, and east only by the declination's few degrees), so E-Z has one parameter."""
-    scenario = load_scenario(name)
-    declared = dict(scenario.navigator)
-    plain = storm_component_correlations(scenario, shared_data)
-    removed = storm_component_correlations(scenario, shared_data, symh_ratio=1.0)
-    assert [declared[f"FUS_BQA_R{pair}"] for pair in ("NE", "NZ", "EZ")] == pytest.approx(plain, abs=0.0051)
-    assert [declared["FUS_SYMH_RNE"], declared["FUS_SYMH_RNZ"]] == pytest.approx(removed[:2], abs=0.0051)
-    assert removed[2] == pytest.approx(plain[2], abs=0.02)
+from sitl.world.build import build_truth_field, expected_mission_duration_s, storm_component_walks
 
 
 def test_the_feed_gives_the_storms_symh_as_published_and_nothing_without_a_storm(shared_data):

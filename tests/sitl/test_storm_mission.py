@@ -4,14 +4,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from companion.params import NavConfig, validate_all
+from companion.params import NavConfig, read_parm_file, validate_all
 from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
+
+# The paper's storms are May 2024's: their storm-time parameters are fitted on the other storms
+# (fcmpc-fit-storms --loo may2024, tests/test_fit_storms.py), never on their own truth.
+PAPER_STORM_PARM = Path(__file__).resolve().parents[2] / "params" / "storms-halloween2003+march2011+stpatrick2015.parm"
+
+
+def storm_values(scenario) -> dict:
+    """The scenario's navigator with the storm-time parameters fitted on other storms than May 2024."""
+    return validate_all({**scenario.nav_overrides(), **read_parm_file(PAPER_STORM_PARM)})
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +32,7 @@ def short_storm(shared_data):
 
 def test_seeded_short_storm_mission_completes(short_storm):
     scenario, truth = short_storm
-    nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
+    nav = NavConfig.from_values(storm_values(scenario))
     result = fly_in_process(nav, scenario, seed=3, truth=truth)
     assert result.phase == "arrived", result.reason
     # reproducible: the same seed flies the same track
@@ -30,15 +40,22 @@ def test_seeded_short_storm_mission_completes(short_storm):
     assert again.remaining_m == result.remaining_m and again.iterations == result.iterations
 
 
-@pytest.mark.parametrize("name", ["paper_short_storm", "paper_long_storm"])
+LOO_XFAIL = ("issue 46 item 4: met only with storm walks fitted on this world's own storm; with walks "
+             "fitted on the other storms (params/storms-halloween2003+march2011+stpatrick2015.parm) it is not")
+
+
+@pytest.mark.parametrize("name", ["paper_short_storm",
+                                  pytest.param("paper_long_storm", marks=pytest.mark.xfail(strict=True, reason=LOO_XFAIL))])
 def test_storm_handling_is_no_worse_than_the_fix_alone(shared_data, name):
     """Same seed, the default navigator (the error-state filter with disturbance-gated bias
     states) against the paper's path (FUS_MODEL 1: the geomagnetic fix alone on this route): the
     storm must not cost the filter more than it costs the fix. Fails if the storm handling gets
-    worse. Seed 3 (measured: short storm 23.8 vs 29.4 km, long storm 1.4 vs 18.3 km)."""
+    worse. Seed 3 (measured with the walks fitted on each world's own storm: short storm 23.8 vs 29.4 km,
+    long storm 1.4 vs 18.3 km; with walks fitted on the other storms, 2026-12-06: the long storm 25.95
+    vs 24.07 km, so it is an expected failure until the storm handling earns it)."""
     scenario = load_scenario(name)
     truth = build_truth_field(scenario, shared_data)
-    values = validate_all(scenario.nav_overrides())
+    values = storm_values(scenario)
     filtered = fly_in_process(NavConfig.from_values(values), scenario, seed=3, truth=truth)
     fix_alone = fly_in_process(NavConfig.from_values({**values, "FUS_MODEL": 1}), scenario, seed=3, truth=truth)
     assert filtered.process_model == "ins" and fix_alone.process_model == "table3"
@@ -46,18 +63,21 @@ def test_storm_handling_is_no_worse_than_the_fix_alone(shared_data, name):
     assert filtered.remaining_m <= fix_alone.remaining_m, (filtered.remaining_m, fix_alone.remaining_m)
 
 
+@pytest.mark.xfail(strict=True, reason=LOO_XFAIL)
 def test_without_kp_a_low_sym_h_declares_the_storm(shared_data):
     """A vehicle whose ground station feeds SYM-H but no Kp: SYM-H at or below FUS_SYMH_ON
     (-50 nT) declares the storm as Kp would. Short storm (SYM-H -209 to -335 nT; as published, hourly and
         30 min late with its quick-look error, about -170 nT at first), the world's Kp
     withheld, seeds 0-3: declared by SYM-H all end under 6 km (measured 1.4-2.8 km, as with Kp);
     with the SYM-H declaration off (FUS_SYMH_ON -3000) over 15 km (measured 30-44 km: the
-    innovations find the storm after it has moved the estimate)."""
+    innovations find the storm after it has moved the estimate). Those figures had the walks fitted on
+    this world's own storm; with the walks fitted on the other storms (2026-12-06) declared by SYM-H
+    ends 15.8, 26.0, 26.6 and 27.9 km off, undeclared 36.4, 27.5, 31.5, 28.4: an expected failure."""
     storm = load_scenario("paper_short_storm")
     scenario = dataclasses.replace(storm, storm=dataclasses.replace(storm.storm, kp_feed=False))   # no Kp service
     no_kp = build_truth_field(scenario, shared_data)
     assert math.isnan(no_kp.kp(3600.0)) and no_kp.symh(3600.0) <= -150.0
-    values = validate_all(scenario.nav_overrides())
+    values = storm_values(scenario)
     misses = {on: [fly_in_process(NavConfig.from_values({**values, "FUS_SYMH_ON": on}), scenario, seed, no_kp)
                    .remaining_m for seed in range(4)] for on in (-50.0, -3000.0)}
     assert max(misses[-50.0]) < 6000.0 and min(misses[-3000.0]) > 15000.0, misses
@@ -67,7 +87,7 @@ def test_quiet_mission_with_the_filter_lands(short_storm):
     """The same seed with the storm off ends within 1.5 km (the filter's quiet miss is 0.2-0.5 km)."""
     scenario, _ = short_storm
     quiet_truth = build_truth_field(load_scenario("paper_pacific"))
-    nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
+    nav = NavConfig.from_values(storm_values(scenario))
     quiet = fly_in_process(nav, scenario, seed=3, truth=quiet_truth)
     assert quiet.remaining_m < 1500.0
 
@@ -80,10 +100,17 @@ def test_quiet_mission_with_the_filter_lands(short_storm):
 # NEES 0.95; long storm 7.82 km, worst 15.4, NEES 1.09 (a covariance twice its errors). Before the
 # walk along the components (per element, found by the innovations): short storm 18.1 km, NEES
 # 14.0; long storm 11.8 km, NEES 23.0. Limits: (median miss, mean NEES from, to).
+# Those figures had the storm walks fitted on each world's own storm, and the indices before they were
+# published late (main of 2026-12-06, own walks, indices as published: long storm 20.85 km, NEES 6.27,
+# 0 of 12 inside, already failing). With walks fitted on the other storms
+# (params/storms-halloween2003+march2011+stpatrick2015.parm, 2026-12-06): short storm median 14.19 km
+# (6.8-28.0), mean NEES 1.48, 12 of 12 inside; long storm 16.86 km (5.1-28.5), NEES 1.37, 12 of 12:
+# honest, not accurate; the medians fail their limits (an expected failure).
 STORM_LIMITS = {"paper_short_storm": (5.5e3, 0.0, 3.0), "paper_long_storm": (5e3, 1.5, 3.0)}
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=LOO_XFAIL)
 @pytest.mark.parametrize("name", sorted(STORM_LIMITS))
 def test_storm_missions_are_accurate_and_honest(shared_data, name):
     """Twelve seeds: the median miss stays under its limit and the filter's own uncertainty
@@ -92,7 +119,7 @@ def test_storm_missions_are_accurate_and_honest(shared_data, name):
     handling gets worse, overconfident again, or (long storm) twice as unsure as it is wrong."""
     scenario = load_scenario(name)
     truth = build_truth_field(scenario, shared_data)
-    nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
+    nav = NavConfig.from_values(storm_values(scenario))
     runs = [fly_in_process(nav, scenario, seed, truth) for seed in range(12)]
     misses = sorted(r.remaining_m for r in runs)
     nees = [nees_per_step(r) for r in runs]
