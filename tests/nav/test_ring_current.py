@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import statistics
 
 import numpy as np
 import pytest
@@ -14,11 +13,7 @@ from companion.nav.estimator import PositionEstimator
 from companion.nav.field import model_for_date
 from companion.nav.ring_current import ring_current_change_nt, ring_current_elements, symh_value
 from companion.nav.step_io import Measurement
-from companion.params import NavConfig, read_parm_file, validate_all
-from sitl.inprocess import InProcessFlight, fly_batch
-from sitl.scenario import load_scenario
-from sitl.world.build import build_truth_field
-from tests.sitl.test_storm_mission import PAPER_STORM_PARM
+from companion.params import NavConfig, validate_all
 
 NAMES = ("decl_deg", "incl_deg", "f_nt", "h_nt", "z_nt")
 MODEL = model_for_date(2024.36)
@@ -94,31 +89,3 @@ def test_the_start_up_walk_of_the_north_is_the_residuals():
     assert "N 61 (tau 1.3 h)" in on.storm_walk and "SYM-H" in on.storm_walk
     assert f"N {validate_all({})['FUS_BQA_N']:g}," in off.storm_walk and "SYM-H" not in off.storm_walk
     assert on.filter.ns == off.filter.ns + 1
-
-
-SEEDS = range(8)
-
-
-@pytest.mark.xfail(strict=True, reason="issue 46 item 4: met only with storm walks fitted on this world's own storm")
-def test_the_ring_current_correction_brings_the_long_storm_home(shared_data):
-    """The paper's long storm, Fc-MPC with the default filter, seeds 0-7 in-process, SYM-H and Kp as published
-    (sitl.storms.published: Kp 15 min after its 3-hour interval, SYM-H hourly 30 min late, quick-look
-    errors; in this compressed world those are storm-time delays, 2.7x longer in mission time):
-    without the correction (FUS_SYMH_K 0) the median miss is 44.93 km (40.5-48.3), with it 20.61 km
-    (16.1-24.4). With the indices at no delay and without quick-look errors: 26.36 -> 3.15 km (before
-    the feed was published, Kp was even the interval's own definitive value: 17.05 -> 8.69 km). Fails
-    if the correction stops paying: the median must stay under 24 km and under 0.65 of the
-    uncorrected one. Those figures had the storm walks fitted on this world's own storm; with walks fitted
-    on the other storms (params/storms-halloween2003+march2011+stpatrick2015.parm, 2026-12-06) the
-    correction pays 4 %: 17.95 -> 17.28 km. An expected failure until it pays without the gift."""
-    scenario = load_scenario("paper_long_storm")
-    truth = build_truth_field(scenario, shared_data)
-    misses = {}
-    for ratio in (0.0, 1.0):
-        nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **read_parm_file(PAPER_STORM_PARM),
-                                                  "NAV_CONTROLLER": 2,
-                                                  "FUS_SYMH_K": ratio}))
-        runs = fly_batch([InProcessFlight(nav, scenario, seed, truth) for seed in SEEDS])
-        assert all(r.arrived for r in runs)
-        misses[ratio] = statistics.median(r.remaining_m / 1e3 for r in runs)
-    assert misses[1.0] < 24.0 and misses[1.0] < 0.65 * misses[0.0], misses
