@@ -38,7 +38,7 @@ Units of the QP (``MPC_UNITS``), because Table 4's weights come without units:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -46,21 +46,33 @@ from companion import course_from_theta
 from companion.nav.arrival import Arrival
 from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
-from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
+from companion.nav.field import PositionFixError, WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
+from companion.nav.rollback import Checkpoint
 from companion.nav.small import solve2
 from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
-           "uses_filter", "FROZEN_IN_FLIGHT"]
+__all__ = ["ELEMENT_DOMAIN", "MEASUREMENT_ERRORS", "REJECTED", "Measurement", "Command", "Phase", "Mission",
+           "compensation", "governed_target", "uses_filter", "FROZEN_IN_FLIGHT"]
 
-CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
+REJECTED = "measurement rejected"   # the reason's start when a step rejected its measurement (Mission.step)
+# What a measurement can make the core raise on its way (the field model asked beyond a pole, a
+# covariance no longer positive definite, an overflow, a fix that did not converge): the step is
+# taken back and the measurement rejected. numpy's LinAlgError is a ValueError. Anything else
+# (TypeError, AttributeError, ...) is a programmer's error and goes through.
+MEASUREMENT_ERRORS = (ValueError, ArithmeticError, PositionFixError)
+# Where a measured element can lie (element units): beyond, no magnetometer on the Earth measured
+# it (the Earth's field is 22,000-67,000 nT; 1e6 nT is beyond a magnetometer's range).
+ELEMENT_DOMAIN = {"decl_deg": (-360.0, 360.0), "incl_deg": (-90.0, 90.0), "f_nt": (1.0, 1e6), "h_nt": (0.0, 1e6),
+                  "z_nt": (-1e6, 1e6)}
+KP_RANGE = (0.0, 9.0)                # a Kp outside is no reading: taken as none
+SYMH_LOWEST_NT = -5000.0             # a SYM-H below is no reading (the 1859 storm's Dst: -850 to -1760 nT)
 
 KMH = 1.0 / 3.6
 
@@ -142,6 +154,7 @@ class _Last:
     velocity_en: np.ndarray  # commanded (east, north) m/s of the move now being flown
     theta_rad: float
     sample_en: np.ndarray    # dead-reckoned local position (m from start) the measurement refers to
+    speed_mps: float = math.nan   # commanded speed (NaN in a snapshot from before it was kept: |velocity_en|)
 
 
 class Mission:
@@ -185,6 +198,7 @@ class Mission:
         self.last: _Last | None = None
         self.finished: Command | None = None
         self.rejected_fixes = 0
+        self.rejected_measurements = 0   # steps whose measurement was rejected (Mission.step)
         self._shift: tuple[np.ndarray, float] | None = None
         self._had_ins = False
         self.arrival = Arrival()
@@ -266,26 +280,79 @@ class Mission:
 
     # --- the step ------------------------------------------------------------------------------
     def step(self, meas: Measurement) -> Command:
-        """Advance one control period. A bad measurement returns a zero-speed command with a
-        reason and changes nothing, so the caller can retry with the next one. An error inside
-        the core (a filter whose estimate left the Earth, a covariance no longer one) ends the
-        mission FAILED with the error as its reason and ``solver_ok`` False, for the caller's
-        failsafe, instead of raising through it."""
-        try:
-            return self._step(meas)
-        except (ValueError, ArithmeticError) as err:
-            return self._finish(meas.time_s, Phase.FAILED, f"{CORE_ERROR}: {type(err).__name__}: {err}",
-                                solver_ok=False)
-
-    def _step(self, meas: Measurement) -> Command:
+        """Advance one control period. The navigation core never raises on a measurement: a
+        measurement outside its domain (:meth:`_screen`), or one whose step raised on the way
+        (:data:`MEASUREMENT_ERRORS`), failed its QP, or left a non-finite or off-the-Earth estimate
+        or command (:meth:`_unsound`), is rejected: the step is taken back
+        (:class:`~companion.nav.rollback.Checkpoint`), counted in :attr:`rejected_measurements`,
+        and answered with the last command flown on (phase HOLD, the reason beginning
+        :data:`REJECTED`, the estimate dead-reckoned to the measurement's time), so the next
+        step dead-reckons over the whole gap, as after a period the caller excluded."""
         if self.finished is not None:
             return self.finished
+        meas, why = self._screen(meas)
+        if why:
+            return self._reject(meas, why)
+        saved = self._checkpoint()
+        qp_failed = False
+        try:
+            command = self._step(meas)
+            why = self._unsound(command)
+        except _QpFailed as err:
+            why, qp_failed = f"QP failed: {err}", True
+        except MEASUREMENT_ERRORS as err:
+            why = f"{type(err).__name__}: {err}"
+        if not why:
+            return command
+        saved.restore()
+        self._shift = None   # a re-anchoring the step carried goes with it (the caller's check finds it again)
+        if qp_failed:   # a solver whose last data failed starts again from the mission's settings
+            self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
+        return self._reject(meas, why)
+
+    def _checkpoint(self) -> Checkpoint:
+        """The state a step changes, to take the step back (:class:`~companion.nav.rollback.Checkpoint`)."""
+        parts = self.table3.parts() if self.estimator is None else self.estimator.parts()   # the path in use
+        return Checkpoint(self, self.gradient, self.arrival, *parts)
+
+    def _screen(self, meas: Measurement) -> tuple[Measurement, str]:
+        """(the measurement, why it is rejected before the step: "" when it is not). Its time and
+        window must be finite and its time advance; the measured elements finite and inside
+        :data:`ELEMENT_DOMAIN`; an INS position on the Earth (latitude within +-90 deg, longitude
+        within one wrap, +-360). A space-weather reading outside its range is no reading (NaN)."""
+        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s)):
+            return meas, "non-finite measurement time or window"
+        values = self.measured.values(meas)
+        for name, value in zip(self.measured.names, values.tolist()):
+            low, high = ELEMENT_DOMAIN[name]
+            if not low <= value <= high:   # NaN too
+                return meas, f"{name} {value:.6g} outside [{low:g}, {high:g}]"
+        if self.last is not None and meas.time_s <= self.last.time_s:
+            return meas, "measurement time did not advance"
+        if meas.has_ins and not (abs(meas.ins_lat_deg) <= 90.0 and abs(meas.ins_lon_deg) <= 360.0):
+            return meas, f"INS position ({meas.ins_lat_deg:.6g}, {meas.ins_lon_deg:.6g}) deg off the Earth"
+        kp_off = math.isfinite(meas.kp) and not KP_RANGE[0] <= meas.kp <= KP_RANGE[1]
+        symh_off = math.isfinite(meas.symh_nt) and meas.symh_nt < SYMH_LOWEST_NT
+        if kp_off or symh_off:
+            meas = replace(meas, kp=math.nan if kp_off else meas.kp, symh_nt=math.nan if symh_off else meas.symh_nt)
+        return meas, ""
+
+    def _unsound(self, command: Command) -> str:
+        """Why a step's result cannot stand ("" when it can): a non-finite or out-of-limit command,
+        an estimate off the Earth, a filter state no longer finite."""
+        if not (math.isfinite(command.course_rad) and 0.0 <= command.speed_mps <= self.config.speed_mps * (1.0 + 1e-9)):
+            return f"command course {command.course_rad!r} rad, speed {command.speed_mps!r} m/s"
+        if not _on_earth(command.est_lat_deg, command.est_lon_deg):
+            return f"the estimate left the Earth: ({command.est_lat_deg:.6g}, {command.est_lon_deg:.6g}) deg"
+        if self.estimator is not None and self.estimator.filter is not None and not self.estimator.filter.finite:
+            return "the filter's state or covariance is no longer finite"
+        if self.estimator is None and not self.table3.finite:
+            return "the position covariance is no longer finite"
+        return ""
+
+    def _step(self, meas: Measurement) -> Command:
         measured = self.measured.values(meas) - self.bias
         s = measured[:2]
-        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.isfinite(measured).all()):
-            return self._hold(meas.time_s, "non-finite measurement")
-        if self.last is not None and meas.time_s <= self.last.time_s:
-            return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
             if self.estimator is not None:
@@ -362,9 +429,8 @@ class Mission:
         if c.mpc_units == 0:
             target_qp = governed_target(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
         solution = self.mpc.solve(b, s_now * s_unit, target_qp)
-        if not solution.ok:
-            return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
-                                sigma, solver_ok=False)
+        if not solution.ok:   # the measured gradient made the QP unsolvable: rejected (Mission.step)
+            raise _QpFailed(solution.status)
         u = solution.u_first * u_unit * (self.quadrant if c.u_bounds == 1 else 1.0)   # m/s, east/north
         # the optimum can be (numerically) no move, e.g. the corner of the paper's one-quadrant
         # box: eq. 4 then gives no heading, so head for the estimated destination
@@ -412,7 +478,7 @@ class Mission:
 
     def _advance(self, time_s: float, s: np.ndarray, theta: float, speed: float) -> None:
         self.last = _Last(time_s, s, speed * np.array([math.cos(theta), math.sin(theta)]), theta,
-                          self.dead_reckoned_en - self.window_lag_en)
+                          self.dead_reckoned_en - self.window_lag_en, float(speed))
         self.k += 1
 
     def _command(self, time_s, phase, theta, speed, remaining, fix, fused, sigma, **extra) -> Command:
@@ -434,12 +500,35 @@ class Mission:
                                           solver_ok=solver_ok, reason=reason), **self._filter_fields()})
         return self.finished
 
-    def _hold(self, time_s: float, reason: str) -> Command:
-        course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
-        return Command(**{**dict(time_s=time_s if math.isfinite(time_s) else math.nan, step=self.k,
-                                 phase=Phase.HOLD, course_rad=course, speed_mps=0.0, done=False,
-                                 est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
-                                 remaining_m=math.nan, solver_ok=True, reason=reason), **self._filter_fields()})
+    def _reject(self, meas: Measurement, why: str) -> Command:
+        """The answer to a rejected measurement (:meth:`step`): counted; the last command flown on,
+        its speed within the cruise speed (zero before the first step), the estimate dead-reckoned
+        along it to the measurement's time, phase HOLD, the reason beginning :data:`REJECTED`."""
+        self.rejected_measurements += 1
+        last, (lat, lon) = self.last, self.est
+        time_s = meas.time_s if math.isfinite(meas.time_s) else math.nan
+        course, speed = 0.0, 0.0
+        if last is not None:
+            course = course_from_theta(last.theta_rad)
+            flown = last.speed_mps if math.isfinite(last.speed_mps) else float(np.hypot(*last.velocity_en))
+            speed = min(flown, self.config.speed_mps)
+            if time_s > last.time_s:
+                moved = last.velocity_en * (time_s - last.time_s)
+                there = tuple(float(v) for v in offset_position(lat, lon, float(moved[0]), float(moved[1])))
+                lat, lon = there if _on_earth(*there) else (lat, lon)
+        return Command(**{**dict(time_s=time_s, step=self.k, phase=Phase.HOLD, course_rad=course, speed_mps=speed,
+                                 done=False, est_lat_deg=lat, est_lon_deg=lon, est_sigma_m=math.nan,
+                                 remaining_m=math.nan, solver_ok=True, reason=f"{REJECTED}: {why}"[:150]),
+                          **self._filter_fields()})
+
+
+class _QpFailed(Exception):
+    """The step's QP found no solution (its status the message): the measurement is rejected."""
+
+
+def _on_earth(lat_deg: float, lon_deg: float) -> bool:
+    """A position the field model can be asked at: finite, latitude within +-90 deg."""
+    return abs(lat_deg) <= 90.0 and math.isfinite(lon_deg)
 
 
 def governed_target(s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:

@@ -18,7 +18,7 @@ from companion.failsafe import diverged
 from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
-from companion.nav.mission import CORE_ERROR, Measurement, Phase
+from companion.nav.mission import Measurement, Phase
 from companion.nav.steering import is_new_course
 from companion.process.filter_words import FilterWords
 from companion.process.options import FC_POSITION_MAX_AGE_S
@@ -238,7 +238,7 @@ class ControlStep:
         if not cmd.done and not (math.isfinite(cmd.course_rad) and math.isfinite(cmd.speed_mps)):
             return "non-finite command from the navigation core"
         if not cmd.solver_ok:
-            return cmd.reason if cmd.reason.startswith(CORE_ERROR) else f"solver failure: {cmd.reason}"
+            return f"solver failure: {cmd.reason}"
         if not all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg)):
             return ""
         gap = np.array(enu_offset(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg))
