@@ -28,6 +28,8 @@ from companion.registry import READINGS
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
+# a rejected period (HOLD: the last command flies on) is a warning; a failed mission an error
+_PHASE_SEVERITY = {Phase.HOLD: mavlink.MAV_SEVERITY_WARNING, Phase.FAILED: mavlink.MAV_SEVERITY_ERROR}
 
 
 class ControlStep:
@@ -146,7 +148,7 @@ class ControlStep:
             app.out.say(f"FcMPC: step {cmd.step} phase {cmd.phase}"
                         + (f", {cmd.remaining_m / 1000.0:.1f} km to go" if math.isfinite(cmd.remaining_m) else "")
                         + (f": {cmd.reason}" if cmd.reason else ""),
-                        mavlink.MAV_SEVERITY_NOTICE if cmd.phase != Phase.FAILED else mavlink.MAV_SEVERITY_ERROR)
+                        _PHASE_SEVERITY.get(cmd.phase, mavlink.MAV_SEVERITY_NOTICE))
             app.last_phase = cmd.phase
         if cmd.done:
             app.phases.finish(cmd)
