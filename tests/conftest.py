@@ -111,5 +111,7 @@ def log171_reference(log171: Path) -> dict:
 
 
 # Property tests run hypothesis's default example count in CI; `--hypothesis-profile=long` runs the
-# navigator's fuzz for its target of 10^5 examples (issue 47).
-settings.register_profile("long", max_examples=100_000, deadline=None, suppress_health_check=list(HealthCheck))
+# navigator's fuzz for its target of 10^5 examples (issue 47; FCMPC_LONG_EXAMPLES: another count,
+# e.g. half in each of two processes with different --hypothesis-seed).
+settings.register_profile("long", max_examples=int(os.environ.get("FCMPC_LONG_EXAMPLES", "100000")), deadline=None,
+                          suppress_health_check=list(HealthCheck))

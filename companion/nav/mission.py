@@ -282,8 +282,8 @@ class Mission:
     def step(self, meas: Measurement) -> Command:
         """Advance one control period. The navigation core never raises on a measurement: a
         measurement outside its domain (:meth:`_screen`), or one whose step raised on the way
-        (:data:`MEASUREMENT_ERRORS`), failed its QP, or left a non-finite or off-the-Earth estimate
-        or command (:meth:`_unsound`), is rejected: the step is taken back
+        (:data:`MEASUREMENT_ERRORS`; the QP's data non-finite among them), or left a non-finite or
+        off-the-Earth estimate or command (:meth:`_unsound`), is rejected: the step is taken back
         (:class:`~companion.nav.rollback.Checkpoint`), counted in :attr:`rejected_measurements`,
         and answered with the last command flown on (phase HOLD, the reason beginning
         :data:`REJECTED`, the estimate dead-reckoned to the measurement's time), so the next
@@ -294,20 +294,15 @@ class Mission:
         if why:
             return self._reject(meas, why)
         saved = self._checkpoint()
-        qp_failed = False
         try:
             command = self._step(meas)
             why = self._unsound(command)
-        except _QpFailed as err:
-            why, qp_failed = f"QP failed: {err}", True
         except MEASUREMENT_ERRORS as err:
             why = f"{type(err).__name__}: {err}"
         if not why:
             return command
         saved.restore()
         self._shift = None   # a re-anchoring the step carried goes with it (the caller's check finds it again)
-        if qp_failed:   # a solver whose last data failed starts again from the mission's settings
-            self.mpc = MpcController(mpc_settings(self.config, self.elements, self.s_lower, self.s_upper))
         return self._reject(meas, why)
 
     def _checkpoint(self) -> Checkpoint:
@@ -428,9 +423,12 @@ class Mission:
         target_qp = target * s_unit
         if c.mpc_units == 0:
             target_qp = governed_target(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
+        if not np.isfinite(np.concatenate([b.ravel(), s_now * s_unit, target_qp])).all():   # rejected (Mission.step)
+            raise FloatingPointError(f"non-finite QP data: B {b.tolist()}, S {s_now.tolist()}, target {target.tolist()}")
         solution = self.mpc.solve(b, s_now * s_unit, target_qp)
-        if not solution.ok:   # the measured gradient made the QP unsolvable: rejected (Mission.step)
-            raise _QpFailed(solution.status)
+        if not solution.ok:   # finite data the QP cannot solve (bounds that do not hold S): the failsafe's
+            return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
+                                sigma, solver_ok=False)
         u = solution.u_first * u_unit * (self.quadrant if c.u_bounds == 1 else 1.0)   # m/s, east/north
         # the optimum can be (numerically) no move, e.g. the corner of the paper's one-quadrant
         # box: eq. 4 then gives no heading, so head for the estimated destination
@@ -520,10 +518,6 @@ class Mission:
                                  done=False, est_lat_deg=lat, est_lon_deg=lon, est_sigma_m=math.nan,
                                  remaining_m=math.nan, solver_ok=True, reason=f"{REJECTED}: {why}"[:150]),
                           **self._filter_fields()})
-
-
-class _QpFailed(Exception):
-    """The step's QP found no solution (its status the message): the measurement is rejected."""
 
 
 def _on_earth(lat_deg: float, lon_deg: float) -> bool:
