@@ -150,7 +150,8 @@ class PositionEstimator:
 
     def parts(self) -> tuple:
         """The objects whose own attributes a step changes (:class:`companion.nav.rollback.Checkpoint`)."""
-        return (self, self.consensus) + (self.filter.parts() if self.filter is not None else ())
+        f = self.filter   # (its bias walk's position is set anew by every predict)
+        return (self, self.consensus) + ((f, f.kf, f.process, f.monitor) if f is not None else ())
 
     @property
     def process_name(self) -> str:

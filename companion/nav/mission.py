@@ -38,7 +38,7 @@ Units of the QP (``MPC_UNITS``), because Table 4's weights come without units:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,33 +46,21 @@ from companion import course_from_theta
 from companion.nav.arrival import Arrival
 from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
-from companion.nav.field import PositionFixError, WorldMagneticModel, element_gradient, model_for_setting
+from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
 from companion.nav.rollback import Checkpoint
+from companion.nav.screening import MEASUREMENT_ERRORS, REJECTED, finite_filter, held_command, screen, unsound
 from companion.nav.small import solve2
 from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["ELEMENT_DOMAIN", "MEASUREMENT_ERRORS", "REJECTED", "Measurement", "Command", "Phase", "Mission",
-           "compensation", "governed_target", "uses_filter", "FROZEN_IN_FLIGHT"]
-
-REJECTED = "measurement rejected"   # the reason's start when a step rejected its measurement (Mission.step)
-# What a measurement can make the core raise on its way (the field model asked beyond a pole, a
-# covariance no longer positive definite, an overflow, a fix that did not converge): the step is
-# taken back and the measurement rejected. numpy's LinAlgError is a ValueError. Anything else
-# (TypeError, AttributeError, ...) is a programmer's error and goes through.
-MEASUREMENT_ERRORS = (ValueError, ArithmeticError, PositionFixError)
-# Where a measured element can lie (element units): beyond, no magnetometer on the Earth measured
-# it (the Earth's field is 22,000-67,000 nT; 1e6 nT is beyond a magnetometer's range).
-ELEMENT_DOMAIN = {"decl_deg": (-360.0, 360.0), "incl_deg": (-90.0, 90.0), "f_nt": (1.0, 1e6), "h_nt": (0.0, 1e6),
-                  "z_nt": (-1e6, 1e6)}
-KP_RANGE = (0.0, 9.0)                # a Kp outside is no reading: taken as none
-SYMH_LOWEST_NT = -5000.0             # a SYM-H below is no reading (the 1859 storm's Dst: -850 to -1760 nT)
+__all__ = ["REJECTED", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
+           "uses_filter", "FROZEN_IN_FLIGHT"]
 
 KMH = 1.0 / 3.6
 
@@ -280,70 +268,29 @@ class Mission:
 
     # --- the step ------------------------------------------------------------------------------
     def step(self, meas: Measurement) -> Command:
-        """Advance one control period. The navigation core never raises on a measurement: a
-        measurement outside its domain (:meth:`_screen`), or one whose step raised on the way
-        (:data:`MEASUREMENT_ERRORS`; the QP's data non-finite among them), or left a non-finite or
-        off-the-Earth estimate or command (:meth:`_unsound`), is rejected: the step is taken back
-        (:class:`~companion.nav.rollback.Checkpoint`), counted in :attr:`rejected_measurements`,
-        and answered with the last command flown on (phase HOLD, the reason beginning
-        :data:`REJECTED`, the estimate dead-reckoned to the measurement's time), so the next
-        step dead-reckons over the whole gap, as after a period the caller excluded."""
+        """Advance one control period, never raising on a measurement (:mod:`companion.nav.screening`):
+        a period outside its domain, or whose step raised or left what cannot stand, is rejected,
+        the step taken back (:class:`~companion.nav.rollback.Checkpoint`), counted in
+        :attr:`rejected_measurements`, answered HOLD with the last command flown on."""
         if self.finished is not None:
             return self.finished
-        meas, why = self._screen(meas)
-        if why:
-            return self._reject(meas, why)
-        saved = self._checkpoint()
-        try:
-            command = self._step(meas)
-            why = self._unsound(command)
-        except MEASUREMENT_ERRORS as err:
-            why = f"{type(err).__name__}: {err}"
+        meas, why = screen(meas, self.measured.names, self.measured.values(meas),
+                           None if self.last is None else self.last.time_s)
         if not why:
-            return command
-        saved.restore()
-        self._shift = None   # a re-anchoring the step carried goes with it (the caller's check finds it again)
-        return self._reject(meas, why)
-
-    def _checkpoint(self) -> Checkpoint:
-        """The state a step changes, to take the step back (:class:`~companion.nav.rollback.Checkpoint`)."""
-        parts = self.table3.parts() if self.estimator is None else self.estimator.parts()   # the path in use
-        return Checkpoint(self, self.gradient, self.arrival, *parts)
-
-    def _screen(self, meas: Measurement) -> tuple[Measurement, str]:
-        """(the measurement, why it is rejected before the step: "" when it is not). Its time and
-        window must be finite and its time advance; the measured elements finite and inside
-        :data:`ELEMENT_DOMAIN`; an INS position on the Earth (latitude within +-90 deg, longitude
-        within one wrap, +-360). A space-weather reading outside its range is no reading (NaN)."""
-        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s)):
-            return meas, "non-finite measurement time or window"
-        values = self.measured.values(meas)
-        for name, value in zip(self.measured.names, values.tolist()):
-            low, high = ELEMENT_DOMAIN[name]
-            if not low <= value <= high:   # NaN too
-                return meas, f"{name} {value:.6g} outside [{low:g}, {high:g}]"
-        if self.last is not None and meas.time_s <= self.last.time_s:
-            return meas, "measurement time did not advance"
-        if meas.has_ins and not (abs(meas.ins_lat_deg) <= 90.0 and abs(meas.ins_lon_deg) <= 360.0):
-            return meas, f"INS position ({meas.ins_lat_deg:.6g}, {meas.ins_lon_deg:.6g}) deg off the Earth"
-        kp_off = math.isfinite(meas.kp) and not KP_RANGE[0] <= meas.kp <= KP_RANGE[1]
-        symh_off = math.isfinite(meas.symh_nt) and meas.symh_nt < SYMH_LOWEST_NT
-        if kp_off or symh_off:
-            meas = replace(meas, kp=math.nan if kp_off else meas.kp, symh_nt=math.nan if symh_off else meas.symh_nt)
-        return meas, ""
-
-    def _unsound(self, command: Command) -> str:
-        """Why a step's result cannot stand ("" when it can): a non-finite or out-of-limit command,
-        an estimate off the Earth, a filter state no longer finite."""
-        if not (math.isfinite(command.course_rad) and 0.0 <= command.speed_mps <= self.config.speed_mps * (1.0 + 1e-9)):
-            return f"command course {command.course_rad!r} rad, speed {command.speed_mps!r} m/s"
-        if not _on_earth(command.est_lat_deg, command.est_lon_deg):
-            return f"the estimate left the Earth: ({command.est_lat_deg:.6g}, {command.est_lon_deg:.6g}) deg"
-        if self.estimator is not None and self.estimator.filter is not None and not self.estimator.filter.finite:
-            return "the filter's state or covariance is no longer finite"
-        if self.estimator is None and not self.table3.finite:
-            return "the position covariance is no longer finite"
-        return ""
+            path = self.table3.parts() if self.estimator is None else self.estimator.parts()   # the path in use
+            saved = Checkpoint(self, self.gradient, self.arrival, *path)
+            try:
+                command = self._step(meas)
+                kf = self.table3.fusion.kf if self.estimator is None else getattr(self.estimator.filter, "kf", None)
+                why = unsound(command, self.config.speed_mps, kf is None or finite_filter(kf))
+            except MEASUREMENT_ERRORS as err:
+                why = f"{type(err).__name__}: {err}"
+            if not why:
+                return command
+            saved.restore()
+            self._shift = None   # a re-anchoring the step carried goes with it (the caller's check finds it again)
+        self.rejected_measurements += 1
+        return held_command(meas.time_s, why, self.last, self.est, self.k, self.config.speed_mps, self._filter_fields())
 
     def _step(self, meas: Measurement) -> Command:
         measured = self.measured.values(meas) - self.bias
@@ -497,32 +444,6 @@ class Mission:
                                           fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
                                           solver_ok=solver_ok, reason=reason), **self._filter_fields()})
         return self.finished
-
-    def _reject(self, meas: Measurement, why: str) -> Command:
-        """The answer to a rejected measurement (:meth:`step`): counted; the last command flown on,
-        its speed within the cruise speed (zero before the first step), the estimate dead-reckoned
-        along it to the measurement's time, phase HOLD, the reason beginning :data:`REJECTED`."""
-        self.rejected_measurements += 1
-        last, (lat, lon) = self.last, self.est
-        time_s = meas.time_s if math.isfinite(meas.time_s) else math.nan
-        course, speed = 0.0, 0.0
-        if last is not None:
-            course = course_from_theta(last.theta_rad)
-            flown = last.speed_mps if math.isfinite(last.speed_mps) else float(np.hypot(*last.velocity_en))
-            speed = min(flown, self.config.speed_mps)
-            if time_s > last.time_s:
-                moved = last.velocity_en * (time_s - last.time_s)
-                there = tuple(float(v) for v in offset_position(lat, lon, float(moved[0]), float(moved[1])))
-                lat, lon = there if _on_earth(*there) else (lat, lon)
-        return Command(**{**dict(time_s=time_s, step=self.k, phase=Phase.HOLD, course_rad=course, speed_mps=speed,
-                                 done=False, est_lat_deg=lat, est_lon_deg=lon, est_sigma_m=math.nan,
-                                 remaining_m=math.nan, solver_ok=True, reason=f"{REJECTED}: {why}"[:150]),
-                          **self._filter_fields()})
-
-
-def _on_earth(lat_deg: float, lon_deg: float) -> bool:
-    """A position the field model can be asked at: finite, latitude within +-90 deg."""
-    return abs(lat_deg) <= 90.0 and math.isfinite(lon_deg)
 
 
 def governed_target(s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:

@@ -231,15 +231,6 @@ class NavigationFilter:
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
 
     # --- state --------------------------------------------------------------------------------
-    def parts(self) -> tuple:
-        """The objects whose own attributes a step changes (:class:`companion.nav.rollback.Checkpoint`)."""
-        return self, self.kf, self.process, self.monitor, self._walk
-
-    @property
-    def finite(self) -> bool:
-        """The state and its covariance are finite numbers (a step that made them otherwise is rejected)."""
-        return bool(np.isfinite(self.kf.x).all() and np.isfinite(self.kf.P).all())
-
     @property
     def x(self) -> np.ndarray:
         return self.kf.x[:, 0]

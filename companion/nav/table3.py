@@ -102,13 +102,6 @@ class Table3Estimator:
         """The objects whose own attributes a step changes (:class:`companion.nav.rollback.Checkpoint`)."""
         return self, self.consensus, self.fusion, self.fusion.kf
 
-    @property
-    def finite(self) -> bool:
-        """Its covariances and the fusion filter's state are finite numbers."""
-        kf = self.fusion.kf
-        return bool(np.isfinite(self.cov_en_m2).all() and np.isfinite(self.relative_cov_en_m2).all()
-                    and np.isfinite(kf.x).all() and np.isfinite(kf.P).all())
-
     def command_fields(self) -> dict:
         """The uncertainty a :class:`companion.nav.mission.Command` carries from this path, once
         a cruise step has been estimated: ``est_cov_en_m2`` (east-east, east-north, north-north,
