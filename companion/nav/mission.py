@@ -353,8 +353,8 @@ class Mission:
             try:
                 to_dest = solve2(g, self.elements.difference(self.s_dest, s))
                 remaining = float(np.hypot(*to_dest))
-            except np.linalg.LinAlgError:
-                remaining = math.inf
+            except np.linalg.LinAlgError:   # G singular: no way to the destination; one is the last move's
+                to_dest, remaining = self.last.velocity_en, math.inf
             xi = np.zeros(2)
             target = self.s_dest
         ended = self.arrival.judge(remaining, c, c.controller == Controller.FC)   # (a last leg to fly: not yet)

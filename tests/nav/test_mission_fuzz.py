@@ -130,3 +130,21 @@ def test_an_uncalibrated_compass_in_a_car_is_rejected_not_a_failed_mission():
             assert jump <= config.fix_gate_m, (k, jump)
         last = cmd
     assert mission.rejected_fixes >= 10   # the gate's rejections, counted
+
+
+def test_a_singular_gradient_and_no_move_from_the_qp_fly_on_along_the_last_move():
+    """Found by the long profile (seed 2, after 16 min): LTV-MPC, constant (0, 0) periods, the
+    third one rejected (F 0 nT); at the first cruise step G is singular, so no distance to the
+    destination, and the QP's optimum is no move: the heading fell back to a direction never
+    computed (UnboundLocalError, a programmer's error the core rightly let through). It flies on
+    along the last move."""
+    mission = Mission(NavConfig.from_values(validate_all({"NAV_CONTROLLER": 1})))
+    t, last = 0.0, None
+    for dt, f_nt, heading in ((1.0, 2e4, math.nan), (570.0, 2e4, math.nan), (1.0, 0.0, math.nan),
+                              (14.0, 2e4, math.nan), (27.0, 2e4, 49.0)):
+        t += dt
+        before = mission.rejected_measurements
+        cmd = mission.step(Measurement(t, 0.0, 0.0, window_s=0.0, f_nt=f_nt, mag_heading_deg=heading))
+        assert_sound(mission, cmd, before)
+        last = cmd
+    assert last.phase == Phase.CRUISE and last.speed_mps > 0.0, last
