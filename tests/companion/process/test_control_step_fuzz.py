@@ -66,12 +66,14 @@ def _average(t_k: float, period, where: tuple[float, float], course_rad: float) 
 def test_no_period_makes_the_companion_step_raise_or_send_an_unsafe_setpoint(tmp_path):
     app, fc = make_rig(tmp_path)
     nav = NAV
+    examples: list[int] = []   # periods per example (printed with -s: the long run's count)
     try:
         # 150 in CI (~7 s); a tenth of the profile's count with --hypothesis-profile=long (10,000)
         @settings(deadline=None, suppress_health_check=list(HealthCheck),
                   max_examples=max(150, settings.default.max_examples // 10))
         @given(st.lists(PERIOD, min_size=1, max_size=10))
         def fly(periods):
+            examples.append(len(periods))
             app.mission, app.command, app.machine.state = Mission(nav), None, State.RUNNING
             period, where = nav.period_s, (nav.start_lat_deg, nav.start_lon_deg)
             with warnings.catch_warnings():
@@ -95,6 +97,7 @@ def test_no_period_makes_the_companion_step_raise_or_send_an_unsafe_setpoint(tmp
             _sent(fc, quiet_s=0.0, limit_s=0.0)   # (keep the socket's buffer short)
 
         fly()
+        print(f"companion step fuzz: {len(examples)} examples, {sum(examples)} periods")
         assert app.link.stats.setpoints_refused == 0
     finally:
         app.close()
