@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 os.environ.setdefault("MAVLINK20", "1")
 # Tiny matrices everywhere: BLAS threads only slow them (the INS step goes from 65 us to ms).
@@ -107,3 +108,10 @@ def log171_reference(log171: Path) -> dict:
     finally:
         conn.close()
     return {"counts": counts, "first": first, "last": last, "mag0": mag0, "gps0": gps0}
+
+
+# Property tests run hypothesis's default example count in CI; `--hypothesis-profile=long` runs the
+# navigator's fuzz for its target of 10^5 examples (issue 47; FCMPC_LONG_EXAMPLES: another count,
+# e.g. half in each of two processes with different --hypothesis-seed).
+settings.register_profile("long", max_examples=int(os.environ.get("FCMPC_LONG_EXAMPLES", "100000")), deadline=None,
+                          suppress_health_check=list(HealthCheck))

@@ -148,6 +148,11 @@ class PositionEstimator:
         self.symh_reference_nt = math.nan   # SYM-H at the start: the ring current's reference (NaN: none)
         self._symh_last = math.nan          # the last SYM-H received, held while the feed is silent
 
+    def parts(self) -> tuple:
+        """The objects whose own attributes a step changes (:class:`companion.nav.rollback.Checkpoint`)."""
+        f = self.filter   # (its bias walk's position is set anew by every predict)
+        return (self, self.consensus) + ((f, f.kf, f.process, f.monitor) if f is not None else ())
+
     @property
     def process_name(self) -> str:
         return self.filter.process.name if self.filter is not None else ""
@@ -304,7 +309,16 @@ class PositionEstimator:
             at_centre = None    # the estimate moved: its window centre with it
         else:
             self.consensus.clear()
+        # without a fix the gate judges the update's own move instead: the linearised update of
+        # a measurement far outside the filter's ellipse can throw the estimate thousands of km
+        # (an uncalibrated compass in a car, D 90 deg off: 1,160 km in one step, then off the Earth)
+        before = f.snapshot() if fix is None else None
         f.update_elements(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas), at_centre)
+        if before is not None and not f.last_nis <= self._gate_nis() \
+                and not geodesic_inverse(prior[0], prior[1], *f.position(*self._ins))[0] <= self.config.fix_gate_m:
+            f.restore(before)
+            self.rejected += 1
+            return self._estimate()
         return self._estimate(fix=fix, updated=True, fix_cov=fix_cov)
 
     def _fix_covariance(self, meas, gradient: np.ndarray) -> tuple[float, float, float] | None:
@@ -329,8 +343,13 @@ class PositionEstimator:
         aside: two)."""
         f = self.filter
         nis = f.innovation_nis(measured, lag_en_m, *self._ins, self.measured.standard_errors(meas), at_centre)
-        rows = self.measured.measured_rows(f.monitor.declared, f.monitor.index_quiet)
-        return not nis <= _gate_nis(FIX_GATE_PROBABILITY, len(rows))
+        return not nis <= self._gate_nis()
+
+    def _gate_nis(self) -> float:
+        """The NIS beyond which a measurement is implausible, on the elements the filter measures now."""
+        f = self.filter
+        return _gate_nis(FIX_GATE_PROBABILITY, len(self.measured.measured_rows(f.monitor.declared,
+                                                                                f.monitor.index_quiet)))
 
     def _fix(self, measured: np.ndarray, start: tuple[float, float], lag_en_m: np.ndarray, at_centre=None):
         """The bias-corrected geomagnetic fix on the steering pair from ``start`` (the window

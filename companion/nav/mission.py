@@ -52,15 +52,15 @@ from companion.nav.heading import flown_velocity_en
 from companion.nav.gradient import GradientEstimator
 from companion.nav.mpc import MpcController, MpcSettings, SOLVERS
 from companion.nav.reference import ReferencePath
+from companion.nav.rollback import Checkpoint
+from companion.nav.screening import MEASUREMENT_ERRORS, REJECTED, finite_filter, held_command, screen, unsound
 from companion.nav.small import solve2
 from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.params import Controller, NavConfig
 
-__all__ = ["CORE_ERROR", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
+__all__ = ["REJECTED", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
            "uses_filter", "FROZEN_IN_FLIGHT"]
-
-CORE_ERROR = "navigation core error"   # the reason's start when the core raised (Mission.step)
 
 KMH = 1.0 / 3.6
 
@@ -142,6 +142,7 @@ class _Last:
     velocity_en: np.ndarray  # commanded (east, north) m/s of the move now being flown
     theta_rad: float
     sample_en: np.ndarray    # dead-reckoned local position (m from start) the measurement refers to
+    speed_mps: float = math.nan   # commanded speed (NaN in a snapshot from before it was kept: |velocity_en|)
 
 
 class Mission:
@@ -185,6 +186,7 @@ class Mission:
         self.last: _Last | None = None
         self.finished: Command | None = None
         self.rejected_fixes = 0
+        self.rejected_measurements = 0   # steps whose measurement was rejected (Mission.step)
         self._shift: tuple[np.ndarray, float] | None = None
         self._had_ins = False
         self.arrival = Arrival()
@@ -266,26 +268,33 @@ class Mission:
 
     # --- the step ------------------------------------------------------------------------------
     def step(self, meas: Measurement) -> Command:
-        """Advance one control period. A bad measurement returns a zero-speed command with a
-        reason and changes nothing, so the caller can retry with the next one. An error inside
-        the core (a filter whose estimate left the Earth, a covariance no longer one) ends the
-        mission FAILED with the error as its reason and ``solver_ok`` False, for the caller's
-        failsafe, instead of raising through it."""
-        try:
-            return self._step(meas)
-        except (ValueError, ArithmeticError) as err:
-            return self._finish(meas.time_s, Phase.FAILED, f"{CORE_ERROR}: {type(err).__name__}: {err}",
-                                solver_ok=False)
-
-    def _step(self, meas: Measurement) -> Command:
+        """Advance one control period, never raising on a measurement (:mod:`companion.nav.screening`):
+        a period outside its domain, or whose step raised or left what cannot stand, is rejected,
+        the step taken back (:class:`~companion.nav.rollback.Checkpoint`), counted in
+        :attr:`rejected_measurements`, answered HOLD with the last command flown on."""
         if self.finished is not None:
             return self.finished
+        meas, why = screen(meas, self.measured.names, self.measured.values(meas),
+                           None if self.last is None else self.last.time_s)
+        if not why:
+            path = self.table3.parts() if self.estimator is None else self.estimator.parts()   # the path in use
+            saved = Checkpoint(self, self.gradient, self.arrival, *path)
+            try:
+                command = self._step(meas)
+                kf = self.table3.fusion.kf if self.estimator is None else getattr(self.estimator.filter, "kf", None)
+                why = unsound(command, self.config.speed_mps, kf is None or finite_filter(kf))
+            except MEASUREMENT_ERRORS as err:
+                why = f"{type(err).__name__}: {err}"
+            if not why:
+                return command
+            saved.restore()
+            self._shift = None   # a re-anchoring the step carried goes with it (the caller's check finds it again)
+        self.rejected_measurements += 1
+        return held_command(meas.time_s, why, self.last, self.est, self.k, self.config.speed_mps, self._filter_fields())
+
+    def _step(self, meas: Measurement) -> Command:
         measured = self.measured.values(meas) - self.bias
         s = measured[:2]
-        if not (math.isfinite(meas.time_s) and math.isfinite(meas.window_s) and np.isfinite(measured).all()):
-            return self._hold(meas.time_s, "non-finite measurement")
-        if self.last is not None and meas.time_s <= self.last.time_s:
-            return self._hold(meas.time_s, "measurement time did not advance")
         c = self.config
         if self.last is None:  # k = 0: at the start, fly theta_1
             if self.estimator is not None:
@@ -344,8 +353,8 @@ class Mission:
             try:
                 to_dest = solve2(g, self.elements.difference(self.s_dest, s))
                 remaining = float(np.hypot(*to_dest))
-            except np.linalg.LinAlgError:
-                remaining = math.inf
+            except np.linalg.LinAlgError:   # G singular: no way to the destination; one is the last move's
+                to_dest, remaining = self.last.velocity_en, math.inf
             xi = np.zeros(2)
             target = self.s_dest
         ended = self.arrival.judge(remaining, c, c.controller == Controller.FC)   # (a last leg to fly: not yet)
@@ -361,8 +370,10 @@ class Mission:
         target_qp = target * s_unit
         if c.mpc_units == 0:
             target_qp = governed_target(s_now * s_unit, target_qp, b, c.speed_mps / u_unit)
+        if not np.isfinite(np.concatenate([b.ravel(), s_now * s_unit, target_qp])).all():   # rejected (Mission.step)
+            raise FloatingPointError(f"non-finite QP data: B {b.tolist()}, S {s_now.tolist()}, target {target.tolist()}")
         solution = self.mpc.solve(b, s_now * s_unit, target_qp)
-        if not solution.ok:
+        if not solution.ok:   # finite data the QP cannot solve (bounds that do not hold S): the failsafe's
             return self._finish(meas.time_s, Phase.FAILED, f"QP failed: {solution.status}", remaining, fix, fused,
                                 sigma, solver_ok=False)
         u = solution.u_first * u_unit * (self.quadrant if c.u_bounds == 1 else 1.0)   # m/s, east/north
@@ -412,7 +423,7 @@ class Mission:
 
     def _advance(self, time_s: float, s: np.ndarray, theta: float, speed: float) -> None:
         self.last = _Last(time_s, s, speed * np.array([math.cos(theta), math.sin(theta)]), theta,
-                          self.dead_reckoned_en - self.window_lag_en)
+                          self.dead_reckoned_en - self.window_lag_en, float(speed))
         self.k += 1
 
     def _command(self, time_s, phase, theta, speed, remaining, fix, fused, sigma, **extra) -> Command:
@@ -433,13 +444,6 @@ class Mission:
                                           fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
                                           solver_ok=solver_ok, reason=reason), **self._filter_fields()})
         return self.finished
-
-    def _hold(self, time_s: float, reason: str) -> Command:
-        course = course_from_theta(self.last.theta_rad) if self.last is not None else 0.0
-        return Command(**{**dict(time_s=time_s if math.isfinite(time_s) else math.nan, step=self.k,
-                                 phase=Phase.HOLD, course_rad=course, speed_mps=0.0, done=False,
-                                 est_lat_deg=self.est[0], est_lon_deg=self.est[1], est_sigma_m=math.nan,
-                                 remaining_m=math.nan, solver_ok=True, reason=reason), **self._filter_fields()})
 
 
 def governed_target(s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:

@@ -98,6 +98,10 @@ class Table3Estimator:
         self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = self.cov_en_m2, 0.0, 0.0, 0
         self.relative_cov_en_m2 = self._anchor_relative_cov = self.cov_en_m2
 
+    def parts(self) -> tuple:
+        """The objects whose own attributes a step changes (:class:`companion.nav.rollback.Checkpoint`)."""
+        return self, self.consensus, self.fusion, self.fusion.kf
+
     def command_fields(self) -> dict:
         """The uncertainty a :class:`companion.nav.mission.Command` carries from this path, once
         a cruise step has been estimated: ``est_cov_en_m2`` (east-east, east-north, north-north,

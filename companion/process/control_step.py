@@ -19,7 +19,7 @@ from companion.io.mavlink_link import mavlink
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.heading import window_heading_rad
-from companion.nav.mission import CORE_ERROR, Measurement, Phase
+from companion.nav.mission import Measurement, Phase
 from companion.nav.steering import is_new_course
 from companion.process.filter_words import FilterWords
 from companion.process.options import FC_POSITION_MAX_AGE_S
@@ -29,6 +29,8 @@ from companion.registry import READINGS
 __all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
 
 SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
+# a rejected period (HOLD: the last command flies on) is a warning; a failed mission an error
+_PHASE_SEVERITY = {Phase.HOLD: mavlink.MAV_SEVERITY_WARNING, Phase.FAILED: mavlink.MAV_SEVERITY_ERROR}
 
 
 class ControlStep:
@@ -147,7 +149,7 @@ class ControlStep:
             app.out.say(f"FcMPC: step {cmd.step} phase {cmd.phase}"
                         + (f", {cmd.remaining_m / 1000.0:.1f} km to go" if math.isfinite(cmd.remaining_m) else "")
                         + (f": {cmd.reason}" if cmd.reason else ""),
-                        mavlink.MAV_SEVERITY_NOTICE if cmd.phase != Phase.FAILED else mavlink.MAV_SEVERITY_ERROR)
+                        _PHASE_SEVERITY.get(cmd.phase, mavlink.MAV_SEVERITY_NOTICE))
             app.last_phase = cmd.phase
         if cmd.done:
             app.phases.finish(cmd)
@@ -240,7 +242,7 @@ class ControlStep:
         if not cmd.done and not (math.isfinite(cmd.course_rad) and math.isfinite(cmd.speed_mps)):
             return "non-finite command from the navigation core"
         if not cmd.solver_ok:
-            return cmd.reason if cmd.reason.startswith(CORE_ERROR) else f"solver failure: {cmd.reason}"
+            return f"solver failure: {cmd.reason}"
         if not all(math.isfinite(v) for v in (cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg)):
             return ""
         gap = np.array(enu_offset(cmd.est_lat_deg, cmd.est_lon_deg, cmd.fix_lat_deg, cmd.fix_lon_deg))

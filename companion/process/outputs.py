@@ -134,8 +134,11 @@ class Outputs:
         """Each step: the measurement and the estimate as NAMED_VALUE_FLOAT, and the estimate to the
         FC (EXTERNAL_POSITION_ESTIMATE with COMP_POS_PUB 0, ODOMETRY with 1) while cruising."""
         link, app = self.link, self.app
+        # the navigator's rejections so far: periods (FC_REJ) and geomagnetic fixes beyond its gate (FC_FIXREJ)
+        rejected = (getattr(app.mission, "rejected_measurements", math.nan), getattr(app.mission, "rejected_fixes", math.nan))
         for name, value in (("FC_D", avg.decl_deg), ("FC_I", avg.incl_deg), ("FC_F", avg.f_nt), ("FC_ERR", cmd.est_sigma_m),
-                            ("FC_REM", cmd.remaining_m), ("FC_SOLV", cmd.solver_time_s), ("FC_STEP", cmd.step)):
+                            ("FC_REM", cmd.remaining_m), ("FC_SOLV", cmd.solver_time_s), ("FC_STEP", cmd.step),
+                            ("FC_REJ", rejected[0]), ("FC_FIXREJ", rejected[1])):
             if math.isfinite(value):
                 link.send_named_float(name, value)
         if cmd.phase != Phase.CRUISE or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):

@@ -133,6 +133,9 @@ class Reporting:
             "elements": ELEMENT_SETS[app.elements_code].label if app.elements_code else "",
             "bias": list(app.bias) if app.bias is not None else None,
             "mag_excluded_steps": app.plausibility.excluded, "resumed_from": app.resume.resumed_from,
+            # the current mission's rejections: periods the navigator rejected, fixes beyond its gate
+            "nav_rejected": {"periods": getattr(app.mission, "rejected_measurements", 0),
+                             "fixes": getattr(app.mission, "rejected_fixes", 0)},
             "mode_commands": {"confirmed": app.modes.confirmed, "expired": app.modes.expired,
                               "pending": sorted(p.name for p in app.modes.pending.values())},
             "operator": {"held": app.operator.held, "start_requested": app.operator.start_requested,

@@ -7,6 +7,8 @@ import socket
 import time
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
@@ -29,6 +31,20 @@ NAN, INF = math.nan, math.inf
 def test_guard_refuses_nan_infinite_negative_and_over_limit(course, speed, limit):
     with pytest.raises(UnsafeSetpoint):
         guard_setpoint(course, speed, limit)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(), st.floats(), st.floats())
+def test_guard_passes_only_finite_setpoints_within_the_limit(course, speed, limit):
+    """Whatever floats arrive, the guard refuses or returns a finite setpoint no faster than the
+    finite, positive limit, its yaw in (-pi, pi]: the last edge before the wire (send_setpoint)."""
+    try:
+        sp = guard_setpoint(course, speed, limit)
+    except UnsafeSetpoint:
+        return
+    assert math.isfinite(limit) and limit > 0.0
+    assert all(math.isfinite(v) for v in (sp.vn_mps, sp.ve_mps, sp.yaw_rad))
+    assert math.hypot(sp.vn_mps, sp.ve_mps) <= limit * (1.0 + 1e-12) and -math.pi < sp.yaw_rad <= math.pi
 
 
 def test_guard_velocity_components_and_yaw_wrap():

@@ -31,7 +31,7 @@ from geographiclib.geodesic import Geodesic
 
 from companion.nav.elements import element_set
 from companion.nav.field import decl_incl_gradient, model_for_date
-from companion.nav.mission import Measurement, Mission, Phase, compensation
+from companion.nav.mission import REJECTED, Measurement, Mission, Phase, compensation
 from companion.params import Controller, NavConfig, validate_all
 from sitl.inprocess import fly_in_process
 from sitl.scenario import load_scenario
@@ -242,7 +242,8 @@ BAD = {
 @pytest.mark.parametrize("at_step", [1, 2, 5])
 def test_bad_measurement_holds_and_changes_nothing(model, controller, kind, at_step):
     """Mission B receives a bad measurement before good measurement k; mission A never does.
-    B answers HOLD at zero speed and then continues exactly like A."""
+    B answers HOLD with its last command flown on, counts the rejection, and then continues
+    exactly like A."""
     nav = nav_config(NAV_CONTROLLER=controller)
     world, a, b = NoiselessWorld(nav, model), Mission(nav, model), Mission(nav, model)
     meas = world.measure()
@@ -251,8 +252,9 @@ def test_bad_measurement_holds_and_changes_nothing(model, controller, kind, at_s
         meas = world.fly(cmd_a)
         if k == at_step:
             held = b.step(BAD[kind](meas, meas.time_s - nav.period_s))
-            assert held.phase == Phase.HOLD and held.speed_mps == 0.0 and not held.done
-            assert math.isfinite(held.course_rad) and held.reason
+            assert held.phase == Phase.HOLD and not held.done and held.reason.startswith(REJECTED)
+            assert (held.course_rad, held.speed_mps) == (cmd_b.course_rad, cmd_b.speed_mps) and held.speed_mps > 0.0
+            assert b.rejected_measurements == 1
             assert held.step == k  # the step counter did not move
         cmd_a, cmd_b = a.step(meas), b.step(meas)
         np.testing.assert_equal(comparable(cmd_b), comparable(cmd_a))  # NaN fields compare equal
@@ -263,7 +265,7 @@ def test_bad_first_measurement_holds_before_the_mission_starts(model, kind):
     nav = nav_config(NAV_CONTROLLER=FC)
     world, mission = NoiselessWorld(nav, model), Mission(nav, model)
     held = mission.step(BAD[kind](world.measure(), 0.0))
-    assert held.phase == Phase.HOLD and held.speed_mps == 0.0 and held.step == 0
+    assert held.phase == Phase.HOLD and held.speed_mps == 0.0 and held.step == 0   # no command yet: none flown on
     assert held.course_rad == 0.0
     first = mission.step(world.measure())
     assert first.phase == Phase.PROBE_1
@@ -276,7 +278,7 @@ def test_nan_averaging_window_is_a_bad_measurement(model):
     for _ in range(3):
         command = mission.step(world.fly(command))
     held = mission.step(dataclasses.replace(world.fly(command), window_s=math.nan))
-    assert held.phase == Phase.HOLD and held.speed_mps == 0.0
+    assert held.phase == Phase.HOLD and held.speed_mps == command.speed_mps > 0.0
 
 
 # --- seeded missions in the simulated world ---------------------------------------------------------

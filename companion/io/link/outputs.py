@@ -15,12 +15,20 @@ import math
 from companion.io.link.conventions import UnsafeSetpoint, guard_setpoint, mavlink
 from companion.io.position_feed import gps_week_time
 
-__all__ = ["EXT_POS_TIME_WRAP_S", "STATUSTEXT_CHUNK", "LinkOutputs"]
+__all__ = ["EXT_POS_TIME_WRAP_S", "FLOAT32_MAX", "STATUSTEXT_CHUNK", "LinkOutputs", "float32"]
 
 GPS_INPUT_IGNORE = (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ | mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT
                     | mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
 STATUSTEXT_CHUNK = 50
 EXT_POS_TIME_WRAP_S = 250.0   # MAV_CMD_EXTERNAL_POSITION_ESTIMATE param1: wrap <= 250 s
+FLOAT32_MAX = 3.4028234663852886e38
+
+
+def float32(value: float) -> float:
+    """``value`` as a MAVLink float field can carry it: beyond float32's range, +-inf (pymavlink's
+    packing raises OverflowError on such a finite value: a period's F of 1e39 nT stopped the step)."""
+    value = float(value)
+    return math.copysign(math.inf, value) if math.isfinite(value) and abs(value) > FLOAT32_MAX else value
 
 
 class LinkOutputs:
@@ -97,7 +105,7 @@ class LinkOutputs:
     def send_named_float(self, name: str, value: float) -> None:
         if len(name) > 10:
             raise ValueError(f"NAMED_VALUE_FLOAT name {name!r} longer than 10 characters")
-        self.mav.named_value_float_send(self.time_boot_ms(), name.encode("ascii"), float(value))
+        self.mav.named_value_float_send(self.time_boot_ms(), name.encode("ascii"), float32(value))
 
     def send_named_int(self, name: str, value: int) -> None:
         if len(name) > 10:
@@ -138,7 +146,7 @@ class LinkOutputs:
         """
         if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and -90.0 <= lat_deg <= 90.0):
             return False
-        accuracy = float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
+        accuracy = float32(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
         stamp = math.fmod(self.clock.now_s, EXT_POS_TIME_WRAP_S) if self.clock.started else 0.0
         lon = ((lon_deg + 180.0) % 360.0) - 180.0
         self.mav.command_int_send(self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL,
@@ -151,7 +159,7 @@ class LinkOutputs:
         """ODOMETRY in the flight controller's local NED frame (position only; the rest unknown)."""
         if not (math.isfinite(north_m) and math.isfinite(east_m)):
             return False
-        var = float(sigma_m) ** 2 if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
+        var = float32(float(sigma_m) ** 2) if math.isfinite(sigma_m) and sigma_m > 0.0 else math.nan
         nan = math.nan
         pose_cov = [nan] * 21
         pose_cov[0], pose_cov[6] = var, var   # upper-triangular row-major: xx at 0, yy at 6

@@ -18,8 +18,6 @@ from tests.companion.process.rig import GOOD, FakeMission, _msg, _run_step, _sen
     (replace(GOOD, course_rad=math.nan), "non-finite command"),
     (replace(GOOD, speed_mps=math.inf), "non-finite command"),
     (replace(GOOD, solver_ok=False, reason="QP failed: max iterations"), "solver failure"),
-    (replace(GOOD, solver_ok=False, reason="navigation core error: ValueError: latitude 123 deg outside [-90, 90]"),
-     "FAILSAFE: navigation core error: ValueError"),
     (replace(GOOD, fix_lat_deg=33.5), "diverged"),                    # 111 km from the estimate
 ])
 def test_navigation_failure_holds_and_restarts(rig, bad, why):
@@ -98,7 +96,8 @@ def test_odometry_when_selected(rig):
 def test_real_mission_first_step_probes_east(rig):
     app, fc = rig
     app.mission = Mission(NavConfig.from_values(default_values()))
-    app.mag.averager.add(0.5, -1.5, 48.0)
+    h, z = 45000.0 * math.cos(math.radians(48.0)), 45000.0 * math.sin(math.radians(48.0))   # F 45,000 nT
+    app.mag.averager.add(0.5, -1.5, 48.0, (h * math.cos(math.radians(-1.5)), h * math.sin(math.radians(-1.5)), z))
     app.stepper.step(1.0, window_limit_s=0.0)
     assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)
 
@@ -228,3 +227,33 @@ def test_a_step_records_its_latency_and_the_parts_the_benchmark_splits_it_into(r
     parts = s.average_latency_s[0] + s.judge_latency_s[0] + s.core_latency_s[0]
     assert 0.0 < parts <= s.step_latency_s[0]
     assert all(v > 0.0 for v in (s.average_latency_s[0], s.judge_latency_s[0], s.core_latency_s[0]))
+
+
+def test_a_rejected_period_is_said_counted_and_the_last_command_flies_on(rig):
+    """The navigator's answer to a period it rejected (phase HOLD, the last command flown on):
+    over the socket, a WARNING naming the reason, the counts as FC_REJ / FC_FIXREJ, and the
+    setpoint stream going on at the last command's course and speed; no failsafe."""
+    app, fc = rig
+    _run_step(app, GOOD)
+    _sent(fc)
+    held = replace(GOOD, phase="hold", est_sigma_m=math.nan, fix_lat_deg=math.nan, fix_lon_deg=math.nan,
+                   reason="measurement rejected: ValueError: latitude 115.94 deg outside [-90, 90]")
+    mission = FakeMission(held)
+    mission.rejected_measurements, mission.rejected_fixes = 1, 7
+    app.command = None                       # judged as a first step: the stand-in core has no field model
+    app.mission = mission
+    app.mag.averager.add(1.5, 1.0, 50.0)
+    app.stepper.step(2.0)
+    app.next_tick = -math.inf
+    app.tick()
+    sent = _sent(fc)
+    [said] = [m for m in sent if m.get_type() == "STATUSTEXT" and "phase hold" in m.text]
+    texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")   # (sent in chunks)
+    assert "measurement rejected: ValueError" in texts and said.severity == mavlink.MAV_SEVERITY_WARNING
+    counts = {m.name: m.value for m in sent if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert counts["FC_REJ"] == 1.0 and counts["FC_FIXREJ"] == 7.0
+    setpoints = [m for m in sent if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+    assert setpoints and all(m.yaw == pytest.approx(GOOD.course_rad) for m in setpoints)
+    assert math.hypot(setpoints[-1].vx, setpoints[-1].vy) == pytest.approx(GOOD.speed_mps, rel=1e-6)
+    assert app.state == State.RUNNING and app.restarts == 0
+    assert app.reporting.summary()["nav_rejected"] == {"periods": 1, "fixes": 7}
