@@ -55,9 +55,10 @@ def fly_storm_and_compare(tmp_path, shared_data, scenario: str) -> None:
                          data_dir=str(shared_data), short=True, short_km=STORM_ROUTE_KM, nice=YIELD_NICE)
     result = fly(options)
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
-    # the world's ground station set the storm's Kp over the link: the companion declared the storm at start
+    # the world's ground station set the storm's Kp over the link as it is published (the last completed
+    # interval's quick-look value, after its delay): the companion declared the storm on it
     events = json.loads((Path(result.out_dir) / "companion" / "summary.json").read_text())["events"]
-    assert any("storm declared: NAV_KP 8.667" in e for e in events), [e for e in events if "storm" in e]
+    assert any("storm declared: NAV_KP" in e for e in events), [e for e in events if "storm" in e]
     # ... and the world's ground station kept NAV_SYMH up to date: the companion removes the ring current
     assert any("ring current removed: NAV_SYMH" in e for e in events), [e for e in events if "ring" in e]
     dest = (result.dest_lat_deg, result.dest_lon_deg)

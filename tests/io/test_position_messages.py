@@ -53,10 +53,11 @@ def test_a_gps_fix_beyond_the_earth_is_not_valid(lat_e7, lon_e7):
     assert sample.valid == on_earth
 
 
-def test_an_ins_position_beyond_the_earth_fails_the_mission_instead_of_raising():
-    """The navigation core's last guard: an INS position that reaches it beyond the Earth (from
-    a source other than MAVLink) ends the mission FAILED with the error named, for the companion's
-    failsafe (a restart from the last estimate), instead of an exception through the companion."""
+def test_an_ins_position_beyond_the_earth_is_a_rejected_period_not_an_error():
+    """The navigation core's last guard: an INS position that reaches it beyond the Earth (from a
+    source other than MAVLink) is a measurement it rejects (issue 47: the navigator never raises on a
+    measurement, nor ends the mission on one): the period is held with the reason named and counted,
+    the last command flies on, and nothing of the mission changes."""
     config = NavConfig()
     mission = Mission(config)
     mission.set_start_fix(2.5)
@@ -64,9 +65,11 @@ def test_an_ins_position_beyond_the_earth_fails_the_mission_instead_of_raising()
     for k in range(5):
         e = mission.model.elements(lat, lon, config.alt_m, config.year)
         ins = (lat, lon) if k < 4 else (123.0, lon)
+        last = cmd if k else None
         cmd = mission.step(Measurement(360.0 * k, e.decl_deg, e.incl_deg, *ins, 360.0, e.f_nt))
         lat, lon = lat - 0.02, lon + 0.02
-    assert cmd.phase == Phase.FAILED and cmd.done and not cmd.solver_ok
-    assert cmd.reason.startswith("navigation core error: ValueError: latitude 123"), cmd.reason
+    assert cmd.phase == Phase.HOLD and not cmd.done, (cmd.phase, cmd.reason)
+    assert cmd.reason.startswith("measurement rejected") and "123" in cmd.reason, cmd.reason
+    assert mission.rejected_measurements == 1
     assert math.isfinite(cmd.est_lat_deg) and -90.0 <= cmd.est_lat_deg <= 90.0
-    assert cmd.speed_mps == 0.0
+    assert (cmd.course_rad, cmd.speed_mps) == (last.course_rad, last.speed_mps)   # the last command flies on
