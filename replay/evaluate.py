@@ -11,7 +11,7 @@ import numpy as np
 from companion.nav.field import PositionFixError, WorldMagneticModel, decl_incl_gradient, geomagnetic_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
-from companion.nav.magnetometer import PeriodAverager
+from companion.nav.period import PeriodAverager
 from replay.di import measure_di, segment_rows
 from replay.heading import model_di_gradient, run_mission
 from replay.ins import ins_drift
