@@ -9,7 +9,9 @@ from companion import wrap_2pi
 from companion.nav.field import WorldMagneticModel, decl_incl_gradient
 from companion.nav.elements import ElementSet
 from companion.nav.geo import geodesic_distance_m, geodesic_inverse
-from companion.nav.mission import Measurement, Mission, Phase
+from companion.nav.mission import Mission, Phase
+from companion.nav.navigator import Navigator, Period
+from companion.nav.period import PeriodAverage
 from companion.params import Controller, NavConfig, default_values
 from replay.records import HeadingRow, WindowRecord
 from replay.stats import interp_gps, percentile, wrap180
@@ -45,11 +47,13 @@ def run_mission(recs: list[WindowRecord], w: float, model: WorldMagneticModel, y
         s_min_d=-180.0, s_max_d=180.0, s_min_i=-90.0, s_max_i=90.0,
         elements=ElementSet.PAPER)   # the windows measure the paper's pair, D and I
     mission = Mission(config, model)
+    navigator = Navigator(mission)   # the companion's step: the plausibility judge included
     diffs, ideal_diffs, est_errors = [], [], []
     last_phase, reason = "", ""
     for k, r in enumerate(recs):
         ins_lat, ins_lon = ins_latlon(r.end_s)
-        cmd = mission.step(Measurement(r.end_s, r.decl_deg, r.incl_deg, ins_lat, ins_lon, window_s=w))
+        average = PeriodAverage(r.decl_deg, r.incl_deg, r.count, r.centre_s, r.start_s, r.end_s)
+        cmd = navigator.step(Period(r.end_s, average, w, ins_lat, ins_lon)).command or navigator.command
         last_phase, reason = cmd.phase, cmd.reason
         if cmd.phase == Phase.CRUISE:
             la, lo, _ = interp_gps(gps, r.end_s)
