@@ -162,7 +162,7 @@ def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellip
 
     def inside(**changes) -> int:
         nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **changes}))
-        assert nav.bias_heading_deg > 0.0 or changes
+        assert nav.filter.bias.heading_deg > 0.0 or changes
         runs = [fly_in_process(nav, scenario, seed, truth, keep_commands=True) for seed in range(10)]
         return sum(int(nees_per_step(r)[-1] <= CHI2_95_2DOF) for r in runs)
 
