@@ -84,7 +84,7 @@ def test_a_field_name_promises_the_unit_its_entry_delivers():
 def test_a_class_cannot_hold_a_field_or_a_default_of_its_own():
     with pytest.raises(RuntimeError, match="no registry entry"):
         @settings("fusion")
-        class Extra:        # noqa: F841  (the decorator raises)
+        class Extra:
             qc_m2: float
             rc_m2: float
             p0_m2: float
@@ -92,14 +92,14 @@ def test_a_class_cannot_hold_a_field_or_a_default_of_its_own():
             gain: float
     with pytest.raises(RuntimeError, match="no default of its own"):
         @settings("fusion")
-        class Defaulted:    # noqa: F841
+        class Defaulted:
             qc_m2: float = 50e3
             rc_m2: float
             p0_m2: float
             feedback: int
     with pytest.raises(RuntimeError, match=r"no field for registry group 'fusion' field\(s\) \['feedback'\]"):
         @settings("fusion")
-        class Missing:      # noqa: F841
+        class Missing:
             qc_m2: float
             rc_m2: float
             p0_m2: float

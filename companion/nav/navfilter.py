@@ -63,14 +63,13 @@ as ``z = y + H x`` so its ``z - H x`` is our innovation.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import field, replace
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
-from companion.nav.disturbance import (COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk,
-                                       field_jacobian)
+from companion.nav.disturbance import COMPONENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk, field_jacobian
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_values_and_gradient
 from companion.nav.geo import enu_offset, offset_position
