@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import field, replace
 
 from companion.nav.fusion import FusionSettings, ModelError
-from companion.nav.navfilter import FilterSettings
+from companion.nav.filter_settings import FilterSettings
 from companion.registry import settings
 
 __all__ = ["Controller", "NavConfig"]

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from companion.nav.navfilter import BiasSpec
+from companion.nav.filter_settings import BiasSpec
 from companion.registry import settings
 
 __all__ = ["FusionFeedback", "FusionSettings", "FusionResult", "InsGeomagFusion", "H_B", "ModelError"]
