@@ -8,7 +8,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _run(*args: str, module: str = "scripts.replay") -> subprocess.CompletedProcess:
+def _run(*args: str, module: str = "fcmpc.replay.cli") -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", module, *args], cwd=REPO, capture_output=True,
                           text=True, timeout=120)
 
