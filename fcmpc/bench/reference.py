@@ -26,7 +26,7 @@ __all__ = ["ISSUE_SPEEDUP", "REFERENCE_COMMIT", "SAME_WORKLOAD", "WIDER_WORK", "
            "compare", "format_comparison", "resolve"]
 
 REFERENCE_COMMIT = "9a267ba"
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # our row -> the reference's row measuring the same work (otherwise rows pair by name)
 SAME_WORKLOAD = {"mission step (cruise), Fc-MPC, the paper's estimator": "mission step (cruise), Fc-MPC",

@@ -50,7 +50,7 @@ from sitl.scenario import Scenario, load_scenario
 __all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
            "REPO", "SHORT_KM"]
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SHORT_KM = 80.0
 # Lockstep boundaries: the simulator applies setpoints only at boundaries, so the period must stay
 # below the autopilot's setpoint timeout (ArduPilot GUIDED 3 s, PX4 offboard loss 1 s).

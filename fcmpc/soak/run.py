@@ -34,7 +34,7 @@ from fcmpc.soak.hostile import CLASSES, Hostile
 
 __all__ = ["SoakResult", "format_table", "judge_setpoints", "soak"]
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PERIOD_S = 60.0         # 600 m probing moves at cruise: enough for the gradient
 CRUISE_KMH = 36.0
 SOURCE_PORTS = 64        # more than the companion's peer table (32): eviction is exercised
