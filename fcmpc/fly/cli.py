@@ -3,7 +3,7 @@
     fcmpc-fly                                  # the Pacific mission in the realistic world, closed-loop, lockstep
     fcmpc-fly --short                          # the first 80 km of it (a minute of wall time less)
     fcmpc-fly --scenario paper_pacific         # the paper's idealised Pacific (it says what it gives)
-    fcmpc-fly --scenario long_storm --seed 3 --compare
+    fcmpc-fly --scenario long_storm --seed 3 --compare   # storm-time parameters fitted on the other storms
     fcmpc-fly --autopilot px4 --speedup 500    # PX4 OFFBOARD, paced instead of lockstep
     fcmpc-fly --fc ardupilot --short           # against real ArduPilot Rover SITL (README: Flying with ArduPilot)
     fcmpc-fly --fc px4 --short --short-km 30   # against real PX4 SITL with SIH (README: Flying with PX4)
@@ -72,6 +72,10 @@ def build_parser() -> ArgumentParser:
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="companion parameter (repeatable), checked against the registry before anything starts")
+    p.add_argument("--storm-params", default="loo", metavar="loo|registry|NAMES",
+                   help="a storm world's storm-time parameters (fcmpc-fit-storms): loo (default) fitted on every "
+                        "other storm of the library, NAMES a comma list of storms to fit on, registry the "
+                        "registry's (fitted on may2024); refused when fitted on the world's own storm")
     p.add_argument("--compare", action="store_true", help="also fly the same seed in-process and print it")
     p.add_argument("--out-dir", default=None, help="records folder; default out/fly/<scenario>-s<seed>-<time>")
     p.add_argument("--timeout", type=float, default=3600.0, metavar="S",
@@ -100,6 +104,7 @@ def _run(argv: list[str] | None) -> int:
                          fc_instance=args.fc_instance, compass=args.compass)
     try:
         scenario, _, _ = prepare(options)          # nothing is written before this passes
+        options = _with_storm_params(options, scenario, args.storm_params)
     except ValueError as err:     # ScenarioError, ParamError and the option checks
         raise UsageError(str(err)) from None
     gifted = gift_line(scenario) if options.fc == "sim" else ""   # real firmware flies in its own world
@@ -126,6 +131,22 @@ def _run(argv: list[str] | None) -> int:
         if gifted:
             print(f"fcmpc-fly: {gifted}")
     return result.exit_code
+
+
+def _with_storm_params(options: FlyOptions, scenario, spec: str) -> FlyOptions:
+    """The options with a storm world's storm-time parameters fitted without its storm (``spec``: loo,
+    a comma list of storms, or registry), said on stderr; a ``--param`` the user gave wins. A world
+    without a storm, or ``registry``, flies as given."""
+    from dataclasses import replace
+
+    from fcmpc.montecarlo.fit_storms import storm_params_for
+
+    if not scenario.storm.enabled or spec.strip().lower() == "registry":
+        return options
+    fitted, names = storm_params_for(scenario, spec, options.data_dir)
+    print(f"fcmpc-fly: storm-time parameters fitted on {','.join(names)}, not on {scenario.storm.event} "
+          f"(--storm-params {spec})", file=sys.stderr, flush=True)
+    return replace(options, extra_params={**fitted, **options.extra_params})
 
 
 def main(argv: list[str] | None = None) -> int:

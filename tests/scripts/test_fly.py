@@ -162,3 +162,24 @@ def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, c
     said = [line for line in (printed.err + printed.out).splitlines() if "hands the navigator" in line]
     assert len(said) == (2 if gifted else 0)
     assert all(line.startswith(f"fcmpc-fly: {scenario} hands") and "the true heading" in line for line in said)
+
+
+def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypatch, capsys):
+    """fcmpc-fly scores a storm world as fcmpc-montecarlo does: its storm-time parameters fitted on
+    the library's other storms (the committed .parm of that fit is the reference), a --param wins,
+    and parameters fitted on the world's own storm are refused before anything flies."""
+    import fcmpc.fly.cli
+    from companion.params import read_parm_file
+
+    flown = []
+    monkeypatch.setattr(fcmpc.fly.cli, "fly", lambda options: flown.append(options) or _result("arrived", 128.0))
+    assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--param", "FUS_BQA_N=12"]) == 0
+    said = capsys.readouterr().err
+    assert "fitted on halloween2003,march2011,stpatrick2015, not on may2024" in said
+    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015.parm")
+    given = flown[0].extra_params
+    assert given["FUS_BQA_N"] == 12
+    assert {k: v for k, v in committed.items() if k != "FUS_BQA_N"} == {
+        k: pytest.approx(given[k], abs=0.051) for k in committed if k != "FUS_BQA_N"}
+    assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--storm-params", "may2024"]) == 2
+    assert "fitted on may2024" in capsys.readouterr().err and len(flown) == 1
