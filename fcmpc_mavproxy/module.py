@@ -111,6 +111,8 @@ class FcmpcModule(mp_module.MPModule):
         self.pending: dict[int, str] = {}     # command -> the word typed, until its COMMAND_ACK
         self.next_param_request = 0.0
         self.drawn: dict[str, tuple] = {}   # map module's name -> (its map, the shapes it shows)
+        self.reported: tuple = ()
+        self.shapes: tuple[MapShape, ...] = ()
         self.add_command("fcmpc", self.cmd_fcmpc, "Fc-MPC companion",
                          ["<status|hold|resume|start>", "<param|help> (FCMPCPARAM)"])
         self.add_completion_function("(FCMPCPARAM)", lambda text: [s.name for s in REGISTRY])
@@ -195,7 +197,10 @@ class FcmpcModule(mp_module.MPModule):
         maps = self.module_matching("map*")
         if not maps:
             return
-        shapes = tuple(map_shapes(self.reader))
+        reported = (self.reader.estimate, self.reader.cov_ne_m2, self.reader.destination)
+        if reported != self.reported:       # idle_task runs at hundreds of Hz; the status changes at 1 Hz
+            self.reported, self.shapes = reported, tuple(map_shapes(self.reader))
+        shapes = self.shapes
         for mod in maps:
             slipmap, before = self.drawn.get(mod.name, (None, ()))
             if slipmap is mod.map and before == shapes:

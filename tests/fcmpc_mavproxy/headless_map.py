@@ -14,7 +14,9 @@ object's own ``draw(img, pixmapper, bounds)``, the pixmapper being the map's Web
 (mp_tile.MPTile.coord_to_pixel from the view's top-left corner). No tiles: the image is black.
 
 Console: ``hmap view LAT LON GROUND_WIDTH_M`` centres an 800 x 600 view on LAT, LON with that width
-on the ground there; ``hmap save PATH`` draws it and writes ``PATH.npy`` (the RGB image) and
+on the ground there; ``hmap fit KEY OUTLINE`` centres it on object KEY, 8 times as wide as the
+farthest point of polygon OUTLINE from it (the polygon across a quarter of the view, whatever the
+objects are when the command runs); ``hmap save PATH`` draws the view and writes ``PATH.npy`` (the RGB image) and
 ``PATH.json`` (the view, the objects, the GLOBAL_POSITION_INT_COV messages heard from component
 191). Each change prints ``hmap: added KEY at LAT,LON`` or ``hmap: removed KEY``.
 """
@@ -117,7 +119,7 @@ class HeadlessMapModule(mp_module.MPModule):
         self.map = HeadlessSlipMap(tile_cache="tiles")
         self.view = View.centred(self.map.tiles, -35.362938, 149.165085, 1000.0)     # MPSlipMap's defaults
         self.heard: list[dict] = []
-        self.add_command("hmap", self.cmd_hmap, "headless map", ["<view|save>"])
+        self.add_command("hmap", self.cmd_hmap, "headless map", ["<view|fit|save>"])
 
     def mavlink_packet(self, msg) -> None:
         if msg.get_type() == "GLOBAL_POSITION_INT_COV" and msg.get_srcComponent() == COMPANION:
@@ -125,8 +127,13 @@ class HeadlessMapModule(mp_module.MPModule):
             del self.heard[:-50]
 
     def cmd_hmap(self, args: list[str]) -> None:
+        objects = self.map.objects()
         if len(args) == 4 and args[0] == "view":
             self.view = View.centred(self.map.tiles, float(args[1]), float(args[2]), float(args[3]))
+        elif len(args) == 3 and args[0] == "fit" and args[1] in objects and args[2] in objects:
+            lat, lon = objects[args[1]].latlon
+            reach = max(mp_util.gps_distance(lat, lon, p[0], p[1]) for p in objects[args[2]].points)
+            self.view = View.centred(self.map.tiles, lat, lon, 8.0 * reach)
         elif len(args) == 2 and args[0] == "save":
             np.save(args[1] + ".npy", self.map.draw(self.view))
             record = {"view": asdict(self.view), "heard": self.heard,
@@ -135,7 +142,7 @@ class HeadlessMapModule(mp_module.MPModule):
                 json.dump(record, out, allow_nan=True)
             print(f"hmap: saved {args[1]}")
         else:
-            print("usage: hmap view LAT LON GROUND_WIDTH_M | hmap save PATH")
+            print("usage: hmap view LAT LON GROUND_WIDTH_M | hmap fit KEY OUTLINE | hmap save PATH")
 
     def unload(self) -> None:
         self.remove_command("hmap")
