@@ -22,6 +22,7 @@ from MAVProxy.modules.mavproxy_map import mp_tile  # noqa: E402
 
 from companion.operator_status import StatusReader  # noqa: E402
 from fcmpc_mavproxy.module import map_shapes, update_map  # noqa: E402
+from tests.companion.process.conftest import rig  # noqa: E402,F401  (the fixture: the companion on the rig)
 from tests.companion.process.rig import GOOD, _run_step, _sent, make_rig  # noqa: E402
 from tests.companion.process.test_operator_commands import GCS, _from  # noqa: E402
 from tests.companion.process.test_phases import _at  # noqa: E402
@@ -106,15 +107,6 @@ def assert_icon_drawn(img: np.ndarray, expected_px: tuple[int, int], icon_file: 
 def assert_nothing_at(img: np.ndarray, px: tuple[int, int], radius: int = 12) -> None:
     x, y = px
     assert not img[max(y - radius, 0):y + radius, max(x - radius, 0):x + radius].any(), f"something drawn at {px}"
-
-
-@pytest.fixture
-def rig(tmp_path):
-    """The companion process driven message by message, its sockets real (tests/companion/process/rig.py)."""
-    app, fc = make_rig(tmp_path)
-    yield app, fc
-    app.close()
-    fc.close()
 
 
 def _status(app, fc) -> tuple[StatusReader, object]:
