@@ -21,7 +21,7 @@ scipy_stats = pytest.importorskip("scipy.stats")
 from MAVProxy.modules.mavproxy_map import mp_tile  # noqa: E402
 
 from companion.operator_status import StatusReader  # noqa: E402
-from fcmpc_mavproxy.module import map_shapes, update_map  # noqa: E402
+from fcmpc.mavproxy.module import map_shapes, update_map  # noqa: E402
 from tests.companion.process.conftest import rig  # noqa: E402,F401  (the fixture: the companion on the rig)
 from tests.companion.process.rig import GOOD, _run_step, _sent, make_rig  # noqa: E402
 from tests.companion.process.test_operator_commands import GCS, _from  # noqa: E402
