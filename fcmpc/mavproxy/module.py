@@ -24,7 +24,8 @@ from companion.operator_status import COMPANION_COMPONENT, DEST_PARAMS, FEED_PAR
 from companion.registry import REGISTRY, SPEC_BY_NAME, ParamSpec
 from fcmpc.mavproxy.ellipse import ellipse_axes, ellipse_points
 
-__all__ = ["ELLIPSE_P", "FcmpcModule", "MapShape", "describe_param", "init", "map_shapes"]
+__all__ = ["ELLIPSE_P", "MAP_KEYS", "MAP_LAYER", "FcmpcModule", "MapShape", "describe_param", "init",
+           "map_shapes", "update_map"]
 
 ELLIPSE_P = 0.95
 PARAM_REFRESH_WALL_S = 10.0      # NAV_DEST_* and the feed's values asked for again this often
@@ -32,6 +33,7 @@ COMMANDS = {"hold": (mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 0.0),
             "resume": (mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 1.0),
             "start": (mavutil.mavlink.MAV_CMD_MISSION_START, 0.0)}
 MAP_KEYS = ("fcmpc:ellipse", "fcmpc:estimate", "fcmpc:destination")
+MAP_LAYER = "FcMPC"
 USAGE = "usage: fcmpc <status|hold|resume|start|param NAME|help NAME>"
 
 
@@ -78,16 +80,27 @@ def map_shapes(reader: StatusReader) -> list[MapShape]:
 
 
 def _slip_objects(shapes: list[MapShape], slipmap):
-    """MAVProxy's slip objects for ``shapes`` (``slipmap``: the map module's ``map``)."""
-    from MAVProxy.modules.mavproxy_map import mp_slipmap   # needs OpenCV: only with a map loaded
+    """MAVProxy's slip objects for ``shapes`` (``slipmap``: the map module's ``map``). They come from
+    mp_slipmap_util, where they are defined (mp_slipmap re-exports them but also imports wxPython)."""
+    from MAVProxy.modules.mavproxy_map import mp_slipmap_util   # needs OpenCV: only with a map loaded
 
     for shape in shapes:
         if shape.kind == "polygon":
-            yield mp_slipmap.SlipPolygon(shape.key, list(shape.points), layer="FcMPC", colour=shape.colour,
-                                         linewidth=2, showcircles=False)
+            yield mp_slipmap_util.SlipPolygon(shape.key, list(shape.points), layer=MAP_LAYER, colour=shape.colour,
+                                              linewidth=2, showcircles=False)
         else:
-            yield mp_slipmap.SlipIcon(shape.key, shape.latlon, slipmap.icon(shape.icon), layer="FcMPC",
-                                      label=shape.label, colour=shape.colour)
+            yield mp_slipmap_util.SlipIcon(shape.key, shape.latlon, slipmap.icon(shape.icon), layer=MAP_LAYER,
+                                           label=shape.label, colour=shape.colour)
+
+
+def update_map(slipmap, shapes: tuple[MapShape, ...], before: tuple[MapShape, ...] = ()) -> None:
+    """Show ``shapes`` on ``slipmap`` (MAVProxy's MPSlipMap: an object added under a key it already
+    shows replaces it) and take away those of ``before`` that ``shapes`` no longer has (the ellipse
+    once the covariance is unknown)."""
+    for key in sorted({s.key for s in before} - {s.key for s in shapes}):
+        slipmap.remove_object(key)
+    for obj in _slip_objects(list(shapes), slipmap):
+        slipmap.add_object(obj)
 
 
 class FcmpcModule(mp_module.MPModule):
@@ -97,7 +110,9 @@ class FcmpcModule(mp_module.MPModule):
         self.reader = StatusReader(system=self.target_system or 1, component=COMPANION_COMPONENT)
         self.pending: dict[int, str] = {}     # command -> the word typed, until its COMMAND_ACK
         self.next_param_request = 0.0
-        self.drawn: tuple | None = None
+        self.drawn: dict[str, tuple] = {}   # map module's name -> (its map, the shapes it shows)
+        self.reported: tuple = ()
+        self.shapes: tuple[MapShape, ...] = ()
         self.add_command("fcmpc", self.cmd_fcmpc, "Fc-MPC companion",
                          ["<status|hold|resume|start>", "<param|help> (FCMPCPARAM)"])
         self.add_completion_function("(FCMPCPARAM)", lambda text: [s.name for s in REGISTRY])
@@ -124,6 +139,7 @@ class FcmpcModule(mp_module.MPModule):
         for mod in self.module_matching("map*"):
             for key in MAP_KEYS:
                 mod.map.remove_object(key)
+        self.drawn.clear()
         self.remove_command("fcmpc")
         super().unload()
 
@@ -176,17 +192,21 @@ class FcmpcModule(mp_module.MPModule):
 
     # ------------------------------------------------------------------ the map
     def draw(self) -> None:
+        """Each map module shows the latest shapes: re-drawn when they change, and in full on a map
+        loaded (or re-loaded) after the module."""
         maps = self.module_matching("map*")
         if not maps:
             return
-        shapes = map_shapes(self.reader)
-        key = tuple(shapes)
-        if key == self.drawn:
-            return
-        self.drawn = key
+        reported = (self.reader.estimate, self.reader.cov_ne_m2, self.reader.destination)
+        if reported != self.reported:       # idle_task runs at hundreds of Hz; the status changes at 1 Hz
+            self.reported, self.shapes = reported, tuple(map_shapes(self.reader))
+        shapes = self.shapes
         for mod in maps:
-            for obj in _slip_objects(shapes, mod.map):
-                mod.map.add_object(obj)
+            slipmap, before = self.drawn.get(mod.name, (None, ()))
+            if slipmap is mod.map and before == shapes:
+                continue
+            update_map(mod.map, shapes, before if slipmap is mod.map else ())
+            self.drawn[mod.name] = (mod.map, shapes)
 
 
 def init(mpstate) -> FcmpcModule:
