@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from companion.failsafe import diverged
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.mission import Measurement, Phase
 from companion.nav.navigator import SETTLE_AFTER_COMMAND_S, Navigator, Period, StepResult
