@@ -46,6 +46,15 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     return _fly_on(options, "px4", fly_px4, 10.0, COMPANION_VALUES)
 
 
+def _current(options: FlyOptions, scenario) -> tuple[float, float]:
+    """The water's current of this seed in the scenario's world (our world as the firmware's physics)."""
+    if options.physics != "json":
+        return (0.0, 0.0)
+    from sitl.world.vehicle import MotionErrors
+
+    return MotionErrors.draw(scenario.motion, np.random.default_rng(options.seed)).current_en_mps
+
+
 def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:
     from sitl.firmware.flight import FirmwareFlight
 
@@ -60,7 +69,7 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
         instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass,
+        compass=options.compass, physics=options.physics, current_en_mps=_current(options, scenario),
         quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \

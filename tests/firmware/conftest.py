@@ -44,6 +44,7 @@ class Rig:
     """ArduPilot + monitor + (later) the companion process of one test."""
 
     quiet = True      # the companion's own lines on stderr (companion.err) or not
+    companion_args: tuple[str, ...] = ()    # more companion options (a lockstep rig: --lockstep)
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
@@ -71,7 +72,7 @@ class Rig:
         self.companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", self.companion_url, "--params", str(parm),
              "--log-dir", str(log_dir), *(["--quiet"] if self.quiet else []),
-             *(["--startup-s", f"{startup_s:g}"] if startup_s is not None else [])],
+             *(["--startup-s", f"{startup_s:g}"] if startup_s is not None else []), *self.companion_args],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "companion.err", "wb"))
         return log_dir
 

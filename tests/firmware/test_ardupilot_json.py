@@ -1,0 +1,116 @@
+"""The companion against real ArduPilot Rover SITL with OUR world as its physics (``--model JSON``), in lockstep.
+
+The world's process (:mod:`sitl.physics.ardupilot_json`) answers every ArduPilot frame and waits
+for the companion at every lockstep boundary, so ArduPilot's clock advances only as fast as both
+answer: no wall-time pacing, nothing a loaded machine can break. It replaces the wall-paced
+GPS-lost test (197 s at 10x in CI) with the same claim, GPS denied from take-off.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from companion.io.records import read_steps_csv
+from sitl.firmware import ArduPilotSitl
+from sitl.firmware.ardupilot import free_instance
+from sitl.firmware.monitor import FirmwareMonitor
+from sitl.physics.relay import relay_port
+from sitl.physics.rig import JSON_PARAMS, start_world, stop_world
+from tests.firmware.conftest import _TAKEN, _WORKER, Rig, _binary_or_skip
+from tests.firmware.conftest import assert_forward_on as _assert_forward_on
+
+GUIDED = 15
+WALL_S = 300.0          # a hang guard: lockstep keeps no wall pace
+
+
+class JsonRig(Rig):
+    """The world's process + ArduPilot (--model JSON) + the monitor + (later) the companion via the relay."""
+
+    companion_args = ("--lockstep",)
+
+    def __init__(self, tmp_path: Path, params: dict | None = None) -> None:
+        self.tmp = tmp_path
+        tmp_path.mkdir(parents=True, exist_ok=True)
+        instance = free_instance(first=51 + (_WORKER % 4) * 10 + os.getpid() % 5, taken=_TAKEN)
+        _TAKEN.add(instance)
+        self.instance = instance
+        self.companion: subprocess.Popen | None = None
+        self.monitor = None
+        self.stats: dict = {}
+        self.world = start_world(instance, (33.0, 152.0), (0.0, 0.0), tmp_path)
+        self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, model="JSON", speedup=1e6,
+                                  params={**JSON_PARAMS, **(params or {})}, binary=_binary_or_skip())
+        self.sitl.start()
+        self.sitl.wait_listening()
+        self.monitor = FirmwareMonitor(self.sitl.serial0)
+        self.monitor.start()
+
+    @property
+    def companion_url(self) -> str:
+        return f"tcp:127.0.0.1:{relay_port(self.instance)}"
+
+    def close(self) -> dict:
+        """Stop everything by PID; the world's statistics (frames, lockstep waits and timeouts)."""
+        if self.world is None:
+            return self.stats
+        self.write_records()
+        if self.companion is not None and self.companion.poll() is None:
+            self.companion.terminate()
+            try:
+                self.companion.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.companion.kill()
+        if self.monitor is not None:
+            self.monitor.close()
+        self.stats = stop_world(self.world, self.sitl, self.tmp)
+        self.world = None
+        return self.stats
+
+
+@pytest.fixture
+def json_rig(tmp_path):
+    rigs = []
+
+    def make(name: str, params: dict | None = None) -> JsonRig:
+        rig = JsonRig(tmp_path / name, params)
+        rigs.append(rig)
+        return rig
+
+    yield make
+    for rig in rigs:
+        rig.close()
+
+
+@pytest.mark.slow
+def test_lockstep_gps_denied_from_take_off_guided_kept_and_on_course(json_rig):
+    """GPS denied the moment the boat arms: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
+    30 simulated minutes and our world's boat (moved by ArduPilot's own steering and throttle) follows the
+    companion's courses. The world waited for the companion at every boundary and never gave up."""
+    rig = json_rig("gps_denied")
+    log_dir = rig.start_companion(startup_s=30.0, NAV_DEST_LAT=28.0, NAV_DEST_LON=158.0, NAV_PERIOD_S=120.0)
+    mon = rig.monitor
+    mon.pump(lambda m: m.armed and m.mode == GUIDED, WALL_S, "armed in GUIDED")
+    mon.set_param("SIM_GPS1_ENABLE", 0)
+    mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
+    t_lost = mon.time_s
+    mon.pump(lambda m: m.truth[-1].time_s >= t_lost + 1800.0 or m.mode != GUIDED, 3 * WALL_S,
+             "30 minutes without GPS")
+    after = [s for s in mon.truth if s.time_s >= t_lost]
+    assert all(s.mode == GUIDED and s.armed for s in after), \
+        f"left GUIDED at {next(s.time_s for s in after if s.mode != GUIDED or not s.armed) - t_lost:.0f} s"
+    assert after[-1].time_s - t_lost >= 1800.0
+    assert mon.texts_matching("feeding our position", 191)
+    steps = [r for r in read_steps_csv(log_dir / "steps.csv") if r["event"] == "step"]
+    checked = 0
+    for step, following in zip(steps, steps[1:]):
+        start, end = step["msg_time_s"], following["msg_time_s"]
+        if start < t_lost or end - start < 60.0:
+            continue
+        _assert_forward_on(mon.truth, start + 60.0, end, step["course_deg"])
+        checked += 1
+    assert checked >= 10, f"only {checked} steps flown without GPS"
+    stats = rig.close()
+    assert stats["lockstep_boundaries"] > 9000 and stats["lockstep_timeouts"] == 0, stats
