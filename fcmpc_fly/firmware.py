@@ -31,6 +31,10 @@ def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
     ardupilot_binary()
     # a real compass is calibrated by the companion's circles before the mission (COMP_CAL_TURNS):
     # ArduPilot's own fixed-yaw calibration learns the offsets only (sitl/firmware/compass.py)
+    if options.physics == "json":       # our world as ArduPilot's physics, in lockstep (sitl.physics)
+        from sitl.physics.rig import fly_ardupilot_json as fly_ardupilot
+    elif options.physics != "builtin":
+        raise ValueError(f"physics {options.physics!r}: choose builtin or json")
     return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {"COMP_CAL_TURNS": 1} if options.compass == "real" else {})
 
 
@@ -69,7 +73,7 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
         instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass, physics=options.physics, current_en_mps=_current(options, scenario),
+        compass=options.compass, current_en_mps=_current(options, scenario),
         quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \

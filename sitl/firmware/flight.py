@@ -47,8 +47,7 @@ class FirmwareFlight:
     deny_gps_at_arming: bool = True
     quiet: bool = False
     compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
-    physics: str = "builtin"       # ArduPilot's physics: its own motorboat, or our world (json: sitl.physics)
-    current_en_mps: tuple[float, float] = (0.0, 0.0)   # with physics "json": the water's current (east, north)
+    current_en_mps: tuple[float, float] = (0.0, 0.0)   # our world as the physics (sitl.physics): its current (E, N)
 
 
 @dataclass
@@ -105,12 +104,6 @@ class ArduPilotRig:
 def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
     """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
     ardupilot_binary()                 # FirmwareMissing before anything is written
-    if flight.physics == "json":
-        from sitl.physics.rig import ArduPilotJsonRig
-
-        return fly_firmware(flight, ArduPilotJsonRig)
-    if flight.physics != "builtin":
-        raise ValueError(f"physics {flight.physics!r}: choose builtin or json")
     return fly_firmware(flight, ArduPilotRig)
 
 

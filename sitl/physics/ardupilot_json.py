@@ -101,6 +101,10 @@ def encode_frame(frame: PhysicsFrame, home: tuple[float, float]) -> bytes:
                               frame.pitch_rad, frame.yaw_rad, v[0], v[1])).encode("ascii")
 
 
+class _Stopped(Exception):
+    """SIGTERM or SIGINT: the world's process ends, writing its statistics."""
+
+
 @dataclass
 class JsonPhysicsConfig:
     """One run of the world behind ArduPilot: where, the boat, the water, the lockstep."""
@@ -206,13 +210,14 @@ def main(argv: list[str] | None = None) -> int:
     physics = JsonPhysics(config, relay)
 
     def _stop(signum, frame) -> None:  # noqa: ARG001
-        physics.stop = True
-        physics.sock.settimeout(0.01)
-        if relay is not None:
-            relay.stopped = True
+        # a blocking recv is retried after a signal (PEP 475): end it by raising
+        raise _Stopped(signal.Signals(signum).name)
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    stats = physics.run()
+    try:
+        stats = physics.run()
+    except _Stopped:
+        stats = physics.stats()
     if relay is not None:
         relay.close()
     if args.stats:

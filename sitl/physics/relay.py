@@ -11,7 +11,9 @@ them, with a firmware time no older than one period before the newest time the c
 given at the previous boundary); the rest wait for the next boundary. The threshold follows what the
 companion was given, not ArduPilot's clock: ArduPilot's serial output lags its clock by a
 bandwidth-limited queue (a threshold on its clock stalled 464 s into a run). The companion's timing
-therefore never decides when ArduPilot sees a message, only the message sequence does.
+therefore never decides when ArduPilot sees a message, only the message sequence does. (Passing the
+companion's frames on at once instead, every 0.1 s, or all of them at each boundary, left ArduPilot
+calling its GPS_INPUT feed "GPS 2: not healthy" in each of three runs; see the dated note.)
 
 From ``hold_from_s`` of physics time the world waits for the companion to appear (the runner starts
 it after the firmware's start-up and compass calibration): its start is a fixed firmware time too.
@@ -76,7 +78,6 @@ class CompanionRelay:
         self.bytes_to_companion = 0
         self.frames_to_fc = 0
         self.start_wait_wall_s = 0.0
-        self.stopped = False             # set from a signal handler: every wait ends
 
     # ------------------------------------------------------------------ connections
     def _connect_fc(self) -> None:
@@ -229,7 +230,7 @@ class CompanionRelay:
                     return
             else:                       # hold the world until the companion speaks
                 start = time.monotonic()
-                while not self._held and time.monotonic() - start < gate.start_timeout_s and not self.stopped:
+                while not self._held and time.monotonic() - start < gate.start_timeout_s:
                     self.pump_fc()
                     self._read_companion(0.05)
                 self.start_wait_wall_s += time.monotonic() - start
@@ -239,7 +240,7 @@ class CompanionRelay:
         deadline = start + gate.timeout_s
         timed_out = False
         while not self._release(boundary_us):
-            if self.companion is None or self.stopped:   # gone (it exits when the mission is done): run on
+            if self.companion is None:      # gone (it exits when the mission is done): the world runs on
                 break
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:

@@ -16,18 +16,27 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight
+from sitl.firmware.ardupilot import ardupilot_binary
+from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight, FirmwareRun, fly_firmware
 from sitl.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
-__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world"]
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "fly_ardupilot_json", "start_world", "stop_world"]
 
 # The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
 # SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
 # ("Arm: Gyro 0 rate 50Hz < loop ratex1.8 90Hz", measured): at 50 Hz physics the INS bit (16) of the arming
 # checks is left out (every other check stays); 100 Hz physics would pass it at twice the frames.
 ARMING_CHECKS_BUT_INS = (1 << 20) - 2 - 16
-JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS}
+# CRUISE_THROTTLE: the throttle of our boat at the companion's 8 m/s (BoatDynamics: 10 m/s at full
+# throttle), tuned as a boat's user tunes it (params/ardupilot-rover.parm's 63 % is SITL's motorboat's)
+CRUISE_THROTTLE_PCT = 80
+# GPS2_DELAY_MS: the companion's GPS_INPUT feed reaches ArduPilot through the lockstep relay up to about
+# 0.2 s after the firmware time it is stamped with; ArduPilot calls a GPS unhealthy when five samples in a
+# row lag more than GPSn_DELAY_MS + 50 ms (measured: "Arm: GPS 2: not healthy" for an hour of firmware time)
+GPS2_DELAY_MS = 250
+JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
+               "GPS2_DELAY_MS": GPS2_DELAY_MS}
 
 
 class ArduPilotJsonRig(ArduPilotRig):
@@ -58,16 +67,23 @@ class ArduPilotJsonRig(ArduPilotRig):
         stop_world(self.world, self.sitl, self.out)
 
 
+def fly_ardupilot_json(flight: FirmwareFlight) -> FirmwareRun:
+    """One mission against ArduPilot with our world as its physics; FirmwareMissing without a binary."""
+    ardupilot_binary()                 # FirmwareMissing before anything is written
+    return fly_firmware(flight, ArduPilotJsonRig)
+
+
 def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],
-                out: Path) -> subprocess.Popen:
+                out: Path, relay: bool = True) -> subprocess.Popen:
     """The world's process for ArduPilot instance ``instance`` (before ArduPilot starts): its log
-    ``physics.log`` and, once stopped, its statistics ``physics.json`` in ``out``."""
+    ``physics.log`` and, once stopped, its statistics ``physics.json`` in ``out``. Without ``relay``
+    no companion link and no lockstep wait (ArduPilot runs as fast as the world answers)."""
     east, north = current_en_mps
     with open(out / "physics.log", "wb") as log:
         return subprocess.Popen(
             [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
              "--home", f"{home[0]!r},{home[1]!r}", "--current-en", f"{east!r},{north!r}",
-             "--stats", str(out / "physics.json")],
+             "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"])],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 
 
