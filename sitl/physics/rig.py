@@ -31,12 +31,7 @@ ARMING_CHECKS_BUT_INS = (1 << 20) - 2 - 16
 # CRUISE_THROTTLE: the throttle of our boat at the companion's 8 m/s (BoatDynamics: 10 m/s at full
 # throttle), tuned as a boat's user tunes it (params/ardupilot-rover.parm's 63 % is SITL's motorboat's)
 CRUISE_THROTTLE_PCT = 80
-# GPS2_DELAY_MS: the companion's GPS_INPUT feed reaches ArduPilot through the lockstep relay up to about
-# 0.2 s after the firmware time it is stamped with; ArduPilot calls a GPS unhealthy when five samples in a
-# row lag more than GPSn_DELAY_MS + 50 ms (measured: "Arm: GPS 2: not healthy" for an hour of firmware time)
-GPS2_DELAY_MS = 250
-JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
-               "GPS2_DELAY_MS": GPS2_DELAY_MS}
+JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT}
 
 
 class ArduPilotJsonRig(ArduPilotRig):
