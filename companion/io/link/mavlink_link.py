@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.io.link.clock import MessageClock
+from companion.io.link.fastparse import parse_datagram
 from companion.io.link.conventions import (
     COMPANION_COMPONENT,
     FcState,
@@ -220,7 +221,7 @@ class MavlinkLink(LinkOutputs):
         if signing is not None:
             signing.before_parse(parser, self._mav)
         try:
-            msgs = parser.parse_buffer(data) or []
+            msgs = parse_datagram(parser, data)
         except Exception:  # noqa: BLE001 - a corrupt frame must not stop the companion
             msgs = []
             stats.bad_frames += 1
