@@ -29,7 +29,7 @@ class _Stats:
 
 @dataclass
 class _Link:
-    """What send_feed needs of MavlinkLink: ``mav`` (packing into ``sent``), ``clock``, ``stats``."""
+    """What send_feed needs of MavlinkLink: ``mav`` (packing into ``sent``), ``send_packed``, ``clock``, ``stats``."""
 
     clock: _Clock = field(default_factory=_Clock)
     stats: _Stats = field(default_factory=_Stats)
@@ -41,6 +41,9 @@ class _Link:
 
     def write(self, data: bytes) -> None:
         self.sent.extend(self.parser.parse_buffer(bytes(data)) or [])
+
+    def send_packed(self, packer, *args) -> None:
+        packer.send(self.mav, *args)
 
     def send_gps_input(self, lat_deg, lon_deg, sigma_m, satellites=10) -> bool:
         self.sent.append(("GPS_INPUT", lat_deg, lon_deg))
