@@ -152,20 +152,24 @@ def capacity_msgs_per_s(datagrams: list[bytes], params: str, workdir: Path) -> f
     workdir.mkdir(parents=True, exist_ok=True)
     parm = workdir / "capacity.parm"
     parm.write_text(params, encoding="utf-8")
-    app = CompanionApp(AppOptions(connect="udpout:127.0.0.1:9", params=str(parm), log_dir=str(workdir / "companion"),
-                                  quiet=True))
-    app.open()
-    feed, handle, address = app.link.feed, app.handle, ("127.0.0.1", 5760)
-    handled = 0
-    started = time.perf_counter()
-    try:
-        for data in datagrams:
-            for msg in feed(address, data):
-                handle(msg)
-                handled += 1
-    finally:
-        elapsed = time.perf_counter() - started
-        app.close()
+    # the flight controller's socket: bound, so what the companion sends is delivered (and dropped
+    # when its buffer is full) as to a listening autopilot, not bounced as to a closed port
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as fc_socket:
+        fc_socket.bind(("127.0.0.1", 0))
+        app = CompanionApp(AppOptions(connect=f"udpout:127.0.0.1:{fc_socket.getsockname()[1]}", params=str(parm),
+                                      log_dir=str(workdir / "companion"), quiet=True))
+        app.open()
+        feed, handle, address = app.link.feed, app.handle, ("127.0.0.1", 5760)
+        handled = 0
+        started = time.perf_counter()
+        try:
+            for data in datagrams:
+                for msg in feed(address, data):
+                    handle(msg)
+                    handled += 1
+        finally:
+            elapsed = time.perf_counter() - started
+            app.close()
     return handled / elapsed
 
 
