@@ -281,12 +281,11 @@ class PeriodAverager:
 
     def __init__(self) -> None:
         self._rows = np.empty((64, SAMPLE_COLUMNS))
-        self._first = 0          # the rows in use are _rows[_first:_count] (drop_before moves _first)
         self._count = 0
         self._ref_d: float | None = None
 
     def __len__(self) -> int:
-        return self._count - self._first
+        return self._count
 
     def add(self, time_s: float, decl_deg: float, incl_deg: float, ned_nt: Vector3 = (0.0, 0.0, 0.0),
             mag_dot_force: float = math.nan, force_ned: Vector3 = (math.nan, math.nan, math.nan),
@@ -298,10 +297,7 @@ class PeriodAverager:
             self._ref_d = decl_deg
         d = self._ref_d + ((decl_deg - self._ref_d + 180.0) % 360.0 - 180.0)
         if self._count == len(self._rows):
-            if self._first >= len(self._rows) // 2:    # half of it dropped: move the rest to the front
-                self._keep(self._rows[self._first:self._count])
-            else:
-                self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
         self._rows[self._count] = (time_s, d, incl_deg, ned_nt[0], ned_nt[1], ned_nt[2], math.sqrt(
             ned_nt[0] * ned_nt[0] + ned_nt[1] * ned_nt[1] + ned_nt[2] * ned_nt[2]), mag_dot_force,
             force_ned[0], force_ned[1], force_ned[2], *mag_body, *force_body)
@@ -311,7 +307,6 @@ class PeriodAverager:
         """Keep only ``rows`` (a copy, in order) for the next period."""
         self._count = len(rows)
         self._rows[:self._count] = rows
-        self._first = 0
         self._ref_d = float(rows[0, 1]) if self._count else None
 
     def take(self, end_time_s: float) -> AveragedDI:
@@ -319,7 +314,7 @@ class PeriodAverager:
 
         The usual period (samples in time order, every one a gravity and heading sample) is read
         through views of the rows, with no copies; the averages are the same numbers either way."""
-        rows = self._rows[self._first:self._count]
+        rows = self._rows[:self._count]
         due = rows[:, 0] <= end_time_s
         n = int(np.count_nonzero(due))
         a = rows[:n] if due[:n].all() else rows[due]      # (n, 17): every average a column operation
@@ -344,24 +339,10 @@ class PeriodAverager:
         return result
 
     def drop_before(self, time_s: float) -> None:
-        """Forget the samples before ``time_s``. Called at every tick while the companion waits
-        (a sliding window): samples in time order leave from the front without a copy."""
-        rows = self._rows[self._first:self._count]
-        early = rows[:, 0] < time_s
-        dropped = int(np.count_nonzero(early))
-        if not dropped:
-            return
-        if not early[:dropped].all():
-            self._keep(rows[~early])
-            return
-        self._first += dropped
-        if self._first == self._count:
-            self.clear()
-        else:
-            self._ref_d = float(self._rows[self._first, 1])
+        rows = self._rows[:self._count]
+        self._keep(rows[rows[:, 0] >= time_s])
 
     def clear(self) -> None:
-        self._first = 0
         self._count = 0
         self._ref_d = None
 

@@ -227,21 +227,3 @@ def test_processor_mission_offset_shifts_sample_times():
     assert proc.take(59.0).count == 0
     assert proc.take(60.0).count == 1
 
-
-def test_a_sliding_window_keeps_exactly_the_samples_after_its_start():
-    """drop_before at every tick (the companion waiting) leaves what a fresh averager of the same
-    samples holds, through the moves of the rows to the front of their array."""
-    from companion.nav.magnetometer import PeriodAverager
-
-    sliding = PeriodAverager()
-    for k in range(400):
-        sliding.add(k * 0.1, 179.0 + (k % 7), 60.0 + 0.01 * k, (20000.0, 100.0 * k, 40000.0))
-        if k % 4 == 3:
-            sliding.drop_before(k * 0.1 - 5.0)
-    fresh = PeriodAverager()
-    for k in range(400):
-        if k * 0.1 >= 36.0:
-            fresh.add(k * 0.1, 179.0 + (k % 7), 60.0 + 0.01 * k, (20000.0, 100.0 * k, 40000.0))
-    sliding.drop_before(36.0)
-    assert len(sliding) == len(fresh) == 40
-    assert sliding.take(100.0) == fresh.take(100.0)
