@@ -226,4 +226,3 @@ def test_processor_mission_offset_shifts_sample_times():
     proc.add_mag(100.0, (28000.0, 0.0, 30000.0))
     assert proc.take(59.0).count == 0
     assert proc.take(60.0).count == 1
-
