@@ -25,7 +25,7 @@ EXT_POS_TIME_WRAP_S = 250.0   # MAV_CMD_EXTERNAL_POSITION_ESTIMATE param1: wrap 
 FLOAT32_MAX = 3.4028234663852886e38
 # the frames sent at a rate (the position feed, setpoints, heartbeats): packed without message objects
 GPS_INPUT = FramePacker(mavlink.MAVLink_gps_input_message)
-HIL_GPS = FramePacker(mavlink.MAVLink_hil_gps_message)          # sent by companion.io.position_feed
+HIL_GPS = FramePacker(mavlink.MAVLink_hil_gps_message)
 SETPOINT = FramePacker(mavlink.MAVLink_set_position_target_global_int_message)
 HEARTBEAT = FramePacker(mavlink.MAVLink_heartbeat_message)
 
@@ -66,6 +66,11 @@ class LinkOutputs:
             self.fc.conventions.setpoint_mask, 0, 0, 0.0, sp.vn_mps, sp.ve_mps, 0.0, 0.0, 0.0, 0.0, sp.yaw_rad, 0.0)
         self.stats.setpoints_sent += 1
         return True
+
+    def send_hil_gps(self, *fields) -> None:
+        """HIL_GPS with the fields of pymavlink's ``hil_gps_send``, in its order
+        (:func:`companion.io.position_feed.send_hil_gps` composes them)."""
+        self.send_packed(HIL_GPS, *fields)
 
     def send_command_long(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
