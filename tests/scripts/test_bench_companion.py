@@ -4,9 +4,9 @@ Cheap by design: no simulator here (``fcmpc-bench`` runs the whole section); no 
 """
 from __future__ import annotations
 
-from companion.benchmark import _datagrams, capacity_msgs_per_s, parse_floor_cpu_s
+from fcmpc.bench.companion_process import _datagrams, capacity_msgs_per_s, parse_floor_cpu_s
 from companion.io.link.conventions import mavlink
-from fcmpc_bench.sections import companion_rows
+from fcmpc.bench.sections import companion_rows
 
 
 def _stream(seconds: int) -> list[bytes]:
