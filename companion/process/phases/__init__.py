@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from companion.io.mavlink_link import mavlink
 from companion.nav.magnetometer import AveragedDI, MagProcessor
-from companion.process.machine import STATE_CODES, Event, PhaseMachine, State
+from companion.process.machine import STATE_CODES, Event, IllegalTransition, PhaseMachine, State
 from companion.process.mission_state import MissionState
 from companion.process.phases.base import Phase, Tick, Transition
 from companion.process.phases.calibrating import CalibratingPhase
@@ -60,8 +60,11 @@ class Phases:
         return self.phases[self.machine.state]
 
     def take(self, transition: Transition | None, now: float) -> None:
-        """Take ``transition`` (and any its new phase asks for on entering)."""
+        """Take ``transition`` (and any its new phase asks for on entering); one the table lacks
+        raises :class:`IllegalTransition` before the current phase is left."""
         while transition is not None:
+            if not self.machine.can(transition.event):
+                raise IllegalTransition(f"no transition from {self.machine.state} on {transition.event}")
             self.current.exit(now)
             self.machine.fire(transition.event)
             transition = self.current.enter(now, transition)
