@@ -45,4 +45,4 @@ class CurrentEstimate:
         cmd = self.mission_state.command
         if cmd is not None and math.isfinite(cmd.est_sigma_m):
             return cmd.est_sigma_m
-        return math.sqrt(self.settings.nav.fusion_rc_m2)
+        return math.sqrt(self.settings.nav.fusion.rc_m2)

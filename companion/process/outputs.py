@@ -138,7 +138,7 @@ class Outputs:
                 link.send_named_float(name, value)
         if cmd.phase != Phase.CRUISE or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
             return
-        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(self.settings.nav.fusion_rc_m2)
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(self.settings.nav.fusion.rc_m2)
         mode = self.settings.comp.position_publish
         if mode == 0:
             link.send_external_position(cmd.est_lat_deg, cmd.est_lon_deg, sigma)

@@ -28,8 +28,8 @@ from companion import wrap_2pi, wrap_pi
 from companion.nav.geo import metres_per_degree, offset_position
 from sitl.world.checks import require
 
-__all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "step_vehicle",
-           "true_start"]
+__all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "move",
+           "step_vehicle", "true_start"]
 
 
 def true_start(lat_deg: float, lon_deg: float, gps_noise_m: float, rng: np.random.Generator) -> tuple[float, float]:
@@ -152,7 +152,7 @@ def step_vehicle(state: VehicleState, dt_s: float, cmd_course_rad: float, cmd_sp
     if wanted_turn == 0.0 and target_speed == state.speed_mps:
         # holding course and speed (nine steps in ten): the one straight piece the split below
         # makes of such a step, without it (bit for bit the same state; tested)
-        lat, lon, step_m = _move(state.lat_deg, state.lon_deg, dt_s, state.speed_mps, state.speed_mps,
+        lat, lon, step_m = move(state.lat_deg, state.lon_deg, dt_s, state.speed_mps, state.speed_mps,
                                  state.course_rad, 0.0, motion)
         return VehicleState(lat, (lon + 180.0) % 360.0 - 180.0, wrap_2pi(state.course_rad), state.speed_mps,
                             state.distance_m + step_m, *motion.current_en_mps)
@@ -175,14 +175,14 @@ def _tracked(state: VehicleState, dt_s: float, cmd_course_rad: float, target_spe
         pieces = max(1, math.ceil(abs(turn) / MAX_PIECE_TURN_RAD))   # a long turn: short arcs
         for k in range(pieces):
             a, b = speed + (new_speed - speed) * k / pieces, speed + (new_speed - speed) * (k + 1) / pieces
-            lat, lon, step_m = _move(lat, lon, (end_t - start_t) / pieces, a, b, course + turn * k / pieces,
+            lat, lon, step_m = move(lat, lon, (end_t - start_t) / pieces, a, b, course + turn * k / pieces,
                                      turn / pieces, motion)
             distance += step_m
         start_t, speed, course, turned = end_t, new_speed, wrap_2pi(state.course_rad + turned + turn), turned + turn
     return VehicleState(lat, (lon + 180.0) % 360.0 - 180.0, course, speed, distance, *motion.current_en_mps)
 
 
-def _move(lat_deg: float, lon_deg: float, dt_s: float, speed_mps: float, new_speed_mps: float, course_rad: float,
+def move(lat_deg: float, lon_deg: float, dt_s: float, speed_mps: float, new_speed_mps: float, course_rad: float,
           turn_rad: float, motion: MotionErrors) -> tuple[float, float, float]:
     """Position (deg) and path length (m, through the water) after ``dt_s`` of a speed and course
     changing linearly (midpoint rule), with the current's drift."""
