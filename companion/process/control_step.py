@@ -19,7 +19,7 @@ import numpy as np
 from companion.failsafe import diverged
 from companion.fc_view import FcView
 from companion.io.link.clock import MessageClock
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.param_server import ParamServer
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.elements import hz_standard_errors

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 
 from companion.failsafe import Health
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.io.sensors.base import SampleKind
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.process.intake import SampleIntake

@@ -28,7 +28,7 @@ import sys
 from dataclasses import replace
 
 from companion.io.link.clock import MessageClock
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind, SensorError, SensorSource, StreamEnd
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.magnetometer import AttitudeState, MagProcessor

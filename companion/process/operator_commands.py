@@ -19,7 +19,7 @@ link allows reach here (LINK_GCS_ID*; with signing, signed frames only: :mod:`co
 """
 from __future__ import annotations
 
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock

@@ -2,8 +2,8 @@
 each step's estimate. Words go through :class:`companion.process.voice.Voice`; the position feed and
 the operator's status through :class:`companion.process.telemetry.Telemetry`.
 
-No setpoint leaves without :func:`~companion.io.mavlink_link.guard_setpoint` (inside
-:meth:`~companion.io.mavlink_link.MavlinkLink.send_setpoint`). Times are message time unless
+No setpoint leaves without :func:`~companion.io.link.guard_setpoint` (inside
+:meth:`~companion.io.link.MavlinkLink.send_setpoint`). Times are message time unless
 a name ends in ``_wall``.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 import time
 
 from companion import wrap_2pi
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.io.px4 import unused_streams
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.io.sensors.mavlink_source import MavlinkDecoder

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.io.link.clock import MessageClock
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.field import WorldMagneticModel, load_wmm
 from companion.nav.mission import Command, Mission
 from companion.process.mission_clock import MissionClock

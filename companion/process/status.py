@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from companion.failsafe import Health
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.io.sensors.base import SampleKind
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.io.status_page import SensorHealth, StatusSnapshot

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from companion.failsafe import Health
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.io.param_server import ParamServer
 from companion.io.records import write_summary
 from companion.nav.elements import ELEMENT_SETS

@@ -7,7 +7,7 @@ import math
 
 from companion.failsafe import Health
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.io.param_server import ParamServer
 from companion.io.position_feed import feed_message_name, send_echo, send_feed
 from companion.io.sensors.mavlink_source import MavlinkDecoder

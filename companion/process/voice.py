@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 import sys
 
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 
 __all__ = ["Voice"]
 

@@ -18,7 +18,7 @@ transition it wants, and :class:`Phases` takes it through the table, calling the
 """
 from __future__ import annotations
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.magnetometer import AveragedDI, MagProcessor
 from companion.process.machine import STATE_CODES, Event, IllegalTransition, PhaseMachine, State
 from companion.process.mission_state import MissionState

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.mission import Phase as CorePhase
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.machine import Event, State

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.process.mode_commands import ModeCommands
 from companion.process.operator_commands import OperatorCommands
 from companion.process.outputs import Outputs

@@ -5,7 +5,7 @@ backing off when the FC refuses; with 0 the operator does so. The next mission i
 (COMP_CAL_TURNS, a GPS start) or the mission (``engaged``)."""
 from __future__ import annotations
 
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.nav.magnetometer import MagProcessor
 from companion.process.calibration_turn import CalibrationTurn
 from companion.process.machine import Event, State

@@ -16,7 +16,7 @@ import math
 import time
 
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.magnetometer import AveragedDI, MagProcessor
 from companion.nav.mission import Command, Phase as CorePhase, uses_filter

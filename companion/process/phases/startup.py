@@ -5,7 +5,7 @@ FC reboot; a saved (or, after a reboot, a kept) mission goes straight on to ``re
 from __future__ import annotations
 
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.nav.magnetometer import MagProcessor
 from companion.process.machine import Event, State
 from companion.process.mission_clock import MissionClock

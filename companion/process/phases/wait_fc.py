@@ -3,7 +3,7 @@ streams are asked for."""
 from __future__ import annotations
 
 from companion.fc_view import FcView
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.process.machine import State
 from companion.process.mission_state import MissionState
 from companion.process.outputs import Outputs
