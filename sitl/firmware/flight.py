@@ -25,7 +25,7 @@ from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
 from sitl.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
 from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
-__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH"]
+__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH", "ArduPilotRig"]
 
 BOAT_CRUISE_KMH = 28.8      # 8 m/s: ArduPilot's SITL motorboat makes 10 m/s at full throttle
 REST_SPEED_MPS = 0.3
@@ -47,6 +47,7 @@ class FirmwareFlight:
     deny_gps_at_arming: bool = True
     quiet: bool = False
     compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
+    current_en_mps: tuple[float, float] = (0.0, 0.0)   # our world as the physics (sitl.physics): its current (E, N)
 
 
 @dataclass
@@ -65,7 +66,7 @@ def _say(flight: FirmwareFlight, text: str) -> None:
         print(f"fcmpc-fly: {text}", file=sys.stderr, flush=True)
 
 
-class _ArduPilotRig:
+class ArduPilotRig:
     """ArduPilot's side of a flight: SITL, the monitor on SERIAL0, the companion on SERIAL1."""
 
     name = "ArduPilot SITL"
@@ -87,6 +88,8 @@ class _ArduPilotRig:
         """Before the companion starts: a real compass is calibrated as a boat's user does it."""
         return [calibrate_fixed_yaw(monitor)] if self.compass == "real" else []
 
+    companion_args: tuple[str, ...] = ()
+
     @property
     def companion_url(self) -> str:
         return self.sitl.serial1
@@ -101,7 +104,7 @@ class _ArduPilotRig:
 def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
     """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
     ardupilot_binary()                 # FirmwareMissing before anything is written
-    return fly_firmware(flight, _ArduPilotRig)
+    return fly_firmware(flight, ArduPilotRig)
 
 
 def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
@@ -135,7 +138,7 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
             _say(flight, note)
         companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", rig.companion_url, "--params", str(parm), "--log-dir",
-             str(out / "companion"), "--exit-when-done", "--quiet"],
+             str(out / "companion"), "--exit-when-done", "--quiet", *getattr(rig, "companion_args", ())],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=open(out / "companion.log", "wb"))
         _say(flight, f"{rig.name} instance {flight.instance} at {flight.speedup:g}x, companion on "
