@@ -78,6 +78,7 @@ class NavConfig:
     calibrate: int
     fix_gate_m: float
     reanchor_steps: int
+    excl_max: int
     dr_heading: int
     solver: int
     fusion_sigma_deg_per_m: float

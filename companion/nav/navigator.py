@@ -128,7 +128,11 @@ class Navigator:
         judgement, reanchored, verdict = self._judge(meas)
         core0 = timer()
         if judgement is not None and not judgement.ok and reanchored is None:
-            return StepResult(meas, None, judgement, None, verdict, judge_s=core0 - judge0)
+            if not self._overdue(judgement):
+                return StepResult(meas, None, judgement, None, verdict, judge_s=core0 - judge0)
+            verdict = ("WARNING", f"FcMPC: {self.plausibility.in_a_row - 1} periods excluded in a row: this one "
+                                  f"is taken ({judgement.words()})")
+            self.plausibility.in_a_row = 0
         command = self.mission.step(meas)
         core_s = timer() - core0
         if previous is None:
@@ -139,6 +143,14 @@ class Navigator:
         new_course = is_new_course(before, command.course_rad, command.speed_mps)
         self.command = command
         return StepResult(meas, command, judgement, reanchored, verdict, settle, new_course, core0 - judge0, core_s)
+
+    def _overdue(self, judgement: Judgement) -> bool:
+        """True when this exclusion would exceed NAV_EXCL_MAX in a row: the period is taken (the core's
+        own screening and fix gate still judge it), so that a wrong estimate or |F| reference cannot
+        exclude every later period and the vehicle fly its last course on for good (realistic
+        Pacific, seed 23: every period |F|-band excluded for 31 h from the first step on)."""
+        limit = self.mission.config.excl_max
+        return limit > 0 and self.plausibility.in_a_row > limit
 
     def learn_f_reference(self, meas: Measurement) -> None:
         """At the first step, the start (a known position): learn the |F| level the band is judged

@@ -13,8 +13,8 @@ from companion.nav.period import PeriodAverage
 from companion.params import NavConfig, default_values
 
 
-def _navigator(elements: int) -> Navigator:
-    mission = Mission(NavConfig.from_values({**default_values(), "NAV_ELEMENTS": elements}))
+def _navigator(elements: int, **values) -> Navigator:
+    mission = Mission(NavConfig.from_values({**default_values(), "NAV_ELEMENTS": elements, **values}))
     mission.set_start_fix(5.0)
     return Navigator(mission)
 
@@ -53,3 +53,20 @@ def test_an_implausible_period_is_excluded_and_the_last_command_flies_on():
     good = navigator.step(_period(navigator, 720.0))
     assert good.command is not None and good.judgement.ok and good.verdict[0] == "NOTICE"
     assert navigator.command is good.command and navigator.mission.k == steps + 1
+
+
+@pytest.mark.parametrize("limit", [0, 2, 5])
+def test_after_nav_excl_max_exclusions_in_a_row_the_next_period_is_taken(limit):
+    """A wrong |F| reference (or estimate) makes every later period implausible: without a limit the
+    vehicle would fly its first command on for good (realistic Pacific, seed 23, before NAV_EXCL_MAX)."""
+    navigator = _navigator(ElementSet.PAPER, NAV_EXCL_MAX=limit)
+    navigator.step(_period(navigator, 0.0))
+    taken = []
+    for k in range(1, 9):
+        result = navigator.step(_period(navigator, 360.0 * k, f_extra_nt=3000.0))
+        assert result.judgement.kind == "f_band" and not result.judgement.ok
+        taken.append(not result.excluded)
+        if not result.excluded:
+            assert "excluded in a row: this one is taken" in result.verdict[1]
+    expected = [False] * 8 if limit == 0 else [k % (limit + 1) == 0 for k in range(1, 9)]
+    assert taken == expected
