@@ -61,6 +61,7 @@ from companion.nav.period import PeriodAverage
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
 from sitl.sensors import WaveMotion, make_error_models
+from sitl.world.emm import OutsideGridError
 from sitl.world.ins import InsErrorModel, propagate_together
 from sitl.world.magnetic import TruthField
 from sitl.world.sampling import PeriodKnots, SampleSettings, sample_period
@@ -144,7 +145,10 @@ def fly_batch(flights: list[InProcessFlight]) -> list[RunResult]:
             for f in moving:
                 f.record_knot(index)
         for f in active:
-            f.end_period()
+            try:
+                f.end_period()
+            except OutsideGridError as err:   # the vehicle left the simulated world: a failed run, not a crash
+                f.left_world = str(err)
         active = [f for f in active if not f.done]
     return [f.result() for f in flights]
 
@@ -180,6 +184,7 @@ class InProcessFlight:
         self.navigator = Navigator(self.mission)
         self.settle_until_s = -math.inf   # gravity samples wait after a new command (StepResult.settle)
         self.excluded = 0
+        self.left_world = ""              # why the vehicle left the simulated world (a failed run)
         self.state = state = VehicleState(*scenario.true_start(np.random.default_rng(start_seed),
                                                                (nav.start_lat_deg, nav.start_lon_deg)))
         sensors = scenario.sensors
@@ -210,7 +215,7 @@ class InProcessFlight:
 
     @property
     def done(self) -> bool:
-        return self.command.done
+        return bool(self.left_world) or self.command.done
 
     # --- one period, sub-step by sub-step ---------------------------------------------------------
     def begin_period(self) -> None:
@@ -256,7 +261,8 @@ class InProcessFlight:
         nav, command, mission = self.nav, self.command, self.mission
         state = self.at_rest()
         return RunResult(
-            controller=Controller.NAMES[nav.controller], seed=self.seed, phase=command.phase, reason=command.reason,
+            controller=Controller.NAMES[nav.controller], seed=self.seed,
+            phase=Phase.FAILED if self.left_world else command.phase, reason=self.left_world or command.reason,
             iterations=command.step, true_lat_deg=np.array(self.lats), true_lon_deg=np.array(self.lons),
             est_lat_deg=np.array(self.est_lats), est_lon_deg=np.array(self.est_lons),
             remaining_m=geodesic_distance_m(state.lat_deg, state.lon_deg, nav.dest_lat_deg, nav.dest_lon_deg),

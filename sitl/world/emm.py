@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CRUST_MAX_DEGREE", "CRUST_MIN_DEGREE", "EMM_FILE", "CrustGrid", "cache_dir", "crust_grid_for_route",
+__all__ = ["CRUST_MAX_DEGREE", "CRUST_MIN_DEGREE", "EMM_FILE", "CrustGrid", "OutsideGridError", "cache_dir", "crust_grid_for_route",
            "read_emm", "synthesise_crust_grid"]
 
 EMM_FILE = Path("crust") / "EMM2017.COF"
@@ -92,6 +92,10 @@ def cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fcmpc"
 
 
+class OutsideGridError(ValueError):
+    """A point outside the route's crust grid: a vehicle that left the simulated world."""
+
+
 class CrustGrid:
     """The crust's north/east/down field (nT) on a geodetic grid at one altitude; :meth:`ned_nt`
     interpolates it bicubically. ``lat_deg`` (ascending, geodetic) and ``lon_deg`` (ascending,
@@ -132,14 +136,14 @@ class CrustGrid:
 
     def ned_nt(self, lat_deg, lon_deg, alt_m=0.0) -> np.ndarray:
         """The crust (..., 3) north/east/down in nT at geodetic points (broadcast). Raises
-        ValueError outside the grid, or more than ``ALT_TOLERANCE_M`` from its altitude."""
+        :class:`OutsideGridError` outside the grid, ValueError more than ``ALT_TOLERANCE_M`` from its altitude."""
         lat, lon, alt = np.broadcast_arrays(np.asarray(lat_deg, float), np.asarray(lon_deg, float),
                                             np.asarray(alt_m, float))
         if np.any(np.abs(alt - self.alt_m) > ALT_TOLERANCE_M):
             raise ValueError(f"crust grid {self.label} is at {self.alt_m:.0f} m; asked at "
                              f"{float(np.max(np.abs(alt - self.alt_m))) + self.alt_m:.0f} m")
         if not self.covers(lat, lon):
-            raise ValueError(f"a point leaves the crust grid {self.label} (lat {self.lat_deg[0]:.2f}.."
+            raise OutsideGridError(f"a point leaves the crust grid {self.label} (lat {self.lat_deg[0]:.2f}.."
                              f"{self.lat_deg[-1]:.2f}, lon {self.lon_deg[0]:.2f}..{self.lon_deg[-1]:.2f} deg)")
         flat_lat, flat_lon = lat.ravel(), self._unwrap(lon.ravel())
         out = np.stack([spline.ev(flat_lat, flat_lon) for spline in self._spline_set()], axis=-1)
