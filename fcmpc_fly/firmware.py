@@ -60,7 +60,7 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
         instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass,
+        compass=options.compass, physics=options.physics, scenario=scenario, seed=options.seed,
         quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \

@@ -73,6 +73,10 @@ def build_parser() -> ArgumentParser:
                    help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
                         "noise and motor interference, calibrated as a boat's user does (real, the default), or "
                         "SITL's perfect one (ideal); see sitl/firmware/compass.py")
+    p.add_argument("--physics", choices=("builtin", "sih", "hil"), default="builtin",
+                   help="with --fc px4: PX4's own SIH (builtin, also 'sih'; paced by --speedup) or our world as its "
+                        "physics through its MAVLink simulator interface, in lockstep with PX4 and the companion "
+                        "(hil; docs/integrator.md)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -102,7 +106,8 @@ def _run(argv: list[str] | None) -> int:
                          extra_params=param_items(args.param), compare=args.compare, plot=not args.no_plot,
                          tlog=not args.no_tlog, data_dir=args.data_dir,
                          progress_s=None if args.no_progress or args.json else 10.0, fc=args.fc,
-                         fc_instance=args.fc_instance, compass=args.compass)
+                         fc_instance=args.fc_instance, compass=args.compass,
+                         physics="hil" if args.physics == "hil" else "builtin")
     try:
         scenario, _, _ = prepare(options)          # nothing is written before this passes
     except ValueError as err:     # ScenarioError, ParamError and the option checks

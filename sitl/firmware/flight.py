@@ -47,6 +47,9 @@ class FirmwareFlight:
     deny_gps_at_arming: bool = True
     quiet: bool = False
     compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
+    physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.firmware.px4_hil)
+    scenario: object = None        # the world of a "hil" flight (sitl.scenario.Scenario; default pacific)
+    seed: int = 0
 
 
 @dataclass
@@ -135,7 +138,7 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
             _say(flight, note)
         companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", rig.companion_url, "--params", str(parm), "--log-dir",
-             str(out / "companion"), "--exit-when-done", "--quiet"],
+             str(out / "companion"), "--exit-when-done", "--quiet", *getattr(rig, "companion_args", ())],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=open(out / "companion.log", "wb"))
         _say(flight, f"{rig.name} instance {flight.instance} at {flight.speedup:g}x, companion on "
