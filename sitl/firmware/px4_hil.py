@@ -309,7 +309,8 @@ class Px4HilBridge:
             return self.mav.hil_gps_encode(self.t_us, 0, 0, 0, 0, 65535, 65535, 65535, 0, 0, 0, 65535, 0)
         noise = self.world.sensors
         keep = math.exp(-1.0 / (GPS_RATE_HZ * noise.gps_tau_s))
-        self._gps_error_m = keep * self._gps_error_m + math.sqrt(1.0 - keep * keep) * self.world.rng.normal(0.0, noise.gps_m, 2)
+        fresh = self.world.rng.normal(0.0, noise.gps_m, 2)
+        self._gps_error_m = keep * self._gps_error_m + math.sqrt(1.0 - keep * keep) * fresh
         lat = frame.lat_deg + self._gps_error_m[0] / 111_320.0
         lon = frame.lon_deg + self._gps_error_m[1] / (111_320.0 * max(math.cos(math.radians(frame.lat_deg)), 0.01))
         speed = math.hypot(vn, ve)

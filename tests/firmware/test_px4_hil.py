@@ -1,9 +1,10 @@
 """The companion against real PX4 in lockstep with our world (``sitl.firmware.px4_hil``): GPS lost after start-up.
 
-The claim of the SIH test (``test_px4_gps_lost.py``: GPS lost after start-up, OFFBOARD kept, the true
-track on the companion's courses) on PX4's MAVLink simulator interface: PX4's clock advances only
-with our frames and our world waits for the companion, so a loaded machine slows the run without
-changing what PX4 and the companion see.
+It replaces the SIH test of the same claim (GPS lost after start-up, OFFBOARD kept, the true track on
+the companion's courses; 30 simulated minutes at 5x, 425 s in CI, CI's longest): here PX4's clock
+advances only with our frames and our world waits for the companion, so a loaded machine slows the
+run without changing what PX4 and the companion see. 20 minutes without GPS took 118 s of wall time
+at load average 20 on 2 cores. SIH stays the second check (``test_px4.py``, ``fcmpc-fly --fc px4``).
 """
 from __future__ import annotations
 
@@ -18,11 +19,10 @@ from companion.io.records import read_steps_csv
 from companion.params import write_parm_file
 from sitl.firmware.monitor import FirmwareMonitor
 from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, assert_forward_on
-from tests.firmware.test_px4 import OFFBOARD, ROVER_MIN_SPEED
+from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED
 
 WALL_S = 600.0            # per wait; a lockstep run is slower on a loaded machine, never different
-LOST_S = 900.0            # simulated seconds flown without GPS
-PERIOD_S = 120.0          # NAV_PERIOD_S: seven commands in LOST_S
+LOST_S = 1200.0           # simulated seconds flown without GPS: seven commands of PROBE_S
 
 
 class HilRig(Rig):
@@ -33,7 +33,7 @@ class HilRig(Rig):
     def __init__(self, tmp_path: Path, seed: int = 0) -> None:
         from sitl.clock import LockstepGate
         from sitl.firmware.px4 import Px4Sitl, free_px4_instance
-        from sitl.firmware.px4_flight import HIL_LOCKSTEP_PERIOD_S, HIL_VALUES, MONITOR_RATES_HZ
+        from sitl.firmware.px4_flight import HIL_GATE_TIMEOUT_S, HIL_LOCKSTEP_PERIOD_S, HIL_VALUES, MONITOR_RATES_HZ
         from sitl.firmware.px4_hil import Px4HilBridge, hil_params, hil_world
         from sitl.scenario import load_scenario
 
@@ -43,7 +43,7 @@ class HilRig(Rig):
         scenario = load_scenario("pacific")
         world = hil_world(scenario, seed)
         self.bridge = Px4HilBridge(instance, world, scenario.start_posix,
-                                   LockstepGate(HIL_LOCKSTEP_PERIOD_S, timeout_s=5.0))
+                                   LockstepGate(HIL_LOCKSTEP_PERIOD_S, timeout_s=HIL_GATE_TIMEOUT_S))
         self.sitl = Px4Sitl(workdir=tmp_path / "px4", instance=instance, root=root, simulator="mavlink",
                             params={**HIL_VALUES, **hil_params(world.dynamics)})
         self.companion = None
@@ -64,7 +64,8 @@ class HilRig(Rig):
         self.companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", self.bridge.companion_url, "--params", str(parm),
              "--log-dir", str(log_dir), "--lockstep", "--startup-s", f"{startup_s:g}"],
-            cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "companion.err", "wb"))
+            cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=open(self.tmp / "companion.err", "wb"))
         return log_dir
 
     def close(self) -> None:
@@ -82,10 +83,10 @@ def hil_rig(tmp_path):
 @pytest.mark.slow
 def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig):
     """Our world's receiver loses its fix 30 s after arming (HIL_GPS fix_type 0): the companion feeds
-    HIL_GPS, EKF2 keeps a position, PX4 stays in OFFBOARD for 15 simulated minutes, every frame was
+    HIL_GPS, EKF2 keeps a position, PX4 stays in OFFBOARD for 20 simulated minutes, every frame was
     answered (no actuator or companion timeout) and the true track follows the companion's courses."""
     rig = hil_rig
-    log_dir = rig.start_companion(NAV_DEST_LAT=32.5, NAV_DEST_LON=152.6, NAV_PERIOD_S=PERIOD_S)
+    log_dir = rig.start_companion(NAV_DEST_LAT=32.5, NAV_DEST_LON=152.6, NAV_PERIOD_S=PROBE_S)
     mon = rig.monitor
     mon.pump(lambda m: m.armed and m.mode == OFFBOARD, WALL_S, "armed in OFFBOARD")
     t_arm = mon.time_s
@@ -94,7 +95,7 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
     mon.pump(lambda m: (m.truth and m.truth[-1].time_s >= t_lost + LOST_S) or m.mode != OFFBOARD or not m.armed,
-             WALL_S, "15 minutes without GPS")
+             WALL_S, "20 minutes without GPS")
     after = [s for s in mon.truth if s.time_s >= t_lost]
     said = (rig.tmp / "companion.err").read_text(errors="replace")[-1500:]
     left = next((s for s in after if s.mode != OFFBOARD or not s.armed), None)
@@ -113,6 +114,7 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
         off_deg += assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"], ROVER_MIN_SPEED)
         flown_s, commands = flown_s + end - start, commands + 1
     off_deg.sort()
-    assert off_deg and off_deg[len(off_deg) // 2] < 5.0, f"true track off the course by {off_deg[len(off_deg) // 2]:.1f} deg (median)"
-    assert flown_s >= LOST_S - 2 * PERIOD_S, f"only {flown_s:.0f} s flown on commanded courses without GPS"
+    median = off_deg[len(off_deg) // 2] if off_deg else float("nan")
+    assert median < 5.0, f"true track off the course by {median:.1f} deg (median)"
+    assert flown_s >= LOST_S - 2 * PROBE_S, f"only {flown_s:.0f} s flown on commanded courses without GPS"
     assert commands >= 5, f"only {commands} commands without GPS: the navigator stopped stepping"
