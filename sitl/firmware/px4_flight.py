@@ -134,8 +134,13 @@ class Px4HilRig(Px4Rig):
         self.bridge.deny_gps()
 
     def stop(self) -> None:
+        """Stop PX4 and the bridge; the bridge's counts (frames, timeouts, lockstep waits) go to
+        ``px4/hil_stats.json``."""
         self.sitl.stop()
         self.bridge.stop()
+        import json
+
+        (Path(self.sitl.workdir) / "hil_stats.json").write_text(json.dumps(self.bridge.stats(), indent=1))
 
 
 def fly_px4(flight: FirmwareFlight) -> FirmwareRun:

@@ -63,7 +63,11 @@ ARMED_FLAG = 128
 
 
 def simulator_port(instance: int) -> int:
-    """PX4's simulator TCP port (``px4-rc.mavlinksim``: 4560 + instance)."""
+    """PX4's simulator TCP port (``px4-rc.mavlinksim``: 4560 + instance).
+
+    >>> simulator_port(3)
+    4563
+    """
     return 4560 + instance
 
 
@@ -74,6 +78,10 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
     wheel base whose full steering angle (RA_MAX_STR_ANG, 30 deg) turns as our rudder does
     (yaw rate = speed * tan(angle) / base); EKF2_MULTI_IMU 1: one IMU is simulated (the script's 3
     ran two idle filters, a fifth of PX4's CPU).
+
+    >>> p = hil_params(BoatDynamics())
+    >>> p["RO_MAX_THR_SPEED"], round(p["RA_WHEEL_BASE"], 2)
+    (10.0, 5.51)
     """
     max_steer_rad = math.radians(30.0)
     return {"RO_MAX_THR_SPEED": dynamics.max_speed_mps, "RA_MAX_STR_ANG": max_steer_rad,
