@@ -48,6 +48,11 @@ ROWS: tuple[Row, ...] = (
     Row("realistic", "Pacific 2025, WMMHR-2025, compass heading, no INS",
         ("--scenario", "pacific_2025", "--controllers", "fc", "--param", "NAV_MAP=1",
          "--heading-source", "magnetic", "--no-ins")),
+    Row("realistic", "Tasman 2025 (40S 160E -> 36S 168E), WMMHR-2025, INS heading",
+        ("--scenario", "tasman_2025", "--controllers", "fc", "--param", "NAV_MAP=1")),
+    Row("realistic", "Tasman 2025 (40S 160E -> 36S 168E), WMMHR-2025, compass heading, no INS",
+        ("--scenario", "tasman_2025", "--controllers", "fc", "--param", "NAV_MAP=1",
+         "--heading-source", "magnetic", "--no-ins")),
     Row("paper", "Pacific, the paper's idealised world (Table 5)",
         ("--scenario", "paper_pacific", "--controllers", "fc")),
 )

@@ -53,12 +53,16 @@ def test_no_default_preset_gives_the_true_heading_its_map_as_truth_or_the_exact_
     nav = NavConfig.from_values(validate_all(scenario.nav_overrides()))
     truth = build_truth_field(replace(scenario, storm=StormConfig(enabled=False)), seed=0)
     world_map = model_for_setting(nav.year, nav.wmm)
+    # (everywhere by more than rounding; somewhere by tens of nT: the crust is weak in places, 14 nT at 40S 160E)
+    largest = []
     for lat, lon in _route_points(scenario):
         true_ned = np.asarray(truth.field_ned_nt(np.array([lat]), np.array([lon]), scenario.alt_m, np.array([0.0])))
         mapped = world_map.elements(lat, lon, scenario.alt_m, nav.year)
         map_ned = np.array([mapped.h_nt * math.cos(math.radians(mapped.decl_deg)),
                             mapped.h_nt * math.sin(math.radians(mapped.decl_deg)), mapped.z_nt])
-        assert np.abs(true_ned.ravel() - map_ned).max() > 20.0, (name, lat, lon)
+        largest.append(np.abs(true_ned.ravel() - map_ned).max())
+        assert largest[-1] > 1.0, (name, lat, lon)
+    assert max(largest) > 20.0, name
     # the vehicle starts a GPS error away from the start the navigator flies from
     assert not scenario.exact_start and scenario.sensors.gps_noise_m > 0.0
     flight = InProcessFlight(nav, scenario, 0, truth)
