@@ -141,7 +141,8 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
              str(out / "companion"), "--exit-when-done", "--quiet", *getattr(rig, "companion_args", ())],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=open(out / "companion.log", "wb"))
-        _say(flight, f"{rig.name} instance {flight.instance} at {flight.speedup:g}x, companion on "
+        pace = "in lockstep" if getattr(rig, "companion_args", ()) else f"at {flight.speedup:g}x"
+        _say(flight, f"{rig.name} instance {flight.instance} {pace}, companion on "
                      f"{rig.companion_url}; records in {out}")
         deadline = wall0 + flight.timeout_s
         last_report = 0.0
