@@ -40,10 +40,13 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     says otherwise; PX4's pacing is its
     speed factor (``--speedup``, default 10)."""
     from sitl.firmware.px4 import px4_root
+    from sitl.firmware.flight import BOAT_CRUISE_KMH
     from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
 
     px4_root()
-    return _fly_on(options, "px4", fly_px4, 10.0, COMPANION_VALUES)
+    # in lockstep the boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
+    values = {**COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH} if options.physics == "hil" else COMPANION_VALUES
+    return _fly_on(options, "px4", fly_px4, 10.0, values)
 
 
 def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:

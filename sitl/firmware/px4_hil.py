@@ -74,7 +74,8 @@ def simulator_port(instance: int) -> int:
 def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
     """PX4 parameters that describe our boat to its Ackermann rover controller and our single sensors.
 
-    RO_MAX_THR_SPEED: the speed at full throttle (PX4's speed feed-forward); RA_WHEEL_BASE: the
+    RO_MAX_THR_SPEED, RO_SPEED_LIM: the speed at full throttle (PX4's speed feed-forward, and no lower
+    limit than the boat's; the airframe's 3 m/s is SIH's rover's); RA_WHEEL_BASE: the
     wheel base whose full steering angle (RA_MAX_STR_ANG, 30 deg) turns as our rudder does
     (yaw rate = speed * tan(angle) / base); EKF2_MULTI_IMU 1: one IMU is simulated (the script's 3
     ran two idle filters, a fifth of PX4's CPU).
@@ -84,7 +85,8 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
     (10.0, 5.51)
     """
     max_steer_rad = math.radians(30.0)
-    return {"RO_MAX_THR_SPEED": dynamics.max_speed_mps, "RA_MAX_STR_ANG": max_steer_rad,
+    return {"RO_MAX_THR_SPEED": dynamics.max_speed_mps, "RO_SPEED_LIM": dynamics.max_speed_mps,
+            "RA_MAX_STR_ANG": max_steer_rad,
             "RA_WHEEL_BASE": math.tan(max_steer_rad) / dynamics.yaw_rate_per_mps, "EKF2_MULTI_IMU": 1,
             "IMU_INTEG_RATE": int(HIL_RATE_HZ), "IMU_GYRO_RATEMAX": int(HIL_RATE_HZ)}
 
@@ -313,8 +315,11 @@ class Px4HilBridge:
 
     def _gps_message(self, frame: PhysicsFrame):
         vn, ve, vd = frame.vel_ned_mps
+        # HIL_GPS's time_usec is the receiver's UTC (PX4's sensor_gps.time_utc_usec, its SYSTEM_TIME
+        # and the companion's date for the field model); boot time here put the companion in 1970
+        utc_us = int(round(self.start_unix_s * 1e6)) + self.t_us
         if not self.gps_fix:
-            return self.mav.hil_gps_encode(self.t_us, 0, 0, 0, 0, 65535, 65535, 65535, 0, 0, 0, 65535, 0)
+            return self.mav.hil_gps_encode(utc_us, 0, 0, 0, 0, 65535, 65535, 65535, 0, 0, 0, 65535, 0)
         noise = self.world.sensors
         keep = math.exp(-1.0 / (GPS_RATE_HZ * noise.gps_tau_s))
         fresh = self.world.rng.normal(0.0, noise.gps_m, 2)
@@ -323,7 +328,7 @@ class Px4HilBridge:
         lon = frame.lon_deg + self._gps_error_m[1] / (111_320.0 * max(math.cos(math.radians(frame.lat_deg)), 0.01))
         speed = math.hypot(vn, ve)
         cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0)) % 36000
-        return self.mav.hil_gps_encode(self.t_us, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), 0, 80, 120,
+        return self.mav.hil_gps_encode(utc_us, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), 0, 80, 120,
                                        int(round(speed * 100.0)), int(round(vn * 100.0)), int(round(ve * 100.0)),
                                        int(round(vd * 100.0)), cog, 12)
 

@@ -40,11 +40,12 @@ def test_a_frame_carries_the_world_in_the_body_frame():
 
 def test_gps_has_a_fix_until_denied_then_reports_none():
     world = _world()
-    bridge = Px4HilBridge(7, world, 0.0)
+    bridge = Px4HilBridge(7, world, 1_700_000_000.0)
     frame = world.step(0.02, 0.02, 0.0, 0.0)
     fixed = _decode(bridge, bridge._gps_message(frame))
     assert (fixed.fix_type, fixed.satellites_visible) == (3, 12)
     assert abs(fixed.lat * 1e-7 - frame.lat_deg) < 1e-6
+    assert fixed.time_usec == 1_700_000_000_000_000 + bridge.t_us     # UTC: PX4's date comes from it
     bridge.deny_gps()
     lost = _decode(bridge, bridge._gps_message(frame))
     assert (lost.fix_type, lost.satellites_visible, lost.lat, lost.lon) == (0, 0, 0, 0)
