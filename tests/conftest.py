@@ -29,7 +29,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 # long ones start at once instead of last on a worker while the others idle. xdist's loadscope would
 # reorder modules by their number of tests (most first, so these single-test modules last): setup.cfg
 # turns that off with --no-loadscope-reorder.
-LONGEST_MODULES = ("test_px4_hil.py", "test_missions_slow.py", "test_px4.py", "test_ardupilot.py",
+LONGEST_MODULES = ("test_px4_gps_lost.py", "test_missions_slow.py", "test_px4.py", "test_ardupilot.py",
                    "test_storm_missions_slow.py")
 
 

@@ -1,10 +1,13 @@
 """The companion against real PX4 in lockstep with our world (``sitl.firmware.px4_hil``): GPS lost after start-up.
 
-It replaces the SIH test of the same claim (GPS lost after start-up, OFFBOARD kept, the true track on
-the companion's courses; 30 simulated minutes at 5x, 425 s in CI, CI's longest): here PX4's clock
-advances only with our frames and our world waits for the companion, so a loaded machine slows the
-run without changing what PX4 and the companion see. 20 minutes without GPS took 118 s of wall time
-at load average 20 on 2 cores. SIH stays the second check (``test_px4.py``, ``fcmpc-fly --fc px4``).
+Meant to replace the SIH test of the same claim (``test_px4_gps_lost.py``: GPS lost after start-up,
+OFFBOARD kept, the true track on the companion's courses; 30 simulated minutes at 5x, 425 s in CI,
+CI's longest): here PX4's clock advances only with our frames and our world waits for the companion,
+so a loaded machine slows the run without changing what PX4 and the companion see. 20 minutes without
+GPS took 118 s of wall time at load average 20 on 2 cores (passed once). Not yet in CI
+(``FCMPC_PX4_HIL=1`` runs it): in the next run PX4 failed safe ~780 s after the loss ("High
+Accelerometer Bias"; on the Pacific at 8 m/s "Compass needs calibration - Land now!", EKF2's
+accelerometer offsets 0.25-0.40 m/s^2), so the SIH test stays until that is understood.
 """
 from __future__ import annotations
 
@@ -81,6 +84,9 @@ def hil_rig(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("FCMPC_PX4_HIL") != "1",
+                    reason="PX4 lockstep GPS-lost: not yet reliable (PX4 failsafe after ~13 min without GPS); "
+                           "FCMPC_PX4_HIL=1 runs it")
 def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig):
     """Our world's receiver loses its fix 30 s after arming (HIL_GPS fix_type 0): the companion feeds
     HIL_GPS, EKF2 keeps a position, PX4 stays in OFFBOARD for 20 simulated minutes, every frame was
