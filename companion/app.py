@@ -76,14 +76,12 @@ from companion.io.param_server import ENCODINGS
 from companion.io.sensors.base import SensorError
 from companion.io.sensors.mavlink_source import MAG_MESSAGES
 from companion.io.status_page.address import parse_http_address
-from companion.nav.mission import FROZEN_IN_FLIGHT
 from companion.process.companion import CompanionApp, apply_live_config
 from companion.process.intake import SourceTimeMap, source_kinds
 from companion.process.machine import State
 from companion.process.options import AppOptions
 
 __all__ = [
-    "LIVE_FROZEN_FIELDS",
     "AppOptions",
     "CompanionApp",
     "SourceTimeMap",
@@ -94,10 +92,6 @@ __all__ = [
     "options_from_args",
     "source_kinds",
 ]
-
-# NavConfig fields that define the mission: a change applies to the next mission only.
-LIVE_FROZEN_FIELDS = FROZEN_IN_FLIGHT
-
 
 # ---------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:

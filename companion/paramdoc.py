@@ -22,12 +22,10 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import fields
 from pathlib import Path
 
 from companion.cli import ArgumentParser, run_main
-from companion.nav.mission import FROZEN_IN_FLIGHT
-from companion.params import NavConfig, format_value, write_text_atomically
+from companion.params import format_value, write_text_atomically
 from companion.registry import REGISTRY, SPEC_BY_NAME, ParamSpec
 
 __all__ = ["APPLIES", "GENERATED", "GROUPS", "group_of", "when_applied", "parm_text", "markdown_text", "metadata_json",
@@ -48,9 +46,6 @@ GROUPS: tuple[tuple[str, str, str], ...] = (
     ("LINK_", "Link", "who may write parameters, and the link's records"),
     ("MAG_", "Magnetometer calibration", "hard- and soft-iron correction applied to every sample"),
 )
-
-# the registry names of the NavConfig fields a running mission keeps (companion.nav.mission)
-_NEXT_MISSION = frozenset(f.metadata["param"] for f in fields(NavConfig) if f.name in FROZEN_IN_FLIGHT)
 
 APPLIES = {
     "at once": "a PARAM_SET applies at the next control step, in flight too",
@@ -76,7 +71,7 @@ def when_applied(spec: ParamSpec) -> str:
         return "start-up only"
     if spec.max_age_s is not None:
         return "reading"
-    return "next mission" if spec.name in _NEXT_MISSION else "at once"
+    return "next mission" if spec.frozen else "at once"
 
 
 def _grouped() -> list[tuple[tuple[str, str, str], list[ParamSpec]]]:

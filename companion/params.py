@@ -4,7 +4,8 @@ Every tunable value of the companion is declared once in :data:`REGISTRY` (name 
 16 characters for MAVLink, type, default, range, unit, description; re-exported here). From it
 come:
 
-* the frozen dataclasses the code reads (:class:`NavConfig`, :class:`CompanionConfig`); the
+* the frozen dataclasses the code reads (:class:`NavConfig` and the settings it nests, built by
+  :func:`companion.registry.settings` in the navigation core, :class:`CompanionConfig`); the
   *readings* (:data:`READINGS`: measurements a ground station keeps up to date, such as Kp) are
   not settings and reach no dataclass: the companion's control step reads them from the server
   while they are fresh,
@@ -26,11 +27,14 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from dataclasses import dataclass, field, fields
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Mapping
 
-from companion.registry import READINGS, REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec
+from companion.nav.config import Controller, NavConfig
+from companion.nav.gradient import MIN_MOVE_SINE   # the core's own bounds
+from companion.nav.wmm import MAP_WMMHR, WMM_NAMES, load_wmm, model_for_setting
+from companion.registry import READINGS, REGISTRY, SPEC_BY_NAME, ParamError, ParamSpec, from_values, settings
 
 __all__ = ["ParamSpec", "ParamError", "READINGS", "REGISTRY", "SPEC_BY_NAME", "default_values", "validate",
            "validate_all", "combination_error", "read_parm_file", "write_parm_file", "NavConfig", "CompanionConfig",
@@ -66,9 +70,6 @@ def combination_error(values: Mapping[str, float]) -> str | None:
     """Why these values, each within its range, cannot make a mission (None: they can): a field
     model forced by NAV_WMM, or the map NAV_MAP chose, that does not cover NAV_YEAR, or probing headings NAV_PROBE1_DEG and
     NAV_PROBE2_DEG within 11.5 degrees of parallel (the gradient needs two independent moves)."""
-    from companion.nav.gradient import MIN_MOVE_SINE   # the core's own bounds (here: no import cycle)
-    from companion.nav.wmm import MAP_WMMHR, WMM_NAMES, load_wmm, model_for_setting
-
     name = WMM_NAMES.get(int(values["NAV_WMM"]))
     year = float(values["NAV_YEAR"])
     if int(values.get("NAV_MAP", 0)) == MAP_WMMHR:
@@ -163,198 +164,61 @@ def write_text_atomically(path: str | os.PathLike, text: str) -> None:
         os.close(dir_fd)
 
 
-# --- dataclasses derived from the registry -------------------------------------------------
+# --- the settings classes derived from the registry ----------------------------------------------
+# NavConfig (and the filter's, fusion's and model error's settings it nests) are the navigation
+# core's own classes, built by companion.registry.settings; CompanionConfig is the process's.
 
 
-class Controller:
-    """Values of NAV_CONTROLLER."""
-
-    LTI = 0
-    LTV = 1
-    FC = 2
-    NAMES = {0: "LTI-MPC", 1: "LTV-MPC", 2: "Fc-MPC"}
-
-
-def _from(name: str, scale: float = 1.0):
-    """A dataclass field defaulting to a registry parameter (times ``scale`` for unit changes)."""
-    spec = SPEC_BY_NAME[name]
-    value = spec.kind(spec.default) if scale == 1.0 else spec.default * scale
-    return field(default=value, metadata={"param": name, "scale": scale})
-
-
-class _FromRegistry:
-    @classmethod
-    def from_values(cls, values: Mapping[str, float]):
-        """Build from parameter values (unknown names ignored here; validate first)."""
-        kwargs = {}
-        for f in fields(cls):  # type: ignore[arg-type]
-            name = f.metadata.get("param")
-            if name is not None and name in values:
-                kwargs[f.name] = values[name] * f.metadata["scale"] if f.metadata["scale"] != 1.0 else values[name]
-        return cls(**kwargs)
-
-
-_KM2_TO_M2 = 1e6
-_KMH_TO_MPS = 1.0 / 3.6
-
-
-@dataclass(frozen=True)
-class NavConfig(_FromRegistry):
-    """What the pure navigation core needs: mission, gradient, MPC and fusion settings (SI).
-    The space-weather readings (:data:`READINGS`) come with each step's measurement instead."""
-
-    start_lat_deg: float = _from("NAV_START_LAT")
-    start_lon_deg: float = _from("NAV_START_LON")
-    dest_lat_deg: float = _from("NAV_DEST_LAT")
-    dest_lon_deg: float = _from("NAV_DEST_LON")
-    alt_m: float = _from("NAV_ALT_M")
-    year: float = _from("NAV_YEAR")
-    wmm: int = _from("NAV_WMM")
-    nav_map: int = _from("NAV_MAP")
-    speed_mps: float = _from("NAV_SPEED_KMH", _KMH_TO_MPS)
-    period_s: float = _from("NAV_PERIOD_S")
-    arrive_m: float = _from("NAV_ARRIVE_M")
-    arrive_legs: int = _from("NAV_ARRIVE_LEGS")
-    final_leg: int = _from("NAV_FINAL_LEG")
-    lookahead_m: float = _from("NAV_LOOKAHEAD_M")
-    max_steps: int = _from("NAV_MAX_STEPS")
-    probe1_deg: float = _from("NAV_PROBE1_DEG")
-    probe2_deg: float = _from("NAV_PROBE2_DEG")
-    controller: int = _from("NAV_CONTROLLER")
-    speed_mode: int = _from("NAV_SPEED_MODE")
-    grad_update: int = _from("GRAD_UPDATE")
-    grad_min_move_m: float = _from("GRAD_MIN_MOVE_M")
-    horizon: int = _from("MPC_HORIZON")
-    q_d: float = _from("MPC_Q_D")
-    q_i: float = _from("MPC_Q_I")
-    f_d: float = _from("MPC_F_D")
-    f_i: float = _from("MPC_F_I")
-    r_x: float = _from("MPC_R_X")
-    r_y: float = _from("MPC_R_Y")
-    mpc_units: int = _from("MPC_UNITS")
-    u_bounds: int = _from("MPC_U_BOUNDS")
-    u_max_mps: float = _from("MPC_U_MAX_KMH", _KMH_TO_MPS)
-    s_min_d: float = _from("MPC_S_MIN_D")
-    s_min_i: float = _from("MPC_S_MIN_I")
-    s_max_d: float = _from("MPC_S_MAX_D")
-    s_max_i: float = _from("MPC_S_MAX_I")
-    s_min_f: float = _from("MPC_S_MIN_F")
-    s_max_f: float = _from("MPC_S_MAX_F")
-    s_auto: int = _from("MPC_S_AUTO")
-    s_margin_deg: float = _from("MPC_S_MARGIN")
-    s_admit: int = _from("MPC_S_ADMIT")
-    elements: int = _from("NAV_ELEMENTS")
-    calibrate: int = _from("NAV_CALIBRATE")
-    fix_gate_m: float = _from("NAV_FIX_GATE_M")
-    model_err_deg: float = _from("NAV_MERR_DEG")
-    model_err_nt: float = _from("NAV_MERR_NT")
-    model_err_length_m: float = _from("NAV_MERR_KM", 1000.0)
-    reanchor_steps: int = _from("NAV_REANCHOR_N")
-    dr_heading: int = _from("NAV_DR_HDG")
-    solver: int = _from("MPC_SOLVER")
-    fusion_sigma_deg_per_m: float = _from("FUS_SIGMA", 1e-3)
-    fusion_qc_m2: float = _from("FUS_QC_KM2", _KM2_TO_M2)
-    fusion_rc_m2: float = _from("FUS_RC_KM2", _KM2_TO_M2)
-    fusion_p0_m2: float = _from("FUS_P0_KM2", _KM2_TO_M2)
-    fusion_feedback: int = _from("FUS_FEEDBACK")
-    fusion_model: int = _from("FUS_MODEL")
-    filter_r_deg: float = _from("FUS_R_DEG")
-    filter_r_nt: float = _from("FUS_R_NT")
-    filter_r_source: int = _from("FUS_R_SRC")
-    filter_rmin_deg: float = _from("FUS_RMIN_DEG")
-    filter_rmin_nt: float = _from("FUS_RMIN_NT")
-    bias_sigma0_deg: float = _from("FUS_B0_DEG")
-    bias_sigma0_nt: float = _from("FUS_B0_NT")
-    bias_q_deg: float = _from("FUS_BQ_DEG")
-    bias_q_nt: float = _from("FUS_BQ_NT")
-    bias_qd_deg: float = _from("FUS_BQD_DEG")
-    bias_qd_nt: float = _from("FUS_BQD_NT")
-    bias_qa_deg: float = _from("FUS_BQA_DEG")
-    bias_qa_nt: float = _from("FUS_BQA_NT")
-    bias_qa_adapt: int = _from("FUS_BQA_ADAPT")
-    bias_qa_mode: int = _from("FUS_BQA_MODE")
-    bias_qa_n_nt: float = _from("FUS_BQA_N")
-    bias_qa_e_nt: float = _from("FUS_BQA_E")
-    bias_qa_z_nt: float = _from("FUS_BQA_Z")
-    bias_qa_tn_h: float = _from("FUS_BQA_TN")
-    bias_qa_te_h: float = _from("FUS_BQA_TE")
-    bias_qa_tz_h: float = _from("FUS_BQA_TZ")
-    bias_qa_rne: float = _from("FUS_BQA_RNE")
-    bias_qa_rnz: float = _from("FUS_BQA_RNZ")
-    bias_qa_rez: float = _from("FUS_BQA_REZ")
-    kp_on: float = _from("FUS_KP_ON")
-    symh_on_nt: float = _from("FUS_SYMH_ON")
-    symh_ratio: float = _from("FUS_SYMH_K")
-    symh_residual_n_nt: float = _from("FUS_SYMH_N")
-    symh_residual_tn_h: float = _from("FUS_SYMH_TN")
-    symh_residual_rne: float = _from("FUS_SYMH_RNE")
-    symh_residual_rnz: float = _from("FUS_SYMH_RNZ")
-    attitude_from_ins: int = _from("FUS_ATT_INS")
-    bias_heading_deg: float = _from("FUS_BH_DEG")
-    bias_heading_nt: float = _from("FUS_BH_NT")
-    local_err_deg: float = _from("FUS_GM_DEG")
-    local_err_nt: float = _from("FUS_GM_NT")
-    local_err_length_m: float = _from("FUS_GM_KM", 1000.0)
-    ins_tilt_arcsec: float = _from("FUS_INS_TILT")
-    ins_azimuth_arcsec: float = _from("FUS_INS_AZ")
-    ins_vel_err_mps: float = _from("FUS_INS_VEL")
-    ins_pos_err_m: float = _from("FUS_INS_POS")
-    ins_gyro_bias_degph: float = _from("FUS_INS_GB")
-    ins_gyro_markov_degph: float = _from("FUS_INS_GM")
-    ins_gyro_markov_tau_s: float = _from("FUS_INS_GM_TAU")
-    ins_vrw_mps_rts: float = _from("FUS_INS_VRW")
-    dr_pos_sigma_m: float = _from("FUS_DR_POS_M")
-    current_sigma_mps: float = _from("FUS_CUR_MPS")
-    current_q_mps: float = _from("FUS_CUR_Q")
-    gps_sigma_m: float = _from("FUS_GPS_M")
-    grad_init: int = _from("GRAD_INIT")
-
-    def replace(self, **changes) -> "NavConfig":
-        """A copy with some fields changed (for scripts and tests)."""
-        from dataclasses import replace
-
-        return replace(self, **changes)
-
-
-@dataclass(frozen=True)
-class CompanionConfig(_FromRegistry):
+@settings("companion")
+class CompanionConfig:
     """What the companion process needs around the core: rates, timeouts, calibration."""
 
-    setpoint_rate_hz: float = _from("COMP_SP_RATE_HZ")
-    arm_enable: int = _from("COMP_ARM_ENABLE")
-    position_publish: int = _from("COMP_POS_PUB")
-    heading_source: int = _from("COMP_HEADING_SRC")
-    feed_accuracy_m: float = _from("COMP_FEED_ACC_M")
-    feed_blend_mps: float = _from("COMP_FEED_BLEND")
-    mag_rate_hz: float = _from("COMP_MAG_HZ")
-    trim_max_deg: float = _from("COMP_TRIM_DEG")
-    cal_turns: int = _from("COMP_CAL_TURNS")
-    cal_rate_dps: float = _from("COMP_CAL_DPS")
-    mag_timeout_s: float = _from("COMP_MAG_TMO_S")
-    att_timeout_s: float = _from("COMP_ATT_TMO_S")
-    heartbeat_timeout_s: float = _from("COMP_HB_TMO_S")
-    spike_nt: float = _from("COMP_SPIKE_NT")
-    diverge_m: float = _from("COMP_DIVERGE_KM", 1e3)
-    mag_offset_mgauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    mag_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    mag_soft_xy_xz_yz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    setpoint_rate_hz: float
+    arm_enable: int
+    position_publish: int
+    heading_source: int
+    feed_accuracy_m: float
+    feed_blend_mps: float
+    mag_rate_hz: float
+    trim_max_deg: float
+    cal_turns: int
+    cal_rate_dps: float
+    mag_timeout_s: float
+    att_timeout_s: float
+    heartbeat_timeout_s: float
+    spike_nt: float
+    diverge_m: float
+    mag_ofs_x: float
+    mag_ofs_y: float
+    mag_ofs_z: float
+    mag_scale_x: float
+    mag_scale_y: float
+    mag_scale_z: float
+    mag_soft_xy: float
+    mag_soft_xz: float
+    mag_soft_yz: float
 
     @classmethod
-    def from_values(cls, values: Mapping[str, float]) -> "CompanionConfig":
-        base = super().from_values(values)
+    def from_values(cls, values: Mapping[str, float]) -> CompanionConfig:
+        """Validated values (ParamError otherwise), the failsafe timeouts capped by SAFE_TMO_S."""
         merged = validate_all({k: v for k, v in values.items() if k in SPEC_BY_NAME})
-        from dataclasses import replace
-
+        base = from_values(cls, merged)
         ceiling = float(merged["SAFE_TMO_S"])   # the start-up ceiling: a link-set timeout cannot exceed it
-        return replace(
-            base,
-            mag_timeout_s=min(base.mag_timeout_s, ceiling),
-            att_timeout_s=min(base.att_timeout_s, ceiling),
-            heartbeat_timeout_s=min(base.heartbeat_timeout_s, ceiling),
-            mag_offset_mgauss=tuple(float(merged[f"MAG_OFS_{a}"]) for a in "XYZ"),
-            mag_scale=tuple(float(merged[f"MAG_SCALE_{a}"]) for a in "XYZ"),
-            mag_soft_xy_xz_yz=tuple(float(merged[f"MAG_SOFT_{a}"]) for a in ("XY", "XZ", "YZ")),
-        )
+        return replace(base, mag_timeout_s=min(base.mag_timeout_s, ceiling),
+                       att_timeout_s=min(base.att_timeout_s, ceiling),
+                       heartbeat_timeout_s=min(base.heartbeat_timeout_s, ceiling))
+
+    @property
+    def mag_offset_mgauss(self) -> tuple[float, float, float]:
+        return self.mag_ofs_x, self.mag_ofs_y, self.mag_ofs_z
+
+    @property
+    def mag_scale(self) -> tuple[float, float, float]:
+        return self.mag_scale_x, self.mag_scale_y, self.mag_scale_z
+
+    @property
+    def mag_soft_xy_xz_yz(self) -> tuple[float, float, float]:
+        return self.mag_soft_xy, self.mag_soft_xz, self.mag_soft_yz
 
 
 def names_with_prefix(prefixes: Iterable[str]) -> list[str]:

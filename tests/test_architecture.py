@@ -45,6 +45,15 @@ def test_navigation_core_is_pure(path: Path):
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}: the algorithm core must stay pure"
 
 
+def test_parameters_point_one_way():
+    """The registry is a leaf (its settings classes live in the core), the core reads it and never
+    companion.params, which derives from both: params -> nav -> registry, no cycle to defer."""
+    assert not {n for n in _imports(ROOT / "companion/registry.py") if n.startswith("companion")}
+    for path in _modules("companion/nav"):
+        bad = {n for n in _imports(path) if n == "companion.params" or n.startswith("companion.process")}
+        assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
+
+
 @pytest.mark.parametrize("path", _modules("sitl"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_simulator_never_imports_companion_io(path: Path):
     bad = {name for name in _imports(path) if name.startswith(("companion.io", "companion.app", "companion.process",

@@ -156,6 +156,14 @@ def test_failed_write_keeps_the_old_file_intact(tmp_path, monkeypatch, fail_in):
 
 
 # --- derived configs -------------------------------------------------------------------------------
+def _params_of(cls) -> list[str]:
+    """The registry names behind a settings class's fields, nested settings included."""
+    names: list[str] = []
+    for f in fields(cls):
+        names += [f.metadata["param"]] if "param" in f.metadata else _params_of(f.default_factory)
+    return names
+
+
 def test_navconfig_defaults_match_the_registry_and_converts_units():
     assert NavConfig.from_values(default_values()) == NavConfig()
     values = validate_all({"NAV_SPEED_KMH": 72.0, "MPC_U_MAX_KMH": 36.0, "FUS_QC_KM2": 0.5, "FUS_RC_KM2": 3.0,
@@ -163,9 +171,9 @@ def test_navconfig_defaults_match_the_registry_and_converts_units():
     cfg = NavConfig.from_values(values)
     assert cfg.speed_mps == pytest.approx(20.0)          # 72 km/h = 72000 m / 3600 s
     assert cfg.u_max_mps == pytest.approx(10.0)
-    assert cfg.fusion_qc_m2 == pytest.approx(0.5e6)      # 1 km^2 = 1e6 m^2
-    assert cfg.fusion_rc_m2 == pytest.approx(3.0e6)
-    assert cfg.fusion_p0_m2 == pytest.approx(2.0e6)
+    assert cfg.fusion.qc_m2 == pytest.approx(0.5e6)      # 1 km^2 = 1e6 m^2
+    assert cfg.fusion.rc_m2 == pytest.approx(3.0e6)
+    assert cfg.fusion.p0_m2 == pytest.approx(2.0e6)
     assert cfg.fusion_sigma_deg_per_m == pytest.approx(4e-6)   # 0.004 deg/km = 4e-6 deg/m
     assert cfg.horizon == 5 and isinstance(cfg.horizon, int) and cfg.controller == 1
     assert NavConfig().speed_mps == pytest.approx(50.0 / 3.6)
@@ -175,7 +183,7 @@ def test_navconfig_defaults_match_the_registry_and_converts_units():
 def test_every_navigation_parameter_reaches_navconfig_exactly_once():
     """Every navigation setting is a NavConfig field, once; the readings are none (they come with
     each step's measurement: the companion's control step reads them from its parameter server)."""
-    mapped = [f.metadata["param"] for f in fields(NavConfig) if "param" in f.metadata]
+    mapped = _params_of(NavConfig)
     assert len(mapped) == len(set(mapped))
     nav_params = [s.name for s in REGISTRY if s.name.split("_")[0] in ("NAV", "GRAD", "MPC", "FUS")]
     assert sorted(mapped) == sorted(set(nav_params) - set(READINGS))
@@ -192,8 +200,8 @@ def test_companionconfig_converts_units_and_collects_calibration():
     assert cfg.mag_offset_mgauss == (12.0, -3.5, 100.0)
     assert cfg.mag_scale == (1.1, 0.9, 1.0)
     assert CompanionConfig().diverge_m == pytest.approx(50e3)
-    mapped = {f.metadata["param"] for f in fields(CompanionConfig) if "param" in f.metadata}
-    assert mapped == {s.name for s in REGISTRY if s.name.startswith("COMP_")}
+    mapped = set(_params_of(CompanionConfig))
+    assert mapped == {s.name for s in REGISTRY if s.name.startswith(("COMP_", "MAG_"))}
     with pytest.raises(ParamError, match="MAG_SCALE_X"):
         CompanionConfig.from_values({"MAG_SCALE_X": 9.0})
 

@@ -27,10 +27,8 @@ made, and at ten times the magnetometer noise its median miss rose from 0.985 to
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from companion.params import NavConfig
+from companion.nav.config import NavConfig
 
 __all__ = ["BELOW_EPSILON", "Arrival", "arrival_reason", "is_final_leg", "legs_reason"]
 

@@ -38,13 +38,13 @@ from companion.nav.field import (PositionFixError, WorldMagneticModel, element_f
                                  fix_covariance)
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.heading import window_heading_rad
-from companion.nav.ins_error import AttitudeSource, InsErrorSpec
-from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
-from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
+from companion.nav.ins_error import AttitudeSource
+from companion.nav.navfilter import NavigationFilter
+from companion.nav.process import DeadReckoningProcess, InsProcess
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 from companion.nav.ring_current import ring_current_change_nt, ring_current_elements, symh_value
 
-__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator", "filter_settings"]
+__all__ = ["REWIND_STEPS", "Estimate", "FusionModel", "PositionEstimator"]
 
 REWIND_EXTRA = 4   # ... before the loud ones (8 seeds: long storm 11 km with 4, 16-26 km with 2 or 10)
 REWIND_STEPS = ONSET_STEPS + REWIND_EXTRA   # steps kept to fly again when a disturbance is recognised
@@ -108,26 +108,6 @@ def _space_weather(meas, config) -> tuple[bool, bool]:
     return storm_declared(*readings), index_says_quiet(*readings)
 
 
-def filter_settings(config) -> FilterSettings:
-    """The filter's settings from a :class:`companion.params.NavConfig`."""
-    return FilterSettings(
-        r_deg=config.filter_r_deg, r_nt=config.filter_r_nt, r_source=config.filter_r_source,
-        r_min_deg=config.filter_rmin_deg, r_min_nt=config.filter_rmin_nt,
-        bias=BiasSpec(config.bias_sigma0_deg, config.bias_sigma0_nt, config.bias_q_deg, config.bias_q_nt,
-                      config.bias_qa_deg, config.bias_qa_nt, config.local_err_deg, config.local_err_nt,
-                      config.local_err_length_m, config.bias_qd_deg, config.bias_qd_nt,
-                      bool(config.bias_qa_adapt), config.bias_heading_deg, config.bias_heading_nt,
-                      config.bias_qa_mode, (config.bias_qa_n_nt, config.bias_qa_e_nt, config.bias_qa_z_nt),
-                      (config.bias_qa_tn_h, config.bias_qa_te_h, config.bias_qa_tz_h),
-                      (config.bias_qa_rne, config.bias_qa_rnz, config.bias_qa_rez)),
-        ins=InsErrorSpec((config.ins_tilt_arcsec, config.ins_tilt_arcsec, config.ins_azimuth_arcsec),
-                         config.ins_vel_err_mps / math.sqrt(2.0), config.ins_pos_err_m, config.ins_gyro_bias_degph,
-                         config.ins_gyro_markov_degph, config.ins_gyro_markov_tau_s, config.ins_vrw_mps_rts),
-        dead_reckoning=DeadReckoningSpec(config.dr_pos_sigma_m, DeadReckoningSpec.speed_frac,
-                                         config.current_sigma_mps, config.current_q_mps),
-        attitude_from_ins=config.attitude_from_ins)
-
-
 class PositionEstimator:
     """Builds the filter at the first step and runs it on every later one."""
 
@@ -136,7 +116,7 @@ class PositionEstimator:
         self.model = model
         self.measured = measured
         self.steering = measured.steering()
-        self.settings = filter_settings(config)
+        self.settings = config.filter
         self.filter: NavigationFilter | None = None
         self.reason = ""
         self.rejected = 0
@@ -160,19 +140,18 @@ class PositionEstimator:
     @property
     def storm_walk(self) -> str:
         """How the bias states walk while a storm is declared, in words."""
-        c = self.config
-        if c.bias_qa_mode == COMPONENT_WALK:
+        b = self.config.filter.bias
+        if b.qa_mode == COMPONENT_WALK:
             removed = self.ring_current_removed
-            north = (c.symh_residual_n_nt, c.symh_residual_tn_h) if removed else (c.bias_qa_n_nt, c.bias_qa_tn_h)
+            if removed:
+                b = b.after_ring_current()
             parts = [f"{name} {q:g}" + (f" (tau {tau:g} h)" if tau > 0.0 else "")
-                     for name, q, tau in zip("NEZ", (north[0], c.bias_qa_e_nt, c.bias_qa_z_nt),
-                                             (north[1], c.bias_qa_te_h, c.bias_qa_tz_h))]
-            corr = (c.symh_residual_rne, c.symh_residual_rnz) if removed else (c.bias_qa_rne, c.bias_qa_rnz)
-            corr = (*corr, c.bias_qa_rez)
+                     for name, q, tau in zip("NEZ", b.qa_ned_nt_rth, b.qa_ned_tau_h)]
+            corr = b.qa_ned_corr
             return ("biases walk by field component " + ", ".join(parts) + " nT/rt(h)"
                     + (", N after SYM-H" if removed else "")
                     + (", correlated NE {:g} NZ {:g} EZ {:g}".format(*corr) if any(corr) else ""))
-        return f"biases walk per element {c.bias_qa_deg:g} deg, {c.bias_qa_nt:g} nT/rt(h)"
+        return f"biases walk per element {b.qa_deg_rth:g} deg, {b.qa_nt_rth:g} nT/rt(h)"
 
     @property
     def ring_current_removed(self) -> bool:
@@ -217,18 +196,14 @@ class PositionEstimator:
             process = InsProcess(self.settings.ins, meas.ins_lat_deg)
             ins = self.settings.ins
             self.reason = (f"INS error model (gyros {ins.gyro_bias_degph:g} + {ins.gyro_markov_degph:g} deg/h): an "
-                           "independent INS position is available" + _ATTITUDE_WORDS[c.attitude_from_ins])
+                           "independent INS position is available" + _ATTITUDE_WORDS[c.filter.attitude_from_ins])
         else:
             raise ValueError("FUS_MODEL 2 (INS) needs an independent INS position at the start")
         self.symh_reference_nt = symh_value(meas.symh_nt) if c.symh_ratio > 0.0 else math.nan
         self._symh_last = self.symh_reference_nt
         settings = self.settings
         if self.ring_current_removed:   # what the prediction misses walks as the storm's north
-            b = settings.bias
-            settings = replace(settings, bias=replace(
-                b, qa_ned_nt_rth=(c.symh_residual_n_nt, *b.qa_ned_nt_rth[1:]),
-                qa_ned_tau_h=(c.symh_residual_tn_h, *b.qa_ned_tau_h[1:]),
-                qa_ned_corr=(c.symh_residual_rne, c.symh_residual_rnz, b.qa_ned_corr[2])))
+            settings = replace(settings, bias=settings.bias.after_ring_current())
         self.filter = NavigationFilter(process, self.measured, settings, self.model, c.alt_m, c.year)
         # at the known start F's innovation is calibration, whatever an index says of the day
         self.filter.monitor.declare(_space_weather(meas, c)[0], index_quiet=True)

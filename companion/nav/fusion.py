@@ -7,7 +7,7 @@ State ``dX`` (eq. 47): attitude errors (3), position errors (3: east, north, up)
 errors (3), constant gyro drift (3), random gyro drift (3). We keep the paper's order for the
 position block at indices 3-4 so ``H_B = [0_2x3 I_2 0_2x10]`` (eq. 51) as printed, and hold
 the position error in **metres east/north** rather than the paper's longitude/latitude
-radians, so Table 3's numbers read as km^2 (``NavConfig.fusion_*_m2``).
+radians, so Table 3's numbers read as km^2 (``FusionSettings.*_m2``).
 
 Measurement (eq. 50): ``dZ = Z_m - Z_c``, INS position minus geomagnetic position, in local
 metres. Prediction with ``F = I_15`` (eq. 52-53), gain and update (eq. 54-56) by filterpy.
@@ -23,12 +23,16 @@ Feedback (selectable, ``FUS_FEEDBACK``):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-__all__ = ["FusionFeedback", "FusionSettings", "FusionResult", "InsGeomagFusion", "H_B"]
+from companion.nav.filter_settings import BiasSpec
+from companion.registry import settings
+
+__all__ = ["FusionFeedback", "FusionSettings", "FusionResult", "InsGeomagFusion", "H_B", "ModelError"]
 
 H_B = np.hstack([np.zeros((2, 3)), np.eye(2), np.zeros((2, 10))])  # eq. 51
 
@@ -40,14 +44,34 @@ class FusionFeedback:
     PAPER = 1
 
 
-@dataclass(frozen=True)
+@settings("fusion")
 class FusionSettings:
-    """Table 3 in SI: position-error variances in m^2."""
+    """Table 3 in SI: position-error variances in m^2 (``FUS_QC_KM2``, ``FUS_RC_KM2``,
+    ``FUS_P0_KM2``) and the feedback (``FUS_FEEDBACK``, :class:`FusionFeedback`)."""
 
-    qc_m2: float = 0.05e6
-    rc_m2: float = 2.0e6
-    p0_m2: float = 1.0e6
-    feedback: int = FusionFeedback.CORRECTED_INS
+    qc_m2: float
+    rc_m2: float
+    p0_m2: float
+    feedback: int
+
+
+@settings("model_error")
+class ModelError:
+    """The field model's element error as a Gauss-Markov field in distance: 1-sigma
+    ``sigma_deg`` (D, I) and ``sigma_nt`` (F, H, Z) at a point, correlation length ``length_m``
+    (``NAV_MERR_DEG``, ``NAV_MERR_NT``, ``NAV_MERR_KM``: Table 3's uncertainty)."""
+
+    sigma_deg: float
+    sigma_nt: float
+    length_m: float
+
+    def variance(self, names: tuple[str, ...], distance_m: float | None) -> np.ndarray:
+        """Variance of each element's model error at ``distance_m`` from a calibration point,
+        after the calibration's value there is removed; ``None``: not calibrated."""
+        point = BiasSpec.per_element(names, self.sigma_deg, self.sigma_nt) ** 2
+        if distance_m is None:
+            return point
+        return 2.0 * point * (1.0 - math.exp(-max(distance_m, 0.0) / self.length_m))
 
 
 @dataclass(frozen=True)

@@ -34,12 +34,12 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import expm
 
 from companion.nav.geo import radii_of_curvature_m
+from companion.registry import settings
 
 __all__ = [
     "ATT",
@@ -68,21 +68,34 @@ LAT, LON = 6, 7
 _BIAS, _MARKOV = slice(9, 12), slice(12, 15)
 
 
-@dataclass(frozen=True)
+@settings("ins")
 class InsErrorSpec:
     """What the navigator assumes about its INS, 1-sigma per axis: its datasheet, declared by the
-    operator (the companion's ``FUS_INS_*``); the defaults are Table 1 (misalignment read as
-    arc-seconds, see the README). ``vrw_mps_rts``: velocity random walk (accelerometer white
-    noise, m/s per sqrt(s)); Table 1 gives none, a small value keeps the filter from trusting a
-    noiseless model absolutely."""
+    operator (the companion's ``FUS_INS_*``; their defaults are Table 1, the misalignment read as
+    arc-seconds, see the README): misalignment about each level axis (``tilt_arcsec``) and in
+    azimuth, the horizontal velocity error of both axes together (``vel_err_mps``: per axis this
+    over sqrt 2), the position error per axis, the gyro drifts. ``vrw_mps_rts``: velocity random
+    walk (accelerometer white noise, m/s per sqrt(s)); Table 1 gives none, a small value keeps
+    the filter from trusting a noiseless model absolutely."""
 
-    misalign_arcsec: tuple[float, float, float] = (50.0, 50.0, 500.0)
-    vel_err_mps: float = 10.0 / math.sqrt(2.0)
-    pos_err_m: float = 5000.0
-    gyro_bias_degph: float = 0.01
-    gyro_markov_degph: float = 0.005
-    gyro_markov_tau_s: float = 3600.0
-    vrw_mps_rts: float = 1e-4
+    tilt_arcsec: float
+    azimuth_arcsec: float
+    vel_err_mps: float
+    pos_err_m: float
+    gyro_bias_degph: float
+    gyro_markov_degph: float
+    gyro_markov_tau_s: float
+    vrw_mps_rts: float
+
+    @property
+    def misalign_arcsec(self) -> tuple[float, float, float]:
+        """Misalignment about east, north, up."""
+        return self.tilt_arcsec, self.tilt_arcsec, self.azimuth_arcsec
+
+    @property
+    def vel_err_axis_mps(self) -> float:
+        """Velocity error per horizontal axis."""
+        return self.vel_err_mps / math.sqrt(2.0)
 
 
 def error_dynamics(lat_deg: float, vel_east_mps: float, vel_north_mps: float, markov_tau_s: float) -> np.ndarray:
@@ -172,7 +185,7 @@ def initial_covariance(spec: InsErrorSpec, lat_deg: float) -> np.ndarray:
     m, n = (float(r) for r in radii_of_curvature_m(lat_deg))
     sigma = np.zeros(N_INS)
     sigma[ATT] = np.array(spec.misalign_arcsec) * ARCSEC
-    sigma[3:5] = spec.vel_err_mps
+    sigma[3:5] = spec.vel_err_axis_mps
     sigma[LAT] = spec.pos_err_m / m
     sigma[LON] = spec.pos_err_m / (n * math.cos(math.radians(lat_deg)))
     sigma[_BIAS] = spec.gyro_bias_degph * DEG_PER_HOUR

@@ -44,6 +44,7 @@ import numpy as np
 
 from companion import course_from_theta
 from companion.nav.arrival import Arrival
+from companion.nav.config import Controller, NavConfig
 from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.estimator import Estimate, FusionModel, PositionEstimator
 from companion.nav.field import WorldMagneticModel, element_gradient, model_for_setting
@@ -57,23 +58,12 @@ from companion.nav.screening import MEASUREMENT_ERRORS, REJECTED, finite_filter,
 from companion.nav.small import solve2
 from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
-from companion.params import Controller, NavConfig
+from companion.registry import hold_frozen
 
 __all__ = ["REJECTED", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
-           "uses_filter", "FROZEN_IN_FLIGHT"]
+           "uses_filter"]
 
 KMH = 1.0 / 3.6
-
-
-# Settings a running mission keeps until it ends: they define where it goes, what it has
-# estimated so far (gradient, filter) or the shape of its QP bounds.
-FROZEN_IN_FLIGHT = ("start_lat_deg", "start_lon_deg", "dest_lat_deg", "dest_lon_deg", "alt_m", "year", "wmm",
-                    "elements", "calibrate", "s_auto", "s_margin_deg",
-                    "probe1_deg", "probe2_deg", "controller", "u_bounds", "grad_update", "grad_min_move_m",
-                    "fusion_qc_m2", "fusion_rc_m2", "fusion_p0_m2", "fusion_feedback", "fusion_model",
-                    "filter_r_deg", "filter_r_nt", "filter_r_source", "filter_rmin_deg", "filter_rmin_nt", "bias_sigma0_deg", "bias_sigma0_nt", "bias_q_deg", "bias_q_nt",
-                    "bias_qd_deg", "bias_qd_nt", "bias_qa_deg", "bias_qa_nt", "bias_qa_adapt", "local_err_deg", "local_err_nt", "local_err_length_m", "dr_pos_sigma_m", "current_sigma_mps", "current_q_mps", "gps_sigma_m", "attitude_from_ins",
-                    "model_err_deg", "model_err_nt", "model_err_length_m", "grad_init")
 
 
 def compensation(b: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -213,16 +203,12 @@ class Mission:
 
     def reconfigure(self, new: NavConfig) -> list[str]:
         """Take a changed configuration at the next step; returns the registry names of changes
-        kept for the next mission (the fields of :data:`FROZEN_IN_FLIGHT`). Weights, horizon,
+        kept for the next mission (the registry's ``frozen`` entries). Weights, horizon,
         bounds, speed, period, thresholds and the QP backend apply at once (the QP is rebuilt
         when its own settings changed; a new space-weather reading, every minute in a storm,
         leaves it and its warm start as they are)."""
-        from dataclasses import fields as dataclass_fields
-
         old = self.config
-        deferred = [f.metadata["param"] for f in dataclass_fields(NavConfig)
-                    if f.name in FROZEN_IN_FLIGHT and getattr(new, f.name) != getattr(old, f.name)]
-        merged = new.replace(**{name: getattr(old, name) for name in FROZEN_IN_FLIGHT})
+        merged, deferred = hold_frozen(old, new)
         if merged != old:
             before = mpc_settings(old, self.elements, self.s_lower, self.s_upper)
             self.config = self.table3.config = merged

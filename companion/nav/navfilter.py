@@ -63,19 +63,18 @@ as ``z = y + H x`` so its ``z - H x`` is our innovation.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import block_diag
 
-from companion.nav.disturbance import (COMPONENT_WALK, ELEMENT_WALK, BiasWalk, DisturbanceMonitor, StormWalk,
-                                       field_jacobian)
+from companion.nav.disturbance import COMPONENT_WALK, BiasWalk, DisturbanceMonitor, field_jacobian
 from companion.nav.elements import ElementSet
 from companion.nav.field import WorldMagneticModel, element_values_and_gradient
+from companion.nav.filter_settings import BiasSpec, FilterSettings
 from companion.nav.geo import enu_offset, offset_position
-from companion.nav.ins_error import AttitudeSource, InsErrorSpec, misalignment_columns
-from companion.nav.process import DeadReckoningSpec, InsProcess, ProcessModel
+from companion.nav.ins_error import AttitudeSource, misalignment_columns
+from companion.nav.process import InsProcess, ProcessModel
 from companion.nav.small import inverse2, whiten
 
 __all__ = [
@@ -88,55 +87,6 @@ __all__ = [
 ]
 
 HARMONIC_TERMS = 4   # heading states per element: cos, sin of the heading and of twice it
-
-
-@dataclass(frozen=True)
-class BiasSpec:
-    """Bias states: prior 1-sigma, and random walk per sqrt(hour) while quiet and while a
-    disturbance is active, for angles (deg) and intensities (nT), plus a random walk per
-    sqrt(km) travelled (``qd_*_rkm``: the main-field model's error relative to the start-up
-    calibration, which holds at the start and less the farther the vehicle goes); and the local model error:
-    a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
-    ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0); and
-    the calibration residual's dependence on the heading: prior 1-sigma ``heading_deg`` /
-    ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
-    the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
-    disturbance is active the biases walk per element at ``qa_*_rth`` (``qa_mode`` 0) or along
-    the field components at ``qa_ned_nt_rth`` (N, E, Z, nT per sqrt(hour); ``qa_mode`` 1), each a
-    random walk or, with a correlation time ``qa_ned_tau_h`` (hours), Gauss-Markov, their changes
-    correlated by ``qa_ned_corr`` (N-E, N-Z, E-Z); see :mod:`companion.nav.disturbance`."""
-
-    sigma0_deg: float = 0.5
-    sigma0_nt: float = 500.0
-    q_deg_rth: float = 0.0002
-    q_nt_rth: float = 0.2
-    qa_deg_rth: float = 0.05
-    qa_nt_rth: float = 40.0
-    local_deg: float = 0.0
-    local_nt: float = 0.0
-    local_length_m: float = 25_000.0
-    qd_deg_rkm: float = 0.0
-    qd_nt_rkm: float = 0.0
-    qa_adapt: bool = True
-    heading_deg: float = 0.0
-    heading_nt: float = 0.0
-    qa_mode: int = ELEMENT_WALK
-    qa_ned_nt_rth: tuple[float, float, float] = (60.0, 46.0, 30.0)
-    qa_ned_tau_h: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    qa_ned_corr: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    @property
-    def storm_walk(self) -> StormWalk:
-        """How a declared storm walks along the field components (``qa_mode`` 1)."""
-        return StormWalk(self.qa_ned_nt_rth, self.qa_ned_tau_h, self.qa_ned_corr)
-
-    @property
-    def has_local(self) -> bool:
-        return self.local_deg > 0.0 or self.local_nt > 0.0
-
-    @staticmethod
-    def per_element(names: tuple[str, ...], deg: float, nt: float) -> np.ndarray:
-        return np.array([nt if name.endswith("_nt") else deg for name in names])
 
 
 def harmonic_row(heading_rad: float) -> np.ndarray:
@@ -156,22 +106,6 @@ def measured_variance(standard_errors: np.ndarray, r_min: np.ndarray, r_declared
     se = np.asarray(standard_errors, dtype=float)
     measured = np.isfinite(se) & (se >= 0.0)
     return np.where(measured, np.where(measured, se, 0.0) ** 2 + r_min ** 2, r_declared ** 2)
-
-
-@dataclass(frozen=True)
-class FilterSettings:
-    """Declared measurement noise of an averaged element (1-sigma, deg or nT), the bias states,
-    the INS the navigator assumes, and the dead-reckoning uncertainty."""
-
-    r_deg: float = 0.002
-    r_nt: float = 2.0
-    r_source: int = 1            # 1: measured standard errors (floored), 0: the declared r_deg / r_nt
-    r_min_deg: float = 0.0005    # added in quadrature to a measured standard error
-    r_min_nt: float = 0.5
-    bias: BiasSpec = field(default_factory=BiasSpec)
-    ins: InsErrorSpec = field(default_factory=InsErrorSpec)
-    dead_reckoning: DeadReckoningSpec = field(default_factory=DeadReckoningSpec)
-    attitude_from_ins: int = AttitudeSource.NONE   # FUS_ATT_INS (the companion's default: ALL)
 
 
 class NavigationFilter:

@@ -111,7 +111,7 @@ def _angles(gw: np.ndarray) -> tuple[float, float]:
 
 def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
                   start_sigma_m: float | None = None, samples: int = 41) -> RoutePrediction:
-    """Predict the route of ``config`` (a :class:`companion.params.NavConfig`) for a vehicle whose
+    """Predict the route of ``config`` (a :class:`companion.nav.config.NavConfig`) for a vehicle whose
     yaw is (not) ``compass_derived`` and which does (not) carry an independent INS position.
     ``model``: the navigator's map (None: the one the mission picks). ``start_sigma_m``: the
     start fix's 1-sigma (None: ``config.gps_sigma_m``)."""
@@ -127,7 +127,7 @@ def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
     length_m, azimuth = geodesic_inverse(*start, *dest)
     for f in np.linspace(0.0, 1.0, samples):
         lat, lon = geodesic_direct(*start, azimuth, float(f) * length_m)
-        gw = _whitened_gradient(model, measured, lat, lon, c.alt_m, c.year, c.filter_r_deg, c.filter_r_nt)
+        gw = _whitened_gradient(model, measured, lat, lon, c.alt_m, c.year, c.filter.r_deg, c.filter.r_nt)
         angle, bearing = _angles(gw)
         angles.append(angle)
         if angle <= worst[0]:

@@ -22,7 +22,7 @@ maps any position-like measurement (a GPS fix, the field's gradient) onto the st
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from companion.nav.ins_error import (
     initial_covariance,
     process_noise_density,
 )
+from companion.registry import settings
 
 __all__ = ["DeadReckoningProcess", "DeadReckoningSpec", "InsProcess", "ProcessModel"]
 
@@ -85,17 +86,17 @@ class InsProcess:
         return x
 
 
-@dataclass(frozen=True)
+@settings("dead_reckoning")
 class DeadReckoningSpec:
     """Dead-reckoning uncertainty: ``pos_sigma_m`` per step (the vehicle's turns and speed
     changes between commands), ``speed_frac`` of each step's length (speed/course error of
     the commanded velocity), the current's prior ``current_sigma_mps`` and its random walk
     ``current_q_mps_rth`` (m/s per sqrt(hour))."""
 
-    pos_sigma_m: float = 150.0
-    speed_frac: float = 0.02
-    current_sigma_mps: float = 0.3
-    current_q_mps_rth: float = 0.05
+    pos_sigma_m: float
+    current_sigma_mps: float
+    current_q_mps_rth: float
+    speed_frac: ClassVar[float] = 0.02   # a property of the commanded velocity, not a setting
 
 
 class DeadReckoningProcess:

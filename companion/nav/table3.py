@@ -40,41 +40,21 @@ was up to 95 km off while it said 1.4 km, and that number goes to the flight con
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
+from companion.nav.config import NavConfig
 from companion.nav.elements import ElementSet
 from companion.nav.field import PositionFixError, WorldMagneticModel, element_fix, fix_covariance
-from companion.nav.fusion import FusionSettings, InsGeomagFusion
+from companion.nav.fusion import InsGeomagFusion, ModelError
 from companion.nav.geo import enu_offset, geodesic_inverse, offset_position
 from companion.nav.navfilter import BiasSpec, measured_variance
-from companion.nav.process import DeadReckoningSpec
 from companion.nav.reanchor import OffsetConsensus, ReanchorSettings
 from companion.nav.small import smallest_singular_value
-from companion.params import NavConfig
 
 __all__ = ["F_NT_PER_DEG", "ModelError", "Table3Estimator"]
 
 F_NT_PER_DEG = 360.0   # automatic bounds and the fusion gate: a degree of D or I counts as 360 nT of F
-
-
-@dataclass(frozen=True)
-class ModelError:
-    """The field model's element error as a Gauss-Markov field in distance: 1-sigma
-    ``sigma_deg`` (D, I) and ``sigma_nt`` (F, H, Z) at a point, correlation length ``length_m``."""
-
-    sigma_deg: float = 0.3
-    sigma_nt: float = 300.0
-    length_m: float = 25_000.0
-
-    def variance(self, names: tuple[str, ...], distance_m: float | None) -> np.ndarray:
-        """Variance of each element's model error at ``distance_m`` from a calibration point,
-        after the calibration's value there is removed; ``None``: not calibrated."""
-        point = BiasSpec.per_element(names, self.sigma_deg, self.sigma_nt) ** 2
-        if distance_m is None:
-            return point
-        return 2.0 * point * (1.0 - math.exp(-max(distance_m, 0.0) / self.length_m))
 
 
 class Table3Estimator:
@@ -82,17 +62,16 @@ class Table3Estimator:
 
     def __init__(self, config: NavConfig, model: WorldMagneticModel, elements: ElementSet) -> None:
         self.config, self.model, self.elements = config, model, elements
-        self.fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2,
-                                                     config.fusion_p0_m2, config.fusion_feedback))
+        self.fusion = InsGeomagFusion(config.fusion)
         self.consensus = OffsetConsensus(ReanchorSettings(steps=config.reanchor_steps))
         self.rejected = 0
         self._degree_equivalent = np.array([F_NT_PER_DEG if n.endswith("_nt") else 1.0 for n in elements.names])
-        self.model_error = ModelError(config.model_err_deg, config.model_err_nt, config.model_err_length_m)
+        self.model_error: ModelError = config.model_error
         self.calibrated = False      # the start-up calibration is removed (Mission.set_bias)
         self.estimated = False       # cov_en_m2 is an estimate's (a cruise step has been estimated)
         self.cov_en_m2 = np.eye(2) * config.gps_sigma_m ** 2   # the start: GPS-known
-        self._declared = BiasSpec.per_element(elements.names, config.filter_r_deg, config.filter_r_nt)
-        self._floor = BiasSpec.per_element(elements.names, config.filter_rmin_deg, config.filter_rmin_nt)
+        self._declared = BiasSpec.per_element(elements.names, config.filter.r_deg, config.filter.r_nt)
+        self._floor = BiasSpec.per_element(elements.names, config.filter.r_min_deg, config.filter.r_min_nt)
         self._last: tuple[float, tuple[float, float]] = (0.0, (config.start_lat_deg, config.start_lon_deg))
         # the last fix (or the start): its covariance and time, the distance and steps flown since
         self._anchor_cov, self._anchor_time_s, self._flown_m, self._steps = self.cov_en_m2, 0.0, 0.0, 0
@@ -120,12 +99,12 @@ class Table3Estimator:
     def _dead_reckoned_growth(self, time_s: float, est: tuple[float, float]) -> np.ndarray:
         """What the dead reckoning since the last fix adds to ``P`` at ``time_s`` (module
         docstring); advances the distance and steps flown."""
-        c = self.config
+        c = self.config.filter.dead_reckoning
         self._flown_m += geodesic_inverse(*self._last[1], est[0], est[1])[0]
         self._steps += 1
         dt = max(time_s - self._anchor_time_s, 0.0)
-        grown = (c.current_sigma_mps * dt) ** 2 + (DeadReckoningSpec.speed_frac * self._flown_m) ** 2 \
-            + self._steps * c.dr_pos_sigma_m ** 2
+        grown = (c.current_sigma_mps * dt) ** 2 + (c.speed_frac * self._flown_m) ** 2 \
+            + self._steps * c.pos_sigma_m ** 2
         return np.eye(2) * grown
 
     def estimate(self, est: tuple[float, float], s: np.ndarray, lag_en_m: np.ndarray, ins_lat_deg: float,

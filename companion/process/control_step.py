@@ -199,7 +199,7 @@ class ControlStep:
         lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
                                    flown * math.cos(cmd.course_rad))
         # against this fix: the estimate's uncertainty less the field-model error the two share
-        sigma = next(v for v in (cmd.next_fix_sigma_m, cmd.est_sigma_m, math.sqrt(app.nav_cfg.fusion_rc_m2))
+        sigma = next(v for v in (cmd.next_fix_sigma_m, cmd.est_sigma_m, math.sqrt(app.nav_cfg.fusion.rc_m2))
                      if math.isfinite(v))
         reference = app.plausibility.f_reference_nt
         if reference is None or not math.isfinite(reference):   # resumed mid-route: no start to learn it at

@@ -36,22 +36,10 @@ __all__ = ["SOURCE_RESYNC_S", "SampleIntake", "SourceTimeMap", "source_kinds"]
 SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-time offset beyond this jump
 _MAG, _ATT, _GPS = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
 
-# What each source class delivers (class name -> kinds); a CombinedSource is the union.
-_SOURCE_KINDS = {
-    "Mpu9250Source": frozenset({_MAG, _ATT}),
-    "DroneCanMagSource": frozenset({_MAG}),
-    "UbloxSource": frozenset({_GPS}),
-    "LogReplaySource": frozenset({_MAG, _ATT, _GPS}),
-}
-
-
 def source_kinds(source: SensorSource) -> frozenset:
-    """The sample kinds (MAG, ATTITUDE, GPS) ``source`` provides, which the FC's then do not."""
-    subs = getattr(source, "sources", None)
-    if subs is not None:
-        return frozenset().union(*(source_kinds(s) for s in subs))
-    kinds = getattr(source, "provides", None)
-    return frozenset(kinds) if kinds is not None else _SOURCE_KINDS.get(type(source).__name__, frozenset({_MAG}))
+    """The sample kinds (MAG, ATTITUDE, GPS) ``source`` provides (:attr:`SensorSource.provides`,
+    declared by each source type), which the FC's then do not."""
+    return frozenset(source.provides)
 
 
 class SourceTimeMap:

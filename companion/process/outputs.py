@@ -143,7 +143,7 @@ class Outputs:
                 link.send_named_float(name, value)
         if cmd.phase != Phase.CRUISE or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
             return
-        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion_rc_m2)
+        sigma = cmd.est_sigma_m if math.isfinite(cmd.est_sigma_m) else math.sqrt(app.nav_cfg.fusion.rc_m2)
         mode = app.comp_cfg.position_publish
         if mode == 0:
             link.send_external_position(cmd.est_lat_deg, cmd.est_lon_deg, sigma)
@@ -276,4 +276,4 @@ class Outputs:
         cmd = app.command
         if cmd is not None and math.isfinite(cmd.est_sigma_m):
             return cmd.est_sigma_m
-        return math.sqrt(app.nav_cfg.fusion_rc_m2)
+        return math.sqrt(app.nav_cfg.fusion.rc_m2)

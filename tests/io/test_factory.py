@@ -10,6 +10,7 @@ from companion.io.sensors import (
     GpsSample,
     ImuSample,
     MagSample,
+    SampleKind,
     SensorError,
     SensorSource,
     StalenessMonitor,
@@ -20,6 +21,7 @@ from companion.io.sensors.dronecan_mag import DroneCanMagSource
 from companion.io.sensors.mpu9250 import Mpu9250Source
 from companion.io.sensors.replay import LogReplaySource
 from companion.io.sensors.ublox import UbloxSource
+from companion.process.intake import source_kinds
 from tests.io.emulated_mpu9250 import EmulatedMpu9250
 
 
@@ -79,6 +81,17 @@ def test_a_combination_shares_the_host_clock_and_takes_options_per_kind() -> Non
     assert src.time_base == "host"
     with pytest.raises(ValueError, match="given per kind"):
         make_source("i2c:1+ubx:/dev/ttyS0", address=0x69)
+
+
+def test_each_source_type_declares_the_kinds_it_replaces() -> None:
+    """The companion ignores the flight controller's samples of the kinds a --sensors source
+    provides: declared by the source's type, a combination the union of its parts'."""
+    mag, att, gps = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
+    assert source_kinds(make_source("i2c:1")) == {mag, att}
+    assert source_kinds(make_source("dronecan:can0")) == {mag}
+    assert source_kinds(make_source("ubx:/dev/ttyS0")) == {gps}
+    assert source_kinds(make_source("replay:x.bin")) == {mag, att, gps}
+    assert source_kinds(make_source("dronecan:can0+ubx:/dev/ttyS0")) == {mag, gps}
 
 
 def test_a_combination_polls_all_its_sources() -> None:

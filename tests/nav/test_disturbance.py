@@ -15,8 +15,9 @@ from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, Di
                                        stationary_variance, storm_declared)
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
-from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
+from companion.nav.navfilter import NavigationFilter
 from companion.nav.process import DeadReckoningProcess
+from tests.nav.bare import bare_bias, bare_filter
 
 YEAR, ALT = 2024.36, 0.0
 START = (33.0, 152.0)
@@ -98,9 +99,9 @@ def test_undeclared_the_innovations_still_decide():
 
 
 def _filter(model, mode: int, names_code: int = ElementSet.WEIGHTED) -> NavigationFilter:
-    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_mode=mode,
-                    qa_ned_nt_rth=(60.0, 10.0, 10.0))
-    settings_ = FilterSettings(bias=spec)
+    spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_mode=mode,
+                    qa_n_nt_rth=60.0, qa_e_nt_rth=10.0, qa_z_nt_rth=10.0)
+    settings_ = bare_filter(bias=spec)
     process = DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0)
     return NavigationFilter(process, ELEMENT_SETS[names_code], settings_, model, ALT, YEAR)
 
@@ -217,9 +218,9 @@ def _declared_step_growth(flt: NavigationFilter) -> np.ndarray:
 
 def _walk_filter(model, tau_h: tuple[float, float, float],
                  corr: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> NavigationFilter:
-    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_ned_nt_rth=(60.0, 30.0, 10.0), qa_ned_tau_h=tau_h,
-                    qa_ned_corr=corr)
-    settings_ = FilterSettings(bias=spec)
+    spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_n_nt_rth=60.0, qa_e_nt_rth=30.0, qa_z_nt_rth=10.0,
+                    qa_tn_h=tau_h[0], qa_te_h=tau_h[1], qa_tz_h=tau_h[2], qa_rne=corr[0], qa_rnz=corr[1], qa_rez=corr[2])
+    settings_ = bare_filter(bias=spec)
     process = DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0)
     return NavigationFilter(process, ELEMENT_SETS[ElementSet.WEIGHTED], settings_, model, ALT, YEAR)
 

@@ -15,11 +15,12 @@ from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.field import model_for_date
 from companion.nav.geo import enu_offset
 from companion.nav.mission import Mission
-from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
+from companion.nav.navfilter import NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec
 from companion.params import NavConfig, validate_all
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
+from tests.nav.bare import bare_bias, bare_filter
 
 YEAR, ALT = 2024.36, 0.0
 START = (33.0, 152.0)
@@ -42,7 +43,7 @@ def test_weighted_set_measures_three_and_steers_on_two(model):
     assert element_set(ElementSet.HORIZONTAL_VERTICAL).heading_free
     # the filter weighs F by its own noise: an F residual moves the estimate less than the
     # same residual in position terms would in D, once F's declared noise is made large
-    loose = FilterSettings(r_nt=1e4)
+    loose = bare_filter(r_nt=1e4)
     flt = _filter(model, weighted, loose)
     s = weighted.values(model.elements(*START, ALT, YEAR))
     flt.update_elements(s + np.array([0.0, 0.0, 200.0]))
@@ -56,7 +57,7 @@ def test_a_declared_storm_sets_f_aside_and_keeps_d_and_i(model):
     weighted, pair = element_set(ElementSet.WEIGHTED), element_set(ElementSet.PAPER)
     assert weighted.measured_rows(True, False) == (0, 1) and pair.measured_rows(True, False) == (0, 1)
     assert element_set(ElementSet.HEADING_FREE).measured_rows(True, False) == (0, 1)   # a pair keeps both
-    settings = FilterSettings(bias=BiasSpec(sigma0_nt=1.0))   # F's bias known: its residual is position
+    settings = bare_filter(bias=bare_bias(sigma0_nt=1.0))   # F's bias known: its residual is position
     truth = weighted.values(model.elements(*START, ALT, YEAR))
     stormy = truth + np.array([0.0, 0.0, 300.0])
     moved = {}
@@ -84,7 +85,7 @@ def test_set_5_weighs_f_only_while_an_index_says_quiet(model):
     F is set aside and the update is the (D, I) filter's to the last bit."""
     quiet_set, pair = element_set(ElementSet.WEIGHTED_WHEN_QUIET), element_set(ElementSet.PAPER)
     assert quiet_set.names == ("decl_deg", "incl_deg", "f_nt") and quiet_set.steering().names == pair.names
-    settings = FilterSettings(bias=BiasSpec(sigma0_nt=1.0))   # F's bias known: its residual is position
+    settings = bare_filter(bias=bare_bias(sigma0_nt=1.0))   # F's bias known: its residual is position
     truth = quiet_set.values(model.elements(*START, ALT, YEAR))
     off = truth + np.array([0.01, -0.005, 300.0])
     moved, nis = {}, {}

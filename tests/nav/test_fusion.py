@@ -22,7 +22,7 @@ def table3(config: NavConfig):
     pos = lambda v: np.diag([0.0] * 3 + [v, v] + [0.0] * 10)  # noqa: E731
     h = np.zeros((2, 15))
     h[0, 3] = h[1, 4] = 1.0  # eq. 51: (0_2x3, I_2, 0_2x10)
-    return pos(config.fusion_qc_m2), np.eye(2) * config.fusion_rc_m2, pos(config.fusion_p0_m2), np.eye(15), h
+    return pos(config.fusion.qc_m2), np.eye(2) * config.fusion.rc_m2, pos(config.fusion.p0_m2), np.eye(15), h
 
 
 def kalman_by_hand(x, p, dz, q, r, f, h):
@@ -37,19 +37,19 @@ def kalman_by_hand(x, p, dz, q, r, f, h):
 
 def test_navconfig_defaults_are_table_3_in_square_metres():
     config = NavConfig()
-    assert config.fusion_qc_m2 == pytest.approx(0.05 * KM2)
-    assert config.fusion_rc_m2 == pytest.approx(2.0 * KM2)
-    assert config.fusion_p0_m2 == pytest.approx(1.0 * KM2)
+    assert config.fusion.qc_m2 == pytest.approx(0.05 * KM2)
+    assert config.fusion.rc_m2 == pytest.approx(2.0 * KM2)
+    assert config.fusion.p0_m2 == pytest.approx(1.0 * KM2)
     np.testing.assert_array_equal(H_B, table3(config)[4])
     defaults = FusionSettings()
     assert (defaults.qc_m2, defaults.rc_m2, defaults.p0_m2) == pytest.approx(
-        (config.fusion_qc_m2, config.fusion_rc_m2, config.fusion_p0_m2))
+        (config.fusion.qc_m2, config.fusion.rc_m2, config.fusion.p0_m2))
 
 
 def test_two_kalman_steps_match_the_hand_computation():
     config = NavConfig()
     q, r, p0, f, h = table3(config)
-    fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2, config.fusion_p0_m2))
+    fusion = InsGeomagFusion(FusionSettings(config.fusion.qc_m2, config.fusion.rc_m2, config.fusion.p0_m2))
     x, p = np.zeros(15), p0
     steps = [(np.array([5200.0, 4700.0]), np.array([300.0, -450.0])),      # (INS, fix) local metres
              (np.array([10400.0, -800.0]), np.array([5600.0, -5300.0]))]
@@ -80,7 +80,7 @@ def test_first_step_matches_the_scalar_closed_form_of_table_3():
 def test_paper_feedback_adds_the_correction_to_the_geomagnetic_fix_eq_58():
     config = NavConfig()
     q, r, p0, f, h = table3(config)
-    fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2, config.fusion_p0_m2,
+    fusion = InsGeomagFusion(FusionSettings(config.fusion.qc_m2, config.fusion.rc_m2, config.fusion.p0_m2,
                                             FusionFeedback.PAPER))
     x, p = np.zeros(15), p0
     for ins, fix in ((np.array([5200.0, 4700.0]), np.array([300.0, -450.0])),
@@ -94,7 +94,7 @@ def test_paper_feedback_adds_the_correction_to_the_geomagnetic_fix_eq_58():
 def test_predict_only_grows_the_covariance_and_keeps_correcting_the_ins():
     config = NavConfig()
     q, r, p0, f, h = table3(config)
-    fusion = InsGeomagFusion(FusionSettings(config.fusion_qc_m2, config.fusion_rc_m2, config.fusion_p0_m2))
+    fusion = InsGeomagFusion(FusionSettings(config.fusion.qc_m2, config.fusion.rc_m2, config.fusion.p0_m2))
     fusion.step(np.array([5000.0, 5000.0]), np.array([0.0, 0.0]))
     p_before, x_before = fusion.kf.P.copy(), fusion.error_estimate_m
     ins = np.array([7000.0, 6000.0])

@@ -11,9 +11,10 @@ import pytest
 from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.field import model_for_date
 from companion.nav.heading import window_heading_rad
-from companion.nav.navfilter import HARMONIC_TERMS, BiasSpec, FilterSettings, NavigationFilter, harmonic_row
+from companion.nav.navfilter import HARMONIC_TERMS, NavigationFilter, harmonic_row
 from companion.nav.process import DeadReckoningProcess
 from companion.nav.step_io import Measurement
+from tests.nav.bare import bare_bias, bare_filter
 
 YEAR, ALT = 2024.36, 0.0
 START = (33.0, 152.0)
@@ -74,7 +75,7 @@ def test_a_hard_and_soft_iron_residual_is_a_constant_plus_two_heading_harmonics(
 
 def _pinned_filter(model, heading_deg: float):
     """A dead-reckoning filter on (D, I) with heading states of 0.1 deg, held at the start."""
-    settings = FilterSettings(bias=BiasSpec(heading_deg=heading_deg, heading_nt=100.0))
+    settings = bare_filter(bias=bare_bias(heading_deg=heading_deg, heading_nt=100.0))
     process = DeadReckoningProcess(settings.dead_reckoning, *START, pos_sigma_m=5.0)
     return NavigationFilter(process, ELEMENT_SETS[ElementSet.PAPER], settings, model, ALT, YEAR), settings
 
@@ -162,7 +163,7 @@ def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellip
 
     def inside(**changes) -> int:
         nav = NavConfig.from_values(validate_all({**scenario.nav_overrides(), **changes}))
-        assert nav.bias_heading_deg > 0.0 or changes
+        assert nav.filter.bias.heading_deg > 0.0 or changes
         runs = [fly_in_process(nav, scenario, seed, truth, keep_commands=True) for seed in range(10)]
         return sum(int(nees_per_step(r)[-1] <= CHI2_95_2DOF) for r in runs)
 

@@ -13,7 +13,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from companion.nav.estimator import filter_settings
 from companion.nav.ins_error import DEG_PER_HOUR, InsErrorSpec
 from companion.nav.process import InsProcess
 from companion.params import NavConfig, validate_all
@@ -31,15 +30,17 @@ INS_PARAMS = ("FUS_INS_TILT", "FUS_INS_AZ", "FUS_INS_VEL", "FUS_INS_POS", "FUS_I
 def test_the_defaults_are_table_1_as_the_filter_assumed_it():
     """With no declaration the filter assumes what it always did: Table 1, the misalignment read
     as arc-seconds, the horizontal velocity error split over the two axes."""
-    assert filter_settings(NavConfig()).ins == InsErrorSpec()
-    assert InsErrorSpec() == InsErrorSpec((50.0, 50.0, 500.0), 10.0 / math.sqrt(2.0), 5000.0, 0.01, 0.005, 3600.0)
+    assert NavConfig().filter.ins == InsErrorSpec()
+    assert InsErrorSpec() == InsErrorSpec(50.0, 500.0, 10.0, 5000.0, 0.01, 0.005, 3600.0, 1e-4)
+    assert InsErrorSpec().misalign_arcsec == (50.0, 50.0, 500.0)
+    assert InsErrorSpec().vel_err_axis_mps == 10.0 / math.sqrt(2.0)
 
 
 def test_a_declared_ins_reaches_the_filters_covariance():
     """FUS_INS_* values set in the registry are the 1-sigma of the INS process model's P_0."""
     declared = {"FUS_INS_TILT": 20.0, "FUS_INS_AZ": 300.0, "FUS_INS_VEL": 2.0, "FUS_INS_POS": 800.0,
                 "FUS_INS_GB": 0.1, "FUS_INS_GM": 0.05, "FUS_INS_GM_TAU": 1800.0}
-    spec = filter_settings(NavConfig.from_values(validate_all(declared))).ins
+    spec = NavConfig.from_values(validate_all(declared)).filter.ins
     process = InsProcess(spec, 33.0)
     sigma = np.sqrt(np.diag(process.p0))
     arcsec = math.radians(1.0 / 3600.0)

@@ -18,13 +18,14 @@ from companion.nav.elements import ELEMENT_SETS, ElementSet, element_set, hz_sta
 from companion.nav.field import element_fix, element_gradient, model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Mission
-from companion.nav.navfilter import BiasSpec, FilterSettings, NavigationFilter
+from companion.nav.navfilter import NavigationFilter
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.params import NavConfig, validate_all
 from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.sampling import elements_from_ned
+from tests.nav.bare import bare_bias, bare_filter
 
 YEAR, ALT = 2024.36, 0.0
 START = (33.0, 152.0)
@@ -37,7 +38,7 @@ def model():
 
 def test_one_step_matches_the_hand_computation(model):
     """Dead-reckoning filter on (D, I): predict over 360 s, update with one measurement, by hand."""
-    settings = FilterSettings()
+    settings = bare_filter()
     dr = DeadReckoningSpec()
     process = DeadReckoningProcess(dr, *START, pos_sigma_m=50.0)
     flt = NavigationFilter(process, ELEMENT_SETS[ElementSet.PAPER], settings, model, ALT, YEAR)
@@ -87,7 +88,7 @@ def test_a_constant_bias_is_observed_at_a_gps_start(model, seed):
     is estimated to within 3 of the filter's own sigma, and that sigma is the measurement's
     noise, not the 0.5 deg prior."""
     rng = np.random.default_rng(seed)
-    settings = FilterSettings()
+    settings = bare_filter()
     ins_lat, ins_lon = offset_position(*START, 3000.0, -4000.0)          # INS 5 km off
     flt = NavigationFilter(InsProcess(settings.ins, START[0]), ELEMENT_SETS[ElementSet.PAPER], settings, model,
                            ALT, YEAR)
@@ -109,8 +110,8 @@ def test_local_model_error_is_gauss_markov_in_the_distance_travelled(model):
     exp(-d / L) with d the distance travelled, not the time (standing still keeps it), and its
     variance relaxes toward the stationary one; the bias states and the reported total (bias
     plus local) follow."""
-    spec = BiasSpec(local_deg=0.05, local_nt=50.0, local_length_m=25_000.0)
-    settings = FilterSettings(bias=spec)
+    spec = bare_bias(local_deg=0.05, local_nt=50.0, local_length_m=25_000.0)
+    settings = bare_filter(bias=spec)
     process = DeadReckoningProcess(settings.dead_reckoning, *START, pos_sigma_m=5.0)
     elements = ELEMENT_SETS[ElementSet.HEADING_FREE]                                  # (I, F)
     flt = NavigationFilter(process, elements, settings, model, ALT, YEAR)
@@ -141,8 +142,8 @@ def test_local_model_error_is_gauss_markov_in_the_distance_travelled(model):
 def test_bias_random_walk_per_distance_travelled(model):
     """FUS_BQD_*: the bias states' variance grows by qd^2 per km travelled on top of the time walk:
     standing an hour adds q^2 only, 28.8 km in an hour adds q^2 + 28.8 qd^2 (by hand)."""
-    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qd_deg_rkm=0.0075, qd_nt_rkm=7.5)
-    settings = FilterSettings(bias=spec)
+    spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qd_deg_rkm=0.0075, qd_nt_rkm=7.5)
+    settings = bare_filter(bias=spec)
     process = DeadReckoningProcess(settings.dead_reckoning, *START, pos_sigma_m=5.0)
     flt = NavigationFilter(process, ELEMENT_SETS[ElementSet.HEADING_FREE], settings, model, ALT, YEAR)
     k = process.n
@@ -165,7 +166,7 @@ def test_elements_measured_with_the_ins_attitude_carry_its_misalignment(model, s
     from companion.nav.ins_error import misalignment_columns
 
     elements = ELEMENT_SETS[ElementSet.WEIGHTED]
-    settings = FilterSettings(attitude_from_ins=source)
+    settings = bare_filter(attitude_from_ins=source)
     flt = NavigationFilter(InsProcess(settings.ins, START[0]), elements, settings, model, ALT, YEAR)
     phi = np.radians(np.array([30.0, -50.0, 200.0]) / 3600.0)
     flt.kf.x[0:3, 0] = phi
@@ -381,11 +382,11 @@ def test_measurement_noise_comes_from_the_measured_standard_errors(model):
         return np.sqrt(np.diag(flt.measurement_noise(None if se is None else np.asarray(se, dtype=float))))
 
     se = np.array([0.002, 0.0015, 2.0])
-    bare = FilterSettings(r_min_deg=0.0, r_min_nt=0.0)
+    bare = bare_filter(r_min_deg=0.0, r_min_nt=0.0)
     np.testing.assert_allclose(noise(bare, 10.0 * se) / noise(bare, se), 10.0, rtol=1e-12)
-    ratio = noise(FilterSettings(), 10.0 * se) / noise(FilterSettings(), se)
+    ratio = noise(bare_filter(), 10.0 * se) / noise(bare_filter(), se)
     assert np.all((ratio > 9.0) & (ratio <= 10.0)), ratio
-    declared = FilterSettings(r_source=0)
+    declared = bare_filter(r_source=0)
     np.testing.assert_allclose(noise(declared, 10.0 * se), [declared.r_deg, declared.r_deg, declared.r_nt])
     np.testing.assert_allclose(noise(bare, [math.nan, 0.0015, 2.0]), [bare.r_deg, 0.0015, 2.0])
     np.testing.assert_allclose(noise(bare, None), [bare.r_deg, bare.r_deg, bare.r_nt])
@@ -410,8 +411,8 @@ def test_covariance_matching_scales_the_active_bias_noise_between_quiet_and_acti
     scale by (NIS / m)^ADAPT_GAIN of the averaged NIS a step, down to the quiet walk and never
     below; innovations far larger hold it at the configured FUS_BQA_* and never above; the
     predict then walks the biases at the scaled noise (by hand). Without it the scale stays 1."""
-    spec = BiasSpec(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_adapt=adapt)
-    settings = FilterSettings(bias=spec)
+    spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_deg_rth=0.05, qa_nt_rth=40.0, qa_adapt=adapt)
+    settings = bare_filter(bias=spec)
     process = DeadReckoningProcess(settings.dead_reckoning, *START, pos_sigma_m=5.0)
     elements = ELEMENT_SETS[ElementSet.PAPER]
     flt = NavigationFilter(process, elements, settings, model, ALT, YEAR)

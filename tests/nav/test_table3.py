@@ -60,7 +60,7 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     position, fix, fused, sigma = table3.estimate(dead_reckoned, here, np.zeros(2), math.nan, math.nan, 3600.0, se)
     assert geodesic_distance_m(*position, *truth) < 1.0 and not fused and fix == position
     found = element_fix(model, HEADING_FREE, here, *truth, config.alt_m, config.year)
-    variance = se ** 2 + np.array([config.filter_rmin_deg, config.filter_rmin_nt]) ** 2 \
+    variance = se ** 2 + np.array([config.filter.r_min_deg, config.filter.r_min_nt]) ** 2 \
         + table3.model_error.variance(HEADING_FREE.names,
                                       geodesic_distance_m(config.start_lat_deg, config.start_lon_deg, *truth))
     expected = fix_covariance(found.gradient, variance)
@@ -68,7 +68,7 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     assert sigma == pytest.approx(math.sqrt(0.5 * np.trace(expected)), rel=1e-3)
     assert sigma > 5e3   # (I, F) on a Pacific route: kilometres to tens of, not 1.4 km
     # against the next fix (a few km on, the same model error): the fix's noise alone
-    noise_only = fix_covariance(found.gradient, se ** 2 + np.array([config.filter_rmin_deg, config.filter_rmin_nt]) ** 2)
+    noise_only = fix_covariance(found.gradient, se ** 2 + np.array([config.filter.r_min_deg, config.filter.r_min_nt]) ** 2)
     np.testing.assert_allclose(table3.relative_cov_en_m2, noise_only, rtol=1e-3)
     assert table3.relative_sigma_m < 0.5 * sigma
 
@@ -78,8 +78,8 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     before = table3.cov_en_m2.copy()
     position2, fix2, _, sigma2 = table3.estimate(moved, far, np.zeros(2), math.nan, math.nan, 3600.0 + 360.0, se)
     assert position2 == moved and all(math.isnan(v) for v in fix2) and table3.rejected == 1
-    grown = config.dr_pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * flown) ** 2 \
-        + (config.current_sigma_mps * 360.0) ** 2
+    grown = config.filter.dead_reckoning.pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * flown) ** 2 \
+        + (config.filter.dead_reckoning.current_sigma_mps * 360.0) ** 2
     np.testing.assert_allclose(table3.cov_en_m2, before + np.eye(2) * grown, rtol=1e-6)
     np.testing.assert_allclose(table3.relative_cov_en_m2, noise_only + np.eye(2) * grown, rtol=1e-3)
     assert sigma2 > sigma
@@ -87,8 +87,8 @@ def test_a_taken_fix_reports_its_own_covariance_and_a_dropped_one_grows_it(model
     # so they grow with the time and distance since the fix, not as a random walk
     moved2 = tuple(float(v) for v in offset_position(*moved, 0.0, flown))
     table3.estimate(moved2, far, np.zeros(2), math.nan, math.nan, 3600.0 + 720.0, se)
-    grown2 = 2 * config.dr_pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * 2 * flown) ** 2 \
-        + (config.current_sigma_mps * 720.0) ** 2
+    grown2 = 2 * config.filter.dead_reckoning.pos_sigma_m ** 2 + (DeadReckoningSpec.speed_frac * 2 * flown) ** 2 \
+        + (config.filter.dead_reckoning.current_sigma_mps * 720.0) ** 2
     np.testing.assert_allclose(table3.cov_en_m2, before + np.eye(2) * grown2, rtol=1e-6)
 
 

@@ -265,6 +265,9 @@ class SensorSource(abc.ABC):
     """
 
     name: str = "source"
+    provides: frozenset[SampleKind] = frozenset({SampleKind.MAG})
+    """The kinds of sample this source delivers: the companion then ignores the flight
+    controller's samples of those kinds (two magnetometers are never mixed)."""
     time_base: str = "host"
     """Which clock ``time_s`` is on: ``"host"`` (monotonic, at reception) for live
     hardware, ``"log"`` for a replay, ``"vehicle"`` for the autopilot's boot time."""

@@ -29,6 +29,11 @@ class CombinedSource(SensorSource):
         self.time_base = self.sources[0].time_base
 
     @property
+    def provides(self) -> frozenset:   # type: ignore[override]
+        """What any of its sources delivers."""
+        return frozenset().union(*(s.provides for s in self.sources))
+
+    @property
     def finished(self) -> bool:
         return all(s.finished for s in self.sources)
 

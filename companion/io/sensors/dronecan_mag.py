@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from companion.io.sensors.base import MagSample, Sample, SampleFlag, SensorError, SensorSource
+from companion.io.sensors.base import MagSample, Sample, SampleFlag, SampleKind, SensorError, SensorSource
 from companion.io.sensors.quality import MagChecks, MagQualityCheck
 
 __all__ = ["DroneCanMagConfig", "DroneCanMagSource", "GAUSS_TO_NT"]
@@ -72,6 +72,8 @@ class DroneCanMagSource(SensorSource):
     ``time_s`` is the driver's reception timestamp on the host monotonic clock.
     ``node_factory`` replaces ``dronecan.make_node`` (tests, or a shared node).
     """
+
+    provides = frozenset({SampleKind.MAG})
 
     def __init__(
         self,

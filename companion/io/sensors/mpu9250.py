@@ -45,6 +45,7 @@ from companion.io.sensors.base import (
     MagSample,
     Sample,
     SampleFlag,
+    SampleKind,
     SensorError,
     SensorSource,
     Vector3,
@@ -222,6 +223,8 @@ class Mpu9250Source(SensorSource):
     14-byte burst for accel/temperature/gyro, then the AK8963 when it has new data. An
     I2C error during ``poll`` is counted in ``stats`` and that reading is skipped.
     """
+
+    provides = frozenset({SampleKind.MAG, SampleKind.ATTITUDE})
 
     def __init__(
         self,

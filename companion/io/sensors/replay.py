@@ -71,6 +71,7 @@ from companion.io.sensors.base import (  # noqa: E402
     MagSample,
     Sample,
     SampleFlag,
+    SampleKind,
     SensorError,
     SensorSource,
     StreamEnd,
@@ -118,6 +119,8 @@ class LogReplaySource(SensorSource):
     ``instances``: sensor instances to replay (0 = primary MAG/IMU/GPS); None for all.
     ``max_batch``: most samples returned by one ``poll``.
     """
+
+    provides = frozenset({SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS})
 
     time_base = "log"
 

@@ -25,7 +25,7 @@ from typing import Any, Protocol
 from pyubx2 import SET, UBXMessage, UBXReader
 from pyubx2.exceptions import UBXMessageError, UBXParseError, UBXTypeError
 
-from companion.io.sensors.base import GpsSample, Sample, SensorError, SensorSource
+from companion.io.sensors.base import GpsSample, Sample, SampleKind, SensorError, SensorSource
 
 __all__ = ["UbloxSource", "UbxStreamFramer", "configuration_messages", "gps_sample_from_nav_pvt"]
 
@@ -239,6 +239,8 @@ class UbloxSource(SensorSource):
     ``serial_port`` injects an already open port (tests); otherwise pyserial opens
     ``config.port``. Checksum errors go to ``stats.checksum_errors``.
     """
+
+    provides = frozenset({SampleKind.GPS})
 
     def __init__(
         self,

@@ -174,7 +174,7 @@ def test_the_mission_says_which_bias_a_measurement_carries(fus_model):
     if fus_model == 1:
         assert bias.tolist() == [0.1, -0.2] and sigma.tolist() == [0.0, 0.0]
     else:
-        assert bias.tolist() == [0.0, 0.0] and sigma.tolist() == [config.bias_sigma0_deg] * 2
+        assert bias.tolist() == [0.0, 0.0] and sigma.tolist() == [config.filter.bias.sigma0_deg] * 2
 
 
 def test_the_bound_grows_with_the_uncertainty_and_the_distance_flown():
