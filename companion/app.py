@@ -8,7 +8,7 @@
 
 This module is the entry point only (the command line, ``main``); the process itself is
 :class:`companion.process.companion.CompanionApp`, which wires the MAVLink link
-(:mod:`companion.io.mavlink_link`), the parameter server (:mod:`companion.io.param_server`), the
+(:mod:`companion.io.link`), the parameter server (:mod:`companion.io.param_server`), the
 sensor decoder (:mod:`companion.io.sensors.mavlink_source`), the magnetometer pipeline
 (:mod:`companion.nav.magnetometer`) and the pure navigation core
 (:class:`companion.nav.mission.Mission`) to its parts in :mod:`companion.process` (phase state
@@ -42,7 +42,7 @@ Failsafes (:mod:`companion.failsafe`)
     STATUSTEXT until GUIDED/OFFBOARD is selected again. Navigation failures (QP failure, estimate
     diverging from the geomagnetic fix by COMP_DIVERGE_KM, a non-finite command) hold the
     vehicle and restart the mission from the last estimate after a new stationary start-up
-    (at most 3 restarts). No setpoint ever leaves without :func:`~companion.io.mavlink_link.guard_setpoint`.
+    (at most 3 restarts). No setpoint ever leaves without :func:`~companion.io.link.guard_setpoint`.
 
 Records (``--log-dir``, default ``out/companion/<time>-<pid>``): ``companion.tlog`` (both
 directions), ``steps.csv`` (:mod:`companion.io.records`), ``summary.json``.

@@ -31,7 +31,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from companion.io.fc_params import HEADING_PARAMS, FcParamReader, HeadingVerdict, judge_heading
-from companion.io.mavlink_link import MavlinkLink
+from companion.io.link import MavlinkLink
 from companion.io.position_feed import PositionFeed
 
 __all__ = ["FcView", "ArmingBackoff", "GPS_FIX_MAX_AGE_S", "PUBLISH_GPS_INPUT"]

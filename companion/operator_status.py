@@ -3,7 +3,7 @@
 The companion (component 191 of the vehicle's system) says it in messages a ground station
 already decodes; this module is the one place that gives their fields a meaning, both ways: the
 companion encodes with :func:`failsafe_bits` and :func:`space_weather_bits`, and a ground-station
-tool (the MAVProxy module :mod:`fcmpc_mavproxy`) reads with :class:`StatusReader`.
+tool (the MAVProxy module :mod:`fcmpc.mavproxy`) reads with :class:`StatusReader`.
 
 Once a second of wall time (an operator's pace, whatever a simulator's speed-up):
 

@@ -11,7 +11,7 @@ come:
   while they are fresh,
 * ArduPilot-style ``.parm`` files (``NAME VALUE`` per line, ``#`` comments),
 * the MAVLink parameter server (``companion.io.param_server``),
-* the generated parameter reference (:mod:`companion.paramdoc`: ``params/defaults.parm``,
+* the generated parameter reference (:mod:`fcmpc.paramdoc`: ``params/defaults.parm``,
   ``docs/parameters.md``, ``docs/parameters.json``; ``fcmpc-params --write``).
 
 Defaults are the paper's Table 4 where the paper gives a value. Loading rejects unknown

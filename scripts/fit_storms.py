@@ -1,16 +1,10 @@
-"""``fcmpc-fit-storms``: the navigator's storm-time parameters fitted on named storms of the library,
-written as a ``.parm`` whose header names them (:mod:`montecarlo.fit_storms`).
+"""fcmpc-fit-storms: the navigator's storm-time parameters fitted on named storms, as a .parm.
 
-    fcmpc-fit-storms --train halloween2003,stpatrick2015,march2011
-    fcmpc-fit-storms --loo may2024 --out out/storms-loo-may2024.parm
+The same as the console script; the code is :mod:`fcmpc.montecarlo.fit_storms` (``python scripts/fit_storms.py --help``).
 """
-from __future__ import annotations
-
 import sys
 
-from montecarlo.fit_storms import main
-
-__all__ = ["main"]
+from fcmpc.montecarlo.fit_storms import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,15 +1,10 @@
-"""``fcmpc-params``: the parameter reference generated from companion/registry.py
-(params/defaults.parm, docs/parameters.md, docs/parameters.json; :mod:`companion.paramdoc`).
+"""fcmpc-params: the parameter reference generated from companion/registry.py.
 
-    fcmpc-params --write        # regenerate the files that are stale
-    fcmpc-params --check        # exit 1 naming the stale ones
-    python scripts/params_doc.py --write
+The same as the console script; the code is :mod:`fcmpc.paramdoc` (``python scripts/params_doc.py --help``).
 """
-from __future__ import annotations
-
 import sys
 
-from companion.paramdoc import main
+from fcmpc.paramdoc import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,7 +3,7 @@
 The truth (position, course, speed) comes from :mod:`sitl.world.vehicle`; the field from
 :class:`sitl.world.magnetic.TruthField`; the inertial drift from
 :class:`sitl.world.ins.InsErrorModel`. This module adds what sits between the truth and the
-MAVLink messages of :mod:`sitl.server`:
+MAVLink messages of :mod:`sitl.fc`:
 
 * :class:`WaveMotion`: the true roll and pitch of a boat in a seaway (sinusoids of a few
   degrees), so a client must tilt-compensate the magnetometer. Yaw = course over ground.

@@ -28,8 +28,8 @@ def _modules(folder: str) -> list[Path]:
 
 
 @pytest.mark.parametrize("path", _modules("companion"), ids=lambda p: str(p.relative_to(ROOT)))
-def test_companion_never_imports_sitl_scripts_replay_or_fly(path: Path):
-    bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts", "replay", "fcmpc_fly")}
+def test_companion_never_imports_sitl_scripts_or_the_tools(path: Path):
+    bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts", "fcmpc")}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
@@ -57,21 +57,20 @@ def test_parameters_point_one_way():
 @pytest.mark.parametrize("path", _modules("sitl"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_simulator_never_imports_companion_io(path: Path):
     bad = {name for name in _imports(path) if name.startswith(("companion.io", "companion.app", "companion.process",
-                                                                 "scripts", "fcmpc_fly"))}
+                                                                 "scripts", "fcmpc"))}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
-@pytest.mark.parametrize("path", [p for folder in ("montecarlo", "fcmpc_bench", "fcmpc_soak") for p in _modules(folder)],
-                         ids=lambda p: str(p.relative_to(ROOT)))
-def test_the_libraries_never_import_their_entry_points(path: Path):
-    """scripts/ are thin entry points over the libraries, never the other way round."""
+@pytest.mark.parametrize("path", _modules("fcmpc"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_tools_never_import_their_entry_points(path: Path):
+    """scripts/ are thin entry points over the tools, never the other way round."""
     bad = {name for name in _imports(path) if name.split(".")[0] == "scripts"}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
-@pytest.mark.parametrize("path", _modules("fcmpc_fly"), ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("path", _modules("fcmpc/fly"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_fly_library_never_imports_scripts_or_the_companion_process(path: Path):
-    """fcmpc_fly runs the companion as a process and reads its records; scripts/ are entry points."""
+    """fcmpc.fly runs the companion as a process and reads its records; scripts/ are entry points."""
     bad = {name for name in _imports(path) if name.split(".")[0] == "scripts" or name == "companion.app"
            or name.startswith("companion.process")}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
@@ -92,7 +91,7 @@ def test_world_models_are_pure():
 
 
 # ---------------------------------------------------------------------- rooms a person can hold (issue 11)
-PROJECT_PACKAGES = ("companion", "sitl", "scripts", "montecarlo", "replay", "fcmpc_fly", "fcmpc_soak", "fcmpc_bench")
+PROJECT_PACKAGES = ("companion", "sitl", "fcmpc", "scripts")
 MAX_FILE_LINES = 500
 MAX_CLASS_LINES = 300
 # Files other engineers are still splitting (issue 11); each entry goes when its split lands.
@@ -245,12 +244,12 @@ def test_no_import_cycles():
 
 
 # The stand-in's parts never import the wiring above them; the storm library stands alone.
-FC_WIRING = {"sitl.fc", "sitl.fc.server", "sitl.fc.cli", "sitl.fc.benchmark", "sitl.server"}
+FC_WIRING = {"sitl.fc", "sitl.fc.server", "sitl.fc.cli", "sitl.fc.__main__"}
 
 
 @pytest.mark.parametrize("path", _modules("sitl/fc"), ids=_rel)
 def test_fc_parts_never_import_the_wiring(path: Path):
-    if path.name in ("__init__.py", "server.py", "cli.py"):
+    if path.name in ("__init__.py", "__main__.py", "server.py", "cli.py"):
         return
     bad = _project_imports(path) & FC_WIRING
     assert not bad, f"{_rel(path)} imports {sorted(bad)}: a part of the stand-in must not know what wires it"
@@ -262,14 +261,14 @@ def test_storms_import_only_themselves(path: Path):
     assert not bad, f"{_rel(path)} imports {sorted(bad)}: the storm library depends on no other project module"
 
 
-@pytest.mark.parametrize("path", _modules("replay"), ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("path", _modules("fcmpc/replay"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_replay_evaluation_never_imports_sitl_or_scripts(path: Path):
     """The log evaluation reads logs with companion's sources and judges with companion.nav only."""
     bad = {name for name in _imports(path) if name.split(".")[0] in ("sitl", "scripts")}
     assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
 
 
-@pytest.mark.parametrize("path", [ROOT / "scripts" / "replay.py"] + _modules("replay"),
+@pytest.mark.parametrize("path", [ROOT / "scripts" / "replay.py"] + _modules("fcmpc/replay"),
                          ids=lambda p: str(p.relative_to(ROOT)))
 def test_replay_modules_stay_under_500_lines(path: Path):
     """Rooms a person can hold (issue 11): the replay package and its entry point."""
@@ -279,7 +278,7 @@ def test_replay_modules_stay_under_500_lines(path: Path):
 
 def test_replay_package_has_no_import_circle():
     """Issue 11: the replay modules import one way (any import, also inside a function)."""
-    modules = {".".join(p.relative_to(ROOT).with_suffix("").parts): p for p in _modules("replay")}
+    modules = {".".join(p.relative_to(ROOT).with_suffix("").parts): p for p in _modules("fcmpc/replay")}
     modules = {name.removesuffix(".__init__"): p for name, p in modules.items()}
     graph = {name: {m for m in _imports(p) if m in modules and m != name} for name, p in modules.items()}
     state: dict[str, int] = {}
@@ -295,3 +294,17 @@ def test_replay_package_has_no_import_circle():
     for name in sorted(graph):
         if name not in state:
             visit(name, [])
+
+
+# ---------------------------------------------------------------------- one namespace (issue 48.4)
+def test_three_top_level_packages_and_nothing_generic():
+    """What the project installs: companion (the vehicle), sitl (the world), fcmpc (every tool);
+    scripts/ are files, not a package, and no top-level module sits beside them."""
+    packages = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
+    assert packages == {"companion", "sitl", "fcmpc"}, packages
+    assert not [p.name for p in ROOT.glob("*.py")], "a top-level module would be installed under a generic name"
+    setup = (ROOT / "setup.cfg").read_text(encoding="utf-8")
+    include = setup.split("[options.packages.find]")[1].split("[")[0]
+    names = {line.strip() for line in include.splitlines()[1:] if line.strip() and not line.strip().startswith("#")}
+    assert names - {"include ="} == {"companion", "companion.*", "sitl", "sitl.*", "fcmpc", "fcmpc.*"}, names
+    assert "py_modules" not in setup

@@ -14,7 +14,7 @@ import pytest
 
 from companion.nav.field import geomagnetic_fix, model_for_date
 from companion.nav.geo import geodesic_distance_m
-from scripts.montecarlo import main
+from fcmpc.montecarlo.cli import main
 from sitl.budget import SOURCES, only, parse_errors, predicted_fix_error, with_errors
 from sitl.scenario import load_scenario
 from sitl.world.attitude import AttitudeErrorConfig

@@ -13,8 +13,8 @@ import pytest
 from companion.cli import ArgumentParser, UsageError, one_line, param_items, run_main
 
 REPO = Path(__file__).resolve().parents[1]
-MODULES = {"fcmpc-fly": "scripts.fly", "fcmpc-sitl": "sitl.server", "fcmpc-companion": "companion.app",
-           "fcmpc-montecarlo": "scripts.montecarlo", "fcmpc-bench": "scripts.bench"}
+MODULES = {"fcmpc-fly": "fcmpc.fly.cli", "fcmpc-sitl": "sitl.fc", "fcmpc-companion": "companion.app",
+           "fcmpc-montecarlo": "fcmpc.montecarlo.cli", "fcmpc-bench": "fcmpc.bench.cli"}
 
 
 def _run(prog: str, argv: list[str], cwd: Path) -> subprocess.CompletedProcess:

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from companion.params import read_parm_file
-from montecarlo.fit_storms import (STORM_PARAMS, OwnStormError, check_held_out, fitted_on, leave_one_out, main,
+from fcmpc.montecarlo.fit_storms import (STORM_PARAMS, OwnStormError, check_held_out, fitted_on, leave_one_out, main,
                                    parm_name, pool)
-from scripts.montecarlo import main as montecarlo_main
+from fcmpc.montecarlo.cli import main as montecarlo_main
 from sitl.scenario import SCENARIO_DIR, load_scenario
 from sitl.storms.events import storm_events
 from sitl.world.build import storm_component_correlations, storm_component_walks

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from montecarlo.plots import outlier_fence_km, plot_results
-from montecarlo.runs import RunRow
-from scripts.montecarlo import main
+from fcmpc.montecarlo.plots import outlier_fence_km, plot_results
+from fcmpc.montecarlo.runs import RunRow
+from fcmpc.montecarlo.cli import main
 from sitl.scenario import load_scenario
 
 
@@ -82,7 +82,7 @@ SHORT = ["--param", "NAV_MAX_STEPS=12"]      # runs end at the step limit: a fra
 
 def _specs(seeds: int = 2):
     from companion.params import validate_all
-    from montecarlo.batch import plan_runs
+    from fcmpc.montecarlo.batch import plan_runs
 
     scenario = load_scenario("paper_pacific")
     values = validate_all({**scenario.nav_overrides(), "NAV_MAX_STEPS": 12})
@@ -103,7 +103,7 @@ def test_dask_local_cluster_gives_the_local_pool_results_bit_for_bit():
     """Runs are pure functions of their spec: a 2-worker Dask cluster started here returns the
     same rows and tracks, bit for bit, as the local pool (one process) for the same seeds."""
     pytest.importorskip("distributed", reason="the cluster extra is not installed: pip install -e '.[cluster]'")
-    from montecarlo.engines import Engine, run_all
+    from fcmpc.montecarlo.engines import Engine, run_all
 
     specs = _specs()
     local = dict(run_all(specs, Engine("local", 1)))
@@ -117,7 +117,7 @@ def test_dask_local_cluster_gives_the_local_pool_results_bit_for_bit():
 
 
 def test_local_pool_of_two_gives_the_same_results_as_one_process():
-    from montecarlo.engines import Engine, run_all
+    from fcmpc.montecarlo.engines import Engine, run_all
 
     specs = _specs(1)
     one = dict(run_all(specs, Engine("local", 1)))
@@ -128,7 +128,7 @@ def test_local_pool_of_two_gives_the_same_results_as_one_process():
 # a fresh interpreter whose numpy loaded BLAS with the machine's default threads, then the pool
 _BLAS_PROBE = """
 import json, threadpoolctl, numpy
-from montecarlo.engines import local_pool
+from fcmpc.montecarlo.engines import local_pool
 parent = [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
 with local_pool(2) as pool:
     workers = [[i["num_threads"] for i in info if i["user_api"] == "blas"]
@@ -156,8 +156,8 @@ def test_sweep_writes_one_parquet_row_per_cell_and_seed_and_resumes(tmp_path, ca
     import pyarrow.parquet as pq
 
     from companion.params import REGISTRY
-    from montecarlo.runs import RunRow
-    from montecarlo.store import RunStore
+    from fcmpc.montecarlo.runs import RunRow
+    from fcmpc.montecarlo.store import RunStore
 
     assert main([*SWEEP, "--runs", "2", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
@@ -232,7 +232,7 @@ def test_bad_sweep_from_the_console_script_is_one_line_and_exit_2(tmp_path):
     from pathlib import Path
 
     repo = Path(__file__).resolve().parents[1]
-    result = subprocess.run([sys.executable, "-m", "scripts.montecarlo", "--sweep", "MPC_N=2;4"], cwd=tmp_path,
+    result = subprocess.run([sys.executable, "-m", "fcmpc.montecarlo.cli", "--sweep", "MPC_N=2;4"], cwd=tmp_path,
                             env=dict(os.environ, PYTHONPATH=str(repo)), capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
@@ -267,7 +267,7 @@ def test_without_an_ins_auto_dead_reckons(tmp_path, capsys):
 @pytest.mark.parametrize("count", [0, 1, 7, 64, 150, 1000, 10_000])
 @pytest.mark.parametrize("workers", [1, 2, 5])
 def test_batches_keep_every_run_once_in_order_and_end_one_run_per_task(count, workers):
-    from montecarlo.engines import BATCH_CAP, batches
+    from fcmpc.montecarlo.engines import BATCH_CAP, batches
 
     items = list(range(count))
     split = batches(items, workers)
@@ -282,7 +282,7 @@ def test_batches_keep_every_run_once_in_order_and_end_one_run_per_task(count, wo
 
 def test_a_sweep_can_withhold_a_storms_space_weather_feed():
     """``--sweep storm.kp_feed=0,1``: which indices reach the navigator is a scenario key like any."""
-    from montecarlo.runs import apply_scenario_changes, scenario_keys
+    from fcmpc.montecarlo.runs import apply_scenario_changes, scenario_keys
     from sitl.scenario import load_scenario
 
     storm = load_scenario("paper_long_storm")

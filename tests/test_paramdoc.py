@@ -1,4 +1,4 @@
-"""The generated parameter reference (companion.paramdoc): the committed files are what the
+"""The generated parameter reference (fcmpc.paramdoc): the committed files are what the
 registry gives now, and each is read by the program it is for.
 
 The MAVLink schema in tests/data/mavlink/parameter.schema.json is mavlink/mavlink's
@@ -15,7 +15,7 @@ from pathlib import Path
 import jsonschema
 from pymavlink import mavparm
 
-from companion.paramdoc import GENERATED, main, stale_files, when_applied, write_files
+from fcmpc.paramdoc import GENERATED, main, stale_files, when_applied, write_files
 from companion.params import default_values, read_parm_file
 from companion.registry import REGISTRY
 

@@ -22,7 +22,7 @@ towards the companion's estimate from there.
 
 How the feed reaches each flight controller (:func:`send_feed`, measured on the real firmware):
 
-* ArduPilot: GPS_INPUT (``GPS2_TYPE 14``), :meth:`companion.io.mavlink_link.MavlinkLink.send_gps_input`.
+* ArduPilot: GPS_INPUT (``GPS2_TYPE 14``), :meth:`companion.io.link.MavlinkLink.send_gps_input`.
 * PX4 (SITL with SIH, v1.17 main of 2026-05): GPS_INPUT was ignored (no second receiver appeared
   in GPS2_RAW, with or without ``MAV_USEHILGPS``, from the FC's or a ground station's system id);
   ExternalNav (ODOMETRY with ``EKF2_EV_CTRL 1``) did not take over position after GPS loss (EKF2

@@ -20,7 +20,7 @@ companion calibrates the field itself at the known start (``NAV_CALIBRATE``, ``M
 does with ArduPilot's RAW_IMU, so it must read a field without an estimator's state in it.
 
 Other PX4 conventions live where the rest of their kind is: modes and setpoint masks in
-:mod:`companion.io.mavlink_link`, the heading parameters in :mod:`companion.io.fc_params`, the
+:mod:`companion.io.link`, the heading parameters in :mod:`companion.io.fc_params`, the
 position feed (HIL_GPS) in :mod:`companion.io.position_feed`.
 """
 from __future__ import annotations

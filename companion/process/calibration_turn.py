@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.calibration import CalibrationRefused, chained, down_in_body, fit_level_calibration, registry_values
 from companion.nav.field import model_for_setting
 from companion.params import validate

@@ -22,7 +22,7 @@ from pathlib import Path
 from companion.failsafe import Health, HealthLimits
 from companion.fc_view import FcView
 from companion.io.link.signing import Signing
-from companion.io.mavlink_link import MavlinkLink, mavlink
+from companion.io.link import MavlinkLink, mavlink
 from companion.io.param_server import ParamServer
 from companion.io.sensors.base import SampleKind, SensorSource
 from companion.io.sensors.factory import make_source

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from companion.failsafe import diverged
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.heading import window_heading_rad

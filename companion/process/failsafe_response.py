@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.process.machine import State
 from companion.process.options import STARTUP_GRACE_S

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.disturbance import storm_declared
 from companion.nav.elements import ElementSet
 

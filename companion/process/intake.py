@@ -27,7 +27,7 @@ import math
 import sys
 from dataclasses import replace
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind, SensorError, SensorSource, StreamEnd
 from companion.nav.magnetometer import AttitudeState
 

@@ -19,7 +19,7 @@ link allows reach here (LINK_GCS_ID*; with signing, signed frames only: :mod:`co
 """
 from __future__ import annotations
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.process.machine import State
 
 __all__ = ["OperatorCommands"]

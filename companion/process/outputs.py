@@ -1,8 +1,8 @@
 """What the companion sends: STATUSTEXT, its heartbeat, setpoints, the estimate and the position feed
 (GPS_INPUT to ArduPilot, HIL_GPS to PX4: :mod:`companion.io.position_feed`).
 
-No setpoint leaves without :func:`~companion.io.mavlink_link.guard_setpoint` (inside
-:meth:`~companion.io.mavlink_link.MavlinkLink.send_setpoint`). Times are message time unless
+No setpoint leaves without :func:`~companion.io.link.guard_setpoint` (inside
+:meth:`~companion.io.link.MavlinkLink.send_setpoint`). Times are message time unless
 a name ends in ``_wall``.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import sys
 import time
 
 from companion import wrap_2pi
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.position_feed import feed_message_name, send_echo, send_feed
 from companion.io.px4 import unused_streams
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import time
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.mission import Command, Phase, uses_filter
 from companion.process.calibration_turn import CalibrationTurn

@@ -40,7 +40,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.field import WorldMagneticModel, load_wmm
 from companion.nav.mission import Command, Mission
 from companion.process.machine import Event

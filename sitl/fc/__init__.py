@@ -17,8 +17,7 @@ module per part; :class:`~sitl.fc.server.SitlServer` wires them:
     lockstep    pacing against wall time and the lockstep wait
     records     truth.csv, tlog, summary
     server      SitlServer: the wiring and the simulation loop
-    cli         the fcmpc-sitl command line
-    benchmark   the simulator's speed against a UDP reader
+    cli         the fcmpc-sitl command line (``python -m sitl.fc``)
 
 Arrows: ``cli`` -> ``server`` -> the parts; the parts import only ``sitl.clock``,
 ``sitl.guidance``, ``sitl.links``, ``sitl.mavframe``, ``sitl.truthlog``, ``sitl.world``,
@@ -31,17 +30,16 @@ import os
 
 # Before numpy: small-matrix BLAS calls (the INS's expm) are ~100x slower with OpenBLAS
 # threads on a 2-core machine, and the simulator is single-threaded by design. Here, so the
-# console script (sitl.fc.cli:main) gets it as well as ``python -m sitl.server``.
+# console script (sitl.fc.cli:main) gets it as well as ``python -m sitl.fc``.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 os.environ.setdefault("MAVLINK20", "1")
 
-from sitl.fc.benchmark import benchmark  # noqa: E402
 from sitl.fc.cli import build_parser, config_from_args, main  # noqa: E402
 from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig, parse_fault  # noqa: E402
 from sitl.fc.records import format_summary  # noqa: E402
 from sitl.fc.server import SitlServer  # noqa: E402
 from sitl.fc.streams import DEFAULT_RATES_HZ  # noqa: E402
 
-__all__ = ["DEFAULT_OUT", "DEFAULT_RATES_HZ", "DEFAULT_SPEEDUP", "ServerConfig", "SitlServer", "benchmark",
+__all__ = ["DEFAULT_OUT", "DEFAULT_RATES_HZ", "DEFAULT_SPEEDUP", "ServerConfig", "SitlServer",
            "build_parser", "config_from_args", "format_summary", "main", "parse_fault"]

@@ -2,7 +2,7 @@
 
 Exit 0 after a run (the summary is on stderr and in ``summary.json``), 2 when the scenario,
 a setting or an endpoint is refused (the message names it). SIGINT/SIGTERM end the run
-cleanly, with records and summary. ``python -m sitl.server`` runs the same ``main``.
+cleanly, with records and summary. ``python -m sitl.fc`` runs the same ``main``.
 """
 from __future__ import annotations
 

@@ -128,7 +128,7 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
     # result are still written (it used to end the process with nothing but the companion's steps).
     # SIGINT gets the handler explicitly too: a job started in the background by a non-interactive
     # shell inherits SIGINT ignored, and `kill -INT` then did nothing (fcmpc-fly's stand-in path,
-    # fcmpc_fly.runner._Interrupts, already installs its own)
+    # fcmpc.fly.runner._Interrupts, already installs its own)
     old_handlers = {signum: signal.signal(signum, _raise_interrupt) for signum in (signal.SIGINT, signal.SIGTERM)} \
         if threading.current_thread() is threading.main_thread() else {}
     try:

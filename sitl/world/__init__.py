@@ -8,5 +8,5 @@ seeded anomaly field), ``ins`` (the 15-state INS error
 model), ``attitude`` (heading sources and attitude errors), ``magerrors`` (magnetometer
 calibration residuals), ``sampling`` (one control period of samples, vectorised),
 ``vehicle`` (kinematics) and ``build`` (a scenario's truth field). Shared by the in-process
-Monte Carlo and the MAVLink simulator (``sitl.server``).
+Monte Carlo and the MAVLink simulator (``sitl.fc``).
 """

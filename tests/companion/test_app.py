@@ -30,7 +30,7 @@ def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wait_for_file(tmp_path / "companion" / "steps.csv", [companion], 60.0)   # its port is bound
     sitl = subprocess.Popen(
-        [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration",
+        [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration",
          str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5", *sitl_args],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

@@ -1,4 +1,4 @@
-"""Closed loop: the simulator and the companion as separate processes on loopback (via fcmpc_fly).
+"""Closed loop: the simulator and the companion as separate processes on loopback (via fcmpc.fly).
 
 Tolerance against the in-process Monte Carlo of the same seed: ``remaining <= max(1.5 * MC, 1.5 km)``.
 The closed loop and the in-process run draw different noise: the in-process run draws one
@@ -25,7 +25,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from companion.io.records import read_steps_csv  # noqa: E402
-from fcmpc_fly import FlyOptions, FlyResult, fly  # noqa: E402
+from fcmpc.fly import FlyOptions, FlyResult, fly  # noqa: E402
 from sitl.scenario import load_scenario  # noqa: E402
 
 FLOOR_M = 1500.0

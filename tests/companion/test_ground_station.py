@@ -68,7 +68,7 @@ def running_vehicle(tmp_path: Path, parm_text: str, speedup: float = 5.0) -> Ite
     try:
         wait_for_file(tmp_path / "companion" / "steps.csv", procs, 60.0)   # written once its port is bound
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{companion_port}",
+            [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{companion_port}",
              "--out", f"udp:127.0.0.1:{gcs_port}", "--speedup", f"{speedup:g}", "--duration", "900",
              "--log-dir", str(tmp_path / "sitl"), "--quiet"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from companion.io.mavlink_link import (  # noqa: E402
+from companion.io.link import (  # noqa: E402
     ARDUPILOT, PX4, VELOCITY_ONLY_TYPE_MASK, VELOCITY_YAW_TYPE_MASK, MavlinkLink, MessageClock, UnsafeSetpoint, guard_setpoint, mavlink,
     parse_connection,
 )

@@ -1,4 +1,4 @@
-"""The paper's Pacific mission closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
+"""The paper's Pacific mission closed loop via fcmpc.fly (slow: CI only), against the in-process Monte Carlo.
 
 Pass: ``remaining <= max(1.5 x in-process remaining of the same seed, 1.5 km)`` (see
 tests/companion/test_closed_loop.py for the floor), arrival, iterations within 15 %, and the
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from fcmpc_fly import FlyOptions, fly
+from fcmpc.fly import FlyOptions, fly
 from tests.companion.test_closed_loop import assert_close_to_monte_carlo
 
 HANG_S = 2400.0      # a hung-run guard: the full mission takes ~200 s idle, several times that under load

@@ -16,7 +16,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from companion.io.mavlink_link import MavlinkLink, mavlink  # noqa: E402
+from companion.io.link import MavlinkLink, mavlink  # noqa: E402
 from companion.io.param_server import ParamServer, decode_value, encode_value  # noqa: E402
 from companion.params import REGISTRY, SPEC_BY_NAME, default_values, read_parm_file, write_parm_file  # noqa: E402
 from tests.ports import free_port  # noqa: E402

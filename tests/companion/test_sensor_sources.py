@@ -23,7 +23,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from companion.app import CompanionApp, State, build_parser, main, options_from_args  # noqa: E402
-from companion.io.mavlink_link import mavlink  # noqa: E402
+from companion.io.link import mavlink  # noqa: E402
 from companion.io.sensors.base import SampleKind  # noqa: E402
 from tests.ports import free_port  # noqa: E402
 

@@ -28,7 +28,7 @@ from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COL
 from companion.io.status_page.address import parse_http_address
 from companion.io.status_page.server import MAX_CONNECTIONS, TrackReader
 from companion.params import default_values
-from fcmpc_fly.runner import _stop
+from fcmpc.fly.runner import _stop
 from tests.ports import free_port
 from tests.processes import wait_for_file
 
@@ -77,7 +77,7 @@ def vehicle(tmp_path_factory):
         vehicle = Vehicle(base, port, companion)
         vehicle.before_fc = vehicle.state()
         sitl = subprocess.run(
-            [sys.executable, "-m", "sitl.server", "--out", f"udp:127.0.0.1:{udp}", "--lockstep", "--duration",
+            [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{udp}", "--lockstep", "--duration",
              str(FLOWN_S), "--log-dir", str(base / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=HANG_S)
         assert sitl.returncode == 0

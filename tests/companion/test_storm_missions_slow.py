@@ -1,4 +1,4 @@
-"""The paper's storm missions closed loop via fcmpc_fly (slow: CI only), against the in-process Monte Carlo.
+"""The paper's storm missions closed loop via fcmpc.fly (slow: CI only), against the in-process Monte Carlo.
 
 **The first STORM_ROUTE_KM of the route**, the whole storm window compressed onto them (the
 ``compress`` rule spreads it over the shortened mission, in-process as closed loop): the storm
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import pytest
 
-from fcmpc_fly import FlyOptions, fly, fly_in_process_alike
+from fcmpc.fly import FlyOptions, fly, fly_in_process_alike
 from tests.companion.test_missions_slow import HANG_S, YIELD_NICE
 
 pytestmark = pytest.mark.timeout(HANG_S + 300.0)

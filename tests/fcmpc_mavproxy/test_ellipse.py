@@ -10,7 +10,7 @@ import pytest
 from geographiclib.geodesic import Geodesic
 
 from companion.operator_status import StatusReader
-from fcmpc_mavproxy.ellipse import chi2_2dof, ellipse_axes, ellipse_points
+from fcmpc.mavproxy.ellipse import chi2_2dof, ellipse_axes, ellipse_points
 
 scipy_stats = pytest.importorskip("scipy.stats")
 pytest.importorskip("MAVProxy")
@@ -80,7 +80,7 @@ def test_not_a_covariance_is_refused():
 
 def test_map_shapes_from_the_status():
     """The estimate, its ellipse and the destination; without a covariance the estimate alone."""
-    from fcmpc_mavproxy.module import map_shapes
+    from fcmpc.mavproxy.module import map_shapes
 
     reader = StatusReader()
     assert map_shapes(reader) == []

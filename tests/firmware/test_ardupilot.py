@@ -13,7 +13,7 @@ import signal
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.io.mavlink_link import MessageClock
+from companion.io.link import MessageClock
 from companion.io.records import read_steps_csv
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.io.sensors.mavlink_source import MavlinkDecoder
@@ -172,7 +172,7 @@ def test_main_job_says_in_one_line_when_the_firmware_is_missing(tmp_path):
     import sys
 
     env = {**os.environ, "FCMPC_ARDUPILOT": str(tmp_path / "no-such-ardurover")}
-    done = subprocess.run([sys.executable, "-m", "scripts.fly", "--fc", "ardupilot", "--out-dir", str(tmp_path / "run")],
+    done = subprocess.run([sys.executable, "-m", "fcmpc.fly.cli", "--fc", "ardupilot", "--out-dir", str(tmp_path / "run")],
                           capture_output=True, text=True, env=env, timeout=120, stdin=subprocess.DEVNULL,
                           cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     assert done.returncode == 2, done.stderr
@@ -202,7 +202,7 @@ def test_main_job_stopped_by_a_signal_still_writes_its_records(tmp_path, signum)
     instance = free_instance(first=71, taken=_TAKEN)
     _TAKEN.add(instance)
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "scripts.fly", "--fc", "ardupilot", "--fc-instance", str(instance),
+    proc = subprocess.Popen([sys.executable, "-m", "fcmpc.fly.cli", "--fc", "ardupilot", "--fc-instance", str(instance),
                              "--short", "--short-km", "20", "--no-tlog", "--no-plot",
                              "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,

@@ -268,7 +268,7 @@ def test_read_qgc_params_names_the_bad_line(tmp_path):
 
 def test_main_job_says_in_one_line_when_px4_is_missing(tmp_path):
     env = {**os.environ, "FCMPC_PX4": str(tmp_path / "no-such-px4")}
-    done = subprocess.run([sys.executable, "-m", "scripts.fly", "--fc", "px4", "--out-dir", str(tmp_path / "run")],
+    done = subprocess.run([sys.executable, "-m", "fcmpc.fly.cli", "--fc", "px4", "--out-dir", str(tmp_path / "run")],
                           capture_output=True, text=True, env=env, timeout=120, stdin=subprocess.DEVNULL, cwd=REPO,
                           check=False)
     assert done.returncode == 2, done.stderr

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.io.mavlink_link import MessageClock
+from companion.io.link import MessageClock
 from companion.io.sensors.mag_units import count_to_nt, highres_nt_per_unit, mag_messages
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 

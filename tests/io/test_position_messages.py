@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.io.mavlink_link import MessageClock
+from companion.io.link import MessageClock
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.mission import Mission, Phase
 from companion.nav.step_io import Measurement

@@ -17,7 +17,7 @@ from companion.nav.ins_error import DEG_PER_HOUR, InsErrorSpec
 from companion.nav.process import InsProcess
 from companion.params import NavConfig, validate_all
 from companion.registry import SPEC_BY_NAME
-from montecarlo.runs import apply_scenario_changes
+from fcmpc.montecarlo.runs import apply_scenario_changes
 from sitl.budget import only, with_errors
 from sitl.inprocess import CHI2_95_2DOF, InProcessFlight, fly_batch, nees_per_step
 from sitl.scenario import ins_declaration, load_scenario

@@ -2,7 +2,7 @@
 
 Every fault the issue names, what the companion is expected to do about it, and where that is
 tested. All closed-loop rows run the companion and ``fcmpc-sitl`` as real processes over loopback
-in lockstep (``fcmpc_fly``); "here" is the one short mission below.
+in lockstep (``fcmpc.fly``); "here" is the one short mission below.
 
 =================================  ==========================================================  ===========================================
 fault (stand-in ``--fault``)       expected outcome                                            where tested
@@ -66,8 +66,8 @@ from pymavlink import mavutil
 
 from companion.io.records import read_steps_csv
 from companion.nav.geo import geodesic_inverse
-from fcmpc_fly import FlyOptions, fly
-from fcmpc_fly.runner import LOCKSTEP_PERIOD_S
+from fcmpc.fly import FlyOptions, fly
+from fcmpc.fly.runner import LOCKSTEP_PERIOD_S
 from sitl.scenario import SCENARIO_DIR, load_scenario
 from tests.companion.test_closed_loop import ISSUE_MISS_M
 

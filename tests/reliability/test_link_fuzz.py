@@ -18,7 +18,7 @@ from companion.io.link import MavlinkLink, mavlink
 from companion.io.link.signing import Signing, passphrase_key
 from companion.io.param_server import ParamServer
 from companion.params import default_values
-from fcmpc_soak.hostile import Hostile
+from fcmpc.soak.hostile import Hostile
 
 FC = ("127.0.0.1", 5760)
 SLOW = settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -1,5 +1,5 @@
 """Bounded stream fuzz of the running companion over loopback (real processes: the simulator, the
-companion, and this process as the attacker; :mod:`fcmpc_soak`). Every harm count must be zero:
+companion, and this process as the attacker; :mod:`fcmpc.soak`). Every harm count must be zero:
 no crash, no non-finite or over-cruise setpoint, the mission still stepping, no parameter changed
 by a stranger, no reboot believed, no mission restarted (issue 10)."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from companion.io.link.signing import passphrase_key, write_key_file
-from fcmpc_soak.run import format_table, soak
+from fcmpc.soak.run import format_table, soak
 
 
 def _check(result) -> None:

@@ -220,7 +220,7 @@ def write_ulog(path: Path, track: Track, unix0: float, gps_every: int = 2, gener
 
 
 def write_csv(path: Path, track: Track, unix0: float | None = None, gps_every: int = 2) -> Path:
-    """The CSV columns of replay.csvlog (mag in uT, angles in degrees, GPS every other row)."""
+    """The CSV columns of fcmpc.replay.csvlog (mag in uT, angles in degrees, GPS every other row)."""
     import csv
 
     with path.open("w", newline="") as handle:

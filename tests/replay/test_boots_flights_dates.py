@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from replay import evaluate, evaluate_log
-from replay.events import GPS_RAW_SOURCE, SYSTEM_TIME_SOURCE, TLOG_SOURCE
-from replay.reading import read_boots
+from fcmpc.replay import evaluate, evaluate_log
+from fcmpc.replay.events import GPS_RAW_SOURCE, SYSTEM_TIME_SOURCE, TLOG_SOURCE
+from fcmpc.replay.reading import read_boots
 from tests.replay.synth import UNIX_2018, Phase, fly, write_tlog
 
 W = (10.0,)

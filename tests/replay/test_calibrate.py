@@ -16,9 +16,9 @@ import pytest
 
 from companion.nav.magnetometer import MagCalibration
 from companion.params import read_parm_file
-from replay.calibrate import main
-from replay.logeval import evaluate_boots, evaluate_log
-from replay.reading import read_boots
+from fcmpc.replay.calibrate import main
+from fcmpc.replay.logeval import evaluate_boots, evaluate_log
+from fcmpc.replay.reading import read_boots
 
 DISTORTION = np.array([[1.12, 0.06, -0.03], [0.06, 0.9, 0.05], [-0.03, 0.05, 1.05]])
 HARD_IRON_NT = np.array([15000.0, -8000.0, 5000.0])

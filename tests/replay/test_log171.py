@@ -18,8 +18,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from replay import evaluate, format_report, write_outputs  # noqa: E402
-from replay.cli import main  # noqa: E402
+from fcmpc.replay import evaluate, format_report, write_outputs  # noqa: E402
+from fcmpc.replay.cli import main  # noqa: E402
 
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "IMU3", "ATT", "GPS"]
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from replay import evaluate, format_report
-from replay.plots import di_figure, errors_figure
+from fcmpc.replay import evaluate, format_report
+from fcmpc.replay.plots import di_figure, errors_figure
 from tests.replay.synth import UNIX_2018, Phase, fly, write_tlog
 
 W = (10.0,)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from companion.io.sensors.base import SensorError
-from replay import evaluate
-from replay.cli import main
-from replay.reading import read_boots
-from replay.ulog import ULOG_GPS_SOURCE, euler_from_quaternion
+from fcmpc.replay import evaluate
+from fcmpc.replay.cli import main
+from fcmpc.replay.reading import read_boots
+from fcmpc.replay.ulog import ULOG_GPS_SOURCE, euler_from_quaternion
 from tests.replay.synth import UNIX_2018, Phase, fly, quaternion, write_csv, write_ulog
 
 W = (10.0,)

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from replay import evaluate_log
-from replay.calibrate import main as calibrate_main
-from replay.reading import read_boots
-from replay.ulog import ULOG_GPS_SOURCE
+from fcmpc.replay import evaluate_log
+from fcmpc.replay.calibrate import main as calibrate_main
+from fcmpc.replay.reading import read_boots
+from fcmpc.replay.ulog import ULOG_GPS_SOURCE
 from tests.replay.synth import UNIX_2018, Phase, fly, write_ulog
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "ulog"
@@ -85,7 +85,7 @@ def test_old_generation_position_comes_from_the_local_position_reference(tmp_pat
 
 
 def test_fcmpc_replay_calibrates_by_default(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    from replay.cli import main as replay_main
+    from fcmpc.replay.cli import main as replay_main
 
     assert replay_main([str(CURRENT), "--no-plots", "--window-s", "1", "--out", str(tmp_path / "a")]) == 0
     report = capsys.readouterr().out

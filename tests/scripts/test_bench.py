@@ -1,7 +1,7 @@
 """fcmpc-bench's merge of repeated runs: per row the median run, its anchors, and the range."""
 from __future__ import annotations
 
-from fcmpc_bench import median_rows
+from fcmpc.bench import median_rows
 
 
 def _run(step_us: float, mc_s: float) -> list[tuple[str, str, str, str]]:

@@ -5,9 +5,9 @@ import subprocess
 
 import pytest
 
-from fcmpc_bench.reference import (ISSUE_SPEEDUP, REPO, ReferenceRunError, ReferenceTree, compare, format_comparison,
+from fcmpc.bench.reference import (ISSUE_SPEEDUP, REPO, ReferenceRunError, ReferenceTree, compare, format_comparison,
                                    resolve)
-from scripts.bench import main
+from fcmpc.bench.cli import main
 
 PAPER_STEP = "mission step (cruise), Fc-MPC, the paper's estimator"
 

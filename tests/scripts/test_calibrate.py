@@ -11,7 +11,7 @@ CURRENT_ULOG = REPO / "tests" / "data" / "ulog" / "px4-2021-sensor-mag.ulg"
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
-    return _run_module(*args, module="scripts.calibrate")
+    return _run_module(*args, script="calibrate.py")
 
 
 def test_a_user_error_is_one_line_and_exit_code_2(tmp_path: Path) -> None:

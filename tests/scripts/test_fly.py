@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from geographiclib.geodesic import Geodesic
 
-from fcmpc_fly.plots import plot_track, title_for
-from fcmpc_fly.results import REST_TOL_M, REST_WINDOW_S, FlyResult, TruthTrack, distances, summary_lines
+from fcmpc.fly.plots import plot_track, title_for
+from fcmpc.fly.results import REST_TOL_M, REST_WINDOW_S, FlyResult, TruthTrack, distances, summary_lines
 
 from tests.processes import Lines  # noqa: E402
 
@@ -34,7 +34,7 @@ def test_interrupt_gives_a_summary_result_and_plot(tmp_path, target):
     """``terminal``: SIGINT to the whole process group, as Ctrl-C in a shell; ``parent``: to
     fcmpc-fly alone; ``simulator``: only the simulator child dies from it (not a miss either)."""
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "scripts.fly", "--short", "--no-tlog", "--out-dir", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "fcmpc.fly.cli", "--short", "--no-tlog", "--out-dir", str(out)],
                             cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -48,7 +48,7 @@ def test_interrupt_gives_a_summary_result_and_plot(tmp_path, target):
         elif target == "parent":
             os.kill(proc.pid, signal.SIGINT)
         else:
-            sitl = [c for c in children if "sitl.server" in Path(f"/proc/{c}/cmdline").read_text()]
+            sitl = [c for c in children if "sitl.fc" in Path(f"/proc/{c}/cmdline").read_text()]
             os.kill(sitl[0], signal.SIGINT)
         stdout, _ = proc.communicate(timeout=120)
     finally:
@@ -142,7 +142,7 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
 
 def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it():
     """``FlyOptions.nice``: the children's ``preexec_fn`` adds the increment to their niceness."""
-    from fcmpc_fly.runner import _niceness
+    from fcmpc.fly.runner import _niceness
 
     probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
     own = os.nice(0)
@@ -154,11 +154,32 @@ def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it()
 @pytest.mark.parametrize("scenario, gifted", [("paper_pacific", True), ("pacific", False)])
 def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, capsys, scenario, gifted):
     """The flight itself stands in (the closed loop is tests/companion's): what fcmpc-fly prints around it."""
-    import scripts.fly
+    import fcmpc.fly.cli
 
-    monkeypatch.setattr(scripts.fly, "fly", lambda options: _result("arrived", 128.0, scenario=options.scenario))
-    assert scripts.fly.main(["--scenario", scenario, "--no-plot"]) == 0
+    monkeypatch.setattr(fcmpc.fly.cli, "fly", lambda options: _result("arrived", 128.0, scenario=options.scenario))
+    assert fcmpc.fly.cli.main(["--scenario", scenario, "--no-plot"]) == 0
     printed = capsys.readouterr()
     said = [line for line in (printed.err + printed.out).splitlines() if "hands the navigator" in line]
     assert len(said) == (2 if gifted else 0)
     assert all(line.startswith(f"fcmpc-fly: {scenario} hands") and "the true heading" in line for line in said)
+
+
+def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypatch, capsys):
+    """fcmpc-fly scores a storm world as fcmpc-montecarlo does: its storm-time parameters fitted on
+    the library's other storms (the committed .parm of that fit is the reference), a --param wins,
+    and parameters fitted on the world's own storm are refused before anything flies."""
+    import fcmpc.fly.cli
+    from companion.params import read_parm_file
+
+    flown = []
+    monkeypatch.setattr(fcmpc.fly.cli, "fly", lambda options: flown.append(options) or _result("arrived", 128.0))
+    assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--param", "FUS_BQA_N=12"]) == 0
+    said = capsys.readouterr().err
+    assert "fitted on halloween2003,march2011,stpatrick2015, not on may2024" in said
+    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015.parm")
+    given = flown[0].extra_params
+    assert given["FUS_BQA_N"] == 12
+    assert {k: v for k, v in committed.items() if k != "FUS_BQA_N"} == {
+        k: pytest.approx(given[k], abs=0.051) for k in committed if k != "FUS_BQA_N"}
+    assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--storm-params", "may2024"]) == 2
+    assert "fitted on may2024" in capsys.readouterr().err and len(flown) == 1

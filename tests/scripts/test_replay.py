@@ -1,6 +1,7 @@
 """scripts/replay.py is a thin entry point: run as its own process, it is fcmpc-replay."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -8,9 +9,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _run(*args: str, module: str = "scripts.replay") -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", module, *args], cwd=REPO, capture_output=True,
-                          text=True, timeout=120)
+def _run(*args: str, script: str = "replay.py") -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, f"scripts/{script}", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(REPO)))
 
 
 def test_a_user_error_is_one_line_and_exit_code_2(tmp_path: Path) -> None:

@@ -1,8 +1,8 @@
 """Helpers of the simulator tests: a SITL on real loopback sockets and a pymavlink client.
 
-``sitl`` (fixture) starts :class:`sitl.server.SitlServer` in a background thread with its
+``sitl`` (fixture) starts :class:`sitl.fc.SitlServer` in a background thread with its
 UDP output pointed at a pymavlink ``udpin`` socket on a port of :mod:`tests.ports`; ``run_cli`` runs
-``python -m sitl.server`` as a subprocess. Everything is bounded in wall time.
+``python -m sitl.fc`` as a subprocess. Everything is bounded in wall time.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pytest  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
-from sitl.server import ServerConfig, SitlServer  # noqa: E402
+from sitl.fc import ServerConfig, SitlServer  # noqa: E402
 from tests.ports import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -136,10 +136,10 @@ def sitl(tmp_path):
 
 
 def run_cli(args: list[str], tmp_path: Path, timeout: float = 300.0) -> tuple[dict, Path]:
-    """Run ``python -m sitl.server`` to completion; returns (summary, log_dir). ``timeout`` only guards
+    """Run ``python -m sitl.fc`` to completion; returns (summary, log_dir). ``timeout`` only guards
     against a hang: a loaded 2-core machine took 75 s of wall time for 6.6 s of CPU."""
     log_dir = tmp_path / "cli"
-    cmd = [sys.executable, "-m", "sitl.server", "--log-dir", str(log_dir), "--quiet", *args]
+    cmd = [sys.executable, "-m", "sitl.fc", "--log-dir", str(log_dir), "--quiet", *args]
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", MAVLINK20="1")
     env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     proc = subprocess.run(cmd, env=env, capture_output=True, timeout=timeout, cwd=tmp_path)

@@ -1,6 +1,6 @@
 """The storm worlds' space-weather feed, and how their disturbance walks along the route
 (sitl.world.build.storm_component_walks). No scenario declares its own storm's walk: the navigator's
-are fitted on other storms (montecarlo.fit_storms, tests/test_fit_storms.py)."""
+are fitted on other storms (fcmpc.montecarlo.fit_storms, tests/test_fit_storms.py)."""
 from __future__ import annotations
 
 import math

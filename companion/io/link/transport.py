@@ -63,7 +63,7 @@ class UdpTransport:
         self.sock.setblocking(False)
         self.destinations = destinations or (list)
         self.send_errors = 0
-        self.mav = None    # the link's encoder (companion.benchmark parses through it)
+        self.mav = None    # the link's encoder (fcmpc.bench.companion_process parses through it)
         self._batch: list[bytes] | None = None   # frames written since begin_batch(), not yet sent
 
     def fileno(self) -> int:

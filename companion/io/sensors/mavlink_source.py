@@ -34,7 +34,7 @@ of the same messages says the body turned by 2 degrees or more (STUCK; a quiet o
 magnetometer on a still vehicle repeats its reading and is fine,
 :class:`~companion.io.sensors.quality.FrozenDetector`).
 :attr:`MavlinkDecoder.last_problem` says which. Times are the flight controller's boot time
-(:class:`companion.io.mavlink_link.MessageClock`).
+(:class:`companion.io.link.MessageClock`).
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ import math
 from dataclasses import dataclass
 
 from companion import wrap_2pi
-from companion.io.mavlink_link import MavlinkLink, MessageClock
+from companion.io.link import MavlinkLink, MessageClock
 from companion.io.sensors.base import AttitudeSample, GpsSample, ImuSample, MagSample, Sample, SampleFlag, \
     SensorError, SensorSource
 from companion.io.sensors.quality import FrozenDetector

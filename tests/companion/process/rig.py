@@ -12,7 +12,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from companion.app import AppOptions, CompanionApp, State
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.nav.mission import Command
 from companion.params import NavConfig, default_values

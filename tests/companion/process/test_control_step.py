@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from companion.app import State
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
 from companion.registry import READINGS

@@ -6,7 +6,7 @@ averages are random and extreme (D, I, F, the gravity-referenced I and their sta
 the magnetic heading, the sample times: NaN, inf, huge, tiny, wrong signs) through
 :meth:`ControlStep.step`. No exception escapes; every command it keeps is finite, its speed
 within [0, NAV_SPEED]; the setpoint made of it (the course trimmed by the FC's yaw error) passes
-the link's last guard (:func:`~companion.io.mavlink_link.guard_setpoint`) under NAV_SPEED; the
+the link's last guard (:func:`~companion.io.link.guard_setpoint`) under NAV_SPEED; the
 companion reports the navigator's rejections (FC_REJ). A navigation failure the companion itself
 judges (an estimate diverged from its fix) may restart the mission: then the next example's
 mission is a new one. Periods are the model's field where the simulated vehicle flies its
@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.app import State
-from companion.io.mavlink_link import guard_setpoint
+from companion.io.link import guard_setpoint
 from companion.nav.field import model_for_setting
 from companion.nav.geo import offset_position
 from companion.nav.magnetometer import AveragedDI

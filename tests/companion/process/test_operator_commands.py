@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import pytest
 
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.operator_status import StatusReader, failsafe_names
 from companion.process.machine import State
 from tests.companion.process.rig import GOOD, _run_step, _sent

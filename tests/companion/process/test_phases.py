@@ -6,7 +6,7 @@ import math
 import pytest
 
 from companion.app import State
-from companion.io.mavlink_link import mavlink
+from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.process.mode_commands import MODE_CONFIRM_S
 from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _sent

@@ -14,7 +14,7 @@ import json
 import pytest
 
 from companion.io.records import read_steps_csv
-from fcmpc_fly import FlyOptions, fly
+from fcmpc.fly import FlyOptions, fly
 from tests.companion.test_closed_loop import ISSUE_MISS_M
 
 HANG_S = 800.0          # a hung-run guard, not a pace

@@ -19,9 +19,9 @@ from companion.io.records import read_steps_csv
 from companion.nav.geo import geodesic_distance_m
 from companion.params import write_parm_file
 from companion.process.resume import NavStateStore
-from fcmpc_fly import FlyOptions
-from fcmpc_fly.results import read_truth_track
-from fcmpc_fly.runner import (
+from fcmpc.fly import FlyOptions
+from fcmpc.fly.results import read_truth_track
+from fcmpc.fly.runner import (
     REPO,
     _commands,
     _env,

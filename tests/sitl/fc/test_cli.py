@@ -1,10 +1,10 @@
-"""sitl.fc.cli and sitl.fc.records: runs of ``python -m sitl.server``: reproducible per seed, the truth log, errors exit 2, SIGTERM keeps the records."""
+"""sitl.fc.cli and sitl.fc.records: runs of ``python -m sitl.fc``: reproducible per seed, the truth log, errors exit 2, SIGTERM keeps the records."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sitl.server import main
+from sitl.fc import main
 from sitl.truthlog import TRUTH_COLUMNS, read_truth_csv
 from tests.sitl.conftest import REPO, open_client, read_tlog, run_cli
 from tests.sitl.fc.helpers import closed_udp_port
@@ -63,7 +63,7 @@ def test_sigterm_stops_cleanly_and_flushes_records(tmp_path):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     client, port = open_client()
-    proc = subprocess.Popen([sys.executable, "-m", "sitl.server", "--speedup", "50", "--tlog", "--log-dir",
+    proc = subprocess.Popen([sys.executable, "-m", "sitl.fc", "--speedup", "50", "--tlog", "--log-dir",
                              str(log_dir), "--out", f"udp:127.0.0.1:{port}"],
                             env=env, stderr=subprocess.PIPE)
     try:

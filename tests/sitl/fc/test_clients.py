@@ -9,7 +9,7 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.server import ServerConfig, SitlServer
+from sitl.fc import ServerConfig, SitlServer
 from tests.ports import free_port
 from tests.sitl.conftest import gps_scenario
 

@@ -6,7 +6,7 @@ import math
 import pytest
 
 from sitl.links import EndpointError, parse_endpoint
-from sitl.server import parse_fault
+from sitl.fc import parse_fault
 
 
 def test_parse_endpoint_and_fault():

@@ -1,4 +1,4 @@
-"""sitl.fc.faults: a run of ``python -m sitl.server`` with every fault kind, checked from its tlog and CSV
+"""sitl.fc.faults: a run of ``python -m sitl.fc`` with every fault kind, checked from its tlog and CSV
 (``fc_reboot`` in a run of its own, of a boat cruising armed)."""
 from __future__ import annotations
 

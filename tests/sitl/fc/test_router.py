@@ -58,7 +58,7 @@ def test_malformed_flood_does_not_stop_the_simulator(sitl):
 def test_tcp_master_like_ardupilot_sitl(tmp_path):
     import threading
     from pymavlink import mavutil
-    from sitl.server import ServerConfig, SitlServer
+    from sitl.fc import ServerConfig, SitlServer
 
     port = free_port()
     server = SitlServer(ServerConfig(masters=(f"tcp:127.0.0.1:{port}",), speedup=20.0, quiet=True,
