@@ -3,28 +3,48 @@
 ZYX Euler angles in radians: yaw (from north, clockwise) about down, then pitch about the
 new y, then roll about x. ``mat_nb`` rotates body vectors into NED. The companion's tilt
 compensation, the sensor drivers' attitude filter and the simulator's sensor model all use
-these three functions.
+these functions (:func:`mats_nb_from_euler`: many at once, the Monte Carlo's vectorised sample path).
 """
 from __future__ import annotations
 
 import math
 
-__all__ = ["Vector3", "Matrix3", "mat_nb_from_euler", "body_to_ned", "ned_to_body"]
+import numpy as np
+
+__all__ = ["Matrix3", "Vector3", "body_to_ned", "mat_nb_from_euler", "mats_nb_from_euler", "ned_to_body"]
 
 Vector3 = tuple[float, float, float]
 Matrix3 = tuple[Vector3, Vector3, Vector3]
 
 
-def mat_nb_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Matrix3:
-    """Rotation matrix body -> NED of ZYX Euler angles."""
-    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
-    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
-    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+def _rotation_nb(cr, sr, cp, sp, cy, sy):
+    """The rows of body -> NED of ZYX Euler angles from their cosines and sines (floats or arrays)."""
     return (
         (cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy),
         (cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy),
         (-sp, sr * cp, cr * cp),
     )
+
+
+def mat_nb_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Matrix3:
+    """Rotation matrix body -> NED of ZYX Euler angles."""
+    return _rotation_nb(math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), math.sin(pitch_rad),
+                        math.cos(yaw_rad), math.sin(yaw_rad))
+
+
+def mats_nb_from_euler(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
+    """:func:`mat_nb_from_euler` of arrays of angles (broadcast): matrices (..., 3, 3).
+
+    >>> mats_nb_from_euler(0.0, 0.0, np.array([0.0, math.pi / 2])).round(9)[1].tolist()
+    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    rows = _rotation_nb(np.cos(roll_rad), np.sin(roll_rad), np.cos(pitch_rad), np.sin(pitch_rad), np.cos(yaw_rad),
+                        np.sin(yaw_rad))
+    out = np.empty(np.broadcast(roll_rad, pitch_rad, yaw_rad).shape + (3, 3))
+    for i, row in enumerate(rows):
+        for j, value in enumerate(row):
+            out[..., i, j] = value
+    return out
 
 
 def body_to_ned(vec_b: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:

@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from companion.frames import mats_nb_from_euler
 from companion.nav.field import decl_incl_gradient, model_for_date
 from companion.nav.geo import WGS84
 from sitl.scenario import Scenario, ins_declaration
@@ -42,7 +43,6 @@ from sitl.world.attitude import AttitudeErrorConfig, AttitudeErrors
 from sitl.world.ins import InsErrorConfig, InsErrorModel
 from sitl.world.magerrors import MagErrors
 from sitl.world.magnetic import TruthField, decl_incl_from_ned
-from sitl.world.sampling import rotation_nb
 from sitl.world.vehicle import MotionErrorConfig
 
 __all__ = ["SOURCES", "parse_errors", "with_errors", "only", "SourceError", "predicted_fix_error"]
@@ -172,7 +172,7 @@ def predicted_fix_error(real: Scenario, source: str, seed: int, duration_s: floa
             e[0] = float(igrf14_model(year).elements(fc_lat, fc_lon, alt, year).decl_deg) - s_nav[0]
     elif source == "calibration":
         mag = MagErrors.draw(real.sensors.mag_errors, np.random.default_rng(np.random.SeedSequence(seed).spawn(5)[3]))
-        c_nb = rotation_nb(0.0, 0.0, course)
+        c_nb = mats_nb_from_euler(0.0, 0.0, course)
         body = c_nb.T @ nav_ned
         ned = c_nb @ mag.apply(body, duration_s)
         e = np.array([float(v) for v in decl_incl_from_ned(*ned)]) - s_nav

@@ -2,21 +2,23 @@
 
 The Monte Carlo and the tests use this; the MAVLink simulator wraps the same world models.
 Per control period the vehicle tracks the last command (kinematics at ``substep_s``), the
-INS error propagates along the true track, and the companion's measurement is formed as it
-would be on the vehicle. Two measurement paths, chosen by the scenario's
-``[sensors] inprocess_samples``:
+INS error propagates along the true track, and the period's average goes to the companion's own
+navigation step (:meth:`companion.nav.navigator.Navigator.step`: the measurement, the plausibility
+judge, the core), as on the vehicle. Two paths to the period's average
+(:class:`companion.nav.period.PeriodAverage`), chosen by the scenario's ``[sensors] inprocess_samples``:
 
 * analytic (the paper's ideal worlds, ``paper_pacific`` and the paper's storm presets): D and I of the true
   field averaged along the period's path, plus the averaged sensor noise of the scenario
   (:meth:`SensorModel.averaged_di_noise_deg`), one normal each;
 * samples (the realistic presets): every magnetometer and attitude sample of the period is
-  simulated with the run's heading source, calibration residuals and noise, and averaged as
-  the companion does (:func:`sitl.world.sampling.sample_period`).
+  simulated with the run's heading source, calibration residuals and noise, and averaged by
+  the companion's own averager (:func:`sitl.world.sampling.sample_period`), the gravity samples
+  waiting after a new command as the navigator asks (``StepResult.settle``).
 
-Either way the averaged elements D, I, F, H, Z of each step are kept in
-``RunResult.elements`` (:class:`~sitl.world.sampling.AveragedElements`) for a navigator that
-uses heading-free elements; the mission is fed :class:`Measurement` with D, I and F and uses the
-elements of its set (NAV_ELEMENTS: 1 (D, I), 2 (I, F), 0 auto (D, I, F) with F weighed while quiet, ...).
+Each step's average is kept in ``RunResult.elements``; the navigator forms its measurement from it
+(which I, H and Z from F and I) for the elements of its set (NAV_ELEMENTS: 1 (D, I), 2 (I, F),
+0 auto (D, I, F) with F weighed while quiet, ...). A period the plausibility judge excludes is
+counted (``RunResult.excluded``) and the last command flies on, as on the vehicle.
 
 The navigator's field model is its own (``Mission`` picks WMM from ``NavConfig``); the truth
 field (``truth``) may be a different model plus crust and storm. The flight controller's
@@ -25,7 +27,7 @@ INS-indicated position (GPS is denied from the start).
 
 Each step's measurement carries the standard error of every average, as the companion measures
 it from the period's scatter: on the samples path computed from the samples
-(:func:`sitl.world.sampling.elements_from_ned`); on the analytic path, which draws the average's
+(:class:`companion.nav.period.PeriodAverager`); on the analytic path, which draws the average's
 error directly, the scatter estimate is drawn from its own sampling distribution, ``sigma (1 +
 1.166 z / sqrt(n))`` with ``n`` the period's samples (the MAD-based estimate's asymptotic
 relative standard deviation, ``sqrt(1.36 / n)``: 2 % at 3600 samples).
@@ -46,20 +48,22 @@ the ideal world's streams [0] and [1] are drawn exactly as before the others exi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.nav.elements import ElementSet, element_set, hz_standard_errors, resolve_elements
-from companion.nav.geo import enu_offset, geodesic_distance_m
+from companion.nav.elements import resolve_elements
 from companion.nav.field import model_for_setting
-from companion.nav.mission import Command, Measurement, Mission, Phase
+from companion.nav.geo import enu_offset, geodesic_distance_m
+from companion.nav.mission import Command, Mission, Phase
+from companion.nav.navigator import SETTLE_AFTER_COMMAND_S, Navigator, Period
+from companion.nav.period import PeriodAverage
 from companion.params import Controller, NavConfig
 from sitl.scenario import Scenario
 from sitl.sensors import WaveMotion, make_error_models
 from sitl.world.ins import InsErrorModel, propagate_together
 from sitl.world.magnetic import TruthField
-from sitl.world.sampling import AveragedElements, PeriodKnots, SampleSettings, sample_period
+from sitl.world.sampling import PeriodKnots, SampleSettings, sample_period
 from sitl.world.vehicle import MotionErrors, VehicleState, step_vehicle
 
 __all__ = ["CHI2_95_2DOF", "InProcessFlight", "RunResult", "fly_batch", "fly_in_process", "nees_per_step"]
@@ -67,11 +71,6 @@ __all__ = ["CHI2_95_2DOF", "InProcessFlight", "RunResult", "fly_batch", "fly_in_
 
 CHI2_95_2DOF = 5.991464547107979   # chi-square 95 % quantile, 2 degrees of freedom: the 95 % ellipse
 MAD_SE_RELATIVE_SD = 1.1664        # sqrt(1.3605): asymptotic relative sd of 1.4826 MAD for normal samples
-
-
-def avg_se(avg: AveragedElements) -> tuple[float, float, float, float, float]:
-    """The standard errors of an average, in :class:`Measurement`'s order (D, I, F, H, Z)."""
-    return avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt, avg.z_se_nt
 
 
 @dataclass(frozen=True)
@@ -92,7 +91,7 @@ class RunResult:
     duration_s: float
     ins_error_m: np.ndarray     # INS position error magnitude at each step
     commands: tuple[Command, ...] = field(default=(), repr=False)
-    elements: tuple[AveragedElements, ...] = field(default=(), repr=False)  # measured, per step
+    elements: tuple[PeriodAverage, ...] = field(default=(), repr=False)  # measured, per step
     # the estimate's covariance (east-east, east-north, north-north, m^2) at each step, NaN
     # where the navigator has none (LTI/LTV-MPC, Table 3's path between fusions)
     est_cov_en_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
@@ -100,6 +99,7 @@ class RunResult:
     # where the vehicle comes to rest on the final command (:meth:`InProcessFlight.at_rest`)
     rest_lat_deg: float = math.nan
     rest_lon_deg: float = math.nan
+    excluded: int = 0           # periods the plausibility judge excluded (the last command flew on)
 
     def track_to_rest(self) -> tuple[np.ndarray, np.ndarray]:
         """The true track with its last point where the vehicle came to rest (the miss's end)."""
@@ -163,7 +163,6 @@ class InProcessFlight:
         if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
             nav = nav.replace(elements=resolve_elements(nav.elements, compass_derived=True))
         self.nav, self.scenario, self.seed, self.keep_commands = nav, scenario, seed, keep_commands
-        self.heading_free = element_set(nav.elements or ElementSet.PAPER).heading_free
         self.noise_rng = np.random.default_rng(noise_seed)
         self.fhz_rng = np.random.default_rng(fhz_seed)
         self.se_rng = np.random.default_rng(se_seed)
@@ -178,6 +177,9 @@ class InProcessFlight:
         # the navigator starts from a GPS fix (NAV_START), declared with the receiver's noise (denied
         # after); the vehicle is truly one receiver error away from it (none with exact_start)
         self.mission.set_start_fix(nav.gps_sigma_m)
+        self.navigator = Navigator(self.mission)
+        self.settle_until_s = -math.inf   # gravity samples wait after a new command (StepResult.settle)
+        self.excluded = 0
         self.state = state = VehicleState(*scenario.true_start(np.random.default_rng(start_seed),
                                                                (nav.start_lat_deg, nav.start_lon_deg)))
         sensors = scenario.sensors
@@ -202,11 +204,8 @@ class InProcessFlight:
         self.time_s = 0.0
         self.lats, self.lons = [state.lat_deg], [state.lon_deg]
         self.ins_err = [math.hypot(*self.ins.position_error_m(state.lat_deg))]
-        measurement, avg = self._measure(0.0, [(0.0, state, *self._slow_errors(0.0, state))], 0.0)
-        self.command = command = self.mission.step(measurement)
-        self.commands, self.elements = [command], [avg]
-        self.est_lats, self.est_lons = [command.est_lat_deg], [command.est_lon_deg]
-        self.covs = [command.est_cov_en_m2]
+        self.commands, self.elements, self.est_lats, self.est_lons, self.covs = [], [], [], [], []
+        self._step(self._measure(0.0, [(0.0, state, *self._slow_errors(0.0, state))], 0.0), first=True)
         self.knots: list = []
 
     @property
@@ -227,20 +226,31 @@ class InProcessFlight:
         self.knots.append((t, self.state, *self._slow_errors(t, self.state)))
 
     def end_period(self) -> None:
-        """The period's measurement and the navigator's step on it."""
-        nav, state = self.nav, self.state
-        self.time_s += nav.period_s
-        measurement, avg = self._measure(self.time_s, self.knots, nav.period_s)
-        self.command = command = self.mission.step(measurement)
-        self.elements.append(avg)
-        if self.keep_commands:
-            self.commands.append(command)
+        """The period's average and the navigator's step on it."""
+        state = self.state
+        self.time_s += self.nav.period_s
+        self._step(self._measure(self.time_s, self.knots, self.nav.period_s))
         self.lats.append(state.lat_deg)
         self.lons.append(state.lon_deg)
+        self.ins_err.append(math.hypot(*self.ins.position_error_m(state.lat_deg)))
+
+    def _step(self, period: Period, first: bool = False) -> None:
+        """The navigator's step on ``period``: its command flown from now on, or the last one flown
+        on when the period is excluded (counted)."""
+        result = self.navigator.step(period)
+        if result.command is None:
+            self.excluded += 1
+        else:
+            self.command = result.command
+            if result.settle:
+                self.settle_until_s = period.time_s + SETTLE_AFTER_COMMAND_S
+        command = self.command
+        self.elements.append(period.average)
+        if self.keep_commands or first:
+            self.commands.append(command)
         self.est_lats.append(command.est_lat_deg)
         self.est_lons.append(command.est_lon_deg)
         self.covs.append(command.est_cov_en_m2)
-        self.ins_err.append(math.hypot(*self.ins.position_error_m(state.lat_deg)))
 
     def result(self) -> RunResult:
         nav, command, mission = self.nav, self.command, self.mission
@@ -254,7 +264,7 @@ class InProcessFlight:
             commands=tuple(self.commands) if self.keep_commands else (), elements=tuple(self.elements),
             est_cov_en_m2=np.array(self.covs, dtype=float),
             process_model=mission.estimator.process_name if mission.estimator is not None else "table3",
-            rest_lat_deg=state.lat_deg, rest_lon_deg=state.lon_deg,
+            rest_lat_deg=state.lat_deg, rest_lon_deg=state.lon_deg, excluded=self.excluded,
         )
 
     def at_rest(self) -> VehicleState:
@@ -279,46 +289,47 @@ class InProcessFlight:
             decl = float(errors.decl_table_deg(*self.ins.indicated_position(s.lat_deg, s.lon_deg)))
         return slow, decl
 
-    def _measure(self, time_s: float, knots: list, window_s: float) -> tuple[Measurement, AveragedElements]:
-        """``knots``: (time, state, slow errors, table declination) from the period's start."""
+    def _measure(self, time_s: float, knots: list, window_s: float) -> Period:
+        """The period ending at ``time_s`` as the navigator is given it. ``knots``: (time, state,
+        slow errors, table declination) from the period's start."""
         nav, truth, ins, state = self.nav, self.truth, self.ins, self.state
         lats = np.array([k[1].lat_deg for k in knots])
         lons = np.array([k[1].lon_deg for k in knots])
         times = np.array([k[0] for k in knots])
         ins_lat, ins_lon = ins.indicated_position(state.lat_deg, state.lon_deg) if self.scenario.ins.onboard \
             else (math.nan, math.nan)
+        ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
         if self.sampled:
-            ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
             period = PeriodKnots(times, ned, np.array([k[1].course_rad for k in knots]),
                                  np.array([k[2] for k in knots]), np.array([k[3] for k in knots]))
             avg = sample_period(period, self.settings, self.wave.tilt_rad, self.mag_apply, self.noise_rng,
-                                self.accel_rng)
-            if self.heading_free and math.isfinite(avg.incl_grav_deg):
-                avg = gravity_referenced(avg)   # the companion's I for a heading-free set, and its H, Z
-            return Measurement(time_s, avg.decl_deg, avg.incl_deg, ins_lat, ins_lon, window_s, avg.f_nt,
-                               avg.h_nt, avg.z_nt, avg.decl_se_deg, avg.incl_se_deg, avg.f_se_nt, avg.h_se_nt,
-                               avg.z_se_nt, avg.mag_heading_deg, truth.kp(time_s),
-                               truth.symh(time_s)), avg
-        # analytic path: the time average over the period's path, by the trapezoid rule over its
-        # knots (the start alone at step 0). Its centre is the period's midpoint, as for the
-        # companion's evenly spaced samples; the knots after the start alone would put it half
-        # a sub-step late (15 s, ~200 m along the track at 50 km/h). A storm is averaged over the
-        # period's times too, as the samples would see it.
+                                self.accel_rng, self.settle_until_s)
+        else:
+            avg = self._analytic_average(time_s, ned, window_s)
+        return Period(time_s, avg, window_s, ins_lat, ins_lon, truth.kp(time_s), truth.symh(time_s))
+
+    def _analytic_average(self, time_s: float, ned: np.ndarray, window_s: float) -> PeriodAverage:
+        """The paper's worlds: the time average over the period's path, by the trapezoid rule over its
+        knots (the start alone at step 0), plus the averaged sensor noise. Its centre is the period's
+        midpoint, as for the companion's evenly spaced samples; the knots after the start alone would
+        put it half a sub-step late (15 s, ~200 m along the track at 50 km/h). A storm is averaged
+        over the period's times too, as the samples would see it. (Streams [4] and [5] keep their
+        draws per step, of which H's and Z's are no longer used: the navigator forms H and Z from F
+        and I, as the companion does.)"""
         sigma_d, sigma_i, sigma_f = self.sigma_d, self.sigma_i, self.sigma_f
-        ned = truth.field_ned_nt(lats, lons, nav.alt_m, times)
         n, e, d = ned[..., 0], ned[..., 1], ned[..., 2]
         h = np.hypot(n, e)
-        weights = trapezoid_weights(len(knots))
+        weights = trapezoid_weights(len(ned))
         decl = float(weights @ np.degrees(np.arctan2(e, n))) + self.noise_rng.normal(0.0, sigma_d)
         incl = float(weights @ np.degrees(np.arctan2(d, h))) + self.noise_rng.normal(0.0, sigma_i)
-        fn, hn, zn = (float(weights @ v) + sigma_f * self.fhz_rng.normal() for v in (np.sqrt(h * h + d * d), h, d))
-        # the standard errors as the period's scatter would measure them (D, I, F, H, Z)
+        f_nt = float(weights @ np.sqrt(h * h + d * d)) + sigma_f * self.fhz_rng.normal()
+        self.fhz_rng.normal(), self.fhz_rng.normal()
+        # the standard errors as the period's scatter would measure them (D, I, F; H's and Z's unused)
         se = np.array([sigma_d, sigma_i, sigma_f, sigma_f, sigma_f]) * np.maximum(
             0.0, 1.0 + self.se_spread * self.se_rng.standard_normal(5))
-        avg = AveragedElements(time_s, decl, incl, fn, hn, zn,
-                               int(round(self.scenario.sensors.mag_rate_hz * nav.period_s)), *(float(v) for v in se))
-        return Measurement(time_s, decl, incl, ins_lat, ins_lon, window_s, fn, hn, zn, *avg_se(avg),
-                           kp=truth.kp(time_s), symh_nt=truth.symh(time_s)), avg
+        count = int(round(self.scenario.sensors.mag_rate_hz * self.nav.period_s))
+        return PeriodAverage(decl, incl, count, time_s - 0.5 * window_s, time_s - window_s, time_s,
+                             f_nt=f_nt, decl_se_deg=float(se[0]), incl_se_deg=float(se[1]), f_se_nt=float(se[2]))
 
 
 def trapezoid_weights(count: int) -> np.ndarray:
@@ -329,15 +340,6 @@ def trapezoid_weights(count: int) -> np.ndarray:
     weights = np.full(count, 1.0 / (count - 1))
     weights[[0, -1]] *= 0.5
     return weights
-
-
-def gravity_referenced(avg: AveragedElements) -> AveragedElements:
-    """The average as the companion forms it for a heading-free set: I gravity-referenced, and H and
-    Z from F and that I (:meth:`companion.process.control_step.ControlStep.step`)."""
-    incl = math.radians(avg.incl_grav_deg)
-    h_se, z_se = hz_standard_errors(avg.f_nt, avg.incl_grav_deg, avg.f_se_nt, avg.incl_grav_se_deg)
-    return replace(avg, incl_deg=avg.incl_grav_deg, incl_se_deg=avg.incl_grav_se_deg, h_nt=avg.f_nt * math.cos(incl),
-                   z_nt=avg.f_nt * math.sin(incl), h_se_nt=h_se, z_se_nt=z_se)
 
 
 def nees_per_step(result: RunResult) -> np.ndarray:

@@ -170,9 +170,9 @@ def send_hil_gps(link, lat_deg: float, lon_deg: float, sigma_m: float, vn_mps: f
     speed = math.hypot(vn, ve)
     cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100) % 36000 if speed > 0.1 else 65535
     lon = ((lon_deg + 180.0) % 360.0) - 180.0
-    link.mav.hil_gps_send(int((clock.now_s + clock.unix_minus_boot_s) * 1e6), 3, round(lat_deg * 1e7),
-                          round(lon * 1e7), round(alt_m * 1000.0), accuracy_cm, accuracy_cm,
-                          round(speed * 100), round(vn * 100), round(ve * 100), 0, cog, satellites, 1, 0)
+    link.send_hil_gps(int((clock.now_s + clock.unix_minus_boot_s) * 1e6), 3, round(lat_deg * 1e7),
+                      round(lon * 1e7), round(alt_m * 1000.0), accuracy_cm, accuracy_cm,
+                      round(speed * 100), round(vn * 100), round(ve * 100), 0, cog, satellites, 1, 0)
     link.stats.positions_fed += 1
     return True
 

@@ -54,7 +54,7 @@ QP_UNITS_PER_NT = 10.0
 PAPER_UNITS_PER_NT = 0.01
 
 ELEMENT_NAMES = {"decl_deg": "D", "incl_deg": "I", "f_nt": "F", "h_nt": "H", "z_nt": "Z"}
-# the attribute holding each element's measured standard error (Measurement, AveragedElements)
+# the attribute holding each element's measured standard error (Measurement; PeriodAverage has D, I and F)
 STANDARD_ERROR_NAMES = {"decl_deg": "decl_se_deg", "incl_deg": "incl_se_deg", "f_nt": "f_se_nt",
                         "h_nt": "h_se_nt", "z_nt": "z_se_nt"}
 

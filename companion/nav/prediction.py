@@ -30,7 +30,8 @@ import numpy as np
 from companion.nav.elements import ElementSet, element_set, resolve_elements
 from companion.nav.fix import element_values_and_gradient
 from companion.nav.geo import geodesic_direct, geodesic_distance_m, geodesic_inverse
-from companion.nav.step_io import Measurement, Phase
+from companion.nav.period import PeriodAverage
+from companion.nav.step_io import Phase
 
 __all__ = ["RoutePrediction", "predict_route", "radius95_m", "UNOBSERVABLE_DEG"]
 
@@ -116,6 +117,7 @@ def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
     ``model``: the navigator's map (None: the one the mission picks). ``start_sigma_m``: the
     start fix's 1-sigma (None: ``config.gps_sigma_m``)."""
     from companion.nav.mission import Mission
+    from companion.nav.navigator import Navigator
 
     config = config.replace(elements=resolve_elements(config.elements, compass_derived))
     mission = Mission(config, model)
@@ -136,14 +138,17 @@ def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
     mission.set_start_fix(c.gps_sigma_m if start_sigma_m is None else start_sigma_m)
     lat, lon = start
     t, window, course, speed = 0.0, c.period_s, 0.0, 0.0
-    cmd = mission.step(_nominal(model, c, lat, lon, lat, lon, t, window, course, has_ins))
-    while not cmd.done and cmd.step < c.max_steps:
+    navigator = Navigator(mission)   # the vehicle's own step, its plausibility judge included
+    cmd = navigator.step(_nominal(model, c, lat, lon, lat, lon, t, window, course, has_ins)).command
+    periods = 1
+    while not cmd.done and cmd.step < c.max_steps and periods < 2 * c.max_steps:
         course, speed = cmd.course_rad, cmd.speed_mps
         d = speed * c.period_s
         mid = geodesic_direct(lat, lon, course, d / 2.0)
         lat, lon = geodesic_direct(lat, lon, course, d)
         t += c.period_s
-        cmd = mission.step(_nominal(model, c, lat, lon, *mid, t, window, course, has_ins))
+        cmd = navigator.step(_nominal(model, c, lat, lon, *mid, t, window, course, has_ins)).command or cmd
+        periods += 1
     cov = tuple(float(v) for v in cmd.est_cov_en_m2)
     arrived = cmd.phase == Phase.ARRIVED
     sigma = math.sqrt(0.5 * (cov[0] + cov[2])) if np.isfinite(cov).all() else math.nan
@@ -156,11 +161,15 @@ def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
 
 
 def _nominal(model, c, lat: float, lon: float, mid_lat: float, mid_lon: float, t: float, window: float,
-             course_rad: float, has_ins: bool) -> Measurement:
-    """The period's measurement in the nominal world: the map at the window's centre, declared noise."""
+             course_rad: float, has_ins: bool):
+    """The period in the nominal world: the map at the window's centre, declared noise (no measured
+    standard errors), as a :class:`companion.nav.navigator.Period`."""
+    from companion.nav.navigator import Period
+
     e = model.elements(mid_lat, mid_lon, c.alt_m, c.year)
     decl = float(e.decl_deg)
     heading = (math.degrees(course_rad) - decl) % 360.0
     ins = (lat, lon) if has_ins else (math.nan, math.nan)
-    return Measurement(t, decl, float(e.incl_deg), *ins, window, float(e.f_nt), float(e.h_nt), float(e.z_nt),
-                       mag_heading_deg=heading)
+    average = PeriodAverage(decl, float(e.incl_deg), 1, t - 0.5 * window, t - window, t, f_nt=float(e.f_nt),
+                            mag_heading_deg=heading)
+    return Period(t, average, window, *ins)

@@ -10,8 +10,7 @@
     operator_commands.py the operator's hold / resume / start (COMMAND_LONG to 191, COMMAND_ACK)
     intake.py       samples in: MAVLink and --sensors samples into the magnetometer pipeline
     preparation.py  start-up and mission preparation: start position, elements, calibration
-    plausibility.py is this period's magnetometer one to navigate on? (|F| band, fix jump)
-    control_step.py one control step: measurement -> core -> checks; the INS position
+    control_step.py one control step: the period into companion.nav.navigator, its verdict said, the command checked; the INS position
     outputs.py      what leaves: STATUSTEXT, heartbeat, setpoints, estimates, GPS_INPUT feed
     reporting.py    steps.csv rows and summary.json
     status.py       --http: the status page's snapshot, handed to its server (companion.io.status_page)

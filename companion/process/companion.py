@@ -41,7 +41,7 @@ from companion.process.operator_commands import OperatorCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
-from companion.process.plausibility import MagPlausibility
+from companion.nav.plausibility import MagPlausibility
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
 from companion.process.resume import Resume

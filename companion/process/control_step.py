@@ -1,9 +1,11 @@
-"""One control step: the period's average and the INS position into the core, its command checked.
+"""One control step: the period's average and the INS position into the navigator, its command checked.
 
-Every NAV_PERIOD_S of *mission time* the averaged (D, I) (or (I, F)) and the flight
-controller's INS position (GLOBAL_POSITION_INT; dead reckoning on the commanded velocity when
-it is missing; nothing while that position is GPS-aided or our own estimate fed back) go into
-the core. A non-finite command, a solver failure or an estimate diverging from the geomagnetic
+Every NAV_PERIOD_S of *mission time* the period's average (:class:`companion.nav.period.PeriodAverage`),
+the flight controller's INS position (GLOBAL_POSITION_INT; dead reckoning on the commanded velocity
+when it is missing; nothing while that position is GPS-aided or our own estimate fed back) and the
+space-weather readings go into :meth:`companion.nav.navigator.Navigator.step`, which forms the
+measurement, judges its plausibility and steps the core; this part says and records what it
+decided and applies what the command changes for the samples (the settling wait, the trim). A non-finite command, a solver failure or an estimate diverging from the geomagnetic
 fix (by COMP_DIVERGE_KM and beyond the two's joint 99.99 % ellipse,
 :func:`companion.failsafe.diverged`) is a navigation failure (:meth:`Phases.nav_failure`).
 """
@@ -16,19 +18,16 @@ import numpy as np
 
 from companion.failsafe import diverged
 from companion.io.link import mavlink
-from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import enu_offset, offset_position
-from companion.nav.heading import window_heading_rad
 from companion.nav.mission import Measurement, Phase
-from companion.nav.steering import is_new_course
+from companion.nav.navigator import SETTLE_AFTER_COMMAND_S, Navigator, Period, StepResult
+from companion.nav.plausibility import Judgement
 from companion.process.filter_words import FilterWords
 from companion.process.options import FC_POSITION_MAX_AGE_S
-from companion.process.plausibility import Judgement, element_noise, f_offset_nt, judge, navigator_bias
 from companion.registry import READINGS
 
-__all__ = ["SETTLE_AFTER_COMMAND_S", "ControlStep"]
+__all__ = ["ControlStep"]
 
-SETTLE_AFTER_COMMAND_S = 60.0     # gravity-referenced I waits this long after a new course or speed
 # a rejected period (HOLD: the last command flies on) is a warning; a failed mission an error
 _PHASE_SEVERITY = {Phase.HOLD: mavlink.MAV_SEVERITY_WARNING, Phase.FAILED: mavlink.MAV_SEVERITY_ERROR}
 
@@ -96,32 +95,20 @@ class ControlStep:
             app.next_step_m = t_k + period
             app.out.say("FcMPC: no magnetometer samples in the period, step postponed", mavlink.MAV_SEVERITY_WARNING)
             return
-        window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
         ins_lat, ins_lon, ins_source = self.ins_position(now)
-        incl = app.preparation.inclination(avg)
-        # H and Z from F and the (gravity-referenced) I: no heading enters either
-        h_nt, z_nt = avg.f_nt * math.cos(math.radians(incl)), avg.f_nt * math.sin(math.radians(incl))
-        incl_se = app.preparation.inclination_se(avg)
-        # measured standard errors: the filter's measurement noise (FUS_R_SRC 1) and the plausibility bound
-        h_se, z_se = hz_standard_errors(avg.f_nt, incl, avg.f_se_nt, incl_se)
         # the space-weather readings, while the ground station keeps them fresh: Kp (NAV_KP; negative:
         # none) and the ring-current index (NAV_SYMH)
         kp = self.reading("NAV_KP", now)
         kp = kp if kp >= 0.0 else math.nan
         symh = self.reading("NAV_SYMH", now)
-        meas = Measurement(t_k - app.m0, avg.decl_deg, incl, ins_lat, ins_lon, window, avg.f_nt, h_nt, z_nt,
-                           avg.decl_se_deg, incl_se, avg.f_se_nt, h_se, z_se, avg.mag_heading_deg, kp, symh)
-        se = {"decl_deg": avg.decl_se_deg, "incl_deg": incl_se, "f_nt": avg.f_se_nt}
-        self.judgement = None
-        judge0 = time.perf_counter()
-        if self.excluded(t_k, meas, se):
+        window = avg.window_s(t_k, period if window_limit_s is None else window_limit_s)
+        navigator = Navigator(mission, app.plausibility, app.command, timer=time.perf_counter)
+        result = navigator.step(Period(t_k - app.m0, avg, window, ins_lat, ins_lon, kp, symh))
+        meas, cmd = result.measurement, result.command
+        self.judgement = result.judgement
+        if not self.report_judgement(result, meas):
             app.next_step_m = t_k + period   # fly the last command; measure again one period later
             return
-        core0 = time.perf_counter()
-        cmd = mission.step(meas)
-        core_latency = time.perf_counter() - core0
-        if app.command is None:
-            self.learn_f_reference(meas)
         said = self.words.start_words(mission, kp, symh) if app.command is None else self.words.step(mission, kp, symh)
         for text, severity in said:     # a storm declared, a disturbance, F weighed or set aside
             app.out.say(text, severity)
@@ -132,17 +119,15 @@ class ControlStep:
         latency = time.perf_counter() - wall0
         self.step_latency_s.append(latency)
         self.average_latency_s.append(average_latency)
-        self.judge_latency_s.append(core0 - judge0)
-        self.core_latency_s.append(core_latency)
+        self.judge_latency_s.append(result.judge_s)
+        self.core_latency_s.append(result.core_s)
         app.reporting.record_step(cmd, meas, avg, ins_source, latency, "step", nav_fault or cmd.reason)
         if nav_fault:
             app.phases.nav_failure(nav_fault, cmd)
             return
-        previous = app.command
-        if previous is None or abs(previous.course_rad - cmd.course_rad) > 0.02 or previous.speed_mps != cmd.speed_mps:
+        if result.settle:
             app.mag.settle_until_s = now + SETTLE_AFTER_COMMAND_S   # turn and speed transient: no I_g
-        if is_new_course(None if previous is None else (previous.course_rad, previous.speed_mps), cmd.course_rad,
-                         cmd.speed_mps):
+        if result.new_course:
             app.mag.yaw_offset.new_course(now)   # the trim: the FC's yaw error differs on the new heading
         app.command = cmd
         if cmd.phase != app.last_phase:
@@ -170,72 +155,27 @@ class ControlStep:
         self.fresh[name] = fresh
         return float(self.app.params.values[name]) if fresh else math.nan
 
-    def learn_f_reference(self, meas: Measurement) -> None:
-        """At the first step, the start (a known position): learn the |F| level the band is judged
-        about, with the bias the core chose to subtract there. Learnt before the core's first step,
-        it took the bias before auto had fallen back to Table 3's constant calibration (zero), and
-        every later step subtracted the calibration a second time (PX4 SIH, +590 nT: periods judged
-        1000-1040 nT off and excluded, 4 of 11 in 30 minutes)."""
-        mission = self.app.mission
-        model = getattr(mission, "model", None)   # (a test's stand-in core has none)
-        config = mission.config
-        self.app.plausibility.f_reference_nt = None if model is None else f_offset_nt(
-            model, mission.elements, config.year, config.alt_m, meas.f_nt, mission.bias,
-            config.start_lat_deg, config.start_lon_deg)
-
-    def excluded(self, t_k: float, meas: Measurement, se: dict[str, float] | None = None) -> bool:
-        """Judge the measurement against the predicted position (:mod:`companion.process.plausibility`);
-        True if it is excluded (said, recorded). The first step has no prediction to judge against.
-        ``se``: standard errors of the period's averages (``decl_deg``, ``incl_deg``, ``f_nt``)."""
+    def report_judgement(self, result: StepResult, meas: Measurement) -> bool:
+        """Say and record the plausibility check's verdict on this step (:mod:`companion.nav.plausibility`);
+        False if the period was excluded."""
         app = self.app
-        cmd, mission = app.command, app.mission
-        config = mission.config
-        if cmd is None:   # the first step, at the start: nothing to judge against (learn_f_reference)
-            return False
-        if cmd.done or not (math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg)):
-            return False
-        dt = max(meas.time_s - 0.5 * meas.window_s - cmd.time_s, 0.0)   # to the centre of the window
-        flown = cmd.speed_mps * dt
-        lat, lon = offset_position(cmd.est_lat_deg, cmd.est_lon_deg, flown * math.sin(cmd.course_rad),
-                                   flown * math.cos(cmd.course_rad))
-        # against this fix: the estimate's uncertainty less the field-model error the two share
-        sigma = next(v for v in (cmd.next_fix_sigma_m, cmd.est_sigma_m, math.sqrt(app.nav_cfg.fusion.rc_m2))
-                     if math.isfinite(v))
-        reference = app.plausibility.f_reference_nt
-        if reference is None or not math.isfinite(reference):   # resumed mid-route: no start to learn it at
-            reference = 0.0
-        # judged as the navigator will see it: with the error-state filter, its bias states (which
-        # follow a storm it has recognised) are removed and their uncertainty widens the bound;
-        # judged against the start-up calibration alone, a storm the filter was tracking drove the
-        # implied jump past the bound and every later step was excluded (short storm, seed 0)
-        velocity = np.array([cmd.speed_mps * math.sin(cmd.course_rad), cmd.speed_mps * math.cos(cmd.course_rad)])
-        bias, bias_sigma = navigator_bias(mission, window_heading_rad(meas, velocity))
-        noise = np.hypot(element_noise(mission.elements, meas.incl_deg, meas.f_nt, se or {}), bias_sigma)
-        judgement = judge(mission.model, mission.elements, config.year, config.alt_m, mission.elements.values(meas),
-                          meas.f_nt, mission.bias, float(lat), float(lon), sigma, flown, app.plausibility.limits,
-                          f_reference_nt=reference, noise=noise, fix_bias=bias)
-        self.judgement = judgement
-        # only a dead-reckoned estimate can be re-anchored: with an independent INS, fixes that
-        # agree far from it are biased fixes (dead_reckons)
-        steps = config.reanchor_steps if getattr(mission, "dead_reckons", False) else 0
-        agreed = app.plausibility.agreed_shift(judgement, cmd.speed_mps * config.period_s, steps)
-        if agreed is not None:   # the excluded fixes agree: the estimate is wrong, not the sensor
-            mission.reanchor(*agreed)
-            words = app.plausibility.reanchor_words(agreed[0])
+        judgement = result.judgement
+        if result.reanchored is not None:   # the excluded fixes agreed: the estimate was wrong, not the sensor
+            shift, sigma = result.reanchored
+            words = app.plausibility.reanchor_words(shift)
             app.out.say(words, mavlink.MAV_SEVERITY_WARNING)
             app.reporting.record_event("reanchored", words, **{**app.reporting.plausibility_record(meas),
-                                       "jump_m": float(np.hypot(*agreed[0])), "est_sigma_m": agreed[1]})
-            return False
-        said = app.plausibility.verdict(judgement)
-        if said is not None:
-            app.out.say(said[1][:200], getattr(mavlink, f"MAV_SEVERITY_{said[0]}"))
-        if judgement.ok:
-            return False
+                                       "jump_m": float(np.hypot(*shift)), "est_sigma_m": sigma})
+            return True
+        if result.verdict is not None:
+            app.out.say(result.verdict[1][:200], getattr(mavlink, f"MAV_SEVERITY_{result.verdict[0]}"))
+        if not result.excluded:
+            return True
         app.reporting.record_event("excluded", judgement.words(), decl_deg=meas.decl_deg, incl_deg=meas.incl_deg,
-                                   f_nt=meas.f_nt, window_s=meas.window_s, est_lat_deg=float(lat),
-                                   est_lon_deg=float(lon), est_sigma_m=sigma,
+                                   f_nt=meas.f_nt, window_s=meas.window_s, est_lat_deg=judgement.pred_lat_deg,
+                                   est_lon_deg=judgement.pred_lon_deg, est_sigma_m=judgement.sigma_m,
                                    **app.reporting.plausibility_record(meas))
-        return True
+        return False
 
     def fault(self, cmd) -> str:
         """Why ``cmd`` is a navigation failure ("" if it is not)."""

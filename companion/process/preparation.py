@@ -15,6 +15,7 @@ from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, reso
 from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_inverse
 from companion.nav.mission import Mission
+from companion.nav.period import measured_inclination
 from companion.params import NavConfig
 from companion.process.forecast import RouteForecast
 from companion.process.options import GPS_START_MAX_AGE_S
@@ -111,18 +112,10 @@ class MissionPreparation:
             return code, f"heading independent of the compass ({verdict.reason})"
         return code, f"NAV_ELEMENTS {requested} ({verdict.reason})"
 
-    def _gravity_referenced(self, avg) -> bool:
-        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
-        return heading_free and math.isfinite(avg.incl_grav_deg)
-
     def inclination(self, avg) -> float:
-        """I of an average: gravity-referenced (field and accelerometer only) for the heading-free
-        elements, so no heading enters; else tilt-compensated."""
-        return avg.incl_grav_deg if self._gravity_referenced(avg) else avg.incl_deg
-
-    def inclination_se(self, avg) -> float:
-        """The standard error of :meth:`inclination`'s I (NaN: not known)."""
-        return avg.incl_grav_se_deg if self._gravity_referenced(avg) else avg.incl_se_deg
+        """I of an average as the navigator measures it (:func:`companion.nav.period.measured_inclination`)."""
+        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
+        return measured_inclination(avg, heading_free)[0]
 
     def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, ...] | None, str]:
         """Start-up bias = measured minus model at a GPS-known start (NAV_CALIBRATE 1), and its words."""

@@ -9,7 +9,8 @@ machine before the speed work, with the ratio to it: :data:`BASELINE_HERE`) and 
 what the solver itself costs, called through its compiled object, and the time OSQP reports for
 it); the field model per point beside pygeomag's per point (the ratio); the geomagnetic fix; one
 mission step while cruising; the 50-run x 3-controller Monte Carlo; the simulator's speed-up over real time; the
-companion's control step. Timings are medians of many repetitions of wall time (p99 where a
+CPU seconds a simulated hour of mission costs the companion beside pymavlink's floor for parsing the same
+messages, and the companion's message capacity (issue 49). Timings are medians of many repetitions of wall time (p99 where a
 tail matters); on a machine shared with other work they are indicative only, and the ratios
 beside an anchor measured in the same run are the robust figures. Nothing here is asserted by
 the tests.
@@ -28,7 +29,7 @@ from companion.nav.mpc import MpcController, MpcSettings
 from companion.params import NavConfig, validate_all
 
 __all__ = ["BASELINE_HERE", "QUICK_SECTIONS", "Row", "SECTIONS", "bench_companion", "bench_field", "bench_mission_step",
-           "bench_montecarlo", "bench_mpc", "bench_simulator"]
+           "bench_montecarlo", "bench_mpc", "bench_simulator", "companion_rows"]
 
 Row = tuple[str, str, str, str]       # benchmark, ours, anchor, target
 
@@ -39,7 +40,6 @@ Row = tuple[str, str, str, str]       # benchmark, ours, anchor, target
 BASELINE_HERE = {
     "osqp": 210e-6, "wmm_scalar": 77e-6, "gradient": 406e-6, "fix": 2027e-6, "Fc-MPC": 3347e-6,
     "Fc-MPC, fusing every step": 4718e-6, "LTV-MPC": 882e-6, "montecarlo": 54.6, "sitl": 533.0,
-    "companion_step": 6.9e-3,
 }
 
 
@@ -191,21 +191,37 @@ def bench_simulator() -> list[Row]:
             if k.startswith("speed") else (f"SITL {k}", f"{v}", "", "") for k, v in result.items()]
 
 
+CAPACITY_FIRST_MSGS_PER_S = 55_400.0
+"""The companion's capacity as its first version measured it (README, 2026-11-22; issue 49: 24,100 later)."""
+
+
+def companion_rows(result: dict) -> list[Row]:
+    """:func:`fcmpc.bench.companion_process.run`'s numbers as rows: the CPU a simulated hour of mission
+    costs the companion beside the floor of parsing the same messages with pymavlink alone, and
+    the capacity beside its first version's."""
+    rows: list[Row] = []
+    if "mission_cpu_s_per_sim_hour" in result:
+        rows.append(("companion CPU s per simulated hour of mission (lockstep, the stand-in's stream rates)",
+                     f"{result['mission_cpu_s_per_sim_hour']:g} s",
+                     f"floor: pymavlink parsing its {result['messages_per_sim_hour']:,} messages alone "
+                     f"{result['parse_floor_cpu_s_per_sim_hour']:g} s", "-"))
+    for key, value in result.items():
+        if key in ("mission_cpu_s_per_sim_hour", "parse_floor_cpu_s_per_sim_hour", "messages_per_sim_hour"):
+            continue
+        if key == "capacity_msgs_per_s":
+            rows.append((f"companion {key}", f"{value}", f"first version {CAPACITY_FIRST_MSGS_PER_S:,.0f} (README); "
+                         f"{float(value) / CAPACITY_FIRST_MSGS_PER_S:.2f}x", ">= 55,000"))
+        else:
+            rows.append((f"companion {key}", f"{value}", "", ""))
+    return rows
+
+
 def bench_companion() -> list[Row]:
-    """The companion's control-step latency and sustained input rate against the simulator."""
+    """The CPU a simulated hour of mission costs the companion, its sustained input rate and its
+    capacity against the simulator (:mod:`fcmpc.bench.companion_process`)."""
     from fcmpc.bench.companion_process import run
 
-    def anchor(key: str, value) -> str:
-        if key == "step_latency_median_ms":
-            return f"README 2.0 ms (its navigator: the paper's estimator); {_vs(float(value) * 1e-3, 'companion_step', 'ms')}"
-        if key == "paper_estimator_step_latency_median_ms":
-            return f"README 2.0 ms (this work); {_vs(float(value) * 1e-3, 'companion_step', 'ms')}"
-        if key == "core_latency_median_ms":
-            return "README 1.6 ms; baseline here 3.3 ms"
-        return ""
-
-    return [(f"companion {k}", f"{v}", anchor(k, v), "<= 1 ms" if k.endswith("step_latency_median_ms") else "")
-            for k, v in run().items()]
+    return companion_rows(run())
 
 
 # the parts in the order they run; --quick runs the first three

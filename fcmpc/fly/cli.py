@@ -68,10 +68,11 @@ def build_parser() -> ArgumentParser:
                    help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
                         "noise and motor interference, calibrated as a boat's user does (real, the default), or "
                         "SITL's perfect one (ideal); see sitl/firmware/compass.py")
-    p.add_argument("--physics", choices=("builtin", "sih", "hil"), default="builtin",
-                   help="with --fc px4: PX4's own SIH (builtin, also 'sih'; paced by --speedup) or our world as its "
-                        "physics through its MAVLink simulator interface, in lockstep with PX4 and the companion "
-                        "(hil; docs/integrator.md)")
+    p.add_argument("--physics", choices=("builtin", "sih", "json", "hil"), default="builtin",
+                   help="the firmware's physics: its own (builtin: ArduPilot's motorboat paced by the wall clock, "
+                        "PX4's SIH paced by --speedup; 'sih' says the same), or our world in lockstep with the "
+                        "firmware and the companion: json (--fc ardupilot, its JSON backend) or hil (--fc px4, its "
+                        "MAVLink simulator interface); docs/integrator.md; default builtin")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -106,7 +107,7 @@ def _run(argv: list[str] | None) -> int:
                          tlog=not args.no_tlog, data_dir=args.data_dir,
                          progress_s=None if args.no_progress or args.json else 10.0, fc=args.fc,
                          fc_instance=args.fc_instance, compass=args.compass,
-                         physics="hil" if args.physics == "hil" else "builtin")
+                         physics="builtin" if args.physics == "sih" else args.physics)
     try:
         scenario, _, _ = prepare(options)          # nothing is written before this passes
         options = _with_storm_params(options, scenario, args.storm_params)

@@ -31,6 +31,10 @@ def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
     ardupilot_binary()
     # a real compass is calibrated by the companion's circles before the mission (COMP_CAL_TURNS):
     # ArduPilot's own fixed-yaw calibration learns the offsets only (sitl/firmware/compass.py)
+    if options.physics == "json":       # our world as ArduPilot's physics, in lockstep (sitl.physics)
+        from sitl.physics.rig import fly_ardupilot_json as fly_ardupilot
+    elif options.physics != "builtin":
+        raise ValueError(f"physics {options.physics!r}: choose builtin or json")
     return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {"COMP_CAL_TURNS": 1} if options.compass == "real" else {})
 
 
@@ -43,10 +47,21 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     from sitl.firmware.flight import BOAT_CRUISE_KMH
     from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
 
+    if options.physics not in ("builtin", "hil"):
+        raise ValueError(f"physics {options.physics!r}: choose builtin or hil with --fc px4")
     px4_root()
     # in lockstep the boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
     values = {**COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH} if options.physics == "hil" else COMPANION_VALUES
     return _fly_on(options, "px4", fly_px4, 10.0, values)
+
+
+def _current(options: FlyOptions, scenario) -> tuple[float, float]:
+    """The water's current of this seed in the scenario's world (our world as the firmware's physics)."""
+    if options.physics != "json":
+        return (0.0, 0.0)
+    from sitl.world.vehicle import MotionErrors
+
+    return MotionErrors.draw(scenario.motion, np.random.default_rng(options.seed)).current_en_mps
 
 
 def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:
@@ -63,7 +78,8 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
         instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass, physics=options.physics, scenario=scenario, seed=options.seed,
+        compass=options.compass, current_en_mps=_current(options, scenario), physics=options.physics,
+        scenario=scenario, seed=options.seed,
         quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \

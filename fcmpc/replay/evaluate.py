@@ -11,7 +11,7 @@ import numpy as np
 from companion.nav.field import PositionFixError, WorldMagneticModel, decl_incl_gradient, geomagnetic_fix
 from companion.nav.fusion import FusionSettings, InsGeomagFusion
 from companion.nav.geo import enu_offset, geodesic_distance_m, offset_position
-from companion.nav.magnetometer import PeriodAverager
+from companion.nav.period import PeriodAverager
 from fcmpc.replay.di import measure_di, segment_rows
 from fcmpc.replay.heading import model_di_gradient, run_mission
 from fcmpc.replay.ins import ins_drift
@@ -161,7 +161,7 @@ def _window_records(w: float, t_m: np.ndarray, meas: np.ndarray, nav0: float, na
         e = np.array([float(wrap180(avg.decl_deg - decl)), avg.incl_deg - incl])
         pred = float(np.hypot(*np.linalg.solve(g, e)))
         rec = WindowRecord(w, float(a), float(b), float(tc), avg.count, avg.decl_deg, avg.incl_deg,
-                           float(e[0]), float(e[1]), pred)
+                           float(e[0]), float(e[1]), pred, decl_se_deg=avg.decl_se_deg, incl_se_deg=avg.incl_se_deg)
         prior = offset_position(la, lo, *prior_offset)
         try:
             fix = geomagnetic_fix(model, avg.decl_deg, avg.incl_deg, float(prior[0]), float(prior[1]), al, year)

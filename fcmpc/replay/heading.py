@@ -1,4 +1,8 @@
-"""The heading the open-loop Fc-MPC would have commanded, against the course over ground flown."""
+"""The heading the open-loop Fc-MPC would have commanded, against the course over ground flown.
+
+Each window goes through the companion's own navigation step (:class:`companion.nav.navigator.Navigator`), its
+plausibility judge included: a window it excludes is counted and the last command stands.
+"""
 from __future__ import annotations
 
 import math
@@ -9,7 +13,9 @@ from companion import wrap_2pi
 from companion.nav.field import WorldMagneticModel, decl_incl_gradient
 from companion.nav.elements import ElementSet
 from companion.nav.geo import geodesic_distance_m, geodesic_inverse
-from companion.nav.mission import Measurement, Mission, Phase
+from companion.nav.mission import Mission, Phase
+from companion.nav.navigator import Navigator, Period
+from companion.nav.period import PeriodAverage
 from companion.params import Controller, NavConfig, default_values
 from fcmpc.replay.records import HeadingRow, WindowRecord
 from fcmpc.replay.stats import interp_gps, percentile, wrap180
@@ -45,11 +51,18 @@ def run_mission(recs: list[WindowRecord], w: float, model: WorldMagneticModel, y
         s_min_d=-180.0, s_max_d=180.0, s_min_i=-90.0, s_max_i=90.0,
         elements=ElementSet.PAPER)   # the windows measure the paper's pair, D and I
     mission = Mission(config, model)
-    diffs, ideal_diffs, est_errors = [], [], []
+    # the start is the first GPS fix: a known start, where the companion's filter calibrates its biases
+    mission.set_start_fix(config.gps_sigma_m)
+    navigator = Navigator(mission)   # the companion's step: the plausibility judge included
+    diffs, ideal_diffs, est_errors, excluded = [], [], [], 0
     last_phase, reason = "", ""
     for k, r in enumerate(recs):
         ins_lat, ins_lon = ins_latlon(r.end_s)
-        cmd = mission.step(Measurement(r.end_s, r.decl_deg, r.incl_deg, ins_lat, ins_lon, window_s=w))
+        average = PeriodAverage(r.decl_deg, r.incl_deg, r.count, r.centre_s, r.start_s, r.end_s,
+                                decl_se_deg=r.decl_se_deg, incl_se_deg=r.incl_se_deg)
+        result = navigator.step(Period(r.end_s, average, w, ins_lat, ins_lon))
+        excluded += result.excluded
+        cmd = navigator.command
         last_phase, reason = cmd.phase, cmd.reason
         if cmd.phase == Phase.CRUISE:
             la, lo, _ = interp_gps(gps, r.end_s)
@@ -70,4 +83,4 @@ def run_mission(recs: list[WindowRecord], w: float, model: WorldMagneticModel, y
         if nxt.command_phase == Phase.CRUISE:
             nxt.mission_est_error_m = est_errors[-1] if est_errors else math.nan
     return HeadingRow(w, mission.k, len(diffs), percentile(diffs, 50), percentile(ideal_diffs, 50),
-                      last_phase, reason, percentile(est_errors, 50))
+                      last_phase, reason, percentile(est_errors, 50), excluded)

@@ -53,6 +53,8 @@ class WindowRecord:
     flown_course_deg: float = math.nan
     ideal_course_deg: float = math.nan
     mission_est_error_m: float = math.nan
+    decl_se_deg: float = math.nan      # the standard errors of the window's D and I from its scatter
+    incl_se_deg: float = math.nan
 
 
 @dataclass
@@ -103,6 +105,7 @@ class HeadingRow:
     final_phase: str
     reason: str
     est_error_median_m: float
+    excluded: int = 0            # windows the navigator's plausibility judge excluded (the last command flew on)
 
 
 @dataclass

@@ -231,12 +231,12 @@ def _heading_section(ev: ReplayEvaluation) -> list[str]:
         "'Ideal' = the geodesic course from the true (GPS) position to the destination, for scale: the pilot was not "
         "flying to a destination either.")
     add("")
-    add("| Window (s) | Mission steps | Compared | Median abs(commanded - flown) (deg) "
+    add("| Window (s) | Mission steps | Excluded | Compared | Median abs(commanded - flown) (deg) "
         "| Median abs(ideal - flown) (deg) | Mission position error median (km) | Mission state at end |")
-    add("|---|---|---|---|---|---|---|")
+    add("|---|---|---|---|---|---|---|---|")
     for r in ev.heading_rows:
         state = r.final_phase + (f" ({r.reason})" if r.reason else "")
-        add(f"| {r.window_s:g} | {r.steps} | {r.compared} | {_f(r.median_abs_diff_deg, 0)} | "
+        add(f"| {r.window_s:g} | {r.steps} | {r.excluded} | {r.compared} | {_f(r.median_abs_diff_deg, 0)} | "
             f"{_f(r.ideal_median_abs_diff_deg, 0)} | {_km(r.est_error_median_m)} | {state} |")
     add("")
     return lines

@@ -100,7 +100,7 @@ class ArduPilotSitl:
     def defaults_files(self, binary: Path) -> list[Path]:
         shipped = binary.parent / "default_params"
         files = [shipped / "rover.parm"]
-        if self.model == "motorboat":
+        if self.model in ("motorboat", "JSON"):     # JSON: our world's boat (sitl.physics), a boat's frame
             files.append(shipped / "motorboat.parm")
         if self.project_params:
             files.append(project_parm("ardupilot-rover.parm"))

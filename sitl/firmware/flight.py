@@ -25,7 +25,7 @@ from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
 from sitl.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
 from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
-__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH"]
+__all__ = ["FirmwareFlight", "FirmwareRun", "fly_ardupilot", "fly_firmware", "BOAT_CRUISE_KMH", "ArduPilotRig"]
 
 BOAT_CRUISE_KMH = 28.8      # 8 m/s: ArduPilot's SITL motorboat makes 10 m/s at full throttle
 REST_SPEED_MPS = 0.3
@@ -50,6 +50,7 @@ class FirmwareFlight:
     physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.firmware.px4_hil)
     scenario: object = None        # the world of a "hil" flight (sitl.scenario.Scenario; default pacific)
     seed: int = 0
+    current_en_mps: tuple[float, float] = (0.0, 0.0)   # our world as the physics (sitl.physics): its current (E, N)
 
 
 @dataclass
@@ -68,7 +69,7 @@ def _say(flight: FirmwareFlight, text: str) -> None:
         print(f"fcmpc-fly: {text}", file=sys.stderr, flush=True)
 
 
-class _ArduPilotRig:
+class ArduPilotRig:
     """ArduPilot's side of a flight: SITL, the monitor on SERIAL0, the companion on SERIAL1."""
 
     name = "ArduPilot SITL"
@@ -90,6 +91,8 @@ class _ArduPilotRig:
         """Before the companion starts: a real compass is calibrated as a boat's user does it."""
         return [calibrate_fixed_yaw(monitor)] if self.compass == "real" else []
 
+    companion_args: tuple[str, ...] = ()
+
     @property
     def companion_url(self) -> str:
         return self.sitl.serial1
@@ -104,7 +107,7 @@ class _ArduPilotRig:
 def fly_ardupilot(flight: FirmwareFlight) -> FirmwareRun:
     """Fly one mission to its end; see the module docstring. Raises FirmwareMissing without a binary."""
     ardupilot_binary()                 # FirmwareMissing before anything is written
-    return fly_firmware(flight, _ArduPilotRig)
+    return fly_firmware(flight, ArduPilotRig)
 
 
 def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:

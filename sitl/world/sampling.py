@@ -17,57 +17,29 @@ sample at a time), sample by sample rather than as an analytic averaged draw:
    field against the declination table at the flight controller's position
    (:func:`sitl.world.attitude.compass_yaw_rad`);
 4. the companion's processing (:mod:`companion.nav.magnetometer`): the measured body field
-   rotated into NED with the reported attitude, D, I, H, Z and F per sample, averaged over the
-   period (D unwrapped around the first sample): :class:`AveragedElements`, with each average's
-   standard error from the period's own scatter, ``1.4826 MAD / sqrt(n)`` as the companion
-   measures it (:func:`companion.nav.inclination.robust_standard_error`); and the magnetic
-   heading of the period's steady part (after the first ``SETTLE_S``), levelled by gravity from
-   the mean body field, as the companion measures it (:func:`companion.nav.heading.levelled_heading_deg`),
-   and the gravity-referenced I of the same samples (:func:`companion.nav.inclination.ratio_inclination_deg`),
-   which the companion navigates on with a heading-free element set.
+   rotated into NED with the reported attitude; the samples from ``settle_until_s`` on (the
+   companion's wait after a new command, :data:`companion.nav.navigator.SETTLE_AFTER_COMMAND_S`)
+   are gravity and heading samples, with the specific force. All go into the companion's own
+   averager (:meth:`companion.nav.period.PeriodAverager.add_samples`), which gives the period's
+   record, :class:`companion.nav.period.PeriodAverage`, exactly as the companion forms it from the
+   same samples one at a time (tested to 1e-9).
 
 Pure: arrays and a seeded generator in, averages out.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from companion.nav.heading import levelled_heading_deg
-from companion.nav.inclination import mad_standard_errors, ratio_inclination_deg
+from companion.frames import mats_nb_from_euler
+from companion.nav.period import PeriodAverage, PeriodAverager
 from sitl.world.attitude import compass_yaw_rad
 
-__all__ = ["AveragedElements", "PeriodKnots", "SampleSettings", "elements_from_ned", "robust_standard_errors",
-           "sample_period", "rotation_nb"]
-
-
-@dataclass(frozen=True)
-class AveragedElements:
-    """Field elements averaged over one control period, as the companion forms them.
-
-    ``decl_deg``, ``incl_deg`` in degrees; ``f_nt`` total intensity, ``h_nt`` horizontal
-    intensity, ``z_nt`` vertical (down) component, all nT; ``samples`` averaged; ``time_s`` the
-    end of the period.
-    """
-
-    time_s: float
-    decl_deg: float
-    incl_deg: float
-    f_nt: float
-    h_nt: float
-    z_nt: float
-    samples: int
-    decl_se_deg: float = math.nan
-    incl_se_deg: float = math.nan
-    f_se_nt: float = math.nan
-    h_se_nt: float = math.nan
-    z_se_nt: float = math.nan
-    mag_heading_deg: float = math.nan
-    incl_grav_deg: float = math.nan
-    incl_grav_se_deg: float = math.nan
+__all__ = ["STANDARD_GRAVITY", "PeriodKnots", "PeriodSamples", "SampleSettings", "average_samples", "sample_period",
+           "simulate_samples"]
 
 
 @dataclass(frozen=True)
@@ -99,44 +71,35 @@ class PeriodKnots:
     decl_table_deg: np.ndarray
 
 
-def rotation_nb(roll, pitch, yaw) -> np.ndarray:
-    """Body -> NED rotation matrices (..., 3, 3) of ZYX Euler angles (``companion.frames``)."""
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    c = np.empty(np.broadcast(cr, cp, cy).shape + (3, 3))    # filled in place: nested np.stack copied it twice
-    srsp, crsp = sr * sp, cr * sp        # the products in the order they had: results bit for bit
-    c[..., 0, 0], c[..., 0, 1], c[..., 0, 2] = cp * cy, srsp * cy - cr * sy, crsp * cy + sr * sy
-    c[..., 1, 0], c[..., 1, 1], c[..., 1, 2] = cp * sy, srsp * sy + cr * cy, crsp * sy - sr * cy
-    c[..., 2, 0], c[..., 2, 1], c[..., 2, 2] = -sp, sr * cp, cr * cp
-    return c
-
-
 STANDARD_GRAVITY = 9.80665
-SETTLE_S = 60.0     # the companion's gravity samples wait this long after a new command (its SETTLE_AFTER_COMMAND_S)
 
 
-def robust_standard_errors(values: np.ndarray) -> np.ndarray:
-    """``1.4826 MAD / sqrt(n)`` of each column of ``values`` (N, k), the companion's own
-    :func:`companion.nav.inclination.mad_standard_error`; NaN below two samples."""
-    return mad_standard_errors(np.ascontiguousarray(np.asarray(values, dtype=float).T))
+@dataclass(frozen=True)
+class PeriodSamples:
+    """One period's samples as the companion receives them: times (N,), the measured body field
+    (N, 3) nT, the flight controller's attitude (N,) each, rad, and the specific force (N, 3) m/s^2."""
 
-
-def elements_from_ned(ned: np.ndarray, time_s: float) -> AveragedElements:
-    """Average per-sample D, I, F, H, Z of NED vectors (N, 3), D unwrapped around the first,
-    with the standard error of each average from the samples' scatter."""
-    n, e, d = ned[:, 0], ned[:, 1], ned[:, 2]
-    h = np.hypot(n, e)
-    decl = np.degrees(np.arctan2(e, n))
-    decl = decl[0] + (decl - decl[0] + 180.0) % 360.0 - 180.0
-    per_sample = np.stack([decl, np.degrees(np.arctan2(d, h)), np.sqrt(n * n + e * e + d * d), h, d], -1)
-    means = per_sample.mean(axis=0)
-    se = robust_standard_errors(per_sample)
-    return AveragedElements(time_s, *(float(v) for v in means), len(n), *(float(v) for v in se))
+    time_s: np.ndarray
+    mag_body_nt: np.ndarray
+    roll_rad: np.ndarray
+    pitch_rad: np.ndarray
+    yaw_rad: np.ndarray
+    force_body_mps2: np.ndarray
 
 
 def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callable[[np.ndarray], tuple],
                   mag_apply: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
-                  rng: np.random.Generator, accel_rng: np.random.Generator | None = None) -> AveragedElements:
-    """Simulate and average the samples of one period (see the module docstring).
+                  rng: np.random.Generator, accel_rng: np.random.Generator | None = None,
+                  settle_until_s: float = -math.inf) -> PeriodAverage:
+    """Simulate and average the samples of one period (see the module docstring):
+    :func:`average_samples` of :func:`simulate_samples`."""
+    return average_samples(simulate_samples(knots, settings, tilt_rad, mag_apply, rng, accel_rng), settle_until_s)
+
+
+def simulate_samples(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callable[[np.ndarray], tuple],
+                     mag_apply: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+                     rng: np.random.Generator, accel_rng: np.random.Generator | None = None) -> PeriodSamples:
+    """The samples of one period (steps 1-3 of the module docstring).
 
     ``tilt_rad(t)`` gives the true (roll, pitch) arrays at sample times; ``mag_apply(body, t)``
     the calibration residuals (None: none). Draws 3 magnetometer then 3 attitude normals per
@@ -155,7 +118,7 @@ def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callab
         index = np.zeros(count, dtype=int)
     roll, pitch = tilt_rad(t)
     yaw = knots.course_rad[index]
-    c_nb = rotation_nb(roll, pitch, yaw)
+    c_nb = mats_nb_from_euler(roll, pitch, yaw)
     body = np.einsum("nji,nj->ni", c_nb, field)                 # C_bn B = C_nb^T B
     clean = mag_apply(body, t) if mag_apply is not None else body
     noise = rng.standard_normal((count, 6))
@@ -170,16 +133,27 @@ def sample_period(knots: PeriodKnots, settings: SampleSettings, tilt_rad: Callab
         yaw_est = compass_yaw_rad(clean, roll_est, pitch_est, knots.decl_table_deg[index]) + sat * noise[:, 5]
     else:
         yaw_est = yaw + slow[:, 2] + sat * noise[:, 5]
-    c_nb_est = rotation_nb(roll_est, pitch_est, yaw_est)
-    ned = np.einsum("nij,nj->ni", c_nb_est, meas)
-    # the gravity samples as the companion takes them: the period's steady part, the specific force
-    # f = -g times the body's down axis (the waves' accelerations average out) plus white noise
-    steady = t >= t0 + SETTLE_S if t1 - t0 > 2.0 * SETTLE_S else np.ones(count, dtype=bool)
-    force = -STANDARD_GRAVITY * c_nb[steady, 2, :]
+    # the specific force f = -g times the body's down axis (the waves' accelerations average out)
+    # plus white noise
+    force = -STANDARD_GRAVITY * c_nb[:, 2, :]
     if settings.accel_noise_mps2 > 0.0 and accel_rng is not None:
         force = force + settings.accel_noise_mps2 * accel_rng.standard_normal(force.shape)
-    mag = meas[steady]
-    force_ned = np.einsum("nij,nj->ni", c_nb_est[steady], force)
-    incl_grav, incl_grav_se = ratio_inclination_deg(np.einsum("ni,ni->n", mag, force), ned[steady], force_ned)
-    return replace(elements_from_ned(ned, t1), mag_heading_deg=levelled_heading_deg(mag.mean(axis=0), force.mean(axis=0)),
-                   incl_grav_deg=incl_grav, incl_grav_se_deg=incl_grav_se)
+    return PeriodSamples(t, meas, roll_est, pitch_est, yaw_est, force)
+
+
+def average_samples(samples: PeriodSamples, settle_until_s: float = -math.inf) -> PeriodAverage:
+    """The companion's processing of a period's samples (step 4 of the module docstring), vectorised:
+    the field rotated into NED with the reported attitude; the samples from ``settle_until_s`` on
+    gravity and heading samples; all into the companion's averager."""
+    t, meas, force = samples.time_s, samples.mag_body_nt, samples.force_body_mps2
+    count = len(t)
+    c_nb_est = mats_nb_from_euler(samples.roll_rad, samples.pitch_rad, samples.yaw_rad)
+    ned = np.einsum("nij,nj->ni", c_nb_est, meas)
+    steady = t >= settle_until_s
+    dot, force_ned, body, body_force = (np.full((count, k), np.nan) for k in (1, 3, 3, 3))
+    dot[steady, 0] = np.einsum("ni,ni->n", meas[steady], force[steady])
+    force_ned[steady] = np.einsum("nij,nj->ni", c_nb_est[steady], force[steady])
+    body[steady], body_force[steady] = meas[steady], force[steady]
+    averager = PeriodAverager()
+    averager.add_samples(t, ned, dot[:, 0], force_ned, body, body_force)
+    return averager.take(float(t[-1]))

@@ -16,8 +16,9 @@ from hypothesis import strategies as st
 
 from companion.nav.inclination import MAD_TO_SIGMA, mad_standard_error, mad_standard_errors, robust_standard_error
 from companion.nav.magnetometer import (
-    AttitudeState, MagProcessor, PeriodAverager, gravity_inclination_deg,
+    AttitudeState, MagProcessor, gravity_inclination_deg,
 )
+from companion.nav.period import PeriodAverager
 
 FIELD_NED = np.array([30454.29, -941.12, 25793.98])      # WMM2020 at 30 N 155 E (the Pacific route's start)
 I_TRUE = math.degrees(math.atan2(FIELD_NED[2], math.hypot(FIELD_NED[0], FIELD_NED[1])))   # 40.25 deg

@@ -8,9 +8,10 @@ import pytest
 
 from companion.frames import body_to_ned
 from companion.nav.magnetometer import (
-    AttitudeState, MagCalibration, MagProcessor, PeriodAverager, SpikeFilter, decl_incl_deg,
+    AttitudeState, MagCalibration, MagProcessor, SpikeFilter, decl_incl_deg,
     tilt_compensated_di,
 )
+from companion.nav.period import PeriodAverager
 
 
 D_TRUE = math.degrees(math.atan2(2000.0, 28000.0))   # 4.0856 deg, of the field used below

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink.dialects.v20 import common
 
+from companion.io.link.outputs import HIL_GPS
 from companion.io.position_feed import feed_message_name, send_feed, send_hil_gps
 from companion.io.px4 import unused_streams
 from companion.io.sensors.mag_units import mag_messages
@@ -29,7 +30,7 @@ class _Stats:
 
 @dataclass
 class _Link:
-    """What send_feed needs of MavlinkLink: ``mav`` (packing into ``sent``), ``clock``, ``stats``."""
+    """What send_feed needs of MavlinkLink: ``mav`` (packing into ``sent``), ``send_hil_gps``, ``clock``, ``stats``."""
 
     clock: _Clock = field(default_factory=_Clock)
     stats: _Stats = field(default_factory=_Stats)
@@ -41,6 +42,9 @@ class _Link:
 
     def write(self, data: bytes) -> None:
         self.sent.extend(self.parser.parse_buffer(bytes(data)) or [])
+
+    def send_hil_gps(self, *fields) -> None:
+        HIL_GPS.send(self.mav, *fields)
 
     def send_gps_input(self, lat_deg, lon_deg, sigma_m, satellites=10) -> bool:
         self.sent.append(("GPS_INPUT", lat_deg, lon_deg))

@@ -44,6 +44,7 @@ class Rig:
     """ArduPilot + monitor + (later) the companion process of one test."""
 
     quiet = True      # the companion's own lines on stderr (companion.err) or not
+    companion_args: tuple[str, ...] = ()    # more companion options (a lockstep rig: --lockstep)
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
@@ -71,7 +72,7 @@ class Rig:
         self.companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", self.companion_url, "--params", str(parm),
              "--log-dir", str(log_dir), *(["--quiet"] if self.quiet else []),
-             *(["--startup-s", f"{startup_s:g}"] if startup_s is not None else [])],
+             *(["--startup-s", f"{startup_s:g}"] if startup_s is not None else []), *self.companion_args],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "companion.err", "wb"))
         return log_dir
 
@@ -89,6 +90,9 @@ class Rig:
                 self.companion.kill()
         if self.monitor is not None:
             self.monitor.close()
+        self.stop_firmware()
+
+    def stop_firmware(self) -> None:
         self.sitl.stop()
 
     def write_records(self) -> None:
@@ -229,3 +233,26 @@ def px4_factory(tmp_path):
     yield make
     for rig in rigs:
         rig.close()
+
+
+def assert_guided_and_on_course_without_gps(monitor, log_dir: Path, t_lost: float, minutes: float = 30.0,
+                                            guided: int = 15) -> None:
+    """After GPS was lost at ``t_lost``: GUIDED and armed throughout ``minutes``, the companion feeding its
+    position, and at least 10 of its steps flown on their course (from 60 s into each step: a reversal of
+    course, 132 deg after ~310 deg in one CI run, is a turn of the boat that takes tens of seconds)."""
+    from companion.io.records import read_steps_csv
+
+    after = [s for s in monitor.truth if s.time_s >= t_lost]
+    assert all(s.mode == guided and s.armed for s in after), \
+        f"left GUIDED at {next(s.time_s for s in after if s.mode != guided or not s.armed) - t_lost:.0f} s"
+    assert after[-1].time_s - t_lost >= 60.0 * minutes
+    assert monitor.texts_matching("feeding our position", 191)
+    steps = [r for r in read_steps_csv(log_dir / "steps.csv") if r["event"] == "step"]
+    checked = 0
+    for step, following in zip(steps, steps[1:]):
+        start, end = step["msg_time_s"], following["msg_time_s"]
+        if start < t_lost or end - start < 60.0:
+            continue
+        assert_forward_on(monitor.truth, start + 60.0, end, step["course_deg"])
+        checked += 1
+    assert checked >= 10, f"only {checked} steps flown without GPS"

@@ -19,12 +19,12 @@ from companion.nav.field import element_fix, element_gradient, model_for_date
 from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.mission import Mission
 from companion.nav.navfilter import NavigationFilter
+from companion.nav.period import PeriodAverage, PeriodAverager
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.params import NavConfig, validate_all
 from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
-from sitl.world.sampling import elements_from_ned
 from tests.nav.bare import bare_bias, bare_filter
 
 YEAR, ALT = 2024.36, 0.0
@@ -349,10 +349,12 @@ def test_element_fix_inverts_the_field_model(model, code):
     assert geodesic_distance_m(fix.lat_deg, fix.lon_deg, *point) < 1.0
 
 
-def _period_samples(rng, noise_nt: float, count: int = 3600) -> np.ndarray:
-    """One period of NED field samples at the Pacific start with white noise per axis."""
-    true = np.array([27000.0, -1500.0, 30000.0])
-    return true + noise_nt * rng.standard_normal((count, 3))
+def _period_samples(rng, noise_nt: float, count: int = 3600) -> PeriodAverage:
+    """One period of NED field samples at the Pacific start with white noise per axis, averaged."""
+    ned = np.array([27000.0, -1500.0, 30000.0]) + noise_nt * rng.standard_normal((count, 3))
+    averager, nan = PeriodAverager(), np.full((count, 3), np.nan)
+    averager.add_samples(np.arange(count) * 0.1, ned, nan[:, 0], nan, nan, nan)
+    return averager.take(360.0)
 
 
 def test_measured_standard_errors_scale_with_the_noise_and_describe_the_mean():
@@ -360,13 +362,13 @@ def test_measured_standard_errors_scale_with_the_noise_and_describe_the_mean():
     (within 5 %, five periods each), and the measured standard error is the scatter of the period mean itself:
     over 300 periods the averages' standard deviation and the mean measured error agree within 10 %."""
     rng = np.random.default_rng(3)
-    quiet = [elements_from_ned(_period_samples(rng, 60.0), 360.0) for _ in range(5)]
-    loud = [elements_from_ned(_period_samples(rng, 600.0), 360.0) for _ in range(5)]
-    for name in ("decl_se_deg", "incl_se_deg", "f_se_nt", "h_se_nt", "z_se_nt"):
+    quiet = [_period_samples(rng, 60.0) for _ in range(5)]
+    loud = [_period_samples(rng, 600.0) for _ in range(5)]
+    for name in ("decl_se_deg", "incl_se_deg", "f_se_nt"):
         # each a MAD estimate good to 2 % (1.17 / sqrt(3600)); five periods each: the ratio to 1.3 %
         ratio = np.mean([getattr(p, name) for p in loud]) / np.mean([getattr(p, name) for p in quiet])
         assert ratio == pytest.approx(10.0, rel=0.05), name
-    periods = [elements_from_ned(_period_samples(rng, 600.0, 900), 360.0) for _ in range(300)]
+    periods = [_period_samples(rng, 600.0, 900) for _ in range(300)]
     for value, se in (("decl_deg", "decl_se_deg"), ("incl_deg", "incl_se_deg"), ("f_nt", "f_se_nt")):
         scatter = np.std([getattr(p, value) for p in periods], ddof=1)
         assert np.mean([getattr(p, se) for p in periods]) == pytest.approx(scatter, rel=0.10), value

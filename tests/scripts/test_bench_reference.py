@@ -35,16 +35,10 @@ def test_the_papers_estimator_is_compared_with_the_reference_fc_mpc_step_and_jud
     assert "error-state filter" in default[3]                            # the wider work is said
 
 
-def test_the_companions_step_on_the_papers_estimator_is_compared_with_the_reference_companion_step():
-    theirs = {"companion step_latency_median_ms": 2.7}
-    ours = [("companion step_latency_median_ms", "2.0", "", ""),
-            ("companion paper_estimator_step_latency_median_ms", "1.3", "", "")]
-    default, paper = compare(ours, theirs, issue_reference=True)
-    assert paper[2] == "2.7 (companion step_latency_median_ms)" and default[2] == "2.7"
-    assert paper[3].startswith("2.08x; issue asks 2.00x: met") and "plausibility judge" in paper[3]
-    assert default[3].startswith("1.35x; issue asks 2.00x: not met") and "error-state filter" in default[3]
-    # against another commit the paper's row has no partner: that commit's row is its default's
-    assert [r[0] for r in compare(ours, theirs, issue_reference=False)] == ["companion step_latency_median_ms"]
+def test_the_companions_capacity_is_a_rate_compared_with_the_reference_and_its_wider_work_said():
+    theirs = {"companion capacity_msgs_per_s": 40000.0}
+    [row] = compare([("companion capacity_msgs_per_s", "60000.0", "", "")], theirs, issue_reference=True)
+    assert row[2] == "40000" and row[3].startswith("1.50x") and "position" in row[3]
 
 
 def test_another_commit_pairs_rows_by_name_and_says_nothing_of_the_issue():

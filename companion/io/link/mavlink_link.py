@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.io.link.clock import MessageClock
+from companion.io.link.fastparse import parse_datagram
 from companion.io.link.conventions import (
     COMPANION_COMPONENT,
     FcState,
@@ -175,9 +176,19 @@ class MavlinkLink(LinkOutputs):
         return self._mav.srcSystem
 
     def _log_sent(self, msg) -> None:
+        self._log_frame(msg.get_msgbuf())
+
+    def _log_frame(self, frame: bytes) -> None:
         self.stats.messages_out += 1
         if self._tlog is not None:
-            self._tlog.write(msg.get_msgbuf())
+            self._tlog.write(frame)
+
+    def send_packed(self, packer, *args) -> None:
+        """``packer``'s message (:class:`~companion.io.link.fastpack.FramePacker`) with the arguments
+        of pymavlink's ``*_send``, logged as every output is."""
+        frame = packer.send(self._mav, *args)
+        if frame is not None:   # signed: pymavlink sent it, and its send callback logged it
+            self._log_frame(frame)
 
     # --- receiving ----------------------------------------------------------------------------
     def wait_readable(self, timeout_s: float) -> bool:
@@ -220,7 +231,7 @@ class MavlinkLink(LinkOutputs):
         if signing is not None:
             signing.before_parse(parser, self._mav)
         try:
-            msgs = parser.parse_buffer(data) or []
+            msgs = parse_datagram(parser, data)
         except Exception:  # noqa: BLE001 - a corrupt frame must not stop the companion
             msgs = []
             stats.bad_frames += 1

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from companion.io.link.conventions import UnsafeSetpoint, guard_setpoint, mavlink
+from companion.io.link.fastpack import FramePacker
 from companion.io.position_feed import gps_week_time
 
 __all__ = ["EXT_POS_TIME_WRAP_S", "FLOAT32_MAX", "STATUSTEXT_CHUNK", "LinkOutputs", "float32"]
@@ -22,6 +23,11 @@ GPS_INPUT_IGNORE = (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ | mavlink.GPS_INPUT_
 STATUSTEXT_CHUNK = 50
 EXT_POS_TIME_WRAP_S = 250.0   # MAV_CMD_EXTERNAL_POSITION_ESTIMATE param1: wrap <= 250 s
 FLOAT32_MAX = 3.4028234663852886e38
+# the frames sent at a rate (the position feed, setpoints, heartbeats): packed without message objects
+GPS_INPUT = FramePacker(mavlink.MAVLink_gps_input_message)
+HIL_GPS = FramePacker(mavlink.MAVLink_hil_gps_message)
+SETPOINT = FramePacker(mavlink.MAVLink_set_position_target_global_int_message)
+HEARTBEAT = FramePacker(mavlink.MAVLink_heartbeat_message)
 
 
 def float32(value: float) -> float:
@@ -42,8 +48,8 @@ class LinkOutputs:
     def send_heartbeat(self, state: int = mavlink.MAV_STATE_ACTIVE, custom_mode: int = 0) -> None:
         """HEARTBEAT of an onboard controller; ``custom_mode`` carries the companion's phase
         (:mod:`companion.operator_status`)."""
-        self.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, custom_mode,
-                                state)
+        self.send_packed(HEARTBEAT, mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, custom_mode,
+                         state, 3)
 
     def send_setpoint(self, course_rad: float, speed_mps: float, max_speed_mps: float) -> bool:
         """SET_POSITION_TARGET_GLOBAL_INT (velocity, with the yaw where the autopilot wants it), or
@@ -55,11 +61,16 @@ class LinkOutputs:
             self.stats.setpoints_refused += 1
             self.stats.last_refusal = str(err)
             return False
-        self.mav.set_position_target_global_int_send(
-            self.time_boot_ms(), self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL_INT,
+        self.send_packed(
+            SETPOINT, self.time_boot_ms(), self.fc.sysid, self.fc.compid, mavlink.MAV_FRAME_GLOBAL_INT,
             self.fc.conventions.setpoint_mask, 0, 0, 0.0, sp.vn_mps, sp.ve_mps, 0.0, 0.0, 0.0, 0.0, sp.yaw_rad, 0.0)
         self.stats.setpoints_sent += 1
         return True
+
+    def send_hil_gps(self, *fields) -> None:
+        """HIL_GPS with the fields of pymavlink's ``hil_gps_send``, in its order
+        (:func:`companion.io.position_feed.send_hil_gps` composes them)."""
+        self.send_packed(HIL_GPS, *fields)
 
     def send_command_long(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
@@ -185,7 +196,7 @@ class LinkOutputs:
         week, week_ms = gps_week_time(unix_s)
         accuracy = float(sigma_m) if math.isfinite(sigma_m) and sigma_m > 0.0 else 100.0
         lon = ((lon_deg + 180.0) % 360.0) - 180.0
-        self.mav.gps_input_send(int(unix_s * 1e6), 1, GPS_INPUT_IGNORE, week_ms, week, 3,
+        self.send_packed(GPS_INPUT, int(unix_s * 1e6), 1, GPS_INPUT_IGNORE, week_ms, week, 3,
                                 int(round(lat_deg * 1e7)), int(round(lon * 1e7)), float(alt_m),
                                 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, min(accuracy, 1e6), 5.0, satellites)
         self.stats.positions_fed += 1

@@ -124,7 +124,8 @@ class MavlinkDecoder:
 
     def _stale_since(self, instance: int, flags: SampleFlag) -> float:
         """For a frozen reading, the time of the first of its repeats (else NaN)."""
-        return self._stuck[instance].repeating_since_s if flags & SampleFlag.STUCK else math.nan
+        # ``flags and``: a clean sample (most) skips IntFlag's Python-level ``&``
+        return self._stuck[instance].repeating_since_s if flags and flags & SampleFlag.STUCK else math.nan
 
     def _time(self, msg) -> float | None:
         ms = getattr(msg, "time_boot_ms", None)

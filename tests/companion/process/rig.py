@@ -14,6 +14,7 @@ from pymavlink import mavutil
 from companion.app import AppOptions, CompanionApp, State
 from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
+from companion.nav.elements import ELEMENT_SETS, ElementSet
 from companion.nav.mission import Command
 from companion.params import NavConfig, default_values
 from tests.ports import free_port
@@ -34,6 +35,7 @@ class FakeMission:
 
     def __init__(self, command: Command) -> None:
         self.config = NavConfig.from_values(default_values())
+        self.measured = self.elements = ELEMENT_SETS[ElementSet.PAPER]   # what the navigator measures: D and I
         self.command = command
         self.k = command.step
 

@@ -167,6 +167,7 @@ class _SeeingMission:
         from tests.companion.process.rig import FakeMission
         self._inner = FakeMission(command)
         self.config = self._inner.config
+        self.measured = self.elements = self._inner.measured
         self.k = command.step
         self.seen = []
 

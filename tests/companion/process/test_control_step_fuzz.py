@@ -24,7 +24,7 @@ from companion.app import State
 from companion.io.link import guard_setpoint
 from companion.nav.field import model_for_setting
 from companion.nav.geo import offset_position
-from companion.nav.magnetometer import AveragedDI
+from companion.nav.period import PeriodAverage
 from companion.nav.mission import Mission
 from companion.params import NavConfig, default_values
 from tests.companion.process.rig import _sent, make_rig
@@ -51,14 +51,14 @@ PERIOD = st.tuples(_any(SMALL), _any(SMALL), _any(_finite(-3.0, 3.0)), _any(SMAL
                    _any(_finite(-2.0, 2.0)), st.integers(1, 3000), _any(_finite(0.0, 60.0)))
 
 
-def _average(t_k: float, period, where: tuple[float, float], course_rad: float) -> AveragedDI:
+def _average(t_k: float, period, where: tuple[float, float], course_rad: float) -> PeriodAverage:
     """The period's average at ``where`` (lat, lon deg) flying ``course_rad``: the model's field and
     magnetic heading there plus the offsets."""
     d_off, i_off, f_off, g_off, d_se, i_se, f_se, g_se, h_off, count, lag = period
     e = MODEL.elements(*where, NAV.alt_m, NAV.year)
     incl = float(e.incl_deg)
     mean = t_k - lag
-    return AveragedDI(float(e.decl_deg) + d_off, incl + i_off, count, mean, mean - 1.0, t_k, f_nt=float(e.f_nt) + f_off,
+    return PeriodAverage(float(e.decl_deg) + d_off, incl + i_off, count, mean, mean - 1.0, t_k, f_nt=float(e.f_nt) + f_off,
                       incl_grav_deg=incl + g_off, grav_count=count, decl_se_deg=d_se, incl_se_deg=i_se, f_se_nt=f_se,
                       incl_grav_se_deg=g_se, mag_heading_deg=math.degrees(course_rad) - float(e.decl_deg) + h_off)
 

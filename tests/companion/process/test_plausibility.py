@@ -15,7 +15,7 @@ from companion.nav.magnetometer import decl_incl_deg
 from companion.nav.mission import Mission
 from companion.nav.small import smallest_singular_value
 from companion.params import NavConfig, default_values
-from companion.process.plausibility import (
+from companion.nav.plausibility import (
     MIN_GRADIENT_SV,
     Judgement,
     MagPlausibility,

@@ -85,6 +85,9 @@ class Judgement:
     bound_m: float = math.nan
     noise_m: float = 0.0              # the bound's term for the measurement's own noise (3 sigma_noise)
     offset_en_m: tuple[float, float] = (math.nan, math.nan)   # the implied fix minus the prediction, east/north
+    pred_lat_deg: float = math.nan    # the prediction judged against (degrees) and its 1-sigma (m)
+    pred_lon_deg: float = math.nan
+    sigma_m: float = math.nan
 
     def words(self) -> str:
         if self.kind == "f_band":
@@ -173,17 +176,18 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     """
     # the model there, its elements and their gradient from one evaluation of the harmonic sums (the
     # model keeps its last answers, so asking again for its NED, for F, evaluates nothing)
+    where = {"pred_lat_deg": pred_lat_deg, "pred_lon_deg": pred_lon_deg, "sigma_m": sigma_m}
     values, gradient = element_values_and_gradient(model, elements, pred_lat_deg, pred_lon_deg, alt_m, year)
     model_f_nt = math.hypot(*model.ned_and_slopes(pred_lat_deg, pred_lon_deg, alt_m, year)[0].tolist())
     f_offset = f_offset_nt(model, elements, year, alt_m, f_nt, bias, pred_lat_deg, pred_lon_deg,
                            model_f_nt) - f_reference_nt
-    if not abs(f_offset) <= limits.f_band_nt:
-        return Judgement(False, "f_band", f_offset_nt=f_offset)
+    if not math.isnan(f_nt) and not abs(f_offset) <= limits.f_band_nt:   # (NaN: F not measured, no band)
+        return Judgement(False, "f_band", f_offset_nt=f_offset, **where)
     removed = bias if fix_bias is None else np.asarray(fix_bias, dtype=float)
     residual = elements.difference(np.asarray(measured, dtype=float) - removed, values)
     bound = limits.sigma_k * sigma_m + limits.speed_slack * flown_m + limits.margin_m
     if smallest_singular_value(gradient) < MIN_GRADIENT_SV:
-        return Judgement(True, f_offset_nt=f_offset, bound_m=bound)
+        return Judgement(True, f_offset_nt=f_offset, bound_m=bound, **where)
     inverse = inverse2(gradient)
     noise_m = 0.0
     if noise is not None:
@@ -195,8 +199,9 @@ def judge(model: WorldMagneticModel, elements: ElementSet, year: float, alt_m: f
     implied = (float(offset[0]), float(offset[1]))
     if not jump <= bound:
         return Judgement(False, "fix_jump", f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m,
-                         offset_en_m=implied)
-    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m, offset_en_m=implied)
+                         offset_en_m=implied, **where)
+    return Judgement(True, f_offset_nt=f_offset, jump_m=jump, bound_m=bound, noise_m=noise_m, offset_en_m=implied,
+                     **where)
 
 
 class MagPlausibility:

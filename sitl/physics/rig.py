@@ -1,0 +1,111 @@
+"""``fcmpc-fly --fc ardupilot --physics json``: ArduPilot SITL with our world as its physics, in lockstep.
+
+The rig starts the world's process (``python -m sitl.physics.ardupilot_json``: the boat, the
+current, the waves, the companion's relay), then ArduPilot with ``--model JSON`` in its own folder
+and ``-I`` instance, the monitor on SERIAL0 as with the built-in motorboat, and gives the companion
+the relay's port and ``--lockstep`` (a stamped message every setpoint period). Everything the
+built-in path does on top (the real compass's errors and its fixed-yaw calibration, GPS denied at
+arming, SIMSTATE as the truth: ArduPilot's copy of our state) is the same
+(:class:`sitl.firmware.flight.ArduPilotRig`). Each process is stopped by its PID.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from sitl.firmware.ardupilot import ardupilot_binary
+from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight, FirmwareRun, fly_firmware
+from sitl.firmware.processes import stop_process
+from sitl.physics.relay import relay_port
+
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "fly_ardupilot_json", "start_world", "stop_world"]
+
+# The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
+# SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
+# ("Arm: Gyro 0 rate 50Hz < loop ratex1.8 90Hz", measured): at 50 Hz physics the INS bit (16) of the arming
+# checks is left out (every other check stays); 100 Hz physics would pass it at twice the frames.
+ARMING_CHECKS_BUT_INS = (1 << 20) - 2 - 16
+# CRUISE_THROTTLE: the throttle of our boat at the companion's 8 m/s (BoatDynamics: 10 m/s at full
+# throttle), tuned as a boat's user tunes it (params/ardupilot-rover.parm's 63 % is SITL's motorboat's)
+CRUISE_THROTTLE_PCT = 80
+JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT}
+
+
+class ArduPilotJsonRig(ArduPilotRig):
+    """ArduPilot SITL (--model JSON) + the world's process + the monitor."""
+
+    name = "ArduPilot SITL (our world as its physics, lockstep)"
+    companion_args = ("--lockstep",)
+
+    def __init__(self, flight: FirmwareFlight, out: Path) -> None:
+        super().__init__(flight, out)
+        self.sitl.model = "JSON"
+        self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
+        self.sitl.params = {**self.sitl.params, **JSON_PARAMS}
+        self.out = out
+        self.flight = flight
+        self.world: subprocess.Popen | None = None
+
+    def start(self):
+        f = self.flight
+        self.world = start_world(f.instance, f.start, f.current_en_mps, self.out)
+        return super().start()
+
+    @property
+    def companion_url(self) -> str:
+        return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
+
+    def stop(self) -> None:
+        stop_world(self.world, self.sitl, self.out)
+
+
+def fly_ardupilot_json(flight: FirmwareFlight) -> FirmwareRun:
+    """One mission against ArduPilot with our world as its physics; FirmwareMissing without a binary."""
+    ardupilot_binary()                 # FirmwareMissing before anything is written
+    return fly_firmware(flight, ArduPilotJsonRig)
+
+
+def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],
+                out: Path, relay: bool = True) -> subprocess.Popen:
+    """The world's process for ArduPilot instance ``instance`` (before ArduPilot starts): its log
+    ``physics.log`` and, once stopped, its statistics ``physics.json`` in ``out``. Without ``relay``
+    no companion link and no lockstep wait (ArduPilot runs as fast as the world answers)."""
+    east, north = current_en_mps
+    with open(out / "physics.log", "wb") as log:
+        return subprocess.Popen(
+            [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
+             "--home", f"{home[0]!r},{home[1]!r}", "--current-en", f"{east!r},{north!r}",
+             "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"])],
+            cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
+
+
+def stop_world(world: subprocess.Popen | None, sitl, out: Path) -> dict:
+    """Stop the world, then ArduPilot (blocked in its wait for a frame it does not act on SIGTERM:
+    SIGKILL after a second), each by its PID; returns the world's statistics with ArduPilot's CPU
+    seconds added (also written to ``physics.json``)."""
+    firmware_cpu_s = _cpu_s(sitl.process)
+    stop_process(world, 10.0)
+    sitl.stop(timeout_s=1.0)
+    path = out / "physics.json"
+    try:
+        stats = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    stats["ardupilot_cpu_s"] = firmware_cpu_s
+    path.write_text(json.dumps(stats, indent=1))
+    return stats
+
+
+def _cpu_s(proc: subprocess.Popen | None) -> float | None:
+    """User + system CPU seconds of a running child (Linux /proc), None when unknown."""
+    if proc is None or proc.poll() is not None:
+        return None
+    try:
+        with open(f"/proc/{proc.pid}/stat") as handle:
+            fields = handle.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")

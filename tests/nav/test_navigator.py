@@ -1,0 +1,55 @@
+"""The one navigation step (companion.nav.navigator): the measurement it forms from a period's average,
+a period it excludes, and what it says about the next period's samples."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion.nav.elements import ElementSet
+from companion.nav.mission import Mission
+from companion.nav.navigator import Navigator, Period
+from companion.nav.period import PeriodAverage
+from companion.params import NavConfig, default_values
+
+
+def _navigator(elements: int) -> Navigator:
+    mission = Mission(NavConfig.from_values({**default_values(), "NAV_ELEMENTS": elements}))
+    mission.set_start_fix(5.0)
+    return Navigator(mission)
+
+
+def _period(navigator: Navigator, time_s: float, f_extra_nt: float = 0.0, incl_grav_deg: float = math.nan) -> Period:
+    """The map's field at the start (where a vehicle that has not moved far is), as a period's average."""
+    c = navigator.mission.config
+    e = navigator.mission.model.elements(c.start_lat_deg, c.start_lon_deg, c.alt_m, c.year)
+    average = PeriodAverage(float(e.decl_deg), float(e.incl_deg), 3600, time_s - 180.0, time_s - 360.0, time_s,
+                            f_nt=float(e.f_nt) + f_extra_nt, incl_grav_deg=incl_grav_deg, grav_count=3000,
+                            decl_se_deg=0.01, incl_se_deg=0.01, f_se_nt=3.0, incl_grav_se_deg=0.02)
+    return Period(time_s, average, 360.0 if time_s else 0.0)
+
+
+@pytest.mark.parametrize("elements, gravity", [(ElementSet.HEADING_FREE, True), (ElementSet.PAPER, False)])
+def test_a_heading_free_set_measures_the_gravity_referenced_inclination_and_h_z_from_it(elements, gravity):
+    navigator = _navigator(elements)
+    period = _period(navigator, 0.0, incl_grav_deg=47.5)
+    meas = navigator.measurement(period)
+    incl = 47.5 if gravity else period.average.incl_deg
+    assert meas.incl_deg == incl and meas.incl_se_deg == (0.02 if gravity else 0.01)
+    assert meas.h_nt == pytest.approx(period.average.f_nt * math.cos(math.radians(incl)), rel=1e-15)
+    assert meas.z_nt == pytest.approx(period.average.f_nt * math.sin(math.radians(incl)), rel=1e-15)
+    assert math.isfinite(meas.h_se_nt) and math.isfinite(meas.z_se_nt)
+
+
+def test_an_implausible_period_is_excluded_and_the_last_command_flies_on():
+    navigator = _navigator(ElementSet.PAPER)
+    first = navigator.step(_period(navigator, 0.0))
+    assert first.command is not None and first.judgement is None and first.settle
+    assert navigator.plausibility.f_reference_nt == pytest.approx(0.0, abs=1e-6)   # learnt at the start
+    steps = navigator.mission.k
+    bad = navigator.step(_period(navigator, 360.0, f_extra_nt=3000.0))             # a 3000 nT offset appears
+    assert bad.excluded and bad.judgement.kind == "f_band" and bad.verdict[0] == "WARNING"
+    assert navigator.command is first.command and navigator.mission.k == steps   # the core did not step
+    good = navigator.step(_period(navigator, 720.0))
+    assert good.command is not None and good.judgement.ok and good.verdict[0] == "NOTICE"
+    assert navigator.command is good.command and navigator.mission.k == steps + 1
