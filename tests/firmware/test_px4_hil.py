@@ -20,10 +20,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.io.records import read_steps_csv
 from companion.params import write_parm_file
 from sitl.firmware.monitor import FirmwareMonitor
-from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, assert_forward_on
+from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, commands_flown
 from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED
 
 WALL_S = 600.0            # per wait; a lockstep run is slower on a loaded machine, never different
@@ -112,16 +111,8 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
     assert mon.texts_matching("feeding our position (HIL_GPS)", 191)
     stats = rig.bridge.stats()
     assert stats["hil_actuator_timeouts"] == 0 and stats["lockstep_timeouts"] == 0, stats
-    steps = [r for r in read_steps_csv(log_dir / "steps.csv") if r["event"] == "step"]
-    ends = [following["msg_time_s"] for following in steps[1:]] + [after[-1].time_s]
-    flown_s, commands, off_deg = 0.0, 0, []
-    for step, end in zip(steps, ends):
-        start = step["msg_time_s"]
-        if start < t_lost or end - start < 60.0:
-            continue
-        off_deg += assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"], ROVER_MIN_SPEED)
-        flown_s, commands = flown_s + end - start, commands + 1
-    off_deg.sort()
+    flown_s, commands, off_deg = commands_flown(log_dir / "steps.csv", mon.truth, t_lost, after[-1].time_s,
+                                                ROVER_MIN_SPEED)
     median = off_deg[len(off_deg) // 2] if off_deg else float("nan")
     assert median < 5.0, f"true track off the course by {median:.1f} deg (median)"
     assert flown_s >= LOST_S - 2 * PROBE_S, f"only {flown_s:.0f} s flown on commanded courses without GPS"
