@@ -296,6 +296,41 @@ def test_replay_package_has_no_import_circle():
             visit(name, [])
 
 
+# ---------------------------------------------------------------------- parts with typed collaborators (issue 48)
+def _untyped_app_uses(path: Path) -> list[str]:
+    """Where ``path`` takes the application as a parameter named ``app``, reaches through one
+    (``app.X``), or builds a part whose constructor leaves a collaborator unannotated."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            a = node.args
+            params = [*a.posonlyargs, *a.args, *a.kwonlyargs, *(p for p in (a.vararg, a.kwarg) if p is not None)]
+            found += [f"line {node.lineno}: a parameter named app" for p in params if p.arg == "app"]
+            if getattr(node, "name", "") == "__init__":
+                found += [f"line {node.lineno}: __init__ parameter {p.arg} has no type" for p in params[1:]
+                          if p.annotation is None]
+        elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "app":
+            found.append(f"line {node.lineno}: app.{node.attr}")
+    return found
+
+
+@pytest.mark.parametrize("path", _modules("companion/process"), ids=_rel)
+def test_process_parts_receive_typed_collaborators_not_the_app(path: Path):
+    """Each part of companion/process receives what it uses, typed, in its constructor; none takes
+    the application and reaches the others through it (the blackboard issue 48 took down)."""
+    bad = _untyped_app_uses(path)
+    assert not bad, f"{_rel(path)}: {bad}"
+    wiring = {"companion.process.companion"} & _project_imports(path)
+    assert path.name == "companion.py" or not wiring, f"{_rel(path)} imports the application that wires it"
+
+
+def test_the_app_check_finds_an_app(tmp_path: Path):
+    part = tmp_path / "part.py"
+    part.write_text("class Part:\n    def __init__(self, app, link: int) -> None:\n        self.x = app.link\n")
+    assert _untyped_app_uses(part) == ["line 2: a parameter named app", "line 2: __init__ parameter app has no type",
+                                       "line 3: app.link"]
+
+
 # ---------------------------------------------------------------------- one namespace (issue 48.4)
 def test_three_top_level_packages_and_nothing_generic():
     """What the project installs: companion (the vehicle), sitl (the world), fcmpc (every tool);

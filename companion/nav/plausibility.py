@@ -1,7 +1,7 @@
 """Magnetometer plausibility (issue 10, item 6): is this period's measurement one to navigate on?
 
 Judged before the core sees the measurement, against where the vehicle should be: the last
-estimate flown on with the last command (:meth:`Outputs.current_estimate`), uncertainty
+estimate flown on with the last command (:meth:`CurrentEstimate.position <companion.process.estimate.CurrentEstimate.position>`), uncertainty
 ``sigma_m`` (the estimate's 1-sigma against this fix: ``Command.next_fix_sigma_m`` where the
 navigator gives one, Table 3's path, whose own 1-sigma holds the field model's error that the
 next fix shares; else ``est_sigma_m``). Two checks:

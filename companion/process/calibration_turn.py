@@ -20,18 +20,29 @@ import math
 import numpy as np
 
 from companion.io.link import mavlink
+from companion.io.param_server import ParamServer
 from companion.nav.calibration import CalibrationRefused, chained, down_in_body, fit_level_calibration, registry_values
 from companion.nav.field import model_for_setting
+from companion.nav.magnetometer import MagProcessor
 from companion.params import validate
+from companion.process.preparation import MissionPreparation
+from companion.process.settings import Settings
+from companion.process.voice import Voice
 
 __all__ = ["CalibrationTurn"]
 
 
 class CalibrationTurn:
-    """The manoeuvre's state; the calibrating phase (:mod:`companion.process.phases`) drives it."""
+    """The manoeuvre's state; the calibrating phase (:mod:`companion.process.phases.calibrating`)
+    drives it and streams the velocity it returns."""
 
-    def __init__(self, app) -> None:   # the CompanionApp wiring this part
-        self.app = app
+    def __init__(self, settings: Settings, mag: MagProcessor, params: ParamServer, preparation: MissionPreparation,
+                 voice: Voice) -> None:
+        self.settings = settings
+        self.mag = mag
+        self.params = params
+        self.preparation = preparation
+        self.voice = voice
         self.done = False            # once per process: a restart or a reboot does not circle again
         self.t0 = math.nan
         self.fitted = False          # the fit is applied; the last circle is the start-up average
@@ -39,62 +50,61 @@ class CalibrationTurn:
 
     def wanted(self, source: str) -> bool:
         """A calibration manoeuvre before this mission: asked for, not yet flown, and a GPS start."""
-        return self.app.comp_cfg.cal_turns > 0 and not self.done and source == "GPS"
+        return self.settings.comp.cal_turns > 0 and not self.done and source == "GPS"
 
     def enter(self, now: float) -> None:
-        app = self.app
+        comp = self.settings.comp
         self.t0, self.fitted, self.samples = now, False, []
-        app.mag.recorder = self._record
-        app.out.say(f"FcMPC: calibrating the magnetometer: {app.comp_cfg.cal_turns} circle(s) at "
-                    f"{app.comp_cfg.cal_rate_dps:g} deg/s, then one for the start-up average")
+        self.mag.recorder = self._record
+        self.voice.say(f"FcMPC: calibrating the magnetometer: {comp.cal_turns} circle(s) at "
+                       f"{comp.cal_rate_dps:g} deg/s, then one for the start-up average")
 
     def _record(self, time_s: float, calibrated, roll: float, pitch: float) -> None:
         self.samples.append((*calibrated, roll, pitch))
 
     def turned_rad(self, now: float) -> float:
-        return math.radians(self.app.comp_cfg.cal_rate_dps) * (now - self.t0)
+        return math.radians(self.settings.comp.cal_rate_dps) * (now - self.t0)
 
-    def tick(self, now: float, reasons: list[str]) -> tuple[bool, bool]:
-        """Stream this tick's course on the circle; (sent, finished: the start-up average is ready)."""
-        app = self.app
+    def tick(self, now: float, reasons: list[str]) -> tuple[tuple[float, float] | None, bool]:
+        """(this tick's velocity on the circle to stream, None: none; finished: the start-up
+        average is ready)."""
         if reasons:
-            return False, False
-        turns = app.comp_cfg.cal_turns
+            return None, False
+        turns = self.settings.comp.cal_turns
         turned = self.turned_rad(now)
         if not self.fitted and turned >= 2.0 * math.pi * turns:
             self._fit()
         if self.fitted and turned >= 2.0 * math.pi * (turns + 1):
-            app.mag.recorder = None
+            self.mag.recorder = None
             self.done = True
-            return False, True
-        return app.out.stream(*self.velocity(now)), False
+            return None, True
+        return self.velocity(now), False
 
     def velocity(self, now: float) -> tuple[float, float]:
         """(course from north, rad; speed, m/s) on the circle now: turning right from north."""
-        return self.turned_rad(now) % (2.0 * math.pi), self.app.nav_cfg.speed_mps
+        return self.turned_rad(now) % (2.0 * math.pi), self.settings.nav.speed_mps
 
     def _fit(self) -> None:
-        app = self.app
         self.fitted = True
-        app.mag.recorder = None
-        lat, lon, _ = app.preparation.start_position()
-        c = app.nav_cfg
+        self.mag.recorder = None
+        lat, lon, _ = self.preparation.start_position()
+        c = self.settings.nav
         model = model_for_setting(c.year, c.wmm).elements(lat, lon, c.alt_m, c.year)
         rows = np.array(self.samples, dtype=float).reshape(-1, 5)
         try:
             fit = fit_level_calibration(rows[:, :3], down_in_body(rows[:, 3], rows[:, 4]), float(model.h_nt),
                                         float(model.z_nt))
             values = {name: validate(name, value) for name, value in
-                      registry_values(chained(app.mag.calibration, fit)).items()}
+                      registry_values(chained(self.mag.calibration, fit)).items()}
         except (CalibrationRefused, ValueError) as err:
-            app.out.say(f"FcMPC: magnetometer calibration refused, MAG_* unchanged: {str(err).splitlines()[0]}"[:200],
-                        mavlink.MAV_SEVERITY_WARNING)
+            self.voice.say(f"FcMPC: magnetometer calibration refused, MAG_* unchanged: {str(err).splitlines()[0]}"[:200],
+                           mavlink.MAV_SEVERITY_WARNING)
             return
         for name, value in values.items():
-            app.params.set_value(name, value)
-        app.apply_params()
-        app.mag.clear()          # the start-up average: the next circle, with the new calibration
+            self.params.set_value(name, value)
+        self.settings.apply()
+        self.mag.clear()          # the start-up average: the next circle, with the new calibration
         ofs = ", ".join(f"{values[f'MAG_OFS_{a}']:+.0f}" for a in "XYZ")
-        app.out.say(f"FcMPC: magnetometer calibrated on {len(rows)} samples: residual {fit.residual_nt:.0f} nT rms, "
-                    f"{100.0 * fit.cell_share:.0f} % of headings; MAG_OFS {ofs} mG, soft iron "
-                    f"{values['MAG_SCALE_X']:.3f} {values['MAG_SCALE_Y']:.3f} {values['MAG_SOFT_XY']:+.3f}"[:200])
+        self.voice.say(f"FcMPC: magnetometer calibrated on {len(rows)} samples: residual {fit.residual_nt:.0f} nT rms, "
+                       f"{100.0 * fit.cell_share:.0f} % of headings; MAG_OFS {ofs} mG, soft iron "
+                       f"{values['MAG_SCALE_X']:.3f} {values['MAG_SCALE_Y']:.3f} {values['MAG_SOFT_XY']:+.3f}"[:200])

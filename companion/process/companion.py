@@ -19,32 +19,46 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from companion.failsafe import Health, HealthLimits
+from companion.failsafe import Health
 from companion.fc_view import FcView
 from companion.io.link.signing import Signing
 from companion.io.link import MavlinkLink, mavlink
 from companion.io.param_server import ParamServer
-from companion.io.sensors.base import SampleKind, SensorSource
 from companion.io.sensors.factory import make_source
 from companion.io.sensors.mavlink_source import MavlinkDecoder
 from companion.nav.field import model_for_setting
-from companion.nav.magnetometer import MagCalibration, MagProcessor
-from companion.nav.mission import Command, Mission, Phase
+from companion.nav.magnetometer import MagProcessor
+from companion.nav.mission import Phase
+from companion.nav.plausibility import MagPlausibility
 from companion.params import CompanionConfig, NavConfig
+from companion.process.calibration_turn import CalibrationTurn
 from companion.process.control_step import ControlStep
+from companion.process.estimate import CurrentEstimate
 from companion.process.failsafe_response import FailsafeResponse
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine, State
 from companion.process.mission_clock import MissionClock
+from companion.process.mission_state import MissionState
 from companion.process.mode_commands import ModeCommands
 from companion.process.operator_commands import OperatorCommands
 from companion.process.options import AppOptions
 from companion.process.outputs import Outputs
 from companion.process.phases import Phases
-from companion.nav.plausibility import MagPlausibility
+from companion.process.phases.calibrating import CalibratingPhase
+from companion.process.phases.done import DonePhase
+from companion.process.phases.engage import Engage
+from companion.process.phases.ready import ReadyPhase
+from companion.process.phases.running import RunningPhase
+from companion.process.phases.startup import StartupPhase
+from companion.process.phases.wait_fc import WaitFcPhase
 from companion.process.preparation import MissionPreparation
 from companion.process.reporting import Reporting
 from companion.process.resume import Resume
+from companion.process.settings import Settings, apply_live_config, health_limits, mag_calibration
+from companion.process.status import StatusPublisher, StatusView
+from companion.process.summary import Summary
+from companion.process.telemetry import Telemetry
+from companion.process.voice import Voice
 from companion.registry import READINGS
 from companion.sdnotify import Notifier
 
@@ -54,90 +68,89 @@ LINGER_WALL_S = 0.5               # after done, before exiting: let the last mes
 WAITING_REPEAT_WALL_S = 30.0      # repeat "waiting for a heartbeat" while no flight controller is heard
 
 
-def apply_live_config(mission: Mission, new: NavConfig) -> list[str]:
-    """Apply a changed NavConfig to a running mission (:meth:`Mission.reconfigure`)."""
-    return mission.reconfigure(new)
-
-
 class CompanionApp:
-    """The companion process; :meth:`run` until done (``--exit-when-done``), a signal or ``max_wall_s``."""
+    """The companion process: its parts built and wired (each receives what it uses), the receive
+    hook, the periodic hooks and :meth:`run` until done (``--exit-when-done``), a signal or
+    ``max_wall_s``. It holds no mission state of its own: that is :class:`MissionState`'s."""
 
     def __init__(self, options: AppOptions) -> None:
-        self.opts = options
-        if options.log_dir:
-            self.log_dir = Path(options.log_dir)
+        self.opts = opts = options
+        if opts.log_dir:
+            self.log_dir = Path(opts.log_dir)
         else:
             self.log_dir = Path("out") / "companion" / f"{datetime.now():%Y%m%d-%H%M%S}-{os.getpid()}"
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        params_path = options.params if options.params is not None else str(self.log_dir / "companion.parm")
-        self.link = MavlinkLink(options.connect, options.sysid,
-                                tlog_path=self.log_dir / "companion.tlog" if options.tlog else None,
-                                fc_compid=options.fc_compid,
-                                signing=Signing.from_file(options.signing_key, options.signing_link_id)
-                                if options.signing_key else None)
-        self.params = ParamServer(self.link, params_path, on_change=self._param_changed,
-                                  encoding=options.param_encoding, clock=lambda: self.now)
-        self.params.load()
-        self.link.apply_ceiling(self.params.ceiling, tlog_max_bytes=int(self.params.values["LINK_TLOG_MB"] * 1e6))
+        params_path = opts.params if opts.params is not None else str(self.log_dir / "companion.parm")
+        self.link = link = MavlinkLink(opts.connect, opts.sysid,
+                                       tlog_path=self.log_dir / "companion.tlog" if opts.tlog else None,
+                                       fc_compid=opts.fc_compid,
+                                       signing=Signing.from_file(opts.signing_key, opts.signing_link_id)
+                                       if opts.signing_key else None)
+        msg_clock = link.clock
+        self.params = params = ParamServer(link, params_path, on_change=self._param_changed,
+                                           encoding=opts.param_encoding, clock=lambda: msg_clock.now_s)
+        params.load()
+        link.apply_ceiling(params.ceiling, tlog_max_bytes=int(params.values["LINK_TLOG_MB"] * 1e6))
         self.notifier = Notifier()   # systemd READY/WATCHDOG (a no-op outside systemd)
-        self.nav_cfg = NavConfig.from_values(self.params.values)
-        self.comp_cfg = CompanionConfig.from_values(self.params.values)
-        model_for_setting(self.nav_cfg.year, self.nav_cfg.wmm, self.nav_cfg.nav_map)   # load the coefficients now, not at take-off
-        self.decoder = MavlinkDecoder(self.link.clock, options.mag_message, imu=True)   # specific force: I_g
-        # --sensors: a sensor source beside the link (built here so a bad spec fails early)
-        self.sensors: SensorSource | None = make_source(options.sensors) if options.sensors else None
-        self.mag = MagProcessor(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
-                                                       self.comp_cfg.mag_soft_xy_xz_yz),
-                                self.comp_cfg.spike_nt, track_yaw_offset=self.comp_cfg.trim_max_deg > 0.0)
-        self.health = Health(self._limits())
-        self.fc_view = FcView(self.comp_cfg.heading_source, self.comp_cfg.position_publish, self.comp_cfg.feed_blend_mps)
-        # the parts
-        self.machine = PhaseMachine()
-        self.clock = MissionClock(self.mag)
-        self.modes = ModeCommands()
-        self.plausibility = MagPlausibility()
-        self.intake = SampleIntake(self, self.sensors)
-        self.out = Outputs(self)
-        self.failsafe = FailsafeResponse(self)
-        self.preparation = MissionPreparation(self)
-        self.stepper = ControlStep(self)
-        self.phases = Phases(self)
-        self.reporting = Reporting(self)
-        self.resume = Resume(self, self._state_path())
-        self.operator = OperatorCommands(self)
-        if self.params.load_error:
-            self.health.latch("params", f"broken parameter file, defaults served, will not steer: "
-                                        f"{self.params.load_error}")
-        # the mission
-        self.elements_code = 0          # the element set of the running mission (resolved NAV_ELEMENTS)
-        self.bias: tuple[float, float] | None = None
-        self.mission: Mission | None = None
-        self.mission_no = 0
-        self.restarts = 0
-        self.restart_from: tuple[float, float] | None = None
-        self.command: Command | None = None
-        self.last_phase = ""
-        self.exit_code: int | None = None
-        self.done_wall = self.done_msg_s = math.nan    # wall and message time the mission ended
-        self._stop = False
-        self.params_dirty = False
-        # clocks and timers (message time unless *_wall)
-        self.m0 = math.nan              # mission time of the mission start
-        self.next_step_m = math.nan
-        self.startup_begin = math.nan
-        self.fc_detected_at = math.nan
-        self.next_tick = -math.inf
-        self.local_ned: tuple[float, float, float] | None = None   # (time, north, east) of LOCAL_POSITION_NED
-        self.last_tick_time = math.nan
-        # statistics
+        nav, comp = NavConfig.from_values(params.values), CompanionConfig.from_values(params.values)
+        model_for_setting(nav.year, nav.wmm, nav.nav_map)   # load the coefficients now, not at take-off
+        self.decoder = decoder = MavlinkDecoder(msg_clock, opts.mag_message, imu=True)   # specific force: I_g
+        sensors = make_source(opts.sensors) if opts.sensors else None   # --sensors: a bad spec fails early
+        self.mag = mag = MagProcessor(mag_calibration(comp), comp.spike_nt, track_yaw_offset=comp.trim_max_deg > 0.0)
+        self.health = health = Health(health_limits(comp))
+        self.fc_view = fc_view = FcView(comp.heading_source, comp.position_publish, comp.feed_blend_mps)
+        # the parts, each given what it uses; the mission's shared state is one record
+        self.settings = settings = Settings(params, mag, health, fc_view, nav, comp)
+        self.mission_state = state = MissionState()
+        self.machine = machine = PhaseMachine()
+        self.clock = clock = MissionClock(mag)
+        self.modes = modes = ModeCommands()
+        self.plausibility = plausibility = MagPlausibility()
+        self.voice = voice = Voice(link, opts.quiet)
+        self.intake = intake = SampleIntake(sensors, opts.sensors, decoder, mag, msg_clock, settings, state, voice)
+        self.preparation = prep = MissionPreparation(settings, state, intake, fc_view, msg_clock, voice,
+                                                     opts.startup_s, opts.lockstep)
+        self.reporting = reporting = Reporting(msg_clock, clock, state, machine, mag, intake)
+        self.resume = resume = Resume(self._state_path(), state, clock, msg_clock, reporting, voice)
+        self.failsafe = failsafe = FailsafeResponse(link, health, decoder, intake, state, machine, clock, modes,
+                                                    resume, reporting, voice)
+        estimate = CurrentEstimate(state, clock, msg_clock, prep, settings)
+        self.out = out = Outputs(link, settings, state, mag, decoder, estimate, opts.request_streams, opts.mag_message)
+        calturn = CalibrationTurn(settings, mag, params, prep, voice)
+        self.telemetry = Telemetry(link, settings, state, machine, failsafe, calturn, clock, decoder, fc_view,
+                                   estimate, params, health, voice)
+        self.operator = operator = OperatorCommands(link, settings, machine, clock, modes, failsafe, out, reporting,
+                                                    voice)
+        self.stepper = stepper = ControlStep(settings, state, params, mag, decoder, fc_view, plausibility,
+                                             msg_clock, reporting, voice)
+        engage = Engage(link, modes, fc_view, operator, out, voice)
+        self.phases = Phases(
+            machine, state, mag, engage, voice, WaitFcPhase(link, state, fc_view, out, voice),
+            StartupPhase(link, settings, state, mag, clock, prep, fc_view, resume, reporting, voice),
+            ReadyPhase(link, mag, prep, operator, out, resume, calturn, engage), CalibratingPhase(calturn, out),
+            RunningPhase(link, settings, state, mag, clock, stepper, prep, out, estimate, fc_view, modes, operator,
+                         engage, failsafe, resume, reporting, voice),
+            DonePhase(state, out, failsafe, resume, reporting, voice))
+        self.status = StatusPublisher.for_options(   # --http: its port bound now (in use: OSError)
+            StatusView(link, machine, state, settings, prep, failsafe, health, intake, decoder, fc_view, voice),
+            opts.http, self.log_dir, opts.quiet)
         self.wall_start = time.monotonic()
+        self.summarised = Summary(link, machine, state, params, health, stepper, mag, intake, fc_view, plausibility,
+                                  resume, modes, operator, voice, self.log_dir, self.wall_start)
+        if params.load_error:
+            health.latch("params", f"broken parameter file, defaults served, will not steer: {params.load_error}")
+        self.exit_code: int | None = None
+        self._stop = False
+        # the loop's timers (message time unless *_wall)
+        self.next_tick = -math.inf
+        self.last_tick_time = math.nan
         self._waiting_said_wall = self.wall_start
-        self.messages_from_fc = 0
         self.fc_reboots = 0
 
     # ------------------------------------------------------------------ what the parts hold
     @property
     def state(self) -> str:
+        """The phase (:class:`companion.process.machine.State`)."""
         return self.machine.state
 
     @property
@@ -145,24 +158,8 @@ class CompanionApp:
         return self.failsafe.active
 
     @property
-    def paused_since(self) -> float:
-        return self.clock.paused_since
-
-    @property
-    def last_valid(self) -> dict[SampleKind, float]:
-        return self.intake.last_valid
-
-    @property
-    def invalid_mag(self) -> int:
-        return self.intake.invalid_mag
-
-    @property
-    def source_dropped_no_clock(self) -> int:
-        return self.intake.dropped_no_clock
-
-    @property
-    def events(self) -> list[str]:
-        return self.out.events
+    def messages_from_fc(self) -> int:
+        return self.intake.messages_from_fc
 
     # ------------------------------------------------------------------ configuration
     def _state_path(self) -> Path:
@@ -173,35 +170,12 @@ class CompanionApp:
             return Path(self.opts.params).with_suffix(".navstate")
         return self.log_dir / "companion.navstate"
 
-    def _limits(self) -> HealthLimits:
-        c = self.comp_cfg
-        return HealthLimits(c.mag_timeout_s, c.att_timeout_s, c.heartbeat_timeout_s)
-
     def _param_changed(self, name: str, value) -> None:
         if name in READINGS:   # a reading, not a setting: the control step reads it from the server
             return
-        self.params_dirty = True
-        if self.state != State.RUNNING:
-            self.apply_params()
-
-    def apply_params(self) -> None:
-        """Rebuild the configurations from the parameter values (at a control step when running)."""
-        self.params_dirty = False
-        values = self.params.values
-        self.comp_cfg = CompanionConfig.from_values(values)
-        self.mag.configure(MagCalibration.from_mgauss(self.comp_cfg.mag_offset_mgauss, self.comp_cfg.mag_scale,
-                                                       self.comp_cfg.mag_soft_xy_xz_yz),
-                           self.comp_cfg.spike_nt)
-        self.mag.track_yaw_offset = self.comp_cfg.trim_max_deg > 0.0
-        self.health.limits = self._limits()
-        self.fc_view.position_publish = self.comp_cfg.position_publish
-        self.fc_view.feed.blend_mps = self.comp_cfg.feed_blend_mps
-        new_nav = NavConfig.from_values(values)
-        self.nav_cfg = new_nav
-        if self.mission is not None and self.state == State.RUNNING:
-            deferred = apply_live_config(self.mission, new_nav)
-            for name in deferred:
-                self.out.say(f"FcMPC: {name} applies to the next mission", mavlink.MAV_SEVERITY_NOTICE)
+        self.settings.dirty = True
+        if self.state != State.RUNNING:   # running: at the next control step
+            self.settings.apply()
 
     # ------------------------------------------------------------------ time
     @property
@@ -210,10 +184,6 @@ class CompanionApp:
 
     def mission_time(self, now: float | None = None) -> float:
         return self.clock.mission_time(self.now if now is None else now)
-
-    def age(self, kind: SampleKind) -> float:
-        """Message-time age of the last valid sample of a kind (infinite if none yet)."""
-        return self.intake.age(kind, self.now)
 
     # ------------------------------------------------------------------ main loop
     def open(self) -> None:
@@ -227,8 +197,9 @@ class CompanionApp:
         except BaseException:
             self.intake.close_source()
             raise
+        self.status.start()   # before steps.csv: once the file exists, the page answers
         self.reporting.open(self.log_dir / "steps.csv")
-        self.out.heartbeat()   # a udpout link must speak first
+        self.out.heartbeat(self.state, self.failsafe.active)   # a udpout link must speak first
         self.notifier.ready()
         self._waiting_said_wall = time.monotonic()
         if not self.opts.quiet:
@@ -239,7 +210,8 @@ class CompanionApp:
                 and self.state in (State.RUNNING, State.READY, State.CALIBRATING):
             self.link.send_hold_mode()   # do not leave a vehicle in GUIDED without a companion
         self.reporting.close()
-        self.reporting.write_summary()
+        self.status.stop()
+        self.summarised.write()
         self.link.close()
         self.intake.close_source()
 
@@ -276,8 +248,7 @@ class CompanionApp:
                 if not msgs:
                     break
         with batched():
-            if self.sensors is not None:
-                self.intake.poll()
+            self.intake.poll()   # --sensors (nothing without)
             self.idle()
         self.notifier.watchdog()   # a stalled loop is restarted by systemd
 
@@ -285,17 +256,17 @@ class CompanionApp:
         """Receive hook: every message read from the link."""
         link = self.link
         if link.observe(msg):
-            self.messages_from_fc += 1
             self.fc_view.packet(msg, link.clock.now_s)
             if link.clock.reboots != self.fc_reboots:
-                self.phases.fc_rebooted()
+                self._fc_rebooted()
             was_detected = self.state != State.WAIT_FC
-            self.intake.decode(msg)
+            if self.intake.decode(msg):   # the sample path: intake -> magnetometer pipeline -> tick
+                self.out.stop_superseded_streams()
             if msg._type == "LOCAL_POSITION_NED":
-                self.local_ned = (msg.time_boot_ms * 1e-3, msg.x, msg.y)
-            if (self.link.clock.now_s >= self.next_tick or not was_detected) and self.link.clock.started:
+                self.mission_state.local_ned = (msg.time_boot_ms * 1e-3, msg.x, msg.y)
+            if (link.clock.now_s >= self.next_tick or not was_detected) and link.clock.started:
                 self.tick()
-            self.out.feed_due(self.link.clock.now_s)
+            self.telemetry.feed_due(link.clock.now_s)
         elif not self.params.mavlink_packet(msg):   # PARAM_* are the parameter server's
             self.operator.mavlink_packet(msg)       # COMMAND_LONG to 191: the operator's commands
 
@@ -303,10 +274,10 @@ class CompanionApp:
         """Periodic hook in wall time: heartbeat floor, silent flight controller, exit conditions."""
         wall = time.monotonic()
         for sysid, compid in self.link.new_autopilots():   # reported, never followed
-            self.out.say(f"FcMPC: second autopilot {sysid}/{compid} ignored (following {self.link.fc.sysid})",
-                         mavlink.MAV_SEVERITY_WARNING)
+            self.voice.say(f"FcMPC: second autopilot {sysid}/{compid} ignored (following {self.link.fc.sysid})",
+                           mavlink.MAV_SEVERITY_WARNING)
         if wall - self.out.last_hb_sent_wall >= 1.0:
-            self.out.heartbeat()
+            self.out.heartbeat(self.state, self.failsafe.active)
             if self.state == State.WAIT_FC and wall - self._waiting_said_wall >= WAITING_REPEAT_WALL_S:
                 self._waiting_said_wall = wall
                 if not self.opts.quiet:
@@ -316,34 +287,36 @@ class CompanionApp:
                 self.failsafe.evaluate()   # a silent FC: message time stands still, wall time does not
                 if self.failsafe.active and self.state == State.RUNNING:
                     self.failsafe.act()
-        self.out.operator_status_due(wall)
-        if self.state == State.DONE and self.opts.exit_when_done and wall - self.done_wall >= LINGER_WALL_S \
+        self.telemetry.operator_status_due(wall)
+        state = self.mission_state
+        if self.state == State.DONE and self.opts.exit_when_done and wall - state.done_wall >= LINGER_WALL_S \
                 and self._lingered():
-            self.exit_code = 0 if self.command is not None and self.command.phase == Phase.ARRIVED else 1
+            self.exit_code = 0 if state.command is not None and state.command.phase == Phase.ARRIVED else 1
         if self.opts.max_wall_s is not None and wall - self.wall_start > self.opts.max_wall_s:
-            self.out.say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
-                         mavlink.MAV_SEVERITY_WARNING)
+            self.voice.say(f"FcMPC: wall-time limit {self.opts.max_wall_s:g} s reached, exiting",
+                           mavlink.MAV_SEVERITY_WARNING)
             self.exit_code = 3
-        self.reporting.publish_status(wall)   # --http: the status page
+        self.status.maybe_publish(wall)   # --http: the status page, at most every PUBLISH_WALL_S
 
     def _lingered(self) -> bool:
         """--exit-when-done: ``--linger-s`` of message time passed since the mission ended (the
         companion keeps answering a lockstep simulator meanwhile, so the records show the vehicle
         coming to rest; the FC's INS velocity drifts too much to judge that on board)."""
-        return not math.isfinite(self.done_msg_s) or self.now - self.done_msg_s >= self.opts.linger_s
+        done_msg_s = self.mission_state.done_msg_s
+        return not math.isfinite(done_msg_s) or self.now - done_msg_s >= self.opts.linger_s
 
     # ------------------------------------------------------------------ the control tick
     def tick(self) -> None:
         """Runs at COMP_SP_RATE_HZ of message time (and when the flight controller appears)."""
         now = self.now
-        period = 1.0 / self.comp_cfg.setpoint_rate_hz
+        period = 1.0 / self.settings.comp.setpoint_rate_hz
         self.next_tick = now + period if now - self.next_tick >= period else self.next_tick + period
         if now - self.out.last_hb_sent >= 1.0:
-            self.out.heartbeat()
+            self.out.heartbeat(self.state, self.failsafe.active)
         dt = now - self.last_tick_time if math.isfinite(self.last_tick_time) else 0.0
         self.last_tick_time = now
         if self.state == State.WAIT_FC:
-            self.phases.fc_detected()
+            self.phases.fc_heard(now)
         self.fc_view.poll_requests(self.link, now)
         self.preparation.forecast.poll()
         reasons = self.failsafe.evaluate()
@@ -357,5 +330,25 @@ class CompanionApp:
             if self.opts.lockstep:   # a timed message each period keeps a lockstep simulator going
                 self.link.send_named_float("FC_STATE", float(self.machine.code(self.failsafe.active)))
 
+    def _fc_rebooted(self) -> None:
+        """The flight controller's clock went back: every part drops what it timed on the old clock,
+        then the phases decide what becomes of the mission (:meth:`Phases.fc_rebooted`)."""
+        now, last_old_s = self.now, self.last_tick_time   # no tick ran since: the new clock was only just confirmed
+        self.fc_reboots = self.link.clock.reboots
+        self.next_tick = -math.inf
+        self.last_tick_time = math.nan
+        self.mission_state.fc_detected_at = now   # the streams get their start-up grace again
+        self.mission_state.local_ned = None
+        for part in (self.out, self.telemetry, self.intake, self.failsafe, self.stepper, self.resume):
+            part.fc_rebooted()
+        self.fc_view.rebooted()
+        self.modes.clear()
+        self.link.fc.last_heartbeat_time_s = now
+        self.mag.attitude = None
+        self.mag.settle_until_s = -math.inf
+        self.decoder.fc_position = None
+        self.out.request_streams()   # a rebooted autopilot forgets the intervals asked for
+        self.phases.fc_rebooted(now, last_old_s)
+
     def summary(self) -> dict:
-        return self.reporting.summary()
+        return self.summarised.summary()

@@ -27,9 +27,14 @@ import math
 import sys
 from dataclasses import replace
 
+from companion.io.link.clock import MessageClock
 from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind, SensorError, SensorSource, StreamEnd
-from companion.nav.magnetometer import AttitudeState
+from companion.io.sensors.mavlink_source import MavlinkDecoder
+from companion.nav.magnetometer import AttitudeState, MagProcessor
+from companion.process.mission_state import MissionState
+from companion.process.settings import Settings
+from companion.process.voice import Voice
 
 __all__ = ["SOURCE_RESYNC_S", "SampleIntake", "SourceTimeMap", "source_kinds"]
 
@@ -79,9 +84,17 @@ class SourceTimeMap:
 class SampleIntake:
     """Samples of either path into the magnetometer pipeline; their validity and ages."""
 
-    def __init__(self, app, source: SensorSource | None) -> None:   # app: the CompanionApp
-        self.app = app
+    def __init__(self, source: SensorSource | None, spec: str | None, decoder: MavlinkDecoder, mag: MagProcessor,
+                 msg_clock: MessageClock, settings: Settings, state: MissionState, voice: Voice) -> None:
+        """``source``: the --sensors source built from ``spec`` (None: MAVLink only)."""
         self.source = source
+        self.spec = spec
+        self.decoder = decoder
+        self.mag = mag
+        self.msg_clock = msg_clock
+        self.settings = settings
+        self.mission_state = state
+        self.voice = voice
         self.source_kinds = source_kinds(source) if source is not None else frozenset()
         self.source_time = SourceTimeMap()
         self.source_open = False
@@ -93,6 +106,11 @@ class SampleIntake:
         self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
         self.invalid_mag = 0
         self.last_gps = None
+        self.messages_from_fc = 0           # every message of the flight controller followed
+
+    def fc_rebooted(self) -> None:
+        """The FC's old clock is void: no sample is valid on the new one yet."""
+        self.last_valid.clear()
 
     # ------------------------------------------------------------------ the source's life
     def open_source(self) -> None:
@@ -109,18 +127,19 @@ class SampleIntake:
                 print(f"fcmpc-companion: closing {self.source.name}: {err}", file=sys.stderr)
 
     # ------------------------------------------------------------------ samples
-    def decode(self, msg) -> None:
-        """The flight controller's samples in ``msg`` (kinds --sensors provides are ignored)."""
-        decoder = self.app.decoder
+    def decode(self, msg) -> bool:
+        """The flight controller's samples in ``msg`` (kinds --sensors provides are ignored); True
+        when the decoder replaced a magnetometer stream by a preferred one (to be turned off)."""
+        self.messages_from_fc += 1
+        decoder = self.decoder
         for sample in decoder.decode(msg):
             if sample.kind not in self.source_kinds:
                 self.use(sample, sample.time_s, decoder.rates)
-        if decoder.superseded:
-            self.app.out.stop_superseded_streams()
+        return bool(decoder.superseded)
 
     def use(self, sample, t: float, rates: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """One sample (MAVLink or --sensors) at message time ``t`` into the magnetometer pipeline."""
-        mag = self.app.mag
+        mag = self.mag
         kind = sample.kind
         if kind is _MAG:
             if sample.flags:
@@ -144,7 +163,7 @@ class SampleIntake:
 
     def poll(self) -> None:
         """Periodic hook for ``--sensors``: take what the source has now (never waits)."""
-        source, app = self.source, self.app
+        source = self.source
         if source is None or not self.source_open:
             return
         try:
@@ -153,10 +172,10 @@ class SampleIntake:
             samples = []
             self.source_problem["mag"] = str(err)
         if samples:
-            if not app.link.clock.started:   # no message time to put them on yet
+            if not self.msg_clock.started:   # no message time to put them on yet
                 self.dropped_no_clock += len(samples)
                 return
-            times = self.source_time.map(app.now, [s.time_s for s in samples])
+            times = self.source_time.map(self.msg_clock.now_s, [s.time_s for s in samples])
             rates = (0.0, 0.0, 0.0)
             fresh = False
             for sample, t in zip(samples, times):
@@ -177,29 +196,28 @@ class SampleIntake:
             if fresh and self.source_silent_said and not self.source_ended:
                 self.source_silent_said = False
                 self.source_problem.pop("mag", None)
-                app.out.say(f"FcMPC: sensor source {source.name} delivering again", mavlink.MAV_SEVERITY_NOTICE)
+                self.voice.say(f"FcMPC: sensor source {source.name} delivering again", mavlink.MAV_SEVERITY_NOTICE)
         self._check_silence()
 
     def _check_silence(self) -> None:
         """Say once that the source stopped (ended, or nothing for longer than the staleness timeout)."""
-        app = self.app
-        if self.source_silent_said or not app.link.clock.started:
+        if self.source_silent_said or not self.msg_clock.started:
             return
+        comp, now = self.settings.comp, self.msg_clock.now_s
         source = self.source
         why = ""
         if self.source_ended or source.finished:
             why = f"ended ({self.source_ended or 'finished'})"
         else:
-            timeout = min(app.comp_cfg.mag_timeout_s, app.comp_cfg.att_timeout_s) \
-                if _ATT in self.source_kinds else app.comp_cfg.mag_timeout_s
-            since = self.source_last_rx if math.isfinite(self.source_last_rx) else app.fc_detected_at
-            if math.isfinite(since) and app.now - since > timeout:
+            timeout = min(comp.mag_timeout_s, comp.att_timeout_s) if _ATT in self.source_kinds else comp.mag_timeout_s
+            since = self.source_last_rx if math.isfinite(self.source_last_rx) else self.mission_state.fc_detected_at
+            if math.isfinite(since) and now - since > timeout:
                 err = source.stats.last_error
-                why = f"silent for {app.now - since:.1f} s" + (f" (last error: {err})" if err else "")
+                why = f"silent for {now - since:.1f} s" + (f" (last error: {err})" if err else "")
         if why:
             self.source_silent_said = True
             self.source_problem["mag"] = f"sensor source {source.name} {why}"
-            app.out.say(f"FcMPC: sensor source {source.name} {why}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
+            self.voice.say(f"FcMPC: sensor source {source.name} {why}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
 
     # ------------------------------------------------------------------ ages
     def age(self, kind: SampleKind, now: float) -> float:
@@ -211,7 +229,7 @@ class SampleIntake:
         source = self.source
         if source is None:
             return None
-        return {"spec": self.app.opts.sensors, "name": source.name,
+        return {"spec": self.spec, "name": source.name,
                 "kinds": sorted(k.value for k in self.source_kinds),
                 "samples": source.stats.samples, "flagged": source.stats.flagged,
                 "read_errors": source.stats.read_errors, "last_error": source.stats.last_error,

@@ -19,8 +19,15 @@ link allows reach here (LINK_GCS_ID*; with signing, signed frames only: :mod:`co
 """
 from __future__ import annotations
 
-from companion.io.link import mavlink
-from companion.process.machine import State
+from companion.io.link import MavlinkLink, mavlink
+from companion.process.failsafe_response import FailsafeResponse
+from companion.process.machine import PhaseMachine, State
+from companion.process.mission_clock import MissionClock
+from companion.process.mode_commands import ModeCommands
+from companion.process.outputs import Outputs
+from companion.process.reporting import Reporting
+from companion.process.settings import Settings
+from companion.process.voice import Voice
 
 __all__ = ["OperatorCommands"]
 
@@ -28,21 +35,31 @@ __all__ = ["OperatorCommands"]
 class OperatorCommands:
     """``held`` (the operator's hold) and ``start_requested`` (engage as with COMP_ARM_ENABLE 1)."""
 
-    def __init__(self, app) -> None:   # the CompanionApp wiring this part
-        self.app = app
+    def __init__(self, link: MavlinkLink, settings: Settings, machine: PhaseMachine, clock: MissionClock,
+                 modes: ModeCommands, failsafe: FailsafeResponse, outputs: Outputs, reporting: Reporting,
+                 voice: Voice) -> None:
+        self.link = link
+        self.settings = settings
+        self.machine = machine
+        self.clock = clock
+        self.modes = modes
+        self.failsafe = failsafe
+        self.outputs = outputs
+        self.reporting = reporting
+        self.voice = voice
         self.held = False
         self.start_requested = False
         self.received = 0
 
     def addressed(self, msg) -> bool:
         """A COMMAND_LONG for this companion (its component exactly: a broadcast is the FC's)."""
-        link = self.app.link
+        link = self.link
         return msg.target_component == link.component and msg.target_system in (0, link.sysid)
 
     def mavlink_packet(self, msg) -> None:
         """A COMMAND_LONG addressed to this companion from an allowed ground station: act on it and
         acknowledge it to its sender (a stranger's gets no reply, as its PARAM_* do not)."""
-        if msg.get_type() != "COMMAND_LONG" or not (self.addressed(msg) and self.app.link.from_allowed_gcs(msg)):
+        if msg.get_type() != "COMMAND_LONG" or not (self.addressed(msg) and self.link.from_allowed_gcs(msg)):
             return
         self.received += 1
         if msg.command == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
@@ -51,65 +68,65 @@ class OperatorCommands:
             result = self.start()
         else:
             result = mavlink.MAV_RESULT_UNSUPPORTED
-        self.app.link.send_command_ack(msg.command, result, msg.get_srcSystem(), msg.get_srcComponent())
+        self.link.send_command_ack(msg.command, result, msg.get_srcSystem(), msg.get_srcComponent())
 
     def engage_allowed(self) -> bool:
         """May the companion select GUIDED/OFFBOARD and arm on its own (COMP_ARM_ENABLE or start)?"""
-        return not self.held and (bool(self.app.comp_cfg.arm_enable) or self.start_requested)
+        return not self.held and (bool(self.settings.comp.arm_enable) or self.start_requested)
 
     # ------------------------------------------------------------------ the commands
     def hold(self) -> int:
-        app = self.app
-        if app.state == State.DONE:
+        phase, now = self.machine.state, self.link.clock.now_s
+        if phase == State.DONE:
             return mavlink.MAV_RESULT_DENIED
-        if app.state not in (State.READY, State.RUNNING):
+        if phase not in (State.READY, State.RUNNING):
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if not self.held:
             self.held = True
-            app.out.say("FcMPC: held by the operator; resume to go on", mavlink.MAV_SEVERITY_NOTICE)
-            app.reporting.record_event("hold", "operator")
-        if app.state == State.RUNNING:
-            app.clock.pause(app.now)
-        app.failsafe.hold_if_guided(app.now)
+            self.voice.say("FcMPC: held by the operator; resume to go on", mavlink.MAV_SEVERITY_NOTICE)
+            self.reporting.record_event("hold", "operator")
+        if phase == State.RUNNING:
+            self.clock.pause(now)
+        self.failsafe.hold_if_guided(now)
         return mavlink.MAV_RESULT_ACCEPTED
 
     def resume(self) -> int:
-        app = self.app
-        if app.state == State.DONE:
+        phase = self.machine.state
+        if phase == State.DONE:
             return mavlink.MAV_RESULT_DENIED
-        if not self.held and app.state != State.RUNNING:
+        if not self.held and phase != State.RUNNING:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if self.held:
             self.held = False
-            app.out.say("FcMPC: resumed by the operator", mavlink.MAV_SEVERITY_NOTICE)
-            app.reporting.record_event("resume", "operator")
-        fc = app.link.fc
-        if app.state == State.RUNNING and fc.armed and not fc.guided:
+            self.voice.say("FcMPC: resumed by the operator", mavlink.MAV_SEVERITY_NOTICE)
+            self.reporting.record_event("resume", "operator")
+        fc = self.link.fc
+        if phase == State.RUNNING and fc.armed and not fc.guided:
             self.select_guided()
         return mavlink.MAV_RESULT_ACCEPTED
 
     def start(self) -> int:
-        app = self.app
-        if app.state in (State.DONE, State.RUNNING):
+        phase = self.machine.state
+        if phase in (State.DONE, State.RUNNING):
             return mavlink.MAV_RESULT_DENIED
-        if app.state == State.WAIT_FC:
+        if phase == State.WAIT_FC:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         self.held = False
         if not self.start_requested:
             self.start_requested = True
-            app.out.say("FcMPC: start by the operator: engaging" + (" once the start-up average is taken"
-                                                                    if app.state == State.STARTUP else ""),
-                        mavlink.MAV_SEVERITY_NOTICE)
+            self.voice.say("FcMPC: start by the operator: engaging" + (" once the start-up average is taken"
+                                                                       if phase == State.STARTUP else ""),
+                           mavlink.MAV_SEVERITY_NOTICE)
         return mavlink.MAV_RESULT_ACCEPTED
 
     def held_tick(self, now: float, following: bool) -> bool:
         """A running tick while held: no command and no step; HOLD commanded (and retried) while the
         FC is still under guidance, with zero-velocity setpoints meanwhile. True if one was sent."""
-        self.app.failsafe.hold_if_guided(now)
-        return self.app.out.zero_setpoint() if following else False
+        self.failsafe.hold_if_guided(now)
+        return self.outputs.zero_setpoint() if following else False
 
     def select_guided(self) -> None:
-        app = self.app
-        conv = app.link.fc.conventions
-        app.link.send_guided_mode()
-        app.modes.sent(conv.custom_mode(conv.guided_main, conv.guided_sub), app.now, "GUIDED")
+        link = self.link
+        conv = link.fc.conventions
+        link.send_guided_mode()
+        self.modes.sent(conv.custom_mode(conv.guided_main, conv.guided_sub), link.clock.now_s, "GUIDED")

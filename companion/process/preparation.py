@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+from companion.fc_view import FcView
+from companion.io.link.clock import MessageClock
 from companion.nav.elements import ELEMENT_NAMES, ELEMENT_SETS, ElementSet, resolve_elements
 from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_inverse
@@ -18,7 +20,11 @@ from companion.nav.mission import Mission
 from companion.nav.period import measured_inclination
 from companion.params import NavConfig
 from companion.process.forecast import RouteForecast
+from companion.process.intake import SampleIntake
+from companion.process.mission_state import MissionState
 from companion.process.options import GPS_START_MAX_AGE_S
+from companion.process.settings import Settings
+from companion.process.voice import Voice
 
 __all__ = ["PREPARED_START_M", "MissionPreparation"]
 
@@ -28,49 +34,55 @@ PREPARED_START_M = 100.0          # a mission built while READY serves a start t
 class MissionPreparation:
     """The start of the next mission, and the mission built for it in advance."""
 
-    def __init__(self, app) -> None:   # the CompanionApp wiring this part
-        self.app = app
+    def __init__(self, settings: Settings, state: MissionState, intake: SampleIntake, fc_view: FcView,
+                 msg_clock: MessageClock, voice: Voice, startup_s: float | None, lockstep: bool) -> None:
+        """``startup_s``: --startup-s (None: NAV_PERIOD_S); ``lockstep``: the forecast runs inline."""
+        self.settings = settings
+        self.mission_state = state
+        self.intake = intake
+        self.fc_view = fc_view
+        self.msg_clock = msg_clock
+        self.startup_s = startup_s
         self.prepared: Mission | None = None   # built while READY, used at arming if nothing changed
         self._prepared_for = None              # the NavConfig (parameters) it was last found to serve
-        self.forecast = RouteForecast(app.out.say, inline=app.opts.lockstep)   # the route said before it
+        self.forecast = RouteForecast(voice.say, inline=lockstep)   # the route said before it
 
     def startup_window(self) -> float:
         """Seconds of stationary averaging before the first step (--startup-s, else NAV_PERIOD_S)."""
-        app = self.app
-        return app.opts.startup_s if app.opts.startup_s is not None else app.nav_cfg.period_s
+        return self.startup_s if self.startup_s is not None else self.settings.nav.period_s
 
     def start_position(self) -> tuple[float, float, str]:
         """(lat, lon, what it is): the GPS fix, the last estimate after a restart, or NAV_START."""
-        app = self.app
-        gps = app.intake.last_gps
-        if gps is not None and gps.valid and gps.has_3d_fix and app.now - gps.time_s <= GPS_START_MAX_AGE_S:
+        gps = self.intake.last_gps
+        if gps is not None and gps.valid and gps.has_3d_fix and self.msg_clock.now_s - gps.time_s <= GPS_START_MAX_AGE_S:
             return gps.lat_deg, gps.lon_deg, "GPS"
-        if app.restart_from is not None:
-            return app.restart_from[0], app.restart_from[1], "last estimate"
-        return app.nav_cfg.start_lat_deg, app.nav_cfg.start_lon_deg, "NAV_START"
+        restart_from = self.mission_state.restart_from
+        if restart_from is not None:
+            return restart_from[0], restart_from[1], "last estimate"
+        nav = self.settings.nav
+        return nav.start_lat_deg, nav.start_lon_deg, "NAV_START"
 
     def prepare(self, now: float) -> None:
         """Build the mission (QP set-up, field model) while waiting to be armed, so the moment of
         arming costs a setpoint tick, not a set-up: at SITL speed-ups 100 ms of set-up was 3 s
         of firmware time without a setpoint, and ArduPilot stopped."""
-        app = self.app
-        if app.params_dirty:
+        if self.settings.dirty:
             return
         lat, lon, _ = self.start_position()
         code, _ = self.resolve_elements(now)
         prepared = self.prepared
-        if prepared is not None and app.nav_cfg is self._prepared_for and code == prepared.config.elements \
+        if prepared is not None and self.settings.nav is self._prepared_for and code == prepared.config.elements \
                 and self._near(prepared.config, lat, lon):
             return   # a READY tick that asks what the last one did: no configuration built to compare
         config = self.mission_config(lat, lon, code)
         if not self.fits(config):
             self.prepared = Mission(config)
             self.forecast.request(config)
-        self._prepared_for = app.nav_cfg   # (a parameter change builds a new NavConfig)
+        self._prepared_for = self.settings.nav   # (a parameter change builds a new NavConfig)
 
     def mission_config(self, lat: float, lon: float, elements: int) -> NavConfig:
         """The mission's settings: NAV_* from the parameters, this start, the resolved element set."""
-        return self.app.nav_cfg.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=elements)
+        return self.settings.nav.replace(start_lat_deg=float(lat), start_lon_deg=float(lon), elements=elements)
 
     def fits(self, config: NavConfig) -> bool:
         """The prepared mission serves ``config``: the same settings, a start within PREPARED_START_M
@@ -95,9 +107,8 @@ class MissionPreparation:
 
     def resolve_elements(self, now: float) -> tuple[int, str]:
         """NAV_ELEMENTS resolved against the heading source: never D with a compass-derived yaw."""
-        app = self.app
-        verdict = app.fc_view.heading_verdict(now)
-        requested = app.nav_cfg.elements
+        verdict = self.fc_view.heading_verdict(now)
+        requested = self.settings.nav.elements
         compass = verdict is None or verdict.compass_derived
         code = resolve_elements(requested, compass)
         if compass:
@@ -114,7 +125,7 @@ class MissionPreparation:
 
     def inclination(self, avg) -> float:
         """I of an average as the navigator measures it (:func:`companion.nav.period.measured_inclination`)."""
-        heading_free = self.app.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
+        heading_free = self.mission_state.elements_code in (ElementSet.HEADING_FREE, ElementSet.HORIZONTAL_VERTICAL)
         return measured_inclination(avg, heading_free)[0]
 
     def calibration(self, config: NavConfig, startup, source: str) -> tuple[tuple[float, ...] | None, str]:

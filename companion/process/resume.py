@@ -40,10 +40,14 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from companion.io.link.clock import MessageClock
 from companion.io.link import mavlink
 from companion.nav.field import WorldMagneticModel, load_wmm
 from companion.nav.mission import Command, Mission
-from companion.process.machine import Event
+from companion.process.mission_clock import MissionClock
+from companion.process.mission_state import MissionState
+from companion.process.reporting import Reporting
+from companion.process.voice import Voice
 
 __all__ = ["RESUME_MAX_AGE_S", "SAVE_EVERY_S", "NavSnapshot", "NavStateStore", "Resume", "dumps"]
 
@@ -145,10 +149,15 @@ class NavStateStore:
 
 
 class Resume:
-    """Saving while running, and judging the saved state at start (``app``: the CompanionApp)."""
+    """Saving while running, and judging the saved state at start."""
 
-    def __init__(self, app, path: str | os.PathLike[str]) -> None:
-        self.app = app
+    def __init__(self, path: str | os.PathLike[str], state: MissionState, clock: MissionClock,
+                 msg_clock: MessageClock, reporting: Reporting, voice: Voice) -> None:
+        self.mission_state = state
+        self.clock = clock
+        self.msg_clock = msg_clock
+        self.reporting = reporting
+        self.voice = voice
         self.store = NavStateStore(path)
         self.saved, self.load_error = self.store.load()
         self.pending: NavSnapshot | None = None     # to resume when the vehicle is engaged
@@ -163,79 +172,83 @@ class Resume:
     # ------------------------------------------------------------------ saving
     def snapshot(self, at_s: float, finished: bool = False) -> NavSnapshot:
         """The running mission as of message time ``at_s`` (a mission and a command exist)."""
-        app = self.app
-        elapsed = app.mission_time(at_s) - app.m0
-        return NavSnapshot(SNAPSHOT_VERSION, self.mission_id, app.mission_no, app.restarts, at_s, elapsed,
-                           app.next_step_m - app.m0, app.command, app.elements_code, app.bias, finished,
-                           app.mission.snapshot())
+        state = self.mission_state
+        elapsed = self.clock.mission_time(at_s) - state.m0
+        return NavSnapshot(SNAPSHOT_VERSION, self.mission_id, state.mission_no, state.restarts, at_s, elapsed,
+                           state.next_step_m - state.m0, state.command, state.elements_code, state.bias, finished,
+                           state.mission.snapshot())
 
     def save(self, finished: bool = False) -> None:
-        app = self.app
-        if app.mission is None or app.command is None:
+        if self.mission_state.mission is None or self.mission_state.command is None:
             return
-        snapshot = self.snapshot(app.now, finished)
+        now = self.msg_clock.now_s
+        snapshot = self.snapshot(now, finished)
         try:
             self.store.save(snapshot)
         except OSError as err:   # the mission goes on; say it once per failure kind
-            app.out.say(f"FcMPC: cannot save the navigator state: {err.strerror or err}"[:200],
-                        mavlink.MAV_SEVERITY_WARNING)
-        self.last_save_s = app.now
+            self.voice.say(f"FcMPC: cannot save the navigator state: {err.strerror or err}"[:200],
+                           mavlink.MAV_SEVERITY_WARNING)
+        self.last_save_s = now
+
+    def fc_rebooted(self) -> None:
+        """The FC's old clock is void: a save is due at once."""
+        self.last_save_s = -math.inf
 
     def maybe_save(self, now: float) -> None:
         if now - self.last_save_s >= SAVE_EVERY_S:
             self.save()
 
     # ------------------------------------------------------------------ at start
-    def judge_saved(self) -> None:
-        """Once the FC is heard (in startup): resume, or start anew from the saved estimate."""
-        app, snap = self.app, self.saved
+    def judge_saved(self) -> bool:
+        """Once the FC is heard (in startup): resume (True: a mission is ``pending``), or start anew
+        from the saved estimate."""
+        snap, say = self.saved, self.voice.say
         self.saved = None
         if self.load_error:
-            app.out.say(f"FcMPC: navigator state not used: {self.load_error}"[:200], mavlink.MAV_SEVERITY_WARNING)
-            return
+            say(f"FcMPC: navigator state not used: {self.load_error}"[:200], mavlink.MAV_SEVERITY_WARNING)
+            return False
         if snap is None:
-            return
-        age = app.now - snap.msg_time_s
+            return False
+        age = self.msg_clock.now_s - snap.msg_time_s
         cmd = snap.command
         if not snap.finished and 0.0 <= age <= RESUME_MAX_AGE_S:
             self.pending = snap
-            app.machine.fire(Event.RESUMED)
-            app.out.say(f"FcMPC: resuming mission {snap.mission_no} at step {cmd.step} from the state saved "
-                        f"{age:.0f} s ago", mavlink.MAV_SEVERITY_NOTICE)
-            return
+            say(f"FcMPC: resuming mission {snap.mission_no} at step {cmd.step} from the state saved "
+                f"{age:.0f} s ago", mavlink.MAV_SEVERITY_NOTICE)
+            return True
         if snap.finished:   # not in mid-route: the next mission starts as configured
-            app.out.say(f"FcMPC: mission {snap.mission_no} of the saved state had ended", mavlink.MAV_SEVERITY_INFO)
-            return
+            say(f"FcMPC: mission {snap.mission_no} of the saved state had ended", mavlink.MAV_SEVERITY_INFO)
+            return False
         why = "saved before an FC reboot" if age < 0.0 else f"{age:.0f} s old (resume limit {RESUME_MAX_AGE_S:g} s)"
         if math.isfinite(cmd.est_lat_deg) and math.isfinite(cmd.est_lon_deg):
-            app.restart_from = (cmd.est_lat_deg, cmd.est_lon_deg)
-            app.out.say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "
-                        f"{cmd.est_lat_deg:.4f},{cmd.est_lon_deg:.4f}"[:200], mavlink.MAV_SEVERITY_NOTICE)
+            self.mission_state.restart_from = (cmd.est_lat_deg, cmd.est_lon_deg)
+            say(f"FcMPC: state of mission {snap.mission_no} {why}: new mission from its last estimate "
+                f"{cmd.est_lat_deg:.4f},{cmd.est_lon_deg:.4f}"[:200], mavlink.MAV_SEVERITY_NOTICE)
+        return False
 
     def continue_after_reboot(self, last_s: float) -> None:
         """The flight controller rebooted under the running mission: keep it (estimate, filter,
         gradient, step clock as of ``last_s``, the last message time on the FC's old clock) to go
         on with once the vehicle is engaged again, exactly as after a restart of our own."""
         self.pending = self.snapshot(last_s)
-        self.pending_mission = self.app.mission
+        self.pending_mission = self.mission_state.mission
 
     def resume_mission(self, now: float) -> None:
-        """READY -> RUNNING with the saved mission: no new start-up, the step clock where it stood."""
-        app, snap = self.app, self.pending
+        """Entering RUNNING with the saved mission: no new start-up, the step clock where it stood."""
+        state, snap = self.mission_state, self.pending
         self.pending = None
         live, self.pending_mission = self.pending_mission, None
-        app.mission = live if live is not None else snap.mission()
-        app.command = snap.command
-        app.elements_code, app.bias = snap.elements_code, snap.bias
-        app.mission_no, app.restarts = snap.mission_no, snap.restarts
+        state.mission = live if live is not None else snap.mission()
+        state.command = snap.command
+        state.elements_code, state.bias = snap.elements_code, snap.bias
+        state.mission_no, state.restarts = snap.mission_no, snap.restarts
         self.mission_id = snap.mission_id
-        app.m0 = app.mission_time(now) - snap.elapsed_s
-        app.next_step_m = app.m0 + snap.next_step_rel_s
-        app.last_phase = snap.command.phase
+        state.m0 = self.clock.mission_time(now) - snap.elapsed_s
+        state.next_step_m = state.m0 + snap.next_step_rel_s
+        state.last_phase = snap.command.phase
         self.resumed_from = f"mission {snap.mission_no} step {snap.command.step}"
-        app.machine.fire(Event.ENGAGED)
         remaining = snap.command.remaining_m
-        app.out.say(f"FcMPC: mission {snap.mission_no} resumed at step {snap.command.step}, estimate "
+        self.voice.say(f"FcMPC: mission {snap.mission_no} resumed at step {snap.command.step}, estimate "
                     f"{snap.command.est_lat_deg:.4f},{snap.command.est_lon_deg:.4f}"
                     + (f", {remaining / 1000.0:.1f} km to go" if math.isfinite(remaining) else ""))
-        app.reporting.record_event("resume", self.resumed_from)
+        self.reporting.record_event("resume", self.resumed_from)

@@ -113,7 +113,7 @@ class Rig:
         deadline = time.monotonic() + limit_wall_s
         while not condition():
             assert time.monotonic() < deadline, f"timed out; companion state {self.app.state}, " \
-                                                f"events {self.app.events[-5:]}"
+                                                f"events {self.app.voice.events[-5:]}"
             self.step(**step)
 
     def fly(self) -> None:
@@ -140,9 +140,9 @@ def test_dronecan_magnetometer_replaces_the_fcs(rig: Rig) -> None:
     for _ in range(3):
         rig.publish_can()
     deadline = time.monotonic() + 30.0      # a hang guard: the loop ends on the event
-    while app.source_dropped_no_clock < 3 and time.monotonic() < deadline:
+    while app.intake.dropped_no_clock < 3 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert app.source_dropped_no_clock == 3
+    assert app.intake.dropped_no_clock == 3
 
     rig.fly()
     d, i = app.mag.last_di
@@ -156,10 +156,10 @@ def test_dronecan_magnetometer_replaces_the_fcs(rig: Rig) -> None:
     st = app.mag.stats
     assert 10 < st.samples <= rig.can_sent - 3 and st.accepted >= 10 and st.spikes == 0 and st.non_finite == 0
     assert st.accepted + st.no_attitude + st.paused >= st.samples - 2
-    assert app.invalid_mag == 0
+    assert app.intake.invalid_mag == 0
     # the mapped CAN sample times sit on message time (a wrong mapping is off by the CAN clock's
     # epoch; under load the last sample lags the FC's newest message by up to a second or two)
-    assert abs(app.now - app.last_valid[SampleKind.MAG]) < 5.0
+    assert abs(app.now - app.intake.last_valid[SampleKind.MAG]) < 5.0
     summary = app.summary()["sensors"]
     assert summary["kinds"] == ["mag"] and summary["dropped_no_fc_clock"] == 3 and summary["samples"] >= 10
     assert "FAILSAFE" not in rig.texts()
@@ -175,21 +175,21 @@ def test_can_magnetometer_going_silent_is_a_failsafe(rig: Rig) -> None:
     # (in its own thread): not the event text's time, printed to 0.1 s, nor last_valid read
     # after a sleep, which raced the app's thread still taking the last CAN frames
     seen_at_failsafe: list[tuple[float, float]] = []
-    say = app.out.say
+    say = app.voice.say
 
     def spy(text: str, *args, **kwargs):
         if "FAILSAFE" in text and not seen_at_failsafe:
-            seen_at_failsafe.append((app.now, app.last_valid[SampleKind.MAG]))
+            seen_at_failsafe.append((app.now, app.intake.last_valid[SampleKind.MAG]))
         return say(text, *args, **kwargs)
 
-    app.out.say = spy
+    app.voice.say = spy
     # the CAN node stops; the FC keeps talking, message time runs 5x faster than the wall
     rig.until(lambda: "FAILSAFE" in rig.texts() and "sensor source" in rig.texts(), dt=0.05, can_on=False)
     t_fs, last = seen_at_failsafe[0]
-    timeout = app.comp_cfg.mag_timeout_s
-    assert len([e for e in app.events if "FcMPC FAILSAFE" in e]) == 1
+    timeout = app.settings.comp.mag_timeout_s
+    assert len([e for e in app.voice.events if "FcMPC FAILSAFE" in e]) == 1
     # stale strictly after COMP_MAG_TMO_S, judged at the next control tick (COMP_SP_RATE_HZ)
-    assert timeout < t_fs - last <= timeout + 1.0 / app.comp_cfg.setpoint_rate_hz + 0.1
+    assert timeout < t_fs - last <= timeout + 1.0 / app.settings.comp.setpoint_rate_hz + 0.1
     texts = rig.texts()
     assert "mag: no valid magnetometer sample" in texts
     assert f"sensor source dronecan@virtual:{rig.channel} silent" in texts

@@ -65,7 +65,7 @@ def make_rig(tmp_path):
     app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}   # sensors fresh
     app.handle(_msg("HEARTBEAT", **ARMED_GUIDED))
     app.machine.state = State.RUNNING
-    app.m0 = 0.0
+    app.mission_state.m0 = 0.0
     return app, fc
 
 
@@ -81,8 +81,8 @@ def _sent(fc, quiet_s: float = 0.15, limit_s: float = 3.0) -> list:
 
 
 def _run_step(app: CompanionApp, command: Command) -> None:
-    app.mission = FakeMission(command)
+    app.mission_state.mission = FakeMission(command)
     app.mag.averager.add(0.5, 1.0, 50.0)
-    app.stepper.step(1.0)
+    app.phases.step(app.now, 1.0)
 
 

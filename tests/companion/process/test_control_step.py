@@ -24,8 +24,8 @@ def test_navigation_failure_holds_and_restarts(rig, bad, why):
     app, fc = rig
     _run_step(app, bad)
     sent = _sent(fc)
-    assert app.state == State.STARTUP and app.restarts == 1 and app.mission is None
-    assert app.restart_from == pytest.approx((32.5, 152.5))           # from the last estimate
+    assert app.state == State.STARTUP and app.mission_state.restarts == 1 and app.mission_state.mission is None
+    assert app.mission_state.restart_from == pytest.approx((32.5, 152.5))           # from the last estimate
     texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
     assert "FAILSAFE" in texts and why in texts
     holds = [m for m in sent if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
@@ -37,7 +37,7 @@ def test_navigation_failure_holds_and_restarts(rig, bad, why):
 def test_good_step_streams_and_publishes(rig):
     app, fc = rig
     app.params.set_value("COMP_POS_PUB", 0)      # EXTERNAL_POSITION_ESTIMATE (the default is GPS_INPUT)
-    app.apply_params()
+    app.settings.apply()
     _run_step(app, GOOD)
     app.next_tick = -math.inf
     app.tick()
@@ -55,23 +55,23 @@ def test_a_steps_new_command_is_streamed_in_the_tick_that_made_it(rig):
     # streamed only before the step, the new course waited a tick (1 / COMP_SP_RATE_HZ); the
     # old one still goes out first, keeping the stream's cadence whatever the step costs
     app, fc = rig
-    app.mission = FakeMission(GOOD)
+    app.mission_state.mission = FakeMission(GOOD)
     # the course flown so far (no estimate: the stand-in core has nothing to judge against)
-    app.command = replace(GOOD, course_rad=0.4, step=4, est_lat_deg=math.nan)
+    app.mission_state.command = replace(GOOD, course_rad=0.4, step=4, est_lat_deg=math.nan)
     app.mag.averager.add(0.5, 1.0, 50.0)
-    app.next_step_m = app.mission_time()                              # a step is due now
+    app.mission_state.next_step_m = app.mission_time()                              # a step is due now
     app.next_tick = -math.inf
     app.tick()
     old, new = [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
-    assert old.yaw == pytest.approx(0.4) and new.yaw == pytest.approx(GOOD.course_rad) and app.command is GOOD
+    assert old.yaw == pytest.approx(0.4) and new.yaw == pytest.approx(GOOD.course_rad) and app.mission_state.command is GOOD
 
 
 def test_a_step_that_ends_the_mission_streams_no_setpoint_after_it(rig):
     app, fc = rig
-    app.mission = FakeMission(replace(GOOD, done=True, phase="arrived", speed_mps=0.0))
-    app.command = replace(GOOD, est_lat_deg=math.nan)
+    app.mission_state.mission = FakeMission(replace(GOOD, done=True, phase="arrived", speed_mps=0.0))
+    app.mission_state.command = replace(GOOD, est_lat_deg=math.nan)
     app.mag.averager.add(0.5, 1.0, 50.0)
-    app.next_step_m = app.mission_time()
+    app.mission_state.next_step_m = app.mission_time()
     app.next_tick = -math.inf
     app.tick()
     assert app.state == State.DONE
@@ -82,7 +82,7 @@ def test_a_step_that_ends_the_mission_streams_no_setpoint_after_it(rig):
 def test_odometry_when_selected(rig):
     app, fc = rig
     app.params.set_value("COMP_POS_PUB", 1)
-    app.apply_params()
+    app.settings.apply()
     app.handle(_msg("GLOBAL_POSITION_INT", time_boot_ms=1000, lat=325000000, lon=1525000000, alt=0, relative_alt=0,
                     vx=0, vy=0, vz=0, hdg=0))
     app.handle(_msg("LOCAL_POSITION_NED", time_boot_ms=1000, x=1000.0, y=-500.0, z=0.0, vx=0.0, vy=0.0, vz=0.0))
@@ -95,11 +95,11 @@ def test_odometry_when_selected(rig):
 
 def test_real_mission_first_step_probes_east(rig):
     app, fc = rig
-    app.mission = Mission(NavConfig.from_values(default_values()))
+    app.mission_state.mission = Mission(NavConfig.from_values(default_values()))
     h, z = 45000.0 * math.cos(math.radians(48.0)), 45000.0 * math.sin(math.radians(48.0))   # F 45,000 nT
     app.mag.averager.add(0.5, -1.5, 48.0, (h * math.cos(math.radians(-1.5)), h * math.sin(math.radians(-1.5)), z))
-    app.stepper.step(1.0, window_limit_s=0.0)
-    assert app.command.phase == "probe1" and app.command.course_rad == pytest.approx(math.pi / 2)
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
+    assert app.mission_state.command.phase == "probe1" and app.mission_state.command.course_rad == pytest.approx(math.pi / 2)
 
 
 def test_a_gap_inside_the_estimates_own_uncertainty_is_not_a_divergence(rig):
@@ -108,11 +108,11 @@ def test_a_gap_inside_the_estimates_own_uncertainty_is_not_a_divergence(rig):
     app, fc = rig
     far = replace(GOOD, fix_lat_deg=32.5 + 60e3 / 111e3)
     _run_step(app, replace(far, est_cov_en_m2=(40e3 ** 2, 0.0, 40e3 ** 2)))
-    assert app.state == State.RUNNING and app.restarts == 0
+    assert app.state == State.RUNNING and app.mission_state.restarts == 0
     _sent(fc)
-    app.command = None                       # judged as a first step again: the stand-in core has no field model
+    app.mission_state.command = None                       # judged as a first step again: the stand-in core has no field model
     _run_step(app, replace(far, est_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
-    assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
+    assert app.mission_state.restarts == 1 and "diverged: 60.0 km" in "".join(
         m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
 
 
@@ -124,11 +124,11 @@ def test_a_gap_inside_the_fixs_own_uncertainty_is_not_a_divergence(rig):
     app, fc = rig
     far = replace(GOOD, fix_lat_deg=32.5 + 60e3 / 111e3, est_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2))
     _run_step(app, replace(far, fix_cov_en_m2=(40e3 ** 2, 0.0, 40e3 ** 2)))
-    assert app.state == State.RUNNING and app.restarts == 0
+    assert app.state == State.RUNNING and app.mission_state.restarts == 0
     _sent(fc)
-    app.command = None
+    app.mission_state.command = None
     _run_step(app, replace(far, fix_cov_en_m2=(5e3 ** 2, 0.0, 5e3 ** 2)))
-    assert app.restarts == 1 and "diverged: 60.0 km" in "".join(
+    assert app.mission_state.restarts == 1 and "diverged: 60.0 km" in "".join(
         m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
 
 
@@ -189,7 +189,7 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     app, fc = rig
     KP_MAX_AGE_S = READINGS["NAV_KP"]
     mission = _SeeingMission(GOOD)
-    app.mission = mission
+    app.mission_state.mission = mission
     app.params.values["NAV_KP"] = 6.0                                  # as if loaded from the .parm file
 
     def step_at(t_s: float) -> float:
@@ -198,8 +198,8 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=int(t_s * 1000)))
         assert app.now == t_s
         app.mag.averager.add(app.mission_time() - 0.5, 1.0, 50.0)
-        app.command = None    # each step as the first: no plausibility judgement (the core is prepared)
-        app.stepper.step(app.mission_time())
+        app.mission_state.command = None    # each step as the first: no plausibility judgement (the core is prepared)
+        app.phases.step(app.now, app.mission_time())
         return mission.seen[-1].kp
 
     assert math.isnan(step_at(10.0))                                   # the file's value: none
@@ -207,7 +207,7 @@ def test_nav_kp_is_a_reading_used_only_while_the_ground_station_renews_it(rig):
     param_set.pack(mavlink.MAVLink(None, 255, 190))                    # from the ground station
     app.handle(param_set)
     assert app.params.age_s("NAV_KP", app.now) == pytest.approx(0.0)
-    assert not app.params_dirty              # a reading: no configuration is rebuilt for it
+    assert not app.settings.dirty              # a reading: no configuration is rebuilt for it
     assert step_at(20.0) == 7.0                                        # set over the link: the step's Kp
     assert step_at(10.0 + KP_MAX_AGE_S - 60.0) == 7.0                  # within an index period and the delay
     _sent(fc)
@@ -241,10 +241,10 @@ def test_a_rejected_period_is_said_counted_and_the_last_command_flies_on(rig):
                    reason="measurement rejected: ValueError: latitude 115.94 deg outside [-90, 90]")
     mission = FakeMission(held)
     mission.rejected_measurements, mission.rejected_fixes = 1, 7
-    app.command = None                       # judged as a first step: the stand-in core has no field model
-    app.mission = mission
+    app.mission_state.command = None                       # judged as a first step: the stand-in core has no field model
+    app.mission_state.mission = mission
     app.mag.averager.add(1.5, 1.0, 50.0)
-    app.stepper.step(2.0)
+    app.phases.step(app.now, 2.0)
     app.next_tick = -math.inf
     app.tick()
     sent = _sent(fc)
@@ -256,5 +256,5 @@ def test_a_rejected_period_is_said_counted_and_the_last_command_flies_on(rig):
     setpoints = [m for m in sent if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
     assert setpoints and all(m.yaw == pytest.approx(GOOD.course_rad) for m in setpoints)
     assert math.hypot(setpoints[-1].vx, setpoints[-1].vy) == pytest.approx(GOOD.speed_mps, rel=1e-6)
-    assert app.state == State.RUNNING and app.restarts == 0
-    assert app.reporting.summary()["nav_rejected"] == {"periods": 1, "fixes": 7}
+    assert app.state == State.RUNNING and app.mission_state.restarts == 0
+    assert app.summary()["nav_rejected"] == {"periods": 1, "fixes": 7}

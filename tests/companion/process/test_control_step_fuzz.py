@@ -74,16 +74,16 @@ def test_no_period_makes_the_companion_step_raise_or_send_an_unsafe_setpoint(tmp
         @given(st.lists(PERIOD, min_size=1, max_size=10))
         def fly(periods):
             examples.append(len(periods))
-            app.mission, app.command, app.machine.state = Mission(nav), None, State.RUNNING
+            app.mission_state.mission, app.mission_state.command, app.machine.state = Mission(nav), None, State.RUNNING
             period, where = nav.period_s, (nav.start_lat_deg, nav.start_lon_deg)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 for k, p in enumerate(periods):
-                    if app.mission is None or app.state != State.RUNNING:   # restarted (the companion's own
+                    if app.mission_state.mission is None or app.state != State.RUNNING:   # restarted (the companion's own
                         break                                                # divergence judgement) or ended
-                    course = app.command.course_rad if app.command is not None else 0.0
-                    app.stepper.step(k * period, avg=_average(k * period, p, where, course))
-                    cmd = app.command
+                    course = app.mission_state.command.course_rad if app.mission_state.command is not None else 0.0
+                    app.phases.step(app.now, k * period, avg=_average(k * period, p, where, course))
+                    cmd = app.mission_state.command
                     if cmd is None:
                         continue
                     assert math.isfinite(cmd.course_rad) and 0.0 <= cmd.speed_mps <= nav.speed_mps * (1 + 1e-9), cmd

@@ -9,8 +9,8 @@ from tests.companion.process.rig import GOOD, FakeMission, _sent
 def test_silent_flight_controller_is_judged_in_wall_time(rig):
     """No message at all: message time stands still, so only the wall clock can tell."""
     app, fc = rig
-    app.mission = FakeMission(GOOD)
-    app.command = GOOD
+    app.mission_state.mission = FakeMission(GOOD)
+    app.mission_state.command = GOOD
     start = app.link.fc.last_heartbeat_wall_s
     app.link.wall = lambda: start + 3.5                                # 3.5 s of silence (COMP_HB_TMO_S = 3)
     app.out.last_hb_sent_wall = -math.inf

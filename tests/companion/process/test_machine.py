@@ -69,7 +69,7 @@ def test_dot_draws_every_edge():
 
 def test_only_the_machine_assigns_the_phase():
     """Every phase change goes through PhaseMachine.fire: no part writes ``machine.state``."""
-    for path in sorted(PROCESS.glob("*.py")):
+    for path in sorted(PROCESS.rglob("*.py")):
         if path.name == "machine.py":
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):

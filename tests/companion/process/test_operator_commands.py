@@ -44,7 +44,7 @@ def test_hold_stops_the_mission_and_resume_takes_it_back(rig):
     _command(app, PAUSE, 0.0)
     sent = _sent(fc)
     assert _acks(sent) == [(PAUSE, ACCEPTED, *GCS)] and app.operator.held
-    assert _mode_commands(sent) == [HOLD] and math.isfinite(app.paused_since)
+    assert _mode_commands(sent) == [HOLD] and math.isfinite(app.clock.paused_since)
     _at(app, 3.0)                                     # the FC still in GUIDED (the HOLD on its way)
     setpoints = [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
     assert setpoints and all(m.vx == 0.0 and m.vy == 0.0 for m in setpoints)   # no command while held
@@ -57,7 +57,7 @@ def test_hold_stops_the_mission_and_resume_takes_it_back(rig):
     assert _mode_commands(sent) == [GUIDED]
     _at(app, 9.0, GUIDED)
     _at(app, 10.0, GUIDED)
-    assert not math.isfinite(app.paused_since) and app.mission_time() == pytest.approx(3.0)
+    assert not math.isfinite(app.clock.paused_since) and app.mission_time() == pytest.approx(3.0)
 
 
 def test_commands_the_phase_cannot_take_and_a_strangers(rig):
@@ -81,14 +81,14 @@ def test_the_status_a_ground_station_reads_back(rig):
     _run_step(app, replace(GOOD, est_cov_en_m2=(250_000.0, 120_000.0, 640_000.0)))
     _at(app, 2.0)                                     # a tick with fresh sensors: healthy
     _sent(fc)
-    app.out.heartbeat()
-    app.out.operator_status()
+    app.out.heartbeat(app.state, app.failsafe_active)
+    app.telemetry.operator_status()
     app.handle(_from(GCS, "PARAM_REQUEST_READ", target_system=1, target_component=191, param_id=b"NAV_DEST_LAT",
                      param_index=-1))
     reader = StatusReader(system=1, component=191)
     taken = [reader.packet(m, 100.0) for m in _sent(fc)]
     assert any(taken)
-    lat, lon = app.out.current_estimate()
+    lat, lon = app.out.estimate.position()
     assert reader.phase == "running" and reader.estimate == pytest.approx((lat, lon), abs=1e-7)
     assert reader.cov_ne_m2 == (640_000.0, 120_000.0, 250_000.0)     # north-north, north-east, east-east
     assert reader.sigma_m == 800.0 and reader.remaining_m == 70_000.0 and reader.failsafes == 0
@@ -97,7 +97,7 @@ def test_the_status_a_ground_station_reads_back(rig):
     assert "phase running" in lines and "1-sigma 800 m" in lines and "70.00 km" in lines
     assert "not renewed: NAV_SYMH" in lines and "failsafes: none" in lines
     app.health.reasons = ["mag: no valid magnetometer sample for 2.5 s"]
-    app.out.operator_status()
+    app.telemetry.operator_status()
     for m in _sent(fc):
         reader.packet(m, 101.0)
     assert failsafe_names(reader.failsafes) == ["mag"] and "(FAILSAFE)" in reader.lines(101.0)[0]

@@ -8,7 +8,9 @@ import pytest
 from companion.app import State
 from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
+from companion.process.machine import Event
 from companion.process.mode_commands import MODE_CONFIRM_S
+from companion.process.phases import Transition
 from tests.companion.process.rig import ARMED_GUIDED, GOOD, _msg, _run_step, _sent
 from tests.ports import free_port
 
@@ -19,19 +21,19 @@ def test_flight_controller_reboot_continues_the_mission(rig):
     navigation restart). It used to restart the mission as a navigation failure."""
     app, fc = rig
     _run_step(app, GOOD)
-    mission, number = app.mission, app.mission_no
+    mission, number = app.mission_state.mission, app.mission_state.mission_no
     for ms in range(2_000, 30_001, 4_000):                                       # the clock ticks on to 30 s
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_000))          # one frame 28 s back: no reboot
     assert app.state == State.RUNNING and app.link.clock.far_past == 1
-    to_go = app.next_step_m - app.mission_time()                                 # until the next step
+    to_go = app.mission_state.next_step_m - app.mission_time()                                 # until the next step
     _sent(fc)
     for ms in (2_100, 2_200, 2_300):                                               # the new base ticks on ...
         app.handle(_msg("ATTITUDE", time_boot_ms=ms, roll=0, pitch=0, yaw=0, rollspeed=0, pitchspeed=0,
                         yawspeed=0))
     app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "base_mode": 1, "custom_mode": 16}))   # ... disarmed, booting
     app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=2_400))          # and its SYSTEM_TIME: a reboot
-    assert app.state == State.READY and app.restarts == 0 and app.mission is mission
+    assert app.state == State.READY and app.mission_state.restarts == 0 and app.mission_state.mission is mission
     assert app.resume.pending is not None and app.resume.pending.command.step == GOOD.step
     sent = _sent(fc)
     said = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
@@ -44,9 +46,9 @@ def test_flight_controller_reboot_continues_the_mission(rig):
         app.intake.last_valid = {SampleKind.MAG: app.now, SampleKind.ATTITUDE: app.now}
         app.next_tick = -math.inf
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
-    assert app.state == State.RUNNING and app.mission is mission and app.mission_no == number and app.restarts == 0
-    assert app.command.step == GOOD.step and app.resume.resumed_from == f"mission {number} step {GOOD.step}"
-    assert app.next_step_m - app.mission_time() == pytest.approx(to_go, abs=0.5)   # the step clock kept
+    assert app.state == State.RUNNING and app.mission_state.mission is mission and app.mission_state.mission_no == number and app.mission_state.restarts == 0
+    assert app.mission_state.command.step == GOOD.step and app.resume.resumed_from == f"mission {number} step {GOOD.step}"
+    assert app.mission_state.next_step_m - app.mission_time() == pytest.approx(to_go, abs=0.5)   # the step clock kept
 
 
 def test_operator_mode_change_is_respected(rig):
@@ -64,7 +66,7 @@ def test_operator_mode_change_is_respected(rig):
     sent = _sent(fc)
     assert "FC left GUIDED (now MANUAL)" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
     assert not [m for m in sent if m.get_type() == "COMMAND_LONG"]               # no GUIDED, no arm
-    assert math.isfinite(app.paused_since)                                       # mission clock stopped
+    assert math.isfinite(app.clock.paused_since)                                       # mission clock stopped
 
 
 # --- issue 10 item 5: the companion's own mode commands are told from a pilot's --------------------
@@ -97,7 +99,7 @@ def _failsafe_then_recovered(app, fc) -> None:
     assert app.failsafe_active and _mode_commands(_sent(fc)) == [HOLD]
     _at(app, 6.0)
     _at(app, 7.5)                                                     # healthy for 1.5 s
-    assert not app.failsafe_active and not math.isfinite(app.paused_since)
+    assert not app.failsafe_active and not math.isfinite(app.clock.paused_since)
     assert "healthy again" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
 
 
@@ -113,7 +115,7 @@ def test_a_late_hold_of_ours_is_taken_back_not_read_as_a_pilots(rig):
     assert not app.modes.pending or list(app.modes.pending) == [GUIDED]
     _at(app, 10.0, GUIDED)
     _at(app, 11.0, GUIDED)
-    assert app.state == State.RUNNING and not math.isfinite(app.paused_since)   # flying the mission again
+    assert app.state == State.RUNNING and not math.isfinite(app.clock.paused_since)   # flying the mission again
     assert [m for m in _sent(fc) if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
 
 
@@ -125,7 +127,7 @@ def test_a_hold_after_our_command_expired_is_the_pilots(rig):
     _at(app, 5.0 + MODE_CONFIRM_S + 2.0, HOLD)
     sent = _sent(fc)
     assert "FC left GUIDED (now HOLD): mission paused" in "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")
-    assert not _mode_commands(sent) and math.isfinite(app.paused_since)
+    assert not _mode_commands(sent) and math.isfinite(app.clock.paused_since)
     assert app.modes.expired >= 1
 
 
@@ -161,15 +163,15 @@ def test_filter_calibrates_at_a_nav_start_start(rig, monkeypatch, fus_model):
     app, _ = rig
     app.machine.state = State.READY
     app.params.set_value("FUS_MODEL", fus_model)
-    app.apply_params()
+    app.settings.apply()
     monkeypatch.setattr(app.stepper, "step", lambda *a, **k: None)   # the mission's set-up, not its first step
     for t in range(10):
         app.mag.averager.add(0.1 * t, -3.9, 44.3)
     assert app.preparation.start_position()[2] == "NAV_START"
-    app.phases.start_mission(app.now)
-    mission = app.mission
+    app.phases.take(Transition(Event.ENGAGED), app.now)                 # ready -> running: the mission starts
+    mission = app.mission_state.mission
     assert mission.estimator is not None and mission.estimator.calibrate_start
-    assert mission.start_sigma_m == app.nav_cfg.gps_sigma_m
+    assert mission.start_sigma_m == app.settings.nav.gps_sigma_m
 
 
 def test_px4s_messages_read_before_its_first_heartbeat_do_not_start_the_companion_as_ardupilot(tmp_path):
@@ -199,7 +201,7 @@ def test_px4s_messages_read_before_its_first_heartbeat_do_not_start_the_companio
             if app.state != State.WAIT_FC:
                 break
         assert app.state != State.WAIT_FC, "the PX4 heartbeat was not taken"
-        detected = [e for e in app.out.events if "detected" in e]
+        detected = [e for e in app.voice.events if "detected" in e]
         assert len(detected) == 1 and "PX4 FC sysid 3 detected" in detected[0], detected
         assert app.link.fc.conventions.name == "PX4" and app.fc_view.family == app.link.fc.conventions.family
         assert app.link.stats.before_heartbeat >= 1, "the batch did not hold messages before the heartbeat"

@@ -202,19 +202,19 @@ def test_the_control_step_excludes_an_offset_measurement_and_keeps_flying(rig):
     """A real core: after the first step, a period with F 3000 nT off is not given to it."""
     app, fc = rig
     config = NavConfig.from_values(default_values())
-    app.mission = Mission(config)
+    app.mission_state.mission = Mission(config)
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
     app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(ned))
-    app.stepper.step(1.0, window_limit_s=0.0)
-    first = app.command
-    assert first.phase == "probe1" and app.mission.k == 1
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
+    first = app.mission_state.command
+    assert first.phase == "probe1" and app.mission_state.mission.k == 1
     _sent(fc)
     offset = ned * (1.0 + 3000.0 / float(start.f_nt))                     # |F| 3000 nT more, same direction
     app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(offset))
-    app.stepper.step(361.0)
-    assert app.mission.k == 1 and app.command is first                   # the core never saw it
-    assert app.next_step_m == pytest.approx(361.0 + app.mission.config.period_s)
+    app.phases.step(app.now, 361.0)
+    assert app.mission_state.mission.k == 1 and app.mission_state.command is first                   # the core never saw it
+    assert app.mission_state.next_step_m == pytest.approx(361.0 + app.mission_state.mission.config.period_s)
     texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
     # the prediction flew the probe (east, 5 km): the model's F there differs by a few nT
     assert re.search(r"implausible magnetometer step: \|F\| \+30\d\d nT off the model, excluded", texts), texts
@@ -231,22 +231,22 @@ def test_a_constant_intensity_level_from_the_start_is_not_an_offset(rig):
     residual, a coarser simulator field) is judged about, so the mission flies; a change still is not."""
     app, fc = rig
     config = NavConfig.from_values({**default_values(), "FUS_MODEL": 1})   # the calibrated constant bias
-    app.mission = Mission(config)
+    app.mission_state.mission = Mission(config)
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
     low = ned * (1.0 - 7000.0 / float(start.f_nt))                        # the level from the start on
     app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(low))
-    app.stepper.step(1.0, window_limit_s=0.0)
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
     assert app.plausibility.f_reference_nt == pytest.approx(-7000.0, abs=1.0)
     app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(low))
-    app.stepper.step(361.0)
-    assert app.mission.k == 2 and app.plausibility.excluded == 0          # the core flew on the level
+    app.phases.step(app.now, 361.0)
+    assert app.mission_state.mission.k == 2 and app.plausibility.excluded == 0          # the core flew on the level
     judged = app.stepper.judgement                                        # kept for steps.csv
     assert judged.ok and judged.noise_m == 0.0 and judged.jump_m < judged.bound_m   # one sample: no scatter known
     jumped = ned * (1.0 - 4000.0 / float(start.f_nt))                     # 3000 nT off the level: excluded
     app.mag.averager.add(400.0, float(start.decl_deg), float(start.incl_deg), tuple(jumped))
-    app.stepper.step(722.0)
-    assert app.mission.k == 2 and app.plausibility.excluded == 1
+    app.phases.step(app.now, 722.0)
+    assert app.mission_state.mission.k == 2 and app.plausibility.excluded == 1
     _sent(fc)
 
 
@@ -256,19 +256,19 @@ def test_the_level_is_learnt_with_the_calibration_the_core_subtracts(rig):
     the first step: later periods were judged ~1000 nT off and excluded)."""
     app, fc = rig
     config = NavConfig.from_values({**default_values(), "NAV_ELEMENTS": 2, "FUS_MODEL": 1})   # (I, F), Table 3
-    app.mission = Mission(config)
+    app.mission_state.mission = Mission(config)
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = np.array([float(start.x_nt), float(start.y_nt), float(start.z_nt)])
     level = 700.0
     high = ned * (1.0 + level / float(start.f_nt))                       # the calibrated level, from the start on
-    app.mission.set_bias(tuple(level if n == "f_nt" else 0.0 for n in app.mission.measured.names))
+    app.mission_state.mission.set_bias(tuple(level if n == "f_nt" else 0.0 for n in app.mission_state.mission.measured.names))
     app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), tuple(high))
-    app.stepper.step(1.0, window_limit_s=0.0)
-    assert app.mission.estimator is None                                 # Table 3's path, its bias subtracted
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
+    assert app.mission_state.mission.estimator is None                                 # Table 3's path, its bias subtracted
     assert app.plausibility.f_reference_nt == pytest.approx(0.0, abs=1.0)
     app.mag.averager.add(200.0, float(start.decl_deg), float(start.incl_deg), tuple(high))
-    app.stepper.step(361.0)
-    assert app.mission.k == 2 and app.plausibility.excluded == 0
+    app.phases.step(app.now, 361.0)
+    assert app.mission_state.mission.k == 2 and app.plausibility.excluded == 0
     assert app.stepper.judgement.f_offset_nt == pytest.approx(0.0, abs=50.0)   # the probe's few km: a few nT
     _sent(fc)
 
@@ -278,19 +278,19 @@ def test_an_excluded_period_is_recorded_with_its_verdict(rig):
     carries the verdict (jump, bound, noise term) in the same columns as a step flown."""
     app, fc = rig
     config = NavConfig.from_values({**default_values(), "FUS_MODEL": 1})   # the calibrated constant bias
-    app.mission = Mission(config)
+    app.mission_state.mission = Mission(config)
     model = model_for_date(config.year)
     start = model.elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg),
                          (float(start.x_nt), float(start.y_nt), float(start.z_nt)))
-    app.stepper.step(1.0, window_limit_s=0.0)
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
     far = model.elements(*(float(v) for v in offset_position(config.start_lat_deg, config.start_lon_deg,
                                                               0.0, -150_000.0)), config.alt_m, config.year)
     scale = float(start.f_nt) / float(far.f_nt)       # |F| as at the start: the band passes, the fix jumps
     app.mag.averager.add(200.0, float(far.decl_deg), float(far.incl_deg),
                          (float(far.x_nt) * scale, float(far.y_nt) * scale, float(far.z_nt) * scale))
-    app.stepper.step(361.0)
-    assert app.mission.k == 1 and app.stepper.judgement.kind == "fix_jump"
+    app.phases.step(app.now, 361.0)
+    assert app.mission_state.mission.k == 1 and app.stepper.judgement.kind == "fix_jump"
     [row] = [r for r in read_steps_csv(app.log_dir / "steps.csv") if r["event"] == "excluded"]
     assert row["jump_m"] == pytest.approx(app.stepper.judgement.jump_m) and row["jump_m"] > 100_000.0
     assert row["bound_m"] == pytest.approx(app.stepper.judgement.bound_m) and row["jump_m"] > row["bound_m"]
@@ -329,7 +329,7 @@ def test_the_control_step_re_anchors_a_wrong_estimate_on_agreeing_exclusions(rig
     the core is re-anchored and its estimate is back within a few km; it is said and recorded."""
     app, fc = rig
     config = NavConfig.from_values({**default_values(), "NAV_REANCHOR_N": 3, "FUS_MODEL": 1})
-    app.mission = Mission(config)
+    app.mission_state.mission = Mission(config)
     model = model_for_date(config.year)
     truth = [config.start_lat_deg, config.start_lon_deg]
 
@@ -339,25 +339,25 @@ def test_the_control_step_re_anchors_a_wrong_estimate_on_agreeing_exclusions(rig
                              (float(here.x_nt), float(here.y_nt), float(here.z_nt)))
 
     def fly(seconds: float) -> None:
-        c = app.command
+        c = app.mission_state.command
         moved = c.speed_mps * seconds
         truth[:] = (float(v) for v in offset_position(truth[0], truth[1], moved * math.sin(c.course_rad),
                                                       moved * math.cos(c.course_rad)))
 
     period = config.period_s
     measure(1.0)
-    app.stepper.step(1.0, window_limit_s=0.0)
-    app.mission.reanchor(np.array([0.0, -150e3]), 500.0)      # what one accepted outlier leaves behind
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
+    app.mission_state.mission.reanchor(np.array([0.0, -150e3]), 500.0)      # what one accepted outlier leaves behind
     t = 1.0
     for _ in range(5):
         fly(period)
         t += period
         measure(t)
-        app.stepper.step(t)
+        app.phases.step(app.now, t)
     texts = "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
     assert "excluded fixes agree: estimate re-anchored 1" in texts, texts
     assert app.plausibility.excluded == 2 and app.plausibility.reanchored == 1
-    est = app.command
+    est = app.mission_state.command
     assert geodesic_distance_m(est.est_lat_deg, est.est_lon_deg, *truth) < 5000.0
     rows = read_steps_csv(app.log_dir / "steps.csv")
     [row] = [r for r in rows if r["event"] == "reanchored"]

@@ -28,12 +28,12 @@ def ready(tmp_path):
 
 def _set(app, name: str, value: float) -> None:
     app.params.set_value(name, value)
-    app.apply_params()
+    app.settings.apply()
 
 
 def test_a_tick_asking_the_same_keeps_the_mission(ready):
     built = ready.preparation.prepared
-    assert built is not None and built.config.start_lat_deg == ready.nav_cfg.start_lat_deg
+    assert built is not None and built.config.start_lat_deg == ready.settings.nav.start_lat_deg
     for _ in range(5):
         ready.preparation.prepare(ready.now)
     assert ready.preparation.prepared is built
@@ -53,7 +53,7 @@ def test_a_parameter_change_builds_a_mission_with_it(ready):
 @pytest.mark.parametrize("moved_m, kept", [(0.5 * PREPARED_START_M, True), (2.0 * PREPARED_START_M, False)])
 def test_a_start_moved_within_the_distance_keeps_the_mission_and_beyond_it_rebuilds(ready, moved_m, kept):
     built = ready.preparation.prepared
-    lat = ready.nav_cfg.start_lat_deg + moved_m * DEG_PER_M
+    lat = ready.settings.nav.start_lat_deg + moved_m * DEG_PER_M
     _set(ready, "NAV_START_LAT", lat)
     ready.preparation.prepare(ready.now)
     assert (ready.preparation.prepared is built) == kept

@@ -48,22 +48,22 @@ def _fly_two_steps(tmp_path):
     app, fc = _app(tmp_path, "first")
     _heard(app, 1.0)
     app.machine.state = State.RUNNING
-    app.m0 = 0.0
+    app.mission_state.m0 = 0.0
     config = NavConfig.from_values(default_values())
-    app.mission = Mission(config)
-    app.mission_no = 1
+    app.mission_state.mission = Mission(config)
+    app.mission_state.mission_no = 1
     app.resume.new_mission()
     start = model_for_date(config.year).elements(config.start_lat_deg, config.start_lon_deg, config.alt_m, config.year)
     ned = (float(start.x_nt), float(start.y_nt), float(start.z_nt))
     app.mag.averager.add(0.5, float(start.decl_deg), float(start.incl_deg), ned)
-    app.stepper.step(1.0, window_limit_s=0.0)
+    app.phases.step(app.now, 1.0, window_limit_s=0.0)
     app.mag.averager.add(300.0, float(start.decl_deg) + 0.01, float(start.incl_deg) - 0.01, ned)
     app.next_tick = math.inf                                            # message time on, no tick
     for ms in range(6_000, 361_001, 5_000):                             # (the clock judges jumps: it ticks on)
         app.handle(_msg("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=ms))
-    app.stepper.step(361.0)
-    saved = (app.mission.k, app.command, np.copy(app.mission.table3.fusion.kf.P) if hasattr(app.mission.table3.fusion, "kf") else None,
-             app.next_step_m, app.resume.mission_id)
+    app.phases.step(app.now, 361.0)
+    saved = (app.mission_state.mission.k, app.mission_state.command, np.copy(app.mission_state.mission.table3.fusion.kf.P) if hasattr(app.mission_state.mission.table3.fusion, "kf") else None,
+             app.mission_state.next_step_m, app.resume.mission_id)
     app.link.close()     # no orderly close: no summary, no hold
     fc.close()
     return saved
@@ -82,11 +82,11 @@ def test_a_recent_state_resumes_the_mission_where_it_was(tmp_path):
         _heard(app, 361.0 + RESUME_MAX_AGE_S - 9.0, armed_guided=True)
         app.next_tick = -math.inf
         app.tick()
-        assert app.state == State.RUNNING and app.mission_no == 1 and app.restarts == 0
-        assert app.mission.k == k and repr(app.command) == repr(command) and app.resume.mission_id == mission_id
+        assert app.state == State.RUNNING and app.mission_state.mission_no == 1 and app.mission_state.restarts == 0
+        assert app.mission_state.mission.k == k and repr(app.mission_state.command) == repr(command) and app.resume.mission_id == mission_id
         if covariance is not None:
-            assert np.array_equal(app.mission.table3.fusion.kf.P, covariance)
-        assert app.next_step_m - app.m0 == pytest.approx(next_step)   # the step clock where it stood
+            assert np.array_equal(app.mission_state.mission.table3.fusion.kf.P, covariance)
+        assert app.mission_state.next_step_m - app.mission_state.m0 == pytest.approx(next_step)   # the step clock where it stood
         assert "resumed at step 1" in "".join(m.text for m in _sent(fc) if m.get_type() == "STATUSTEXT")
         assert app.summary()["resumed_from"] == "mission 1 step 1"
     finally:
@@ -106,7 +106,7 @@ def test_an_old_state_starts_a_new_mission_from_its_last_estimate(tmp_path, when
         assert app.state == State.STARTUP and app.resume.pending is None
         lat, lon, source = app.preparation.start_position()
         assert source == "last estimate" and (lat, lon) == (command.est_lat_deg, command.est_lon_deg)
-        assert (lat, lon) != (app.nav_cfg.start_lat_deg, app.nav_cfg.start_lon_deg)   # never NAV_START mid-route
+        assert (lat, lon) != (app.settings.nav.start_lat_deg, app.settings.nav.start_lon_deg)   # never NAV_START mid-route
     finally:
         app.close()
         fc.close()
