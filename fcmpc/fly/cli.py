@@ -68,10 +68,11 @@ def build_parser() -> ArgumentParser:
                    help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
                         "noise and motor interference, calibrated as a boat's user does (real, the default), or "
                         "SITL's perfect one (ideal); see sitl/firmware/compass.py")
-    p.add_argument("--physics", choices=("builtin", "json"), default="builtin",
-                   help="with --fc ardupilot: its own motorboat paced by the wall clock (builtin), or our world as "
-                        "its physics through its JSON backend, in lockstep with the companion (json; "
-                        "docs/integrator.md); default builtin")
+    p.add_argument("--physics", choices=("builtin", "sih", "json", "hil"), default="builtin",
+                   help="the firmware's physics: its own (builtin: ArduPilot's motorboat paced by the wall clock, "
+                        "PX4's SIH paced by --speedup; 'sih' says the same), or our world in lockstep with the "
+                        "firmware and the companion: json (--fc ardupilot, its JSON backend) or hil (--fc px4, its "
+                        "MAVLink simulator interface); docs/integrator.md; default builtin")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:AT_S[:DURATION_S[:VALUE]]",
                    help="simulator fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -105,7 +106,8 @@ def _run(argv: list[str] | None) -> int:
                          extra_params=param_items(args.param), compare=args.compare, plot=not args.no_plot,
                          tlog=not args.no_tlog, data_dir=args.data_dir,
                          progress_s=None if args.no_progress or args.json else 10.0, fc=args.fc,
-                         fc_instance=args.fc_instance, compass=args.compass, physics=args.physics)
+                         fc_instance=args.fc_instance, compass=args.compass,
+                         physics="builtin" if args.physics == "sih" else args.physics)
     try:
         scenario, _, _ = prepare(options)          # nothing is written before this passes
         options = _with_storm_params(options, scenario, args.storm_params)

@@ -44,10 +44,15 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     says otherwise; PX4's pacing is its
     speed factor (``--speedup``, default 10)."""
     from sitl.firmware.px4 import px4_root
+    from sitl.firmware.flight import BOAT_CRUISE_KMH
     from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
 
+    if options.physics not in ("builtin", "hil"):
+        raise ValueError(f"physics {options.physics!r}: choose builtin or hil with --fc px4")
     px4_root()
-    return _fly_on(options, "px4", fly_px4, 10.0, COMPANION_VALUES)
+    # in lockstep the boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
+    values = {**COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH} if options.physics == "hil" else COMPANION_VALUES
+    return _fly_on(options, "px4", fly_px4, 10.0, values)
 
 
 def _current(options: FlyOptions, scenario) -> tuple[float, float]:
@@ -73,7 +78,8 @@ def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float
         start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
         values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
         instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass, current_en_mps=_current(options, scenario),
+        compass=options.compass, current_en_mps=_current(options, scenario), physics=options.physics,
+        scenario=scenario, seed=options.seed,
         quiet=options.progress_s is None))
     t = run.truth
     truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \

@@ -47,6 +47,9 @@ class FirmwareFlight:
     deny_gps_at_arming: bool = True
     quiet: bool = False
     compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
+    physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.firmware.px4_hil)
+    scenario: object = None        # the world of a "hil" flight (sitl.scenario.Scenario; default pacific)
+    seed: int = 0
     current_en_mps: tuple[float, float] = (0.0, 0.0)   # our world as the physics (sitl.physics): its current (E, N)
 
 
@@ -141,7 +144,8 @@ def fly_firmware(flight: FirmwareFlight, rig_class) -> FirmwareRun:
              str(out / "companion"), "--exit-when-done", "--quiet", *getattr(rig, "companion_args", ())],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=open(out / "companion.log", "wb"))
-        _say(flight, f"{rig.name} instance {flight.instance} at {flight.speedup:g}x, companion on "
+        pace = "in lockstep" if getattr(rig, "companion_args", ()) else f"at {flight.speedup:g}x"
+        _say(flight, f"{rig.name} instance {flight.instance} {pace}, companion on "
                      f"{rig.companion_url}; records in {out}")
         deadline = wall0 + flight.timeout_s
         last_report = 0.0

@@ -12,6 +12,11 @@ its own temporary one; ``-i N`` shifts its UDP ports (``px4-rc.mavlink``):
   companion's messages there);
 * SIH display link: PX4 on 19450+N streams HIL_STATE_QUATERNION, SIH's ground truth, to 19410+N.
 
+``simulator="mavlink"`` starts PX4's MAVLink simulator interface instead of SIH (``PX4_SIMULATOR``
+other than ``sihsim`` with the same airframe: ``px4-rc.simulator`` then runs ``px4-rc.mavlinksim``,
+``simulator_mavlink start -c 4560+N``): our world is the physics (:mod:`sitl.firmware.px4_hil`), and
+PX4 runs in lockstep with it (its sensor simulators ``sensor_*_sim`` start only with SIH).
+
 Parameters are applied at start through PX4's own ``PX4_PARAM_<NAME>=<value>`` environment
 variables (``rcS`` sets them after the airframe's defaults), from ``params/px4-rover.params``
 (QGroundControl's format) and ``params``. Home is ``SIH_LOC_LAT0/LON0`` (``PX4_HOME_LAT/LON``).
@@ -97,6 +102,7 @@ class Px4Sitl:
     params: dict[str, float] = field(default_factory=dict)
     project_params: bool = True
     root: Path | None = None
+    simulator: str = "sih"          # "sih": PX4's own physics; "mavlink": simulator_mavlink (lockstep, ours)
     process: subprocess.Popen | None = None
 
     @staticmethod
@@ -139,12 +145,18 @@ class Px4Sitl:
         env = {k: v for k, v in os.environ.items() if not k.startswith("PX4_")}
         env.update({"PATH": f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", "PX4_WORKDIR": str(self.workdir),
                     "PX4_INSTANCE": str(self.instance), "PX4_SIM_MODEL": self.model, "PX4_CLEAN": "1",
-                    "PX4_SIM_SPEED_FACTOR": f"{self.speed_factor:g}", "PX4_HOME_LAT": repr(float(self.home[0])),
+                    "PX4_HOME_LAT": repr(float(self.home[0])),
                     "PX4_HOME_LON": repr(float(self.home[1])), "PX4_HOME_ALT": "0"})
+        if self.simulator == "mavlink":
+            env["PX4_SIMULATOR"] = "mavlink"        # anything but sihsim/gz: px4-rc.mavlinksim
+        else:
+            env["PX4_SIM_SPEED_FACTOR"] = f"{self.speed_factor:g}"
         env.update({f"PX4_PARAM_{name}": _format(value) for name, value in self.all_params().items()})
         return env
 
     def start(self) -> Px4Sitl:
+        if self.simulator not in ("sih", "mavlink"):
+            raise ValueError(f"PX4 simulator must be 'sih' or 'mavlink', got {self.simulator!r}")
         if not 0 <= self.instance <= MAX_INSTANCE:
             raise ValueError(f"PX4 instance must be 0..{MAX_INSTANCE}, got {self.instance}")
         root = self.root or px4_root()
@@ -152,7 +164,10 @@ class Px4Sitl:
         Path(self.workdir).mkdir(parents=True, exist_ok=True)
         log = open(self.log_path, "wb")
         try:
-            self.process = subprocess.Popen(["/bin/sh", str(root / "run_sih.sh")], cwd=self.workdir,
+            # run_sih.sh forces SIH; simulator_mavlink runs the binary as that script does (-d: no shell)
+            command = ["/bin/sh", str(root / "run_sih.sh")] if self.simulator == "sih" else \
+                [str(root / "bin" / "px4"), "-d", "-i", str(self.instance), "-w", str(self.workdir), str(root / "etc")]
+            self.process = subprocess.Popen(command, cwd=self.workdir,
                                             env=self.environment(root), stdout=log, stderr=subprocess.STDOUT,
                                             stdin=subprocess.DEVNULL, start_new_session=True)
         finally:

@@ -16,7 +16,8 @@ from sitl.firmware.flight import FirmwareFlight, FirmwareRun, fly_firmware
 from sitl.firmware.monitor import FirmwareMonitor
 from sitl.firmware.px4 import Px4Sitl, px4_root
 
-__all__ = ["COMPANION_VALUES", "MONITOR_RATES_HZ", "Px4Rig", "deny_gps", "fly_px4"]
+__all__ = ["COMPANION_VALUES", "HIL_GATE_TIMEOUT_S", "HIL_LOCKSTEP_PERIOD_S", "HIL_VALUES", "MONITOR_RATES_HZ",
+           "Px4HilRig", "Px4Rig", "deny_gps", "fly_px4"]
 
 # The companion's parameters against PX4 SIH, for the main job and the tests alike:
 # NAV_SPEED_KMH 10.8 (3 m/s): SIH's Ackermann rover with params/px4-rover.params (RO_SPEED_LIM 3);
@@ -59,6 +60,9 @@ class Px4Rig:
 
     def start(self) -> FirmwareMonitor:
         self.sitl.start()
+        return self._monitor()
+
+    def _monitor(self) -> FirmwareMonitor:
         monitor = FirmwareMonitor(self.sitl.gcs_url, rates_hz=MONITOR_RATES_HZ)
         try:
             monitor.start()
@@ -82,7 +86,65 @@ class Px4Rig:
         self.sitl.stop()
 
 
+# The world waits for the companion every 0.4 s of PX4's time (the stand-in's PX4 lockstep period);
+# PX4's offboard-loss timeout (COM_OF_LOSS_T, simulated time) then keeps a margin over one period of slack
+HIL_LOCKSTEP_PERIOD_S = 0.4
+HIL_OFFBOARD_LOSS_S = 2.0
+# Wall time the world waits for the companion at a boundary before going on alone: a control step on a
+# machine at load 20 took over 5 s (PX4 then lost offboard 2 s of its time later, at 7x 0.3 s of wall time)
+HIL_GATE_TIMEOUT_S = 120.0
+# The ground station's heartbeats (the monitor's, 1 Hz of wall time) arrive every 5-20 s of PX4's time in
+# lockstep: "Connection to ground station lost" every few seconds. The data link is not what a run
+# measures; neither is the simulated battery (SIM_BAT_MIN_PCT 100: it never drains to a warning)
+HIL_VALUES = {"COM_LOW_BAT_ACT": 0, "COM_OF_LOSS_T": HIL_OFFBOARD_LOSS_S, "COM_DL_LOSS_T": 300.0,
+              "SIM_BAT_MIN_PCT": 100.0}
+
+
+class Px4HilRig(Px4Rig):
+    """PX4 in lockstep with our world (:mod:`sitl.firmware.px4_hil`): the bridge is PX4's physics and
+    relays its onboard link to the companion, which runs with ``--lockstep``; the monitor reads the
+    truth PX4 forwards from the bridge (HIL_STATE_QUATERNION)."""
+
+    name = "PX4 SITL (lockstep, our world)"
+    companion_args = ("--lockstep",)
+
+    def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
+        from sitl.clock import LockstepGate
+        from sitl.firmware.px4_hil import Px4HilBridge, hil_params, hil_world
+        from sitl.scenario import load_scenario
+
+        scenario = flight.scenario if flight.scenario is not None else load_scenario("pacific")
+        world = hil_world(scenario, flight.seed)
+        self.sitl = Px4Sitl(workdir=out / "px4", instance=flight.instance, home=flight.start, simulator="mavlink",
+                            params={**HIL_VALUES, **hil_params(world.dynamics), **(params or {})}, root=px4_root())
+        self.bridge = Px4HilBridge(flight.instance, world, scenario.start_posix,
+                                   LockstepGate(HIL_LOCKSTEP_PERIOD_S, timeout_s=HIL_GATE_TIMEOUT_S))
+
+    def start(self) -> FirmwareMonitor:
+        self.bridge.listen()
+        self.sitl.start()
+        self.bridge.start()
+        return super()._monitor()
+
+    @property
+    def companion_url(self) -> str:
+        return self.bridge.companion_url
+
+    def deny_gps(self, monitor: FirmwareMonitor) -> None:   # noqa: ARG002
+        self.bridge.deny_gps()
+
+    def stop(self) -> None:
+        """Stop PX4 and the bridge; the bridge's counts (frames, timeouts, lockstep waits) go to
+        ``px4/hil_stats.json``."""
+        self.sitl.stop()
+        self.bridge.stop()
+        import json
+
+        (Path(self.sitl.workdir) / "hil_stats.json").write_text(json.dumps(self.bridge.stats(), indent=1))
+
+
 def fly_px4(flight: FirmwareFlight) -> FirmwareRun:
-    """Fly one mission to its end against PX4 SIH. Raises FirmwareMissing without the firmware."""
+    """Fly one mission to its end against PX4: SIH (``flight.physics`` "builtin") or in lockstep
+    with our world ("hil"). Raises FirmwareMissing without the firmware."""
     px4_root()                        # FirmwareMissing before anything is written
-    return fly_firmware(flight, Px4Rig)
+    return fly_firmware(flight, Px4HilRig if flight.physics == "hil" else Px4Rig)

@@ -160,6 +160,25 @@ def assert_forward_on(truth, t0: float, t1: float, course_deg: float, min_speed_
     return errors
 
 
+def commands_flown(steps_csv: Path, truth, t_lost: float, t_end: float, min_speed_mps: float):
+    """The companion's commands from ``t_lost`` on, each judged on the true track (``assert_forward_on``;
+    a command shorter than 60 s is skipped): (seconds flown on them, how many, sorted track errors in deg).
+    A command holds until the next step: a period whose fix the plausibility check excludes flies the
+    last command on."""
+    from companion.io.records import read_steps_csv
+
+    steps = [r for r in read_steps_csv(steps_csv) if r["event"] == "step"]
+    ends = [following["msg_time_s"] for following in steps[1:]] + [t_end]
+    flown_s, commands, off_deg = 0.0, 0, []
+    for step, end in zip(steps, ends):
+        start = step["msg_time_s"]
+        if start < t_lost or end - start < 60.0:
+            continue
+        off_deg += assert_forward_on(truth, start + 20.0, end, step["course_deg"], min_speed_mps)
+        flown_s, commands = flown_s + end - start, commands + 1
+    return flown_s, commands, sorted(off_deg)
+
+
 # --- PX4 SITL with SIH ---------------------------------------------------------------------------
 # PX4's speed factor: simulated seconds per wall second. The companion must keep PX4's offboard
 # link fed in wall time (COM_OF_LOSS_T of simulated time), so the tests set that timeout to

@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from companion.io.records import read_steps_csv
-from tests.firmware.conftest import assert_forward_on
+from tests.firmware.conftest import commands_flown
 from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED, WALL_S
 
 
@@ -52,18 +51,10 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course(px4_factory):
     assert mon.texts_matching("feeding our position (HIL_GPS)", 191)
     # a command holds until the next step: a period whose fix the plausibility check excludes flies
     # the last command on (on SIH, where fixes scatter by 100-200 km, 1-4 of 11 periods are excluded)
-    steps = [r for r in read_steps_csv(log_dir / "steps.csv") if r["event"] == "step"]
-    ends = [following["msg_time_s"] for following in steps[1:]] + [after[-1].time_s]
-    flown_s, commands, off_deg = 0.0, 0, []
-    for step, end in zip(steps, ends):
-        start = step["msg_time_s"]
-        if start < t_lost or end - start < 60.0:
-            continue
-        off_deg += assert_forward_on(mon.truth, start + 20.0, end, step["course_deg"], ROVER_MIN_SPEED)
-        flown_s, commands = flown_s + end - start, commands + 1
+    flown_s, commands, off_deg = commands_flown(log_dir / "steps.csv", mon.truth, t_lost, after[-1].time_s,
+                                                ROVER_MIN_SPEED)
     # EKF2's yaw follows the fed track after the loss (the true track ran 14-20 deg off the course
     # before the companion steered its own measured heading, COMP_TRIM_DEG): judged on the median
-    off_deg.sort()
     assert off_deg and off_deg[len(off_deg) // 2] < 5.0, f"true track off the course by {off_deg[len(off_deg) // 2]:.1f} deg (median)"
     # 1800 s less the command in force at the loss (up to one 160 s period) and a last one under 60 s
     assert flown_s >= 1500.0, f"only {flown_s:.0f} s flown on commanded courses without GPS"

@@ -1,0 +1,77 @@
+"""The PX4 lockstep bridge's frames (``sitl.firmware.px4_hil``), against a stand-in for PX4's
+``simulator_mavlink`` on a real TCP socket: no firmware needed."""
+from __future__ import annotations
+
+import math
+import socket
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sitl.firmware.px4_hil import (ARMED_FLAG, FIELDS_IMU_MAG_BARO, HIL_RATE_HZ, HilSensors, HilWorld, Px4HilBridge,
+                                   simulator_port)
+from sitl.sensors import GRAVITY_MPS2, WaveMotion
+from sitl.world.vehicle import VehicleState
+
+FIELD_NT = (25_000.0, -3_000.0, 35_000.0)
+CALM = WaveMotion(0.0, 8.0, 0.0, 6.3, 0.0)
+QUIET = HilSensors(accel_mps2=0.0, gyro_radps=0.0, mag_nt=0.0, baro_hpa=0.0, gps_m=0.0)
+
+
+def _world(course_rad: float = 0.0) -> HilWorld:
+    return HilWorld(VehicleState(33.0, 152.0, course_rad), lambda lat, lon, t: FIELD_NT, waves=CALM, sensors=QUIET)
+
+
+def _decode(bridge: Px4HilBridge, message):
+    return mavlink2.MAVLink(None).decode(bytearray(message.pack(bridge.mav)))
+
+
+def test_a_frame_carries_the_world_in_the_body_frame():
+    """At rest, level, heading east: gravity on -z, the field's north on the body's -y, in gauss."""
+    world = _world(math.pi / 2)
+    bridge = Px4HilBridge(7, world, 0.0)
+    frame = world.step(0.02, 0.02, 0.0, 0.0)
+    msg = _decode(bridge, bridge._sensor_message(frame))
+    assert msg.fields_updated == FIELDS_IMU_MAG_BARO and msg.id == 0
+    assert np.allclose((msg.xacc, msg.yacc, msg.zacc), (0.0, 0.0, -GRAVITY_MPS2), atol=1e-5)
+    assert np.allclose((msg.xmag, msg.ymag, msg.zmag), (-0.03, -0.25, 0.35), atol=1e-6)
+    assert msg.abs_pressure == np.float32(1013.25)
+
+
+def test_gps_has_a_fix_until_denied_then_reports_none():
+    world = _world()
+    bridge = Px4HilBridge(7, world, 1_700_000_000.0)
+    frame = world.step(0.02, 0.02, 0.0, 0.0)
+    fixed = _decode(bridge, bridge._gps_message(frame))
+    assert (fixed.fix_type, fixed.satellites_visible) == (3, 12)
+    assert abs(fixed.lat * 1e-7 - frame.lat_deg) < 1e-6
+    assert fixed.time_usec == 1_700_000_000_000_000 + bridge.t_us     # UTC: PX4's date comes from it
+    bridge.deny_gps()
+    lost = _decode(bridge, bridge._gps_message(frame))
+    assert (lost.fix_type, lost.satellites_visible, lost.lat, lost.lon) == (0, 0, 0, 0)
+
+
+def test_lockstep_each_frame_waits_for_the_answer_and_outputs_move_the_boat():
+    """A stand-in for simulator_mavlink over TCP: it answers every HIL_SENSOR with full throttle,
+    stamped with the frame's time. The frames advance by exactly 1/HIL_RATE_HZ, one per answer, and
+    the boat speeds up under PX4's throttle."""
+    world = _world()
+    bridge = Px4HilBridge(8, world, 0.0).listen()
+    bridge.start(accept_timeout_s=10.0)
+    px4 = socket.create_connection(("127.0.0.1", simulator_port(8)), timeout=10.0)
+    parser, mav = mavlink2.MAVLink(None), mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
+    times = []
+    try:
+        while len(times) < 100:
+            for msg in parser.parse_buffer(px4.recv(65536)) or ():
+                if msg.get_type() == "HIL_SENSOR":
+                    times.append(msg.time_usec)
+                    controls = [0.0, 1.0] + [0.0] * 14
+                    px4.sendall(mav.hil_actuator_controls_encode(msg.time_usec, controls, ARMED_FLAG | 1, 1)
+                                .pack(mav))
+    finally:
+        px4.close()
+        bridge.stop()
+    assert np.all(np.diff(times[:100]) == round(1e6 / HIL_RATE_HZ))
+    assert bridge.actuator_timeouts == 0
+    assert bridge.throttle == 1.0 and world.state.speed_mps > 1.0
