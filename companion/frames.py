@@ -35,7 +35,7 @@ def mat_nb_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Matr
 def mats_nb_from_euler(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
     """:func:`mat_nb_from_euler` of arrays of angles (broadcast): matrices (..., 3, 3).
 
-    >>> mats_nb_from_euler(0.0, 0.0, np.array([0.0, math.pi / 2])).round(9)[1].tolist()
+    >>> (mats_nb_from_euler(0.0, 0.0, np.array([0.0, math.pi / 2])).round(9)[1] + 0.0).tolist()   # (+ 0.0: no -0.0)
     [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     """
     rows = _rotation_nb(np.cos(roll_rad), np.sin(roll_rad), np.cos(pitch_rad), np.sin(pitch_rad), np.cos(yaw_rad),

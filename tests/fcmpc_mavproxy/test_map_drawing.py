@@ -111,7 +111,7 @@ def assert_nothing_at(img: np.ndarray, px: tuple[int, int], radius: int = 12) ->
 
 def _status(app, fc) -> tuple[StatusReader, object]:
     """The companion's operator status and its answers to NAV_DEST_*, read as MAVProxy reads them."""
-    app.out.operator_status()
+    app.telemetry.operator_status()
     for name in (b"NAV_DEST_LAT", b"NAV_DEST_LON"):
         app.handle(_from(GCS, "PARAM_REQUEST_READ", target_system=1, target_component=191, param_id=name,
                          param_index=-1))
