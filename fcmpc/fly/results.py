@@ -10,8 +10,12 @@ Three distances to the destination, kept apart because they answer different que
     where the vehicle came to rest after the mission ended: the headline, what a user standing
     at the destination would measure. Taken from the truth track after the last control step,
     once the vehicle moved less than :data:`REST_TOL_M` over :data:`REST_WINDOW_S`; if the
-    track ends while it still moves, the last point and ``came_to_rest = False``. The in-process
-    Monte Carlo reports where its vehicle comes to rest too (``InProcessFlight.at_rest``).
+    track ends while it still moves, the last point and ``came_to_rest = False``. A boat in a
+    current drifts once stopped: where the simulator logs the speed through the water, the vehicle
+    is at rest from the first sample after the last step at which that speed stayed below
+    :data:`REST_SPEED_MPS` to the end of the track, and the miss is taken there (the drift after
+    it is the water's, not the navigator's). The in-process Monte Carlo reports where its vehicle
+    comes to rest the same way (``InProcessFlight.at_rest``: zero speed, no drift).
 ``step_remaining_m``
     the true distance at the last control step (the step that ended the mission).
 ``believed_remaining_m``
@@ -31,11 +35,12 @@ from companion.io.records import read_steps_csv
 from companion.nav.geo import geodesic_distance_m
 from sitl.truthlog import read_truth_csv
 
-__all__ = ["REST_TOL_M", "REST_WINDOW_S", "STATUS_EXIT", "TruthTrack", "FlyResult", "read_truth_track",
+__all__ = ["REST_SPEED_MPS", "REST_TOL_M", "REST_WINDOW_S", "STATUS_EXIT", "TruthTrack", "FlyResult", "read_truth_track",
            "read_steps", "distances", "result_json", "write_result", "summary_lines"]
 
 REST_TOL_M = 2.0         # moved less than this over REST_WINDOW_S: at rest
 REST_WINDOW_S = 10.0
+REST_SPEED_MPS = 0.05    # speed through the water below this: stopped (drifting with the current at most)
 # status -> exit code of fcmpc-fly
 STATUS_EXIT = {"arrived": 0, "failed": 1, "error": 1, "timeout": 3, "interrupted": 130}
 
@@ -43,8 +48,9 @@ STATUS_EXIT = {"arrived": 0, "failed": 1, "error": 1, "timeout": 3, "interrupted
 @dataclass(frozen=True)
 class TruthTrack:
     """The vehicle's true track (any simulator): time since the start (s), WGS84 lat/lon (deg);
-    optionally the flight controller's own solution (``fc_*``) for the plot and its boot time
-    (``boot_s``, which an FC reboot restarts at 0; absent: the same as ``time_s``)."""
+    optionally the flight controller's own solution (``fc_*``) for the plot, its boot time
+    (``boot_s``, which an FC reboot restarts at 0; absent: the same as ``time_s``) and the speed
+    through the water (``water_speed_mps``; absent where the simulator does not log it)."""
 
     time_s: np.ndarray
     lat_deg: np.ndarray
@@ -52,6 +58,7 @@ class TruthTrack:
     fc_lat_deg: np.ndarray | None = None
     fc_lon_deg: np.ndarray | None = None
     boot_s: np.ndarray | None = None
+    water_speed_mps: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -75,10 +82,11 @@ def read_truth_track(path: str | Path) -> TruthTrack | None:
         return None
     fc_lat, fc_lon = columns.get("fc_lat_deg"), columns.get("fc_lon_deg")
     fc = fc_lat is not None and fc_lon is not None
-    boot = columns.get("boot_s")
+    boot, water = columns.get("boot_s"), columns.get("speed_mps")
     return TruthTrack(np.asarray(columns["time_s"]), np.asarray(columns["lat_deg"]), np.asarray(columns["lon_deg"]),
                       np.asarray(fc_lat) if fc else None, np.asarray(fc_lon) if fc else None,
-                      np.asarray(boot) if boot is not None else None)
+                      np.asarray(boot) if boot is not None else None,
+                      np.asarray(water, float) if water is not None else None)
 
 
 def read_steps(path: str | Path) -> list[dict]:
@@ -127,6 +135,11 @@ def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, fl
     if steps:
         out["step_remaining_m"] = geodesic_distance_m(*truth.position_at(steps[-1]["msg_time_s"]), *dest)
     last = len(t) - 1
+    stopped = _stopped_in_the_water(truth, steps)
+    if stopped is not None:
+        out["came_to_rest"] = True
+        out["rest_remaining_m"] = geodesic_distance_m(truth.lat_deg[stopped], truth.lon_deg[stopped], *dest)
+        return out
     first = int(np.searchsorted(t, t[-1] - REST_WINDOW_S, side="right")) - 1   # the window spans REST_WINDOW_S
     if first >= 0:
         moved = max(geodesic_distance_m(truth.lat_deg[i], truth.lon_deg[i], truth.lat_deg[last],
@@ -134,6 +147,22 @@ def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, fl
         out["came_to_rest"] = bool(moved < REST_TOL_M)
     out["rest_remaining_m"] = geodesic_distance_m(truth.lat_deg[last], truth.lon_deg[last], *dest)
     return out
+
+
+def _stopped_in_the_water(truth: TruthTrack, steps: list[dict]) -> int | None:
+    """Index of the first sample after the last step from which the speed through the water stays
+    below :data:`REST_SPEED_MPS` to the end of the track (for at least :data:`REST_WINDOW_S`);
+    None when the track does not log that speed or the vehicle was still propelled at its end."""
+    speed = truth.water_speed_mps
+    if speed is None or not steps or len(speed) != len(truth):
+        return None
+    clock = truth.time_s if truth.boot_s is None else truth.boot_s
+    after = int(np.searchsorted(truth.time_s, truth.time_s[int(np.argmin(np.abs(clock - steps[-1]["msg_time_s"])))]))
+    moving = np.flatnonzero(~(speed[after:] < REST_SPEED_MPS))
+    index = after if len(moving) == 0 else after + int(moving[-1]) + 1
+    if index > len(speed) - 1 or truth.time_s[-1] - truth.time_s[index] < REST_WINDOW_S:
+        return None
+    return index
 
 
 def result_json(result: FlyResult) -> str:

@@ -93,6 +93,23 @@ def test_distances_separate_last_step_rest_and_belief():
     assert d["believed_remaining_m"] == 320.0 and d["iterations"] == 7 and d["came_to_rest"]
 
 
+def test_a_boat_stopped_in_a_current_is_at_rest_where_it_stopped_not_where_it_drifted():
+    """Speed through the water 0 from 126 s, drifting north-away at 0.8 m/s with the current: at rest
+    (where it stopped); without the water speed logged the same track is still moving at its end."""
+    stop = 150.0
+    t = np.arange(90.0, 400.0)
+    north = np.where(t < 126.0, 400.0 - 10.0 * np.clip(t - 100.0, 0.0, None), stop + 0.8 * (t - 126.0))
+    water = np.where(t < 126.0, 10.0, 0.0)
+    lat, lon = (np.array(v) for v in zip(*(_along(n) for n in north)))
+    steps = [{"step": 7, "msg_time_s": 100.0, "remaining_m": 320.0}]
+    d = distances(TruthTrack(t, lat, lon, water_speed_mps=water), steps, DEST)
+    assert d["came_to_rest"] and d["rest_remaining_m"] == pytest.approx(stop, abs=0.5)
+    drifting = distances(TruthTrack(t, lat, lon), steps, DEST)
+    assert not drifting["came_to_rest"] and drifting["rest_remaining_m"] == pytest.approx(stop + 0.8 * 273, abs=1.0)
+    still_propelled = distances(TruthTrack(t, lat, lon, water_speed_mps=np.where(t < 395.0, 0.0, 1.0)), steps, DEST)
+    assert not still_propelled["came_to_rest"]
+
+
 def test_the_last_step_after_an_fc_reboot_is_found_on_the_new_boot_clock():
     """Message time is the FC's boot time: after a reboot at 1000 s the last step at message time
     200 s happened 1200 s into the run, not 200 s in."""
