@@ -130,9 +130,8 @@ class Navigator:
         if judgement is not None and not judgement.ok and reanchored is None:
             if not self._overdue(judgement):
                 return StepResult(meas, None, judgement, None, verdict, judge_s=core0 - judge0)
-            verdict = ("WARNING", f"FcMPC: {self.plausibility.in_a_row - 1} periods excluded in a row: this one "
+            verdict = ("WARNING", f"FcMPC: {self.plausibility.taken_anyway()} periods excluded in a row: this one "
                                   f"is taken ({judgement.words()})")
-            self.plausibility.in_a_row = 0
         command = self.mission.step(meas)
         core_s = timer() - core0
         if previous is None:

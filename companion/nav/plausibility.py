@@ -241,6 +241,13 @@ class MagPlausibility:
         return (f"FcMPC: {n} excluded fixes agree: estimate re-anchored "
                 f"{float(np.hypot(*shift_en_m)) / 1000.0:.1f} km")
 
+    def taken_anyway(self) -> int:
+        """The period just judged implausible is taken all the same (NAV_EXCL_MAX): it no longer counts
+        as excluded and the run in a row ends. Returns how many periods were excluded in a row before it."""
+        before, self.in_a_row = self.in_a_row - 1, 0
+        self.excluded -= 1
+        return before
+
     def verdict(self, judgement: Judgement) -> tuple[str, str] | None:
         """(severity name, text) to say for this judgement, or None to say nothing."""
         if judgement.ok:

@@ -63,12 +63,16 @@ class TruthTrack:
     def __len__(self) -> int:
         return len(self.time_s)
 
-    def position_at(self, time_s: float) -> tuple[float, float]:
-        """The track's point nearest to the flight controller's message time ``time_s`` (its boot
-        time: after an FC reboot a message time occurs once per boot, and the latest is taken)."""
+    def index_at(self, time_s: float) -> int:
+        """The index of the track's point nearest to the flight controller's message time ``time_s``
+        (its boot time: after an FC reboot a message time occurs once per boot, and the latest is taken)."""
         clock = self.time_s if self.boot_s is None else self.boot_s
         gap = np.abs(clock - time_s)
-        index = int(np.flatnonzero(gap <= gap.min() + 1e-6)[-1])
+        return int(np.flatnonzero(gap <= gap.min() + 1e-6)[-1])
+
+    def position_at(self, time_s: float) -> tuple[float, float]:
+        """The track's point at :meth:`index_at`."""
+        index = self.index_at(time_s)
         return float(self.lat_deg[index]), float(self.lon_deg[index])
 
 
@@ -156,8 +160,7 @@ def _stopped_in_the_water(truth: TruthTrack, steps: list[dict]) -> int | None:
     speed = truth.water_speed_mps
     if speed is None or not steps or len(speed) != len(truth):
         return None
-    clock = truth.time_s if truth.boot_s is None else truth.boot_s
-    after = int(np.searchsorted(truth.time_s, truth.time_s[int(np.argmin(np.abs(clock - steps[-1]["msg_time_s"])))]))
+    after = truth.index_at(steps[-1]["msg_time_s"])
     moving = np.flatnonzero(~(speed[after:] < REST_SPEED_MPS))
     index = after if len(moving) == 0 else after + int(moving[-1]) + 1
     if index > len(speed) - 1 or truth.time_s[-1] - truth.time_s[index] < REST_WINDOW_S:

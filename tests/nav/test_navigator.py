@@ -70,3 +70,4 @@ def test_after_nav_excl_max_exclusions_in_a_row_the_next_period_is_taken(limit):
             assert "excluded in a row: this one is taken" in result.verdict[1]
     expected = [False] * 8 if limit == 0 else [k % (limit + 1) == 0 for k in range(1, 9)]
     assert taken == expected
+    assert navigator.plausibility.excluded == 8 - sum(expected)     # a period taken is not counted excluded
