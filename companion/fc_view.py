@@ -64,7 +64,8 @@ class ArmingBackoff:
 class FcView:
     """The flight controller's heading source, GPS state and position feed; see the module docstring."""
 
-    def __init__(self, heading_source: int, position_publish: int, blend_mps: float = 0.5) -> None:
+    def __init__(self, heading_source: int, position_publish: int, blend_mps: float = 0.5,
+                 accel_mps2: float = math.inf) -> None:
         self.heading_source = heading_source
         self.position_publish = position_publish
         self.reader: FcParamReader | None = None
@@ -72,7 +73,7 @@ class FcView:
         self.gps_fix_time_s = -math.inf       # last GPS_RAW_INT with fix_type >= 3
         self.feed_ack_time_s = -math.inf      # last GPS2_RAW with a fix while we feed: the FC uses our GPS
         self.gps_seen = False
-        self.feed = PositionFeed(blend_mps)
+        self.feed = PositionFeed(blend_mps, accel_mps2)
         self.feeding_own = False              # the feed carries our estimate (the FC has no GPS)
         self.arming = ArmingBackoff()
         self.prearm_text = ""

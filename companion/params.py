@@ -179,6 +179,7 @@ class CompanionConfig:
     heading_source: int
     feed_accuracy_m: float
     feed_blend_mps: float
+    feed_accel_mps2: float
     mag_rate_hz: float
     trim_max_deg: float
     cal_turns: int

@@ -17,8 +17,15 @@ What the flight controller does with it (measured on ArduPilot Rover SITL, see
 commanded to fly, and the correction still to be blended in. ``position(t)`` is the anchor
 moved by the velocity, plus the correction applied so far, which grows by at most
 ``blend_mps * dt`` per call. When the feed starts (GPS just lost), it starts at the flight
-controller's last GPS-aided position, so there is no step at the switch-over, and blends
-towards the companion's estimate from there.
+controller's last GPS-aided position and velocity, so there is no step at the switch-over, and
+blends towards the companion's estimate from there.
+
+A new command does not step the fed velocity: it turns towards it at no more than ``accel_mps2``,
+as the vehicle does. A fed track with a corner is an acceleration the flight controller's IMU
+never measured, and its EKF explains the difference with its tilt and gyro-bias states (measured on
+PX4 in lockstep: a 90-degree corner at 3 m/s left a 0.9 mrad/s pitch gyro bias; the tilt error
+then grew to 13 deg in 7 minutes and the vertical accelerometer bias to its 0.4 m/s^2 limit,
+"High Accelerometer Bias" and a failsafe).
 
 How the feed reaches each flight controller (:func:`send_feed`, measured on the real firmware):
 
@@ -42,7 +49,7 @@ from dataclasses import dataclass
 from companion.nav.geo import enu_offset, offset_position
 
 __all__ = ["GPS_EPOCH_UNIX_S", "GPS_LEAP_S", "FeedSample", "PositionFeed", "feed_message_name", "gps_week_time",
-           "send_feed", "send_hil_gps"]
+           "send_feed", "send_hil_gps", "turn_towards"]
 
 GPS_EPOCH_UNIX_S = 315964800.0   # 1980-01-06T00:00:00Z
 GPS_LEAP_S = 18.0                # GPS - UTC since 2017-01-01
@@ -72,15 +79,48 @@ class FeedSample:
     ve_mps: float
 
 
+TURN_STEP_S = 0.1     # the feed's own rate: a turn is integrated in steps of one sample
+TURN_MIN_MPS = 0.5    # below this speed a velocity changes along a straight line, not by turning
+
+
+def turn_towards(velocity_ne: tuple[float, float], target_ne: tuple[float, float],
+                 change_mps: float) -> tuple[float, float]:
+    """``velocity_ne`` changed towards ``target_ne`` by at most ``change_mps`` of turn (speed times
+    the angle turned) and as much of speed: a vehicle turning at its lateral acceleration while
+    it speeds up or slows down, not cutting the corner through a lower speed.
+
+    >>> [round(v, 3) for v in turn_towards((3.0, 0.0), (0.0, 3.0), 0.3)]   # a tenth of a radian
+    [2.985, 0.3]
+    """
+    (vn, ve), (tn, te) = velocity_ne, target_ne
+    speed, target = math.hypot(vn, ve), math.hypot(tn, te)
+    if speed < TURN_MIN_MPS or target < TURN_MIN_MPS:
+        gap = math.hypot(tn - vn, te - ve)
+        if gap <= change_mps:
+            return target_ne
+        return vn + (tn - vn) * change_mps / gap, ve + (te - ve) * change_mps / gap
+    course, wanted = math.atan2(ve, vn), math.atan2(te, tn)
+    left = (wanted - course + math.pi) % (2.0 * math.pi) - math.pi
+    turn = math.copysign(min(abs(left), change_mps / speed), left)
+    new_speed = speed + math.copysign(min(abs(target - speed), change_mps), target - speed)
+    if turn == left and new_speed == target:
+        return target_ne
+    return new_speed * math.cos(course + turn), new_speed * math.sin(course + turn)
+
+
 class PositionFeed:
     """A smooth position for the flight controller: anchor + velocity * t + blended correction."""
 
-    def __init__(self, blend_mps: float = 0.5) -> None:
+    def __init__(self, blend_mps: float = 0.5, accel_mps2: float = math.inf) -> None:
         if not blend_mps > 0.0:
             raise ValueError(f"blend_mps must be positive, got {blend_mps}")
+        if not accel_mps2 > 0.0:
+            raise ValueError(f"accel_mps2 must be positive, got {accel_mps2}")
         self.blend_mps = blend_mps
+        self.accel_mps2 = accel_mps2
         self.anchor: tuple[float, float, float] | None = None    # (time, lat, lon)
-        self.velocity_ne = (0.0, 0.0)
+        self.velocity_ne = (0.0, 0.0)     # the velocity flown from the anchor on ...
+        self.target_ne = (0.0, 0.0)       # ... turning towards the commanded one at accel_mps2
         self.applied_en = [0.0, 0.0]
         self.pending_en = [0.0, 0.0]
         self.sigma_m = math.nan
@@ -90,9 +130,11 @@ class PositionFeed:
     def started(self) -> bool:
         return self.anchor is not None
 
-    def start(self, time_s: float, lat_deg: float, lon_deg: float, sigma_m: float) -> None:
-        """Begin at a position (the FC's last GPS-aided one) with nothing to blend yet."""
+    def start(self, time_s: float, lat_deg: float, lon_deg: float, sigma_m: float,
+              velocity_ne: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Begin at a position and velocity (the FC's last GPS-aided ones) with nothing to blend yet."""
         self.anchor = (time_s, lat_deg, lon_deg)
+        self.velocity_ne = self.target_ne = tuple(float(v) if math.isfinite(v) else 0.0 for v in velocity_ne)
         self.applied_en, self.pending_en = [0.0, 0.0], [0.0, 0.0]
         self.sigma_m = sigma_m
         self.last_time_s = time_s
@@ -108,19 +150,37 @@ class PositionFeed:
         lat, lon = offset_position(lat0, lon0, east, north)
         return float(lat), float(lon)
 
+    def _reanchor(self, time_s: float) -> None:
+        """Move the anchor to ``time_s``, the velocity turning towards the target on the way
+        (:func:`turn_towards` in steps of :data:`TURN_STEP_S`, then the target)."""
+        t0, lat0, lon0 = self.anchor
+        dt = max(time_s - t0, 0.0)
+        north = east = 0.0
+        while dt > 0.0 and self.velocity_ne != self.target_ne:
+            step = min(dt, TURN_STEP_S)
+            before = self.velocity_ne
+            self.velocity_ne = turn_towards(before, self.target_ne, self.accel_mps2 * step)
+            north += 0.5 * (before[0] + self.velocity_ne[0]) * step
+            east += 0.5 * (before[1] + self.velocity_ne[1]) * step
+            dt -= step
+        north += self.velocity_ne[0] * dt
+        east += self.velocity_ne[1] * dt
+        lat, lon = offset_position(lat0, lon0, east + self.applied_en[0], north + self.applied_en[1])
+        self.anchor = (time_s, float(lat), float(lon))
+        self.applied_en = [0.0, 0.0]
+
     def set_velocity(self, time_s: float, vn_mps: float, ve_mps: float) -> None:
-        """Fly on with a new commanded velocity from ``time_s`` (re-anchors, no jump)."""
+        """Fly on towards a new commanded velocity from ``time_s`` (re-anchors, no jump)."""
         if self.anchor is None:
             return
-        lat, lon = self._raw(time_s)
-        self.anchor = (time_s, lat, lon)
-        self.applied_en = [0.0, 0.0]
-        self.velocity_ne = (vn_mps if math.isfinite(vn_mps) else 0.0, ve_mps if math.isfinite(ve_mps) else 0.0)
+        self._reanchor(time_s)
+        self.target_ne = (vn_mps if math.isfinite(vn_mps) else 0.0, ve_mps if math.isfinite(ve_mps) else 0.0)
 
     def correct_to(self, time_s: float, lat_deg: float, lon_deg: float, sigma_m: float) -> float:
         """The companion's estimate at ``time_s``: blend the difference in; returns its size (m)."""
         if self.anchor is None or not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
             return math.nan
+        self._reanchor(time_s)
         lat, lon = self._raw(time_s)
         east, north = enu_offset(lat, lon, lat_deg, lon_deg)
         self.pending_en = [float(east), float(north)]
@@ -140,6 +200,8 @@ class PositionFeed:
             for k in (0, 1):
                 self.applied_en[k] += take * self.pending_en[k]
                 self.pending_en[k] -= take * self.pending_en[k]
+        if self.velocity_ne != self.target_ne:
+            self._reanchor(time_s)
         lat, lon = self._raw(time_s)
         return FeedSample(time_s, lat, lon, self.sigma_m, self.velocity_ne[0], self.velocity_ne[1])
 

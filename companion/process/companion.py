@@ -98,7 +98,8 @@ class CompanionApp:
         sensors = make_source(opts.sensors) if opts.sensors else None   # --sensors: a bad spec fails early
         self.mag = mag = MagProcessor(mag_calibration(comp), comp.spike_nt, track_yaw_offset=comp.trim_max_deg > 0.0)
         self.health = health = Health(health_limits(comp))
-        self.fc_view = fc_view = FcView(comp.heading_source, comp.position_publish, comp.feed_blend_mps)
+        self.fc_view = fc_view = FcView(comp.heading_source, comp.position_publish, comp.feed_blend_mps,
+                                             comp.feed_accel_mps2 or math.inf)
         # the parts, each given what it uses; the mission's shared state is one record
         self.settings = settings = Settings(params, mag, health, fc_view, nav, comp)
         self.mission_state = state = MissionState()

@@ -131,7 +131,7 @@ class Telemetry:
         fresh = pos is not None and now - pos.time_s <= FC_POSITION_MAX_AGE_S
         if view.gps_has_fix(now):
             if fresh:
-                feed.start(now, pos.lat_deg, pos.lon_deg, ECHO_SIGMA_M)
+                feed.start(now, pos.lat_deg, pos.lon_deg, ECHO_SIGMA_M, (pos.vn_mps, pos.ve_mps))
                 if view.feeding_own:
                     self.voice.say("FcMPC: FC has GPS again: position feed echoes it", mavlink.MAV_SEVERITY_NOTICE)
                 view.feeding_own = False
@@ -152,7 +152,7 @@ class Telemetry:
             self.voice.say(f"FcMPC: FC has no GPS: feeding our position ({feed_message_name(view.family)})",
                            mavlink.MAV_SEVERITY_NOTICE)
         vn, ve = self.commanded_velocity_ne()
-        if (vn, ve) != feed.velocity_ne:
+        if (vn, ve) != feed.target_ne:
             feed.set_velocity(now, vn, ve)
         sample = feed.sample(now)
         if sample is not None:

@@ -40,13 +40,15 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.frames import ned_to_body
+from companion.nav.ins_error import EARTH_RATE_RADPS
 from sitl.clock import LockstepGate
 from sitl.sensors import Normals, WaveMotion
 from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.magerrors import MagErrors
 from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState
 
-__all__ = ["HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge", "hil_params", "hil_world", "simulator_port"]
+__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge", "hil_params", "hil_world",
+           "rounded_count", "simulator_port"]
 
 HIL_RATE_HZ = 50.0
 GPS_RATE_HZ = 10.0
@@ -60,6 +62,24 @@ NT_PER_GAUSS = 1.0e5
 # HIL_SENSOR.fields_updated: accel (bits 0-2), gyro (3-5), mag (6-8), baro abs/alt/temperature (9, 11, 12)
 FIELDS_IMU_MAG_BARO = 0b1_1011_1111_1111
 ARMED_FLAG = 128
+
+
+# simulator_mavlink stores HIL_SENSOR's accel and gyro (id 0) as int16 FIFO counts of these sizes
+# (SimulatorMavlink::update_sensors: ACCEL_FIFO_SCALE = g / 2048, GYRO_FIFO_SCALE = 2000 deg/s / 32768),
+# and C's float-to-int conversion truncates toward zero: half a count (0.0024 m/s^2, 0.53 mrad/s)
+# towards zero on average, a gyro bias in every steady turn
+ACCEL_LSB = 9.80665 / 2048.0
+GYRO_LSB = math.radians(2000.0 / 32768.0)
+
+
+def rounded_count(value: float, lsb: float) -> float:
+    """``value`` moved half a count away from zero, so that PX4's truncation to a count rounds it
+    to the nearest one, as a sensor's converter does.
+
+    >>> int(rounded_count(0.9 * ACCEL_LSB, ACCEL_LSB) / ACCEL_LSB), int(rounded_count(-1.6 * GYRO_LSB, GYRO_LSB) / GYRO_LSB)
+    (1, -2)
+    """
+    return value + math.copysign(0.5 * lsb, value)
 
 
 def simulator_port(instance: int) -> int:
@@ -308,7 +328,13 @@ class Px4HilBridge:
     def _sensor_message(self, frame: PhysicsFrame):
         noise, normal = self.world.sensors, self._normal
         acc = [a + noise.accel_mps2 * n for a, n in zip(frame.accel_frd_mps2, normal.three())]
-        gyro = [g + noise.gyro_radps * n for g, n in zip(frame.gyro_frd_radps, normal.three())]
+        # a gyro senses the Earth's rotation too, and EKF2 subtracts it (Ekf::predictState,
+        # _earth_rate_NED): without it EKF2 sees a heading-dependent gyro bias of 0.06 mrad/s
+        lat_rad = math.radians(frame.lat_deg)
+        earth = ned_to_body((EARTH_RATE_RADPS * math.cos(lat_rad), 0.0, -EARTH_RATE_RADPS * math.sin(lat_rad)),
+                            frame.roll_rad, frame.pitch_rad, frame.yaw_rad)
+        gyro = [g + e + noise.gyro_radps * n for g, e, n in zip(frame.gyro_frd_radps, earth, normal.three())]
+        acc, gyro = [rounded_count(a, ACCEL_LSB) for a in acc], [rounded_count(g, GYRO_LSB) for g in gyro]
         mag = self._field_body_gauss(frame)
         baro = SEA_LEVEL_HPA + noise.baro_hpa * normal()
         return self.mav.hil_sensor_encode(self.t_us, *acc, *gyro, *mag, baro, 0.0, 0.0, 20.0, FIELDS_IMU_MAG_BARO, 0)

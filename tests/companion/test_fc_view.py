@@ -68,6 +68,43 @@ def test_feed_flies_on_with_the_commanded_velocity():
     assert b.lat_deg > a.lat_deg and b.lon_deg == pytest.approx(a.lon_deg)
 
 
+def test_feed_turns_onto_a_new_course_at_its_acceleration_and_keeps_the_speed():
+    """A new course turns the fed velocity at COMP_FEED_ACCEL (speed x turn rate), as the boat turns,
+    instead of a corner the flight controller's IMU never measured; the speed holds through the turn."""
+    feed = PositionFeed(accel_mps2=0.5)
+    feed.start(0.0, 33.0, 152.0, 5.0, (3.0, 0.0))                    # north at 3 m/s, the FC's velocity
+    feed.set_velocity(0.0, 0.0, -3.0)                                 # new course: west
+    samples = [feed.sample(k * 0.1) for k in range(0, 201)]
+    speeds = [math.hypot(s.vn_mps, s.ve_mps) for s in samples]
+    assert min(speeds) == pytest.approx(3.0, abs=1e-9)                # no corner cut through a lower speed
+    courses = [math.degrees(math.atan2(s.ve_mps, s.vn_mps)) for s in samples]
+    turned_at = next(k for k, c in enumerate(courses) if c <= -90.0 + 1e-9) * 0.1
+    assert turned_at == pytest.approx(math.pi / 2 / (0.5 / 3.0), abs=0.15)   # 90 deg at 0.5/3 rad/s: 9.4 s
+    for a, b in zip(samples, samples[1:]):                            # the acceleration is bounded ...
+        dv = math.hypot(b.vn_mps - a.vn_mps, b.ve_mps - a.ve_mps)
+        assert dv <= 0.5 * 0.1 * 1.000001
+        moved = geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg)   # ... and the track flies it
+        assert moved == pytest.approx(0.3, rel=2e-3)
+    # an arc: after the turn the track is one turn radius (3 / (0.5 / 3) = 18 m) north of where it began
+    end = samples[-1]
+    assert geodesic_distance_m(33.0, 152.0, end.lat_deg, 152.0) == pytest.approx(18.0, abs=0.5)
+    # sampled once at the end, the same track (a feed sampled late is not a different feed)
+    once = PositionFeed(accel_mps2=0.5)
+    once.start(0.0, 33.0, 152.0, 5.0, (3.0, 0.0))
+    once.set_velocity(0.0, 0.0, -3.0)
+    late = once.sample(20.0)
+    assert geodesic_distance_m(late.lat_deg, late.lon_deg, end.lat_deg, end.lon_deg) < 0.01
+
+
+def test_feed_without_an_acceleration_limit_steps_as_before():
+    feed = PositionFeed()
+    feed.start(0.0, 33.0, 152.0, 5.0, (3.0, 0.0))
+    feed.set_velocity(0.0, 0.0, -3.0)
+    assert (feed.sample(0.1).vn_mps, feed.sample(0.1).ve_mps) == (0.0, -3.0)
+    with pytest.raises(ValueError, match="accel_mps2"):
+        PositionFeed(accel_mps2=0.0)
+
+
 def test_a_reboot_voids_the_gps_fix_timed_on_the_old_clock():
     """A fix seen at old-clock 1300 s would count as fresh on the new clock until 1303 s: the FC's
     position would be taken for GPS-aided for 20 minutes after a reboot, and never fused."""

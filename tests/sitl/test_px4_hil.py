@@ -8,8 +8,9 @@ import socket
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sitl.firmware.px4_hil import (ARMED_FLAG, FIELDS_IMU_MAG_BARO, HIL_RATE_HZ, HilSensors, HilWorld, Px4HilBridge,
-                                   simulator_port)
+from companion.nav.ins_error import EARTH_RATE_RADPS
+from sitl.firmware.px4_hil import (ACCEL_LSB, ARMED_FLAG, FIELDS_IMU_MAG_BARO, GYRO_LSB, HIL_RATE_HZ, HilSensors, HilWorld,
+                                   Px4HilBridge, simulator_port)
 from sitl.sensors import GRAVITY_MPS2, WaveMotion
 from sitl.world.vehicle import VehicleState
 
@@ -26,14 +27,25 @@ def _decode(bridge: Px4HilBridge, message):
     return mavlink2.MAVLink(None).decode(bytearray(message.pack(bridge.mav)))
 
 
+def _count(value: float, lsb: float) -> int:
+    """simulator_mavlink's int16 FIFO count: C's conversion truncates toward zero."""
+    return int(np.float32(value) / np.float32(lsb))
+
+
 def test_a_frame_carries_the_world_in_the_body_frame():
-    """At rest, level, heading east: gravity on -z, the field's north on the body's -y, in gauss."""
+    """At rest, level, heading east: gravity on -z, the field's north on the body's -y, in gauss; the
+    gyro senses the Earth's rotation (north component on the body's -y, the vertical on -z), and
+    PX4's truncation of accel and gyro to FIFO counts gives the nearest count."""
     world = _world(math.pi / 2)
     bridge = Px4HilBridge(7, world, 0.0)
     frame = world.step(0.02, 0.02, 0.0, 0.0)
     msg = _decode(bridge, bridge._sensor_message(frame))
     assert msg.fields_updated == FIELDS_IMU_MAG_BARO and msg.id == 0
-    assert np.allclose((msg.xacc, msg.yacc, msg.zacc), (0.0, 0.0, -GRAVITY_MPS2), atol=1e-5)
+    assert [_count(a, ACCEL_LSB) for a in (msg.xacc, msg.yacc, msg.zacc)] == [0, 0, round(-GRAVITY_MPS2 / ACCEL_LSB)]
+    lat = math.radians(33.0)
+    earth = (0.0, -EARTH_RATE_RADPS * math.cos(lat), -EARTH_RATE_RADPS * math.sin(lat))
+    sensed = [g - math.copysign(0.5 * GYRO_LSB, g) for g in (msg.xgyro, msg.ygyro, msg.zgyro)]
+    assert np.allclose(sensed, earth, atol=1e-8)
     assert np.allclose((msg.xmag, msg.ymag, msg.zmag), (-0.03, -0.25, 0.35), atol=1e-6)
     assert msg.abs_pressure == np.float32(1013.25)
 
