@@ -47,7 +47,7 @@ from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.magerrors import MagErrors
 from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState
 
-__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge", "hil_params", "hil_world",
+__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_COMPANION_VALUES", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge", "hil_params", "hil_world",
            "rounded_count", "simulator_port"]
 
 HIL_RATE_HZ = 50.0
@@ -56,7 +56,8 @@ TRUTH_RATE_HZ = 1.0
 FIELD_REFRESH_S = 10.0      # the true field is re-evaluated every 10 s (30 m at 3 m/s; one evaluation of the
                             # main field and crust costs about 50 frames' worth of the rest)
 PREARM_WAIT_S = 0.001       # wall time per frame while PX4 sends no outputs (disarmed)
-ACTUATOR_TIMEOUT_S = 2.0    # wall time to wait for an armed PX4's outputs before going on alone
+ACTUATOR_TIMEOUT_S = 30.0   # wall time to wait for an armed PX4's outputs before going on alone: long, since
+                            # a loaded machine stalls PX4 for seconds (2 s: two timeouts in a 30-minute run at load 14)
 SEA_LEVEL_HPA = 1013.25
 NT_PER_GAUSS = 1.0e5
 # HIL_SENSOR.fields_updated: accel (bits 0-2), gyro (3-5), mag (6-8), baro abs/alt/temperature (9, 11, 12)
@@ -109,6 +110,15 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
             "RA_MAX_STR_ANG": max_steer_rad,
             "RA_WHEEL_BASE": math.tan(max_steer_rad) / dynamics.yaw_rate_per_mps, "EKF2_MULTI_IMU": 1,
             "IMU_INTEG_RATE": int(HIL_RATE_HZ), "IMU_GYRO_RATEMAX": int(HIL_RATE_HZ)}
+
+
+# The companion's feed against PX4 on our world (issue 49; docs/notes/2026-12-06-px4-hil-lockstep.md):
+# COMP_FEED_ACCEL 0.5: the fed track turns as our boat turned under PX4's rover controller at 3 m/s
+# (90 deg in 9.5 s); COMP_FEED_ACC_M 1: the feed's short-term accuracy (a smooth dead-reckoned track),
+# where the 5 m measured on ArduPilot left EKF2's tilt unobservable without GPS (its tilt standard
+# deviation about east grew to 46 deg in 10 minutes, the tilt error to 6-13 deg and the vertical
+# accelerometer bias to its 0.4 m/s^2 limit: "High Accelerometer Bias", failsafe)
+HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0}
 
 
 @dataclass(frozen=True)
@@ -170,6 +180,7 @@ class Px4HilBridge:
         self.armed = False
         self.last_output_us = -1
         self.actuator_timeouts = 0
+        self.actuator_timeout_at_s: list[float] = []     # PX4's time of each (the first few are worth a look)
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -264,6 +275,7 @@ class Px4HilBridge:
             if remaining <= 0.0:
                 if self.armed:
                     self.actuator_timeouts += 1
+                    self.actuator_timeout_at_s.append(round(self.time_s, 2))
                     self.armed = False       # disarmed, or stalled: paced until PX4 answers again
                 return
             self._pump(remaining)
@@ -372,7 +384,7 @@ class Px4HilBridge:
 
     def stats(self) -> dict:
         out = {"hil_frames": self.frames, "hil_time_s": round(self.time_s, 3),
-               "hil_actuator_timeouts": self.actuator_timeouts}
+               "hil_actuator_timeouts": self.actuator_timeouts, "hil_actuator_timeout_at_s": self.actuator_timeout_at_s[:10]}
         if self.gate is not None:
             out.update(self.gate.stats())
         return out

@@ -1,10 +1,13 @@
 """The companion against real PX4 SITL with SIH: GPS lost after start-up (issue 15).
 
-A module of its own (slow: CI only): pytest-xdist gives each module to one worker, and this 30
-simulated minutes at 5x (about 400 s of wall time) flies beside the other PX4 tests
-(``test_px4.py``) instead of after them.
+Not in CI since 2026-12-06 (``FCMPC_PX4_SIH_GPS_LOST=1`` runs it): the lockstep test of the same
+claim (``test_px4_hil.py``) replaced it there. This one is wall-paced (30 simulated minutes at 5x,
+419 s in CI, CI's longest test, and a loaded machine starved PX4's offboard link); SIH's own physics
+stays checked in CI by the quadrant tests (``test_px4.py``).
 """
 from __future__ import annotations
+
+import os
 
 import pytest
 
@@ -13,6 +16,9 @@ from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED, WALL_S
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("FCMPC_PX4_SIH_GPS_LOST") != "1",
+                    reason="wall-paced SIH GPS-lost test: replaced in CI by test_px4_hil.py's lockstep one; "
+                           "FCMPC_PX4_SIH_GPS_LOST=1 runs it")
 def test_gps_lost_after_start_up_offboard_kept_and_on_course(px4_factory):
     """SIH's receiver loses its fix 30 s after arming (SIM_GPS_USED 0): the companion feeds HIL_GPS,
     EKF2 keeps a position, PX4 stays in OFFBOARD for 30 simulated minutes and the true track follows

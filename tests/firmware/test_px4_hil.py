@@ -1,15 +1,13 @@
 """The companion against real PX4 in lockstep with our world (``sitl.firmware.px4_hil``): GPS lost after start-up.
 
-Meant to replace the SIH test of the same claim (``test_px4_gps_lost.py``: GPS lost after start-up,
-OFFBOARD kept, the true track on the companion's courses; 30 simulated minutes at 5x, 425 s in CI,
-CI's longest): here PX4's clock advances only with our frames and our world waits for the companion,
-so a loaded machine slows the run without changing what PX4 and the companion see. 20 minutes without
-GPS took 118 s of wall time at load average 20 on 2 cores when it passed. Not yet in CI
-(``FCMPC_PX4_HIL=1`` runs it): of six runs it passed two (one in our seaway with the compass's drawn
-residuals, one in a calm sea without them) and four times PX4 failed safe 680-940 s after the loss
-("High Accelerometer Bias", once "Attitude failure (pitch)"): with the seaway and no compass residuals,
-and twice in a calm sea with them; so the SIH test stays until EKF2's drift without GPS on our world is
-understood.
+In CI in place of the SIH test of the same claim (``test_px4_gps_lost.py``: GPS lost after start-up,
+OFFBOARD kept, the true track on the companion's courses for 30 simulated minutes; 419 s in CI at 5x,
+wall-paced, so a loaded machine failed it): here PX4's clock advances only with our frames and our
+world waits for the companion, so a loaded machine slows the run without changing what PX4 and the
+companion see. Until 2026-12-06 it passed 2 of 6 runs (EKF2's "High Accelerometer Bias" and a
+failsafe 680-940 s after the loss); the causes and the fixes, measured, are in
+docs/notes/2026-12-06-px4-hil-lockstep.md (the feed turns as the boat does and claims 1 m, the gyro
+senses the Earth's rotation, PX4's FIFO truncation rounds).
 """
 from __future__ import annotations
 
@@ -25,8 +23,8 @@ from sitl.firmware.monitor import FirmwareMonitor
 from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, commands_flown
 from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED
 
-WALL_S = 600.0            # per wait; a lockstep run is slower on a loaded machine, never different
-LOST_S = 1200.0           # simulated seconds flown without GPS: seven commands of PROBE_S
+WALL_S = 900.0            # per wait; a lockstep run is slower on a loaded machine, never different
+LOST_S = 1800.0           # simulated seconds flown without GPS, as the SIH test: eleven commands of PROBE_S
 
 
 class HilRig(Rig):
@@ -60,10 +58,11 @@ class HilRig(Rig):
 
     def start_companion(self, startup_s: float | None = 30.0, **values) -> Path:
         from sitl.firmware.px4_flight import COMPANION_VALUES
+        from sitl.firmware.px4_hil import HIL_COMPANION_VALUES
 
         parm = self.tmp / "companion.parm"
         write_parm_file(parm, {"NAV_START_LAT": 33.0, "NAV_START_LON": 152.0, "COMP_ARM_ENABLE": 1,
-                               **COMPANION_VALUES, **values})
+                               **COMPANION_VALUES, **HIL_COMPANION_VALUES, **values})
         log_dir = self.tmp / "companion"
         self.companion = subprocess.Popen(
             [sys.executable, "-m", "companion.app", "--connect", self.bridge.companion_url, "--params", str(parm),
@@ -85,12 +84,9 @@ def hil_rig(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(os.environ.get("FCMPC_PX4_HIL") != "1",
-                    reason="PX4 lockstep GPS-lost: not yet reliable (PX4 failsafe after ~13 min without GPS); "
-                           "FCMPC_PX4_HIL=1 runs it")
 def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig):
     """Our world's receiver loses its fix 30 s after arming (HIL_GPS fix_type 0): the companion feeds
-    HIL_GPS, EKF2 keeps a position, PX4 stays in OFFBOARD for 20 simulated minutes, every frame was
+    HIL_GPS, EKF2 keeps a position, PX4 stays in OFFBOARD for 30 simulated minutes, every frame was
     answered (no actuator or companion timeout) and the true track follows the companion's courses."""
     rig = hil_rig
     log_dir = rig.start_companion(NAV_DEST_LAT=32.5, NAV_DEST_LON=152.6, NAV_PERIOD_S=PROBE_S)
@@ -102,7 +98,7 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
     mon.pump(lambda m: (m.truth and m.truth[-1].time_s >= t_lost + LOST_S) or m.mode != OFFBOARD or not m.armed,
-             WALL_S, "20 minutes without GPS")
+             2 * WALL_S, "30 minutes without GPS")
     after = [s for s in mon.truth if s.time_s >= t_lost]
     said = (rig.tmp / "companion.err").read_text(errors="replace")[-1500:]
     left = next((s for s in after if s.mode != OFFBOARD or not s.armed), None)
@@ -115,5 +111,6 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
                                                 ROVER_MIN_SPEED)
     median = off_deg[len(off_deg) // 2] if off_deg else float("nan")
     assert median < 5.0, f"true track off the course by {median:.1f} deg (median)"
-    assert flown_s >= LOST_S - 2 * PROBE_S, f"only {flown_s:.0f} s flown on commanded courses without GPS"
+    # 1800 s less the command in force at the loss (up to one 160 s period) and a last one under 60 s
+    assert flown_s >= 1500.0, f"only {flown_s:.0f} s flown on commanded courses without GPS"
     assert commands >= 5, f"only {commands} commands without GPS: the navigator stopped stepping"
