@@ -156,6 +156,8 @@ class PositionFeed:
         t0, lat0, lon0 = self.anchor
         dt = max(time_s - t0, 0.0)
         north = east = 0.0
+        if math.isinf(self.accel_mps2):      # no limit: the new velocity from its command's time on
+            self.velocity_ne = self.target_ne
         while dt > 0.0 and self.velocity_ne != self.target_ne:
             step = min(dt, TURN_STEP_S)
             before = self.velocity_ne

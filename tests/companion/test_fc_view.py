@@ -100,7 +100,10 @@ def test_feed_without_an_acceleration_limit_steps_as_before():
     feed = PositionFeed()
     feed.start(0.0, 33.0, 152.0, 5.0, (3.0, 0.0))
     feed.set_velocity(0.0, 0.0, -3.0)
-    assert (feed.sample(0.1).vn_mps, feed.sample(0.1).ve_mps) == (0.0, -3.0)
+    sample = feed.sample(10.0)
+    assert (sample.vn_mps, sample.ve_mps) == (0.0, -3.0)
+    assert geodesic_distance_m(33.0, 152.0, sample.lat_deg, sample.lon_deg) == pytest.approx(30.0, rel=1e-3)
+    assert sample.lat_deg == pytest.approx(33.0, abs=1e-9)            # due west from the command's time on
     with pytest.raises(ValueError, match="accel_mps2"):
         PositionFeed(accel_mps2=0.0)
 
