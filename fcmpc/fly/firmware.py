@@ -46,13 +46,13 @@ def fly_on_px4(options: FlyOptions) -> FlyResult:
     from sitl.firmware.px4 import px4_root
     from sitl.firmware.flight import BOAT_CRUISE_KMH
     from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
-    from sitl.firmware.px4_hil import HIL_COMPANION_VALUES
+    from sitl.firmware.px4_hil import hil_companion_values
 
     if options.physics not in ("builtin", "hil"):
         raise ValueError(f"physics {options.physics!r}: choose builtin or hil with --fc px4")
     px4_root()
     # in lockstep the boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
-    values = {**COMPANION_VALUES, **HIL_COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH} \
+    values = {**COMPANION_VALUES, **hil_companion_values(BOAT_CRUISE_KMH / 3.6), "NAV_SPEED_KMH": BOAT_CRUISE_KMH} \
         if options.physics == "hil" else COMPANION_VALUES
     return _fly_on(options, "px4", fly_px4, 10.0, values)
 

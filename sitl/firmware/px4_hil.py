@@ -47,8 +47,8 @@ from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.magerrors import MagErrors
 from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState
 
-__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_COMPANION_VALUES", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge", "hil_params", "hil_world",
-           "rounded_count", "simulator_port"]
+__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_COMPANION_VALUES", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge",
+           "hil_companion_values", "hil_params", "hil_world", "rounded_count", "simulator_port"]
 
 HIL_RATE_HZ = 50.0
 GPS_RATE_HZ = 10.0
@@ -115,12 +115,25 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
 
 
 # The companion's feed against PX4 on our world (issue 49; docs/notes/2026-12-06-px4-hil-lockstep.md):
-# COMP_FEED_ACCEL 0.5: the fed track turns as our boat turned under PX4's rover controller at 3 m/s
-# (90 deg in 9.5 s); COMP_FEED_ACC_M 1: the feed's short-term accuracy (a smooth dead-reckoned track),
-# where the 5 m measured on ArduPilot left EKF2's tilt unobservable without GPS (its tilt standard
-# deviation about east grew to 46 deg in 10 minutes, the tilt error to 6-13 deg and the vertical
-# accelerometer bias to its 0.4 m/s^2 limit: "High Accelerometer Bias", failsafe)
+# COMP_FEED_ACC_M 1: the feed's short-term accuracy (a smooth dead-reckoned track), where the 5 m
+# measured on ArduPilot left EKF2's tilt unobservable without GPS (its tilt standard deviation about
+# east grew to 46 deg in 10 minutes, the tilt error to 6-13 deg and the vertical accelerometer bias to
+# its 0.4 m/s^2 limit: "High Accelerometer Bias", failsafe); COMP_FEED_ACCEL: the fed track turns as
+# PX4's rover controller turned our boat, measured at two speeds (speed x turn rate: 3 m/s at 9.5 deg/s,
+# 8 m/s at 25 deg/s), linear between them
 HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0}
+TURN_ACCEL_MEASURED = ((3.0, 0.5), (8.0, 3.0))     # (speed m/s, lateral acceleration m/s^2)
+
+
+def hil_companion_values(speed_mps: float) -> dict[str, float]:
+    """The companion's feed parameters against PX4 on our world at a cruise speed (see above).
+
+    >>> hil_companion_values(3.0)["COMP_FEED_ACCEL"], hil_companion_values(8.0)["COMP_FEED_ACCEL"]
+    (0.5, 3.0)
+    """
+    (v0, a0), (v1, a1) = TURN_ACCEL_MEASURED
+    frac = min(max((speed_mps - v0) / (v1 - v0), 0.0), 1.0)
+    return {**HIL_COMPANION_VALUES, "COMP_FEED_ACCEL": round(a0 + frac * (a1 - a0), 3)}
 
 
 @dataclass(frozen=True)
