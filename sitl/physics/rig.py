@@ -16,12 +16,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sitl.firmware.ardupilot import ardupilot_binary
-from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight, FirmwareRun, fly_firmware
+from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight
 from sitl.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
-__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "fly_ardupilot_json", "start_world", "stop_world"]
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world"]
 
 # The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
 # SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
@@ -60,12 +59,6 @@ class ArduPilotJsonRig(ArduPilotRig):
 
     def stop(self) -> None:
         stop_world(self.world, self.sitl, self.out)
-
-
-def fly_ardupilot_json(flight: FirmwareFlight) -> FirmwareRun:
-    """One mission against ArduPilot with our world as its physics; FirmwareMissing without a binary."""
-    ardupilot_binary()                 # FirmwareMissing before anything is written
-    return fly_firmware(flight, ArduPilotJsonRig)
 
 
 def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],

@@ -159,7 +159,7 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
 
 def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it():
     """``FlyOptions.nice``: the children's ``preexec_fn`` adds the increment to their niceness."""
-    from fcmpc.fly.runner import _niceness
+    from fcmpc.fly.mission import niceness as _niceness
 
     probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
     own = os.nice(0)
