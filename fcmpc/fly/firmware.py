@@ -27,17 +27,21 @@ from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 __all__ = ["FirmwareFC", "SETTLE_SPEED_MPS", "firmware_flight"]
 
 SETTLE_SPEED_MPS = 0.3      # slower than this over the last five truth samples: the boat is at rest
+TRUTH_EVERY_S = 30.0        # wall seconds between the truth's progress lines (steps may stop: a boat in HOLD)
 _MISSION = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON", "COMP_ARM_ENABLE", "COMP_SP_RATE_HZ")
 
 
 class FirmwareFC:
     """A firmware rig (``rig_class(flight, out)``: ``start() -> monitor``, ``prepare(monitor) ->
     notes``, ``companion_url``, ``companion_args``, ``deny_gps(monitor)``, ``stop()``, ``name``) as
-    a :class:`fcmpc.fly.mission.FlightController`; ``say``: where its notes go."""
+    a :class:`fcmpc.fly.mission.FlightController` flying to ``destination``; ``say``: where its notes
+    go (GPS denied, and every :data:`TRUTH_EVERY_S` of wall time the true distance to go)."""
 
-    def __init__(self, rig_class, flight: FirmwareFlight, deny_gps_at_arming: bool = True,
-                 say: Callable[[str], None] = lambda text: None) -> None:
+    def __init__(self, rig_class, flight: FirmwareFlight, destination: tuple[float, float],
+                 deny_gps_at_arming: bool = True, say: Callable[[str], None] = lambda text: None) -> None:
         self.rig_class, self.flight, self.deny_gps_at_arming, self.say = rig_class, flight, deny_gps_at_arming, say
+        self.destination = destination
+        self._said_wall_s = 0.0
         self.name = rig_class.name
         self.companion_args = tuple(getattr(rig_class, "companion_args", ()))
         self.rig = None
@@ -64,6 +68,13 @@ class FirmwareFC:
             self.rig.deny_gps(monitor)
             self.denied_at_s = monitor.time_s
             self.say(f"armed at {monitor.time_s:.0f} s: GPS denied from take-off")
+        if time.monotonic() - self._said_wall_s > TRUTH_EVERY_S and monitor.truth:
+            from companion.nav.geo import geodesic_distance_m
+
+            self._said_wall_s = time.monotonic()
+            s = monitor.truth[-1]
+            self.say(f"{s.time_s / 3600.0:5.2f} h simulated, "
+                     f"{geodesic_distance_m(s.lat_deg, s.lon_deg, *self.destination) / 1000.0:.1f} km to go (true)")
 
     def wait(self, timeout_s: float) -> tuple[str, str] | None:
         deadline = time.monotonic() + timeout_s
@@ -148,7 +159,7 @@ def firmware_flight(options, scenario, dest: tuple[float, float], values: dict,
     companion = {"NAV_START_LAT": start[0], "NAV_START_LON": start[1], "NAV_DEST_LAT": dest[0],
                  "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH, **defaults,
                  **{k: v for k, v in values.items() if k not in _MISSION and k in given}}
-    return FirmwareFC(rig_class, flight, say=say), companion
+    return FirmwareFC(rig_class, flight, dest, say=say), companion
 
 
 def _current(options, scenario) -> tuple[float, float]:

@@ -38,6 +38,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -106,6 +107,9 @@ def build_parser() -> ArgumentParser:
                        help="with --fc ardupilot: the firmware's compass (fcmpc-fly --compass); default real")
     flown.add_argument("--fc-instance", type=int, default=None, metavar="I",
                        help="with --fc ardupilot: the first instance number of the runs; default 80 (PX4: 1-9)")
+    flown.add_argument("--speedup", type=float, default=None, metavar="N",
+                       help="with --fc: the firmware's pace (ArduPilot's built-in boat default 50, PX4 SIH 10; "
+                            "a loaded machine wants less), or the stand-in paced at N instead of lockstep")
     flown.add_argument("--timeout", type=float, default=7200.0, metavar="S",
                        help="with --fc: wall seconds before a run is given up; default 7200")
     parser.add_argument("--budget", action="store_true",
@@ -220,6 +224,8 @@ def _check_flown(args) -> None:
         raise UsageError(f"--short-km {args.short_km:g}: must be > 0")
     if not args.timeout > 0:
         raise UsageError(f"--timeout {args.timeout:g}: must be > 0")
+    if args.speedup is not None and not (math.isfinite(args.speedup) and args.speedup > 0):
+        raise UsageError(f"--speedup {args.speedup:g}: must be > 0")
     allowed = {"sim": ("builtin",), "ardupilot": ("builtin", "json"), "px4": ("builtin", "hil")}[args.fc]
     if args.physics not in allowed:
         raise UsageError(f"--physics {args.physics} with --fc {args.fc}: choose {' or '.join(allowed)}")

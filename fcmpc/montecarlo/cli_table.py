@@ -74,6 +74,7 @@ def flown_main(args: Namespace, scenario: Scenario, values: dict, overrides: dic
     out = Path(args.out) / name
     base = FlyOptions(scenario=args.scenario, short=args.short_km is not None, short_km=args.short_km or 0.0,
                       fc=args.fc, physics=args.physics, compass=args.compass, timeout_s=args.timeout,
+                      speedup=args.speedup, lockstep=args.speedup is None,
                       data_dir=args.data_dir, fc_instance=args.fc_instance or 0)
     specs = []
     for controller in controllers:
