@@ -267,11 +267,11 @@ def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[floa
 
 
 def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[float, float], seeds: Iterable[int]):
-    """The in-process runs (:func:`sitl.inprocess.fly_in_process`) of this flight's scenario, destination
+    """The in-process runs (:func:`fcmpc.montecarlo.inprocess.fly_in_process`) of this flight's scenario, destination
     and parameters, one per seed (the truth field built once): what ``--compare`` prints, and a spread
     of seeds for the tests."""
     from companion.params import NavConfig
-    from sitl.inprocess import fly_in_process
+    from fcmpc.montecarlo.inprocess import fly_in_process
     from sitl.world.build import build_truth_field
 
     scenario = load_scenario(scenario_arg)

@@ -61,7 +61,7 @@ def batches(items: list[tuple[int, RunSpec]], workers: int) -> list[list]:
     """Split the tasks into batches, guided as OpenMP's schedule is: each takes a share of the
     runs still left (at most :data:`BATCH_CAP`), so they shrink to one run per task at the end
     and no worker is left finishing a whole batch while the others idle. Big batches first,
-    because the runs of a batch fly side by side (:func:`sitl.inprocess.fly_batch`) and share the
+    because the runs of a batch fly side by side (:func:`fcmpc.montecarlo.inprocess.fly_batch`) and share the
     per-step overhead: here a run costs 0.26 s alone, 0.16 s in a batch of 9, 0.15 s in one of 30;
     fixed batches of 9 with a tail of 24 single runs made a 50 x 3 Monte Carlo on 2 workers about
     1 s slower (14.9 against 13.5 s, medians of three)."""
