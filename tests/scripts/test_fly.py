@@ -200,3 +200,24 @@ def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypat
         k: pytest.approx(given[k], abs=0.051) for k in committed if k != "FUS_BQA_N"}
     assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--storm-params", "may2024"]) == 2
     assert "fitted on may2024" in capsys.readouterr().err and len(flown) == 1
+
+
+def test_the_runner_reports_a_flight_controller_that_ends_on_its_own_and_stops_the_companion(tmp_path):
+    """The one runner against a stand-in that exits at once (an option it refuses): an error naming
+    its log, the companion stopped by PID, no truth."""
+    from companion.params import write_parm_file
+    from fcmpc.fly.mission import CompanionRun, run_mission
+    from fcmpc.fly.standin import StandIn
+
+    parm = tmp_path / "fly.parm"
+    write_parm_file(parm, {"COMP_ARM_ENABLE": 1})
+    fc = StandIn(("--no-such-option",))
+    outcome, truth = run_mission(fc, CompanionRun(parm, tmp_path / "companion", ("--quiet",)), tmp_path, 120.0)
+    assert outcome.status == "error" and outcome.code == 1, outcome
+    assert "the simulator exited with 2" in outcome.message and str(tmp_path / "sitl.log") in outcome.message
+    assert "--no-such-option" in (tmp_path / "sitl.log").read_text()
+    assert truth is None and fc.process.returncode == 2
+    assert (tmp_path / "companion" / "steps.csv").exists()      # it had opened its link ...
+    alive = [c for c in _children(os.getpid()) if "companion.app" in Path(f"/proc/{c}/cmdline").read_text()
+             and "zombie" not in Path(f"/proc/{c}/status").read_text()]
+    assert not alive, "the companion outlived the run"           # ... and was stopped
