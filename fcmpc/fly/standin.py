@@ -18,7 +18,7 @@ from fcmpc.fly.results import REST_WINDOW_S, TruthTrack, read_truth_track
 from sitl.firmware.processes import stop_process
 from sitl.scenario import Scenario
 
-__all__ = ["LOCKSTEP_PERIOD_S", "SITL_RATES", "StandIn", "linger_s", "stand_in_args"]
+__all__ = ["LOCKSTEP_PERIOD_S", "SITL_RATES", "StandIn", "free_udp_port", "linger_s", "stand_in_args"]
 
 # Lockstep boundaries: the simulator applies setpoints only at boundaries, so the period must stay
 # below the autopilot's setpoint timeout (ArduPilot GUIDED 3 s, PX4 offboard loss 1 s).
@@ -56,7 +56,8 @@ def stand_in_args(options, scenario: Scenario, scenario_arg: str) -> tuple[str, 
     return (*args, *options.sitl_extra)
 
 
-def _free_udp_port() -> int:
+def free_udp_port() -> int:
+    """A UDP port of loopback nobody has bound (the companion binds it next, as a ground station does)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
@@ -71,7 +72,7 @@ class StandIn:
 
     def __init__(self, args: tuple[str, ...], companion_args: tuple[str, ...] = (), nice: int = 0) -> None:
         self.args, self.companion_args, self.nice = tuple(args), tuple(companion_args), nice
-        self.port = _free_udp_port()
+        self.port = free_udp_port()
         self.process: subprocess.Popen | None = None
         self.out: Path | None = None
         self._log = None
