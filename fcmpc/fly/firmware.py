@@ -117,47 +117,39 @@ def _at_rest(monitor: FirmwareMonitor) -> bool:
         < SETTLE_SPEED_MPS
 
 
+# (--fc, --physics) -> "module:rig class"; each rig says how its firmware starts, its pace and the
+# companion's parameters for it (check(), default_speedup, companion_values(flight), companion_args)
+RIGS = {("ardupilot", "builtin"): "sitl.firmware.flight:ArduPilotRig",
+        ("ardupilot", "json"): "sitl.physics.rig:ArduPilotJsonRig",
+        ("px4", "builtin"): "sitl.firmware.px4_flight:Px4Rig",
+        ("px4", "hil"): "sitl.firmware.px4_flight:Px4HilRig"}
+
+
 def firmware_flight(options, scenario, dest: tuple[float, float], values: dict,
                     say: Callable[[str], None] = lambda text: None) -> tuple[FirmwareFC, dict]:
-    """The flight controller of ``options.fc`` (ardupilot or px4) with ``options.physics`` and the
-    companion's parameters for it (the scenario's start, ``dest``, the firmware's cruise, what the
-    user set; the scenario's ``[navigator]`` table describes its simulated world, not the firmware's).
-    FirmwareMissing (nothing written) when the firmware is absent; ValueError for a physics it has not."""
-    from sitl.firmware.ardupilot import ardupilot_binary
+    """The flight controller of ``options.fc`` (ardupilot or px4) with ``options.physics`` (:data:`RIGS`)
+    and the companion's parameters for it (the scenario's start, ``dest``, the firmware's cruise, its
+    rig's values, what the user set; the scenario's ``[navigator]`` table describes its simulated world,
+    not the firmware's). FirmwareMissing (nothing written) when the firmware is absent; ValueError for a
+    physics it has not."""
+    import importlib
 
-    if options.fc == "ardupilot":
-        if options.physics not in ("builtin", "json"):
-            raise ValueError(f"physics {options.physics!r}: choose builtin or json with --fc ardupilot")
-        ardupilot_binary()
-        if options.physics == "json":       # our world as ArduPilot's physics, in lockstep (sitl.physics)
-            from sitl.physics.rig import ArduPilotJsonRig as rig_class
-        else:
-            from sitl.firmware.flight import ArduPilotRig as rig_class
-        # a real compass is calibrated by the companion's circles before the mission (COMP_CAL_TURNS):
-        # ArduPilot's own fixed-yaw calibration learns the offsets only (sitl/firmware/compass.py)
-        defaults, speedup = ({"COMP_CAL_TURNS": 1} if options.compass == "real" else {}), 50.0
-    elif options.fc == "px4":
-        from sitl.firmware.px4 import px4_root
-        from sitl.firmware.px4_flight import COMPANION_VALUES, Px4HilRig, Px4Rig
-
-        if options.physics not in ("builtin", "hil"):
-            raise ValueError(f"physics {options.physics!r}: choose builtin or hil with --fc px4")
-        px4_root()
-        rig_class = Px4HilRig if options.physics == "hil" else Px4Rig
-        # SIH's Ackermann rover at 3 m/s (COMPANION_VALUES); in lockstep the boat is ours
-        # (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
-        defaults = {**COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH} if options.physics == "hil" \
-            else COMPANION_VALUES
-        speedup = 10.0
-    else:
-        raise ValueError(f"--fc {options.fc!r}: not firmware")
+    spec = RIGS.get((options.fc, options.physics))
+    if spec is None:
+        choices = " or ".join(physics for fc, physics in RIGS if fc == options.fc) or "no physics"
+        raise ValueError(f"physics {options.physics!r}: choose {choices} with --fc {options.fc}")
+    module, name = spec.split(":")
+    rig_class = getattr(importlib.import_module(module), name)
+    rig_class.check()
     start = (scenario.start_lat_deg, scenario.start_lon_deg)
-    flight = FirmwareFlight(start=start, speedup=options.speedup or speedup, instance=options.fc_instance,
-                            start_unix_s=scenario.start_posix, compass=options.compass, physics=options.physics,
-                            scenario=scenario, seed=options.seed, current_en_mps=_current(options, scenario))
+    flight = FirmwareFlight(start=start, speedup=options.speedup or rig_class.default_speedup,
+                            instance=options.fc_instance, start_unix_s=scenario.start_posix, compass=options.compass,
+                            physics=options.physics, scenario=scenario, seed=options.seed,
+                            current_en_mps=_current(options, scenario))
     given = {**scenario.nav_overrides(navigator=False), **options.extra_params}
     companion = {"NAV_START_LAT": start[0], "NAV_START_LON": start[1], "NAV_DEST_LAT": dest[0],
-                 "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH, **defaults,
+                 "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH,
+                 **rig_class.companion_values(flight),
                  **{k: v for k, v in values.items() if k not in _MISSION and k in given}}
     return FirmwareFC(rig_class, flight, dest, say=say), companion
 

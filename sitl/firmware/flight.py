@@ -43,6 +43,19 @@ class ArduPilotRig:
     """ArduPilot's side of a flight: SITL, the monitor on SERIAL0, the companion on SERIAL1."""
 
     name = "ArduPilot SITL"
+    default_speedup = 50.0
+
+    @staticmethod
+    def check() -> None:
+        """FirmwareMissing (before anything is written) when the binary is absent."""
+        ardupilot_binary()
+
+    @staticmethod
+    def companion_values(flight: FirmwareFlight) -> dict:
+        """The companion's parameters for ArduPilot's boat: a real compass is calibrated by the
+        companion's circles before the mission (COMP_CAL_TURNS); ArduPilot's own fixed-yaw
+        calibration learns the offsets only (sitl/firmware/compass.py)."""
+        return {"COMP_CAL_TURNS": 1} if flight.compass == "real" else {}
 
     def __init__(self, flight: FirmwareFlight, out: Path) -> None:
         self.compass = flight.compass

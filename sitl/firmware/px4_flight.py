@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sitl.firmware.flight import FirmwareFlight
+from sitl.firmware.flight import BOAT_CRUISE_KMH, FirmwareFlight
 from sitl.firmware.monitor import FirmwareMonitor
 from sitl.firmware.px4 import Px4Sitl, px4_root
 
@@ -50,6 +50,18 @@ class Px4Rig:
     """PX4's side of a flight: SIH, the monitor on the GCS link, the companion on the onboard link."""
 
     name = "PX4 SITL (SIH)"
+    default_speedup = 10.0
+    companion_args: tuple[str, ...] = ()
+
+    @staticmethod
+    def check() -> None:
+        """FirmwareMissing (before anything is written) when PX4 is absent."""
+        px4_root()
+
+    @staticmethod
+    def companion_values(flight: FirmwareFlight) -> dict:   # noqa: ARG004
+        """SIH's Ackermann rover at 3 m/s, its magnetometer at 50 Hz (:data:`COMPANION_VALUES`)."""
+        return dict(COMPANION_VALUES)
 
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         # COM_LOW_BAT_ACT 0: PX4's SITL rcS sets 3 (land), and SIH's simulated battery called it after
@@ -108,6 +120,11 @@ class Px4HilRig(Px4Rig):
 
     name = "PX4 SITL (lockstep, our world)"
     companion_args = ("--lockstep",)
+
+    @staticmethod
+    def companion_values(flight: FirmwareFlight) -> dict:   # noqa: ARG004
+        """The boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does."""
+        return {**COMPANION_VALUES, "NAV_SPEED_KMH": BOAT_CRUISE_KMH}
 
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         from sitl.clock import LockstepGate
