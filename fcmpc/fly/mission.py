@@ -176,7 +176,8 @@ class MissionProcesses:
             self._log = open(self.out / "companion.log", "wb")
             self.companion = subprocess.Popen(
                 self.run.argv(self.fc.companion_url, self.fc.companion_args), env=child_env(), cwd=REPO,
-                stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT, preexec_fn=niceness(self.run.nice))
+                stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
+                preexec_fn=niceness(self.run.nice))
             self._await_link()
             self.fc.companion_ready()
         except BaseException:

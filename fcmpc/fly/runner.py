@@ -36,8 +36,8 @@ from fcmpc.fly.results import FlyResult, TruthTrack, distances, read_steps, writ
 from fcmpc.fly.standin import LOCKSTEP_PERIOD_S, StandIn, linger_s, stand_in_args
 from sitl.scenario import Scenario, load_scenario
 
-__all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
-           "REPO", "SHORT_KM"]
+__all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination",
+           "write_short_scenario", "StepProgress", "REPO", "SHORT_KM", "companion_run", "stand_in"]
 
 SHORT_KM = 80.0
 SETPOINT_RATE_HZ = 2.5        # COMP_SP_RATE_HZ for lockstep runs (PX4 needs > 2 Hz)
@@ -211,8 +211,9 @@ def fly(options: FlyOptions, stderr: TextIO | None = None) -> FlyResult:
 
 def stand_in(options: FlyOptions, scenario: Scenario, scenario_arg: str) -> StandIn:
     """Our stand-in flying ``scenario_arg`` (a bundled name or a TOML file) as ``options`` say."""
+    lockstep = ("--lockstep",) if options.lockstep else ()
     return StandIn(stand_in_args(options, scenario, scenario_arg), nice=options.nice,
-                   companion_args=("--linger-s", f"{linger_s(scenario):g}", *(["--lockstep"] if options.lockstep else [])))
+                   companion_args=("--linger-s", f"{linger_s(scenario):g}", *lockstep))
 
 
 def companion_run(options: FlyOptions, parm: Path, out: Path) -> CompanionRun:

@@ -1,4 +1,4 @@
-"""ArduPilot Rover SITL with its own boat as a flight controller of the one mission runner (``fcmpc-fly --fc ardupilot``).
+"""ArduPilot Rover SITL with its own boat, a flight controller of the one runner (``fcmpc-fly --fc ardupilot``).
 
 The world is ArduPilot's own: its simulated boat (``--model motorboat``, waves, wind 3 m/s),
 its magnetic field (ArduPilot's IGRF tables, not the navigator's WMM), its compass-derived yaw,
