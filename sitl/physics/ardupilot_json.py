@@ -150,6 +150,7 @@ class JsonPhysics:
         c = self.config
         dt, home, dyn, motion, waves = c.dt_s, c.home, c.dynamics, c.motion, c.waves
         frames_per_gate = max(1, int(round(c.gate_period_s / dt)))
+        dt_us = int(round(dt * 1e6))
         recv, send = self.sock.recvfrom, self.sock.sendto
         relay = self.relay
         state, t = self.state, 0.0
@@ -165,8 +166,11 @@ class JsonPhysics:
                 if len(data) < SERVO_PACKET.size or data[0] | data[1] << 8 != SERVO_MAGIC:
                     continue
                 n += 1
-                if relay is not None and n % frames_per_gate == 0:
-                    relay.boundary(int(round(t * 1e6)))   # the firmware has run its loop at t, our last answer
+                if relay is not None:
+                    t_us = int(round(t * 1e6))
+                    if n % frames_per_gate == 0:
+                        relay.boundary(t_us)      # the firmware has run its loop at t, our last answer
+                    relay.deliver(t_us + dt_us)   # what its loop at t + dt is to read
                 send(reply, addr)
                 throttle, steering = outputs_of(SERVO_PACKET.unpack_from(data)[3:])
                 state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
