@@ -117,7 +117,8 @@ class JsonPhysicsConfig:
     motion: MotionErrors = NO_MOTION_ERRORS
     waves: WaveMotion = field(default_factory=WaveMotion)
     gate_period_s: float = 0.2          # the companion's setpoint period (COMP_SP_RATE_HZ 5)
-    gate_timeout_s: float = 30.0        # wall seconds without an answer before going on (counted)
+    gate_timeout_s: float = 120.0       # wall seconds without an answer before going on (counted): a hang guard
+    #                                     (a loaded machine once kept the companion 30 s from its answer)
     relay: bool = True
     idle_timeout_s: float = 60.0        # wall seconds without a servo packet: the firmware has gone
 
