@@ -84,6 +84,8 @@ class CompanionRelay:
         self.late_frames = 0             # frames forwarded more than a frame after their due time
         self.max_late_us = 0
         self.release_lag: dict[int, int] = {}
+        self.gps_gaps: dict[int, int] = {}    # firmware loops between GPS_INPUTs forwarded
+        self._last_gps_us = 0
         self._now_us = 0
         self.fc_time_ms = 0              # the newest firmware time passed on to the companion
         self._fc_tail = b""              # an incomplete frame at the end of the last read
@@ -252,6 +254,9 @@ class CompanionRelay:
                 if gps:             # one per loop: ArduPilot's GPS driver keeps only the newest of a loop
                     return
                 gps = True
+                gap = (now_us - self._last_gps_us) // 20_000     # in firmware loops
+                self.gps_gaps[gap] = self.gps_gaps.get(gap, 0) + 1
+                self._last_gps_us = now_us
             due.popleft()
             late = now_us - due_us
             if late > LATE_US:
@@ -311,7 +316,8 @@ class CompanionRelay:
                 "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.fc_time_ms / 1000.0,
                 "start_wait_wall_s": round(self.start_wait_wall_s, 3), "relay_latency_s": self.latency_us / 1e6,
                 "relay_late_frames": self.late_frames, "relay_max_late_s": self.max_late_us / 1e6,
-                "relay_release_lag_hist_0.1s": dict(sorted(self.release_lag.items()))}
+                "relay_release_lag_hist_0.1s": dict(sorted(self.release_lag.items())),
+                "relay_gps_gap_hist_loops": dict(sorted((k, v) for k, v in self.gps_gaps.items() if k < 100))}
 
     def close(self) -> None:
         for sock in (self.fc, self.companion, self.listener):
