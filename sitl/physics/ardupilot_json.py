@@ -154,10 +154,10 @@ class JsonPhysics:
         dt_us = int(round(dt * 1e6))
         recv, send = self.sock.recvfrom, self.sock.sendto
         relay = self.relay
-        state, t = self.state, 0.0
-        reply = encode_frame(frame_of(t + dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
-        n = 0
-        wall0, cpu0 = time.perf_counter(), time.process_time()
+        state = self.state
+        reply = encode_frame(frame_of(dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
+        n = 0           # frames answered and stepped: the time is n * dt (one counter, so a signal
+        wall0, cpu0 = time.perf_counter(), time.process_time()   # cannot leave frames and time apart)
         try:
             while not self.stop:
                 try:
@@ -166,21 +166,20 @@ class JsonPhysics:
                     break
                 if len(data) < SERVO_PACKET.size or data[0] | data[1] << 8 != SERVO_MAGIC:
                     continue
-                n += 1
                 if relay is not None:
-                    t_us = int(round(t * 1e6))
-                    if n % frames_per_gate == 0:
+                    t_us = n * dt_us
+                    if (n + 1) % frames_per_gate == 0:
                         relay.boundary(t_us)      # the firmware has run its loop at t, our last answer
                     relay.deliver(t_us + dt_us)   # what its loop at t + dt is to read
                 send(reply, addr)
                 throttle, steering = outputs_of(SERVO_PACKET.unpack_from(data)[3:])
                 state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
-                t += dt
-                reply = encode_frame(frame_of(t + dt, state, yaw_rate, accel, waves), home)
+                n += 1
+                reply = encode_frame(frame_of((n + 1) * dt, state, yaw_rate, accel, waves), home)
                 if relay is not None and n % 5 == 0:
                     relay.pump_fc()
         finally:
-            self.state, self.time_s, self.frames = state, t, n
+            self.state, self.time_s, self.frames = state, n * dt, n
             self.wall_s, self.cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
         return self.stats()
 
