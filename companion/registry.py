@@ -211,6 +211,7 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("FUS_GM_DEG", float, 0.05, 0.0, 10.0, "deg", "local model error states of the D/I elements (crust, main-field model): stationary 1-sigma of a Gauss-Markov process in distance; 0 with FUS_GM_NT 0: no such states", to="bias.local_deg", frozen=True),
     _p("FUS_GM_NT", float, 50.0, 0.0, 1e4, "nT", "local model error states of the F/H/Z elements: stationary 1-sigma", to="bias.local_nt", frozen=True),
     _p("FUS_GM_KM", float, 25.0, 0.01, 1e5, "km", "local model error states: correlation length in distance travelled", to="bias.local_length_m", scale=_KM_TO_M, frozen=True),
+    _p("FUS_GM_ORDER", int, 1, 1, 2, "", "local model error states: order of the Gauss-Markov process in distance: 1 rough (each step may change it by sigma sqrt(2 d / L)), 2 smooth, critically damped, a value and its slope along the track per element (changes by about sigma d / L over a short leg, as the crust, a band-limited field, does)", to="bias.local_order", frozen=True),
     # the INS the error-state filter assumes (its datasheet, 1-sigma; defaults: Table 1, the misalignment read as arc-seconds)
     _p("FUS_INS_TILT", float, 50.0, 0.0, 36000.0, "arcsec", "INS process model: initial misalignment about each level axis (tilt)", to="ins.tilt_arcsec"),
     _p("FUS_INS_AZ", float, 500.0, 0.0, 36000.0, "arcsec", "INS process model: initial azimuth misalignment (heading)", to="ins.azimuth_arcsec"),
