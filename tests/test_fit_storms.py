@@ -121,7 +121,7 @@ def test_a_fit_by_the_miss_flies_only_the_tuning_seeds():
 
     for seeds in ([1000], [99, 100], []):
         with pytest.raises(ValueError, match="tuning seeds"):
-            fit_by_miss([("march2011",)], seeds, Engine("local", 1))
+            fit_by_miss([("march2011",)], lambda names, ratio: {}, seeds, Engine("local", 1))
 
 
 def test_leave_one_out_uses_the_fit_by_miss_and_it_never_names_the_storm_it_scores(shared_data):

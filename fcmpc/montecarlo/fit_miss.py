@@ -24,17 +24,17 @@ leave-one-out share most candidates' storms).
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from companion.params import Controller, validate_all
 from fcmpc.montecarlo.engines import Engine, run_all
-from fcmpc.montecarlo.fit_storms import fit_storm, pool
-from fcmpc.montecarlo.runs import RunSpec
+from fcmpc.montecarlo.runs import RunRow, RunSpec
+from fcmpc.montecarlo.store import RunStore, run_key
 
-__all__ = ["FEED_OFF", "RATIOS", "SCALES", "TUNING_SEEDS", "Candidate", "Fit", "candidates", "fit_by_miss",
+__all__ = ["FEED_OFF", "RATIOS", "SCALES", "TUNING_SEEDS", "Candidate", "Fit", "Walks", "candidates", "fit_by_miss",
            "format_fit"]
 
 SCALES = (0.1, 0.3, 1.0)        # the pooled walk rates times this
@@ -64,48 +64,42 @@ class Fit:
     seeds: tuple[int, ...]
 
 
-def candidates(names: Sequence[str], data_dir: str | os.PathLike[str] | None = None,
-               scales: Sequence[float] = SCALES, ratios: Sequence[float] = RATIOS) -> list[Candidate]:
-    """The grid of :data:`SCALES` x :data:`RATIOS` on the walks pooled over ``names``."""
+Walks = Callable[[Sequence[str], float], dict[str, float]]   # (training storms, FUS_SYMH_K) -> pooled walks
+
+
+def candidates(names: Sequence[str], walks: Walks, scales: Sequence[float] = SCALES,
+               ratios: Sequence[float] = RATIOS) -> list[Candidate]:
+    """The grid of :data:`SCALES` x :data:`RATIOS` on the walks pooled over ``names``
+    (``walks``: :func:`fcmpc.montecarlo.fit_storms.fit_storms` with the residual at that ratio)."""
     out = []
     for ratio in ratios:
-        walks = pool([_storm_fit(name, data_dir, ratio if ratio > 0.0 else 1.0) for name in names])
+        pooled = walks(names, ratio if ratio > 0.0 else 1.0)
         for scale in scales:
-            values = {k: round(v * scale, 1) if k in RATES else v for k, v in walks.items()}
+            values = {k: round(v * scale, 1) if k in RATES else v for k, v in pooled.items()}
             out.append(Candidate(scale, ratio, tuple(sorted({**values, "FUS_SYMH_K": ratio}.items()))))
     return out
 
 
-_FITS: dict[tuple, dict[str, float]] = {}
-
-
-def _storm_fit(name: str, data_dir: str | os.PathLike[str] | None, ratio: float) -> dict[str, float]:
-    """:func:`fit_storm`, once per (storm, data folder, ratio) in this process."""
-    key = (name, None if data_dir is None else str(data_dir), float(ratio))
-    if key not in _FITS:
-        _FITS[key] = fit_storm(name, data_dir, symh_ratio=ratio)
-    return dict(_FITS[key])
-
-
 def _spec(storm: str, values: Iterable[tuple[str, float]], seed: int, feed_off: bool,
           data_dir: str | None) -> RunSpec:
-    from fcmpc.montecarlo.fit_storms import training_scenario
+    from sitl.scenario import load_scenario
 
-    scenario = training_scenario(storm)
+    scenario = load_scenario(f"{storm}_real")
     merged = validate_all({**scenario.nav_overrides(), **dict(values), "NAV_CONTROLLER": Controller.FC})
     return RunSpec(f"{storm}_real", tuple(merged.items()), seed, True, FEED_OFF if feed_off else (), data_dir)
 
 
-def fit_by_miss(training_sets: Sequence[Sequence[str]], seeds: Sequence[int], engine: Engine,
+def fit_by_miss(training_sets: Sequence[Sequence[str]], walks: Walks, seeds: Sequence[int], engine: Engine,
                 data_dir: str | os.PathLike[str] | None = None, scales: Sequence[float] = SCALES,
-                ratios: Sequence[float] = RATIOS, progress: bool = True) -> list[Fit]:
+                ratios: Sequence[float] = RATIOS, progress: bool = True, store: RunStore | None = None) -> list[Fit]:
     """Each training set's candidates flown on its storms and ``seeds`` (feed on, and off), scored,
-    the best chosen. Raises ValueError for a seed outside :data:`TUNING_SEEDS`."""
+    the best chosen; ``store`` keeps every run as it finishes, so a second call flies only what is
+    missing. Raises ValueError for a seed outside :data:`TUNING_SEEDS`."""
     seeds = tuple(int(s) for s in seeds)
     if not seeds or any(s not in TUNING_SEEDS for s in seeds):
         raise ValueError(f"tuning seeds must lie in {TUNING_SEEDS.start}..{TUNING_SEEDS.stop - 1} (judging: 1000 on)")
     folder = None if data_dir is None else str(data_dir)
-    grids = {tuple(names): candidates(names, folder, scales, ratios) for names in training_sets}
+    grids = {tuple(names): candidates(names, walks, scales, ratios) for names in training_sets}
     specs: dict[tuple, RunSpec] = {}
     for names, grid in grids.items():
         for storm in names:
@@ -113,15 +107,7 @@ def fit_by_miss(training_sets: Sequence[Sequence[str]], seeds: Sequence[int], en
                 specs.setdefault((storm, (), seed, True), _spec(storm, (), seed, True, folder))
                 for cand in grid:
                     specs.setdefault((storm, cand.values, seed, False), _spec(storm, cand.values, seed, False, folder))
-    keys = list(specs)
-    results = run_all(enumerate(specs[k] for k in keys), engine)
-    if progress:
-        import sys
-
-        from tqdm import tqdm
-
-        results = tqdm(results, total=len(keys), desc="fit by miss", unit="run", file=sys.stderr)
-    rows = {keys[i]: out.row for i, out in results}
+    rows = _fly(specs, engine, store, progress)
     fits = []
     for names, grid in grids.items():
         scored = []
@@ -138,6 +124,35 @@ def fit_by_miss(training_sets: Sequence[Sequence[str]], seeds: Sequence[int], en
         best = min(scored, key=lambda item: (item[1], item[0].ratio, item[0].scale))[0]
         fits.append(Fit(names, best, tuple(scored), seeds))
     return fits
+
+
+def _fly(specs: dict[tuple, RunSpec], engine: Engine, store: RunStore | None, progress: bool) -> dict[tuple, RunRow]:
+    """Every spec's row, from ``store`` when it holds the run, else flown (and stored as it finishes)."""
+    keys = list(specs)
+    digests = [run_key(specs[k], repr(_world_scenario(specs[k]))) for k in keys]
+    stored = {r["run_key"]: r for r in store.read(set(digests)).to_pylist()} if store is not None else {}
+    names = [f.name for f in fields(RunRow)]
+    rows = {k: RunRow(**{n: stored[d][n] for n in names}) for k, d in zip(keys, digests) if d in stored}
+    todo = [(i, specs[k]) for i, k in enumerate(keys) if k not in rows]
+    results = run_all(todo, engine)
+    if progress:
+        import sys
+
+        from tqdm import tqdm
+
+        results = tqdm(results, total=len(todo), desc=f"fit by miss ({len(rows)} stored)", unit="run", file=sys.stderr)
+    for index, out in results:
+        rows[keys[index]] = out.row
+        if store is not None:
+            store.append([{"run_key": digests[index], **asdict(out.row)}])
+    return rows
+
+
+def _world_scenario(spec: RunSpec):
+    from fcmpc.montecarlo.runs import apply_scenario_changes
+    from sitl.scenario import load_scenario
+
+    return apply_scenario_changes(load_scenario(spec.scenario), spec.scenario_changes)
 
 
 def format_fit(fit: Fit) -> str:

@@ -32,6 +32,7 @@ The written file's header names the training storms (``# fitted on storms: a,b``
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -119,10 +120,18 @@ def pool(fits: Sequence[Mapping[str, float]]) -> dict[str, float]:
     return pooled
 
 
-def fit_storms(names: Iterable[str], data_dir: str | os.PathLike[str] | None = None) -> dict[str, float]:
-    """The storm-time parameters (:data:`STORM_PARAMS`) fitted on the named storms, pooled."""
+def fit_storms(names: Iterable[str], data_dir: str | os.PathLike[str] | None = None,
+               symh_ratio: float | None = None) -> dict[str, float]:
+    """The storm-time parameters (:data:`STORM_PARAMS`) fitted on the named storms, pooled (the north
+    residual with the ring current at ``symh_ratio`` removed; default ``FUS_SYMH_K``'s); each storm's
+    fit is computed once per process."""
     names = _names(names)
-    return pool([fit_storm(name, data_dir) for name in names])
+    return pool([_fit_once(name, None if data_dir is None else str(data_dir), symh_ratio) for name in names])
+
+
+@functools.lru_cache(maxsize=64)
+def _fit_once(name: str, data_dir: str | None, symh_ratio: float | None) -> dict[str, float]:
+    return fit_storm(name, data_dir, symh_ratio)
 
 
 def leave_one_out(held_out: str) -> tuple[str, ...]:
@@ -205,6 +214,10 @@ def _run(argv: list[str] | None) -> int:
                              "(fcmpc.montecarlo.fit_miss); writes params/storms-<names>-by-miss.parm")
     parser.add_argument("--seeds", type=int, default=4, help="--by-miss: tuning seeds 0..N-1 (N <= 100); default 4")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="--by-miss: worker processes")
+    parser.add_argument("--scales", default=None, help="--by-miss: comma list of the walks' scales; default 0.1,0.3,1")
+    parser.add_argument("--ratios", default=None, help="--by-miss: comma list of FUS_SYMH_K; default 0,0.5,1")
+    parser.add_argument("--store", default="out/fit-by-miss", help="--by-miss: where the runs are kept (a second "
+                                                                   "call flies only what is missing)")
     args = parser.parse_args(argv)
     if args.by_miss:
         return _run_by_miss(args)
@@ -226,6 +239,7 @@ def _run_by_miss(args) -> int:
     """``--by-miss``: each training set (``--train``, ``--loo NAME``, or ``--loo all``) fitted by the miss."""
     from fcmpc.montecarlo.engines import Engine
     from fcmpc.montecarlo.fit_miss import fit_by_miss, format_fit
+    from fcmpc.montecarlo.store import RunStore
     from sitl.storms.events import storm_events
 
     if args.loo and args.loo.strip().lower() == "all":
@@ -235,7 +249,10 @@ def _run_by_miss(args) -> int:
     if args.out and len(sets) > 1:
         raise UsageError("--out with --loo all: one file per held-out storm, named for its training storms")
     try:
-        fits = fit_by_miss(sets, range(args.seeds), Engine("local", args.workers), args.data_dir)
+        grid = {k: tuple(float(v) for v in getattr(args, k).split(",")) for k in ("scales", "ratios") if getattr(args, k)}
+        fits = fit_by_miss(sets, lambda names, ratio: fit_storms(names, args.data_dir, ratio), range(args.seeds),
+                           Engine("local", args.workers), args.data_dir,
+                           store=RunStore(Path(args.store) / "runs"), **grid)
     except ValueError as err:
         raise UsageError(f"--seeds: {err}") from None
     for fit in fits:
