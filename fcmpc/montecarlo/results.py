@@ -157,7 +157,7 @@ def storm_table(results: list[tuple[str, dict[str, dict]]], runs: int) -> str:
                   *(_cell(c, k, f) for c in (on, off) for k, f in (("median_km", "{:.2f}"), ("p90_km", "{:.2f}"),
                                                                     ("inside_pct", "{:.0f} %"))),
                   f"{ratio:+.0%}" if math.isfinite(ratio) else "-", _cell(zero, "median_km", "{:.2f}"),
-                  "/".join(str(c.get("runs", 0)) for c in (on, off, zero))]
+                  "/".join(str(c.get("runs", "-")) for c in (on, off, zero))]
         lines.append("| " + " | ".join(values) + " |")
     lines.append(f"\nFc-MPC, miss at rest, seeds {FIRST_SEED}-{FIRST_SEED + runs - 1}, each storm scored with "
                  "parameters fitted without it; indices as published unless \"zero delay\"; runs: feed on / off / "
@@ -200,12 +200,12 @@ def render(results: list[tuple[Row, dict]], runs: int, commit: str, when: dateti
     return blocks
 
 
-def render_storms(results: list[tuple[str, dict[str, dict]]], events: list[str], runs: int, commit: str,
+def render_storms(results: list[tuple[str, dict[str, dict]]], events: list[str], flown, runs: int, commit: str,
                   when: datetime) -> str:
-    """The storm table's ``docs/results.md`` block, with its commands."""
+    """The storm table's ``docs/results.md`` block, with the commands of the cells ``flown``."""
     body = [storm_table(results, runs).replace("](docs/", "]("), "", "```"]
     body += [f"fcmpc-montecarlo {' '.join(storm_argv(event, variant))} --runs {runs} --first-seed {FIRST_SEED}"
-             f"   # {name}" for event in events for name, variant in STORM_VARIANTS]
+             f"   # {name}" for event in events for name, variant in flown]
     return section("storms", "\n".join(body + ["```", ""]), runs, commit, when)
 
 
@@ -245,8 +245,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", default=".", help="the checkout whose docs/results.md and README.md to write")
     parser.add_argument("--table", action="append", choices=TABLES, default=None,
                         help="run this table only (repeatable); default all; the others stay as they are")
+    parser.add_argument("--storm-cells", default=",".join(n for n, _ in STORM_VARIANTS), metavar="NAMES",
+                        help="the storm table's cells to fly (comma list of " + ", ".join(n for n, _ in STORM_VARIANTS)
+                             + "); default all; a cell not flown shows '-'")
     args = parser.parse_args(argv)
     root, out = Path(args.root), Path(args.out)
+    flown = [v for v in STORM_VARIANTS if v[0] in {n.strip() for n in args.storm_cells.split(",")}]
     wanted = tuple(args.table or TABLES)
     commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
@@ -258,9 +262,9 @@ def main(argv: list[str] | None = None) -> int:
         events = [event.name for event in storm_events()]
         titles = {event.name: event.title for event in storm_events()}
         cells = {(e, name): run_storm(e, variant, args.runs, out, root)   # every storm's feed on first
-                 for name, variant in STORM_VARIANTS for e in events}
-        storms = [(f"{titles[e]} (`{e}_real`)", {name: cells[e, name] for name, _ in STORM_VARIANTS}) for e in events]
-        docs["storms"] = render_storms(storms, events, args.runs, commit, when)
+                 for name, variant in flown for e in events}
+        storms = [(f"{titles[e]} (`{e}_real`)", {name: cells[e, name] for name, _ in flown}) for e in events]
+        docs["storms"] = render_storms(storms, events, flown, args.runs, commit, when)
         readme["storms"] = storm_table(storms, args.runs)
     path = root / "docs" / "results.md"
     old = path.read_text() if path.exists() else RESULTS_HEAD
