@@ -183,7 +183,7 @@ def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, c
 
 def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypatch, capsys):
     """fcmpc-fly scores a storm world as fcmpc-montecarlo does: its storm-time parameters fitted on
-    the library's other storms (the committed .parm of that fit is the reference), a --param wins,
+    the library's other storms (the committed .parm of that fit by the miss is the reference), a --param wins,
     and parameters fitted on the world's own storm are refused before anything flies."""
     import fcmpc.fly.cli
     from companion.params import read_parm_file
@@ -193,7 +193,7 @@ def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypat
     assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--param", "FUS_BQA_N=12"]) == 0
     said = capsys.readouterr().err
     assert "fitted on halloween2003,march2011,stpatrick2015, not on may2024" in said
-    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015.parm")
+    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015-by-miss.parm")
     given = flown[0].extra_params
     assert given["FUS_BQA_N"] == 12
     assert {k: v for k, v in committed.items() if k != "FUS_BQA_N"} == {
