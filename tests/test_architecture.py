@@ -343,3 +343,16 @@ def test_three_top_level_packages_and_nothing_generic():
     names = {line.strip() for line in include.splitlines()[1:] if line.strip() and not line.strip().startswith("#")}
     assert names - {"include ="} == {"companion", "companion.*", "sitl", "sitl.*", "fcmpc", "fcmpc.*"}, names
     assert "py_modules" not in setup
+
+
+# ------------------------------------------------------- one runner for every flight controller (issue 48.4)
+def _string_constants(path: Path) -> set[str]:
+    return {node.value for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path)))
+            if isinstance(node, ast.Constant) and isinstance(node.value, str)}
+
+
+def test_the_companion_is_started_as_a_process_in_one_place():
+    """One mission runner (fcmpc/fly/mission.py) starts the companion for fcmpc-fly, fcmpc-soak and
+    fcmpc-montecarlo --fc against any flight controller; nothing else in the packages writes its own."""
+    starters = sorted(_rel(p) for p in _project_files() if "companion.app" in _string_constants(p))
+    assert starters == ["fcmpc/fly/mission.py"], starters

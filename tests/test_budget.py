@@ -108,7 +108,7 @@ def test_main_field_alone_costs_what_the_budget_predicts():
     quarter of the predicted fix error.
     """
     from companion.params import NavConfig, validate_all
-    from sitl.inprocess import fly_in_process
+    from fcmpc.montecarlo.inprocess import fly_in_process
 
     real = load_scenario("pacific")
     scenario = only(real, "main_field")

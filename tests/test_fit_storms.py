@@ -112,3 +112,31 @@ def test_the_committed_paper_storm_parameters_are_the_fit_without_may2024(shared
     assert main(["--loo", "may2024", "--out", str(written), "--data-dir", str(shared_data)]) == 0
     assert written.read_text() == committed.read_text()
     assert fitted_on(committed) == ("halloween2003", "march2011", "stpatrick2015")
+
+
+def test_a_fit_by_the_miss_flies_only_the_tuning_seeds():
+    """The fit by miss may fly seeds 0-99 only: the judging seeds (1000 on) never set a parameter."""
+    from fcmpc.montecarlo.engines import Engine
+    from fcmpc.montecarlo.fit_miss import fit_by_miss
+
+    for seeds in ([1000], [99, 100], []):
+        with pytest.raises(ValueError, match="tuning seeds"):
+            fit_by_miss([("march2011",)], lambda names, ratio: {}, seeds, Engine("local", 1))
+
+
+def test_leave_one_out_uses_the_fit_by_miss_and_it_never_names_the_storm_it_scores(shared_data):
+    """Every committed fit by miss names its training storms, excludes the storm it is there to score
+    (its file name is the other storms'), and is what --storm-params loo gives that storm."""
+    from fcmpc.montecarlo.fit_storms import PARAMS_DIR, storm_params_for
+
+    for event in storm_events():
+        names = leave_one_out(event.name)
+        committed = PARAMS_DIR / parm_name(names, by_miss=True)
+        if not committed.is_file():
+            continue
+        assert fitted_on(committed) == names and event.name not in names
+        values, used = storm_params_for(load_scenario(f"{event.name}_real"), "loo", shared_data)
+        assert used == names and values == read_parm_file(committed)
+        assert "FUS_SYMH_K" in values and set(STORM_PARAMS) <= set(values)
+        with pytest.raises(OwnStormError, match=event.name):
+            check_held_out(load_scenario(f"{event.name}_real"), (*names, event.name))

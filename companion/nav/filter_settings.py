@@ -23,7 +23,8 @@ class BiasSpec:
     sqrt(km) travelled (``qd_*_rkm``: the main-field model's error relative to the start-up
     calibration, which holds at the start and less the farther the vehicle goes); and the local model error:
     a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
-    ``local_nt`` and correlation length ``local_length_m`` (no such states when both are 0); and
+    ``local_nt``, correlation length ``local_length_m`` and order ``local_order`` (1 rough, 2 smooth:
+    :mod:`companion.nav.local_error`; no such states when both sigmas are 0); and
     the calibration residual's dependence on the heading: prior 1-sigma ``heading_deg`` /
     ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
     the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
@@ -44,6 +45,7 @@ class BiasSpec:
     local_deg: float
     local_nt: float
     local_length_m: float
+    local_order: int
     qd_deg_rkm: float
     qd_nt_rkm: float
     qa_adapt: int

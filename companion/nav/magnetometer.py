@@ -25,7 +25,7 @@ Pure (samples in, in message time and SI units; results out). Per sample:
    track: 1 m/s^2 is 6 degrees) are left out of it.
 6. **Averaging**: D (unwrapped around the first sample) and I are averaged over the accepted
    samples of the period, which is what the in-process Monte Carlo means by "D and I averaged
-   along the period's path" (:mod:`sitl.inprocess`). The result also carries the mean sample
+   along the period's path" (:mod:`fcmpc.montecarlo.inprocess`). The result also carries the mean sample
    time, so the caller can tell the core how far back the average refers
    (``window_s = 2 * (t_end - mean_time)``).
 

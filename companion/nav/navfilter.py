@@ -4,10 +4,11 @@ State: the process model's error states (:mod:`companion.nav.process`: 15 INS er
 4 dead-reckoning states) followed by one bias state per measured element (D, I in degrees;
 F, H, Z in nT): what the measurement carries beyond the main-field model at the true position
 (the heading's bias in D, the main-field model's and the crust's error, a magnetic storm, a
-calibration residual), each a random walk; then, when configured, one local model-error state
-per element (the part of the model's error that changes along the route, the crust): first-order
-Gauss-Markov in the *distance travelled*, ``m' = exp(-d / L) m`` with ``d = |v| dt``, its
-variance relaxing to ``sigma_local^2``, so standing still does not decorrelate it; then, when
+calibration residual), each a random walk; then, when configured, the local model-error states
+(the part of the model's error that changes along the route, the crust: :mod:`companion.nav.local_error`):
+per element a Gauss-Markov process in the *distance travelled* ``d = |v| dt``, first order
+(``m' = exp(-d / L) m``, one state) or second order (FUS_GM_ORDER 2: smooth, the value and its
+slope), its variance relaxing to ``sigma_local^2``, so standing still does not decorrelate it; then, when
 configured, four heading states per element: the magnetometer's calibration residual, which sits
 in the body frame and so changes the elements as the vehicle turns. To first order a hard-iron
 offset ``o`` appears in the north-east-down field as ``R(psi) o`` and a soft-iron residual ``S``
@@ -74,6 +75,7 @@ from companion.nav.field import WorldMagneticModel, element_values_and_gradient
 from companion.nav.filter_settings import BiasSpec, FilterSettings
 from companion.nav.geo import enu_offset, offset_position
 from companion.nav.ins_error import AttitudeSource, misalignment_columns
+from companion.nav.local_error import LocalError
 from companion.nav.process import InsProcess, ProcessModel
 from companion.nav.small import inverse2, whiten
 
@@ -127,8 +129,9 @@ class NavigationFilter:
                               b.per_element(names, b.qa_deg_rth, b.qa_nt_rth),
                               b.storm_walk if b.qa_mode == COMPONENT_WALK else None, self._field_ned)
         self.ns = len(self._walk.states)   # the storm's Gauss-Markov components, states
-        self.nl = self.nb if b.has_local else 0
-        self._local_sigma = b.per_element(names, b.local_deg, b.local_nt)[:self.nl]
+        self.local = LocalError(b.per_element(names, b.local_deg, b.local_nt)[:self.nb if b.has_local else 0],
+                                b.local_length_m, b.local_order)
+        self.nl = self.local.n
         heading_sigma = b.per_element(names, b.heading_deg, b.heading_nt)
         self.nh = HARMONIC_TERMS * self.nb if np.any(heading_sigma > 0.0) else 0   # none for this element set
         self._heading_sigma = np.repeat(heading_sigma, HARMONIC_TERMS)[:self.nh]
@@ -140,13 +143,13 @@ class NavigationFilter:
         if self.nb == 2:
             kf.inv = inverse2   # S^-1 of a pair in closed form (filterpy's documented hook)
         kf.x = np.zeros((n, 1))
-        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), np.diag(self._local_sigma ** 2),
+        kf.P = block_diag(process.p0, np.diag(self._bias_sigma0 ** 2), self.local.initial_covariance(),
                           np.diag(self._heading_sigma ** 2), np.zeros((self.ns, self.ns)))
         # measured minus model beyond the position, from the state: the bias plus the local error
         # plus the heading harmonics (their columns follow the heading: set_heading) plus the
         # storm's Gauss-Markov components (their columns are J's: _storm_columns)
         self._total = np.hstack([np.zeros((self.nb, process.n)), np.eye(self.nb),
-                                 np.eye(self.nb)[:, :self.nl], np.zeros((self.nb, self.nh)),
+                                 self.local.columns(self.nb), np.zeros((self.nb, self.nh)),
                                  np.zeros((self.nb, self.ns))])
         self._storm_states = slice(n - self.ns, n)
         self.heading_known = False
@@ -157,9 +160,8 @@ class NavigationFilter:
         # predict's block-diagonal Phi and Q_d: the bias and heading states are constants (the
         # identity; the heading states have no noise), the rest is filled in each step
         self._transition, self._noise = np.eye(n), np.zeros((n, n))
-        first = process.n + np.arange(self.nb)
         self._bias_block = slice(process.n, process.n + self.nb)
-        self._local_diag = (first + self.nb, first + self.nb)
+        self._local = slice(process.n + self.nb, process.n + self.nb + self.nl)
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
         self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
@@ -247,7 +249,8 @@ class NavigationFilter:
         k = self.process.n
         transition, noise = self._transition, self._noise   # block diagonals, the constant blocks kept
         transition[:k, :k], noise[:k, :k] = phi, q_d
-        distance_km = math.hypot(*vel_en_mps) * dt_s / 1000.0
+        distance_m = math.hypot(*vel_en_mps) * dt_s
+        distance_km = distance_m / 1000.0
         along_components = self._walk.along_components(self.monitor)
         jacobian = self._storm_columns() if along_components else None
         noise[self._bias_block, self._bias_block] = self._walk.noise(dt_s, distance_km, self.monitor, self.qa_scale,
@@ -260,10 +263,8 @@ class NavigationFilter:
             cross = self._walk.storm.cross_noise(jacobian, dt_s) if along_components else 0.0
             noise[self._bias_block, self._storm_states] = cross
             noise[self._storm_states, self._bias_block] = np.transpose(cross)
-        if self.nl:   # first-order Gauss-Markov in the distance travelled
-            decay = math.exp(-math.hypot(*vel_en_mps) * dt_s / self.settings.bias.local_length_m)
-            transition[self._local_diag] = decay
-            noise[self._local_diag] = self._local_sigma ** 2 * (1.0 - decay ** 2)
+        if self.nl:   # Gauss-Markov in the distance travelled (:mod:`companion.nav.local_error`)
+            transition[self._local, self._local], noise[self._local, self._local] = self.local.transition(distance_m)
         self.kf.predict(F=transition, Q=noise)
         self.process.advance(self.x, dt_s, vel_en_mps)
 
@@ -387,7 +388,7 @@ class NavigationFilter:
         y = self.elements.difference(np.asarray(measured, dtype=float), expected)
         r2 = np.diag(self.measurement_noise(standard_errors))
         local = np.zeros(self.nb)
-        local[:self.nl] = self._local_sigma ** 2     # the local error at the start is part of y
+        local[:self.local.elements] = self.local.sigma ** 2     # the local error at the start is part of y
         storm = np.zeros(self.ns)
         k = self.process.n
         attitude = self._total[:, :k]                # so is the INS misalignment's share (FUS_ATT_INS)
@@ -399,7 +400,8 @@ class NavigationFilter:
         var = np.clip(y ** 2 - r2 - beyond, r2 / 100.0, self._bias_sigma0 ** 2)
         self.kf.P[k:, :] = 0.0
         self.kf.P[:, k:] = 0.0
-        self.kf.P[k:, k:] = np.diag(np.concatenate([var, local[:self.nl], self._heading_sigma ** 2, storm]))
+        self.kf.P[k:, k:] = block_diag(np.diag(var), self.local.initial_covariance(),
+                                       np.diag(np.concatenate([self._heading_sigma ** 2, storm])))
         return self.update_elements(measured, np.zeros(2), ins_lat_deg, ins_lon_deg, standard_errors)
 
     def _update(self, y: np.ndarray, h: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:

@@ -2,7 +2,7 @@
 
 :meth:`Navigator.step` is the one place this happens; the companion
 (:class:`companion.process.control_step.ControlStep`), the in-process Monte Carlo
-(:class:`sitl.inprocess.InProcessFlight`) and the log replay (:func:`fcmpc.replay.heading.run_mission`)
+(:class:`fcmpc.montecarlo.inprocess.InProcessFlight`) and the log replay (:func:`fcmpc.replay.heading.run_mission`)
 all call it, so every figure the Monte Carlo prints describes what the vehicle runs. In order:
 
 1. **The measurement** (:meth:`Navigator.measurement`): the period's D and F as averaged; I

@@ -39,23 +39,17 @@ from pathlib import Path
 
 from companion.process.companion import CompanionApp
 from companion.process.options import AppOptions
+from fcmpc.fly.standin import SITL_RATES, free_udp_port     # the stand-in's streams as fcmpc-fly asks for them
 
 __all__ = ["run"]
 
 REPO = Path(__file__).resolve().parents[2]
-SITL_RATES = ("SCALED_IMU:0", "LOCAL_POSITION_NED:0", "SYS_STATUS:0", "GPS_RAW_INT:1", "GLOBAL_POSITION_INT:1")
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def _fly_against_sitl(workdir: Path, sitl_args: list[str], params: str, lockstep: bool, timeout_s: float):
     """Start the simulator, run a CompanionApp here until the simulator exits; (app, sitl summary,
     CPU seconds of this process while the companion flew)."""
-    port = _free_udp_port()
+    port = free_udp_port()
     parm = workdir / "bench.parm"
     parm.write_text(params, encoding="utf-8")
     app = CompanionApp(AppOptions(connect=f"udp:127.0.0.1:{port}", params=str(parm), log_dir=str(workdir / "companion"),

@@ -129,7 +129,7 @@ def bench_field(repeats: int = 2000) -> list[Row]:
 def bench_mission_step() -> list[Row]:
     """One Mission.step while cruising, timed inside in-process missions (Fc with and without
     the Kalman fusion, LTV)."""
-    from sitl.inprocess import fly_in_process
+    from fcmpc.montecarlo.inprocess import fly_in_process
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 

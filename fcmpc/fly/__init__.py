@@ -1,8 +1,13 @@
 """fcmpc-fly as a library: run one closed-loop mission and report what happened.
 
-``runner``  starts the companion and the simulator as processes, progress, interrupts
-``results`` the three distances to the destination, ``result.json``, the summary lines
-``plots``   the four-panel track plot
+``mission``  the one mission runner: any flight controller (a small interface), the companion as
+             a process, the watch, interrupts, stop by PID; ``fcmpc-soak`` and ``fcmpc-montecarlo
+             --fc`` use it too
+``standin``  our stand-in (``sitl.fc``) as a flight controller of the runner
+``firmware`` ArduPilot and PX4 SITL (their own physics or ours, in lockstep) as flight controllers
+``runner``   fcmpc-fly's options turned into a flight of the runner; progress; evaluation
+``results``  the three distances to the destination, ``result.json``, the summary lines
+``plots``    the four-panel track plot
 
 ``results`` and ``plots`` take a truth track of (time, lat, lon) and the companion's
 ``steps.csv``, whichever simulator or firmware produced them. This package imports

@@ -8,7 +8,7 @@
     fcmpc-fly --fc ardupilot --short           # against real ArduPilot Rover SITL (README: Flying with ArduPilot)
     fcmpc-fly --fc px4 --short --short-km 30   # against real PX4 SITL with SIH (README: Flying with PX4)
 
-The run itself is :func:`fcmpc.fly.runner.fly`; this file is the command line (BLAS threads and MAVLink 2 are set in :mod:`fcmpc.fly`,
+The run itself is :func:`fcmpc.fly.runner.fly` (the one runner, :mod:`fcmpc.fly.mission`, against any flight controller); this file is the command line (BLAS threads and MAVLink 2 are set in :mod:`fcmpc.fly`,
 before numpy and pymavlink load). While it flies
 it prints a progress line on stderr about every 10 s of wall time (step, simulated time,
 distance to go as the companion estimates it). At the end it prints where the vehicle came to
@@ -116,18 +116,14 @@ def _run(argv: list[str] | None) -> int:
     gifted = gift_line(scenario) if options.fc == "sim" else ""   # real firmware flies in its own world
     if gifted:
         print(f"fcmpc-fly: {gifted}", file=sys.stderr, flush=True)
-    if options.fc in ("ardupilot", "px4"):
-        from fcmpc.fly.firmware import fly_on_ardupilot, fly_on_px4
-        from sitl.firmware import FirmwareMissing
+    from sitl.firmware import FirmwareMissing
 
-        if options.fc == "px4" and not 0 <= options.fc_instance <= 9:
-            raise UsageError(f"--fc-instance {options.fc_instance}: PX4 instances are 0..9")
-        try:
-            result = (fly_on_px4 if options.fc == "px4" else fly_on_ardupilot)(options)
-        except FirmwareMissing as err:
-            raise UsageError(str(err)) from None
-    else:
+    if options.fc == "px4" and not 0 <= options.fc_instance <= 9:
+        raise UsageError(f"--fc-instance {options.fc_instance}: PX4 instances are 0..9")
+    try:
         result = fly(options)
+    except FirmwareMissing as err:
+        raise UsageError(str(err)) from None
     if args.json:
         print(result_json(result), end="")
     else:

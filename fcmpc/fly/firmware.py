@@ -1,90 +1,163 @@
-"""``fcmpc-fly --fc ardupilot`` / ``--fc px4``: the main job against real flight-controller firmware.
+"""Real flight-controller firmware as a flight controller of the one runner (``fcmpc-fly --fc ardupilot|px4``).
 
-The flight itself is :func:`sitl.firmware.flight.fly_ardupilot` (ArduPilot's own boat, field,
-compass-derived yaw and EKF; GPS denied the moment the vehicle arms; SIMSTATE as the truth) or
-:func:`sitl.firmware.px4_flight.fly_px4` (PX4 SIH's Ackermann rover; HIL_STATE_QUATERNION as the truth).
-This module turns the scenario and the user's options into that flight, and its records into the
-same result, plot and summary as a flight against our stand-in (:func:`fcmpc.fly.runner.finish`).
+Each firmware's own start-up lives with it: :class:`sitl.firmware.flight.ArduPilotRig` (ArduPilot
+Rover SITL with its motorboat), :class:`sitl.physics.rig.ArduPilotJsonRig` (with our world as its
+JSON physics, in lockstep), :class:`sitl.firmware.px4_flight.Px4Rig` (PX4 with SIH) and
+:class:`~sitl.firmware.px4_flight.Px4HilRig` (with our world over HIL, in lockstep). A rig starts
+the processes and hands back a ground-station monitor (:class:`~sitl.firmware.monitor.FirmwareMonitor`).
+:class:`FirmwareFC` is what every rig has in common for the runner: it pumps the monitor (the
+truth: SIMSTATE or HIL_STATE_QUATERNION), denies GPS the moment the vehicle arms (GPS for
+start-up only, as in the paper's scenario), waits after the mission until the boat is at rest,
+and writes ``truth.csv``. :func:`firmware_flight` turns the scenario and the user's options into
+the rig and the companion's parameters.
 """
 from __future__ import annotations
 
+import math
 import time
-from datetime import datetime
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from fcmpc.fly.results import STATUS_EXIT, FlyResult, TruthTrack
-from fcmpc.fly.runner import REPO, FlyOptions, finish, prepare
+from fcmpc.fly.results import TruthTrack
+from sitl.firmware.flight import BOAT_CRUISE_KMH, FirmwareFlight
+from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
 
-__all__ = ["fly_on_ardupilot", "fly_on_px4"]
+__all__ = ["FirmwareFC", "SETTLE_SPEED_MPS", "firmware_flight"]
 
+SETTLE_SPEED_MPS = 0.3      # slower than this over the last five truth samples: the boat is at rest
+TRUTH_EVERY_S = 30.0        # wall seconds between the truth's progress lines (steps may stop: a boat in HOLD)
 _MISSION = ("NAV_START_LAT", "NAV_START_LON", "NAV_DEST_LAT", "NAV_DEST_LON", "COMP_ARM_ENABLE", "COMP_SP_RATE_HZ")
 
 
-def fly_on_ardupilot(options: FlyOptions) -> FlyResult:
-    """Fly the scenario's mission (or its ``--short`` leg) against ArduPilot SITL; FirmwareMissing
-    (before anything is written) when the binary is absent."""
-    from sitl.firmware.ardupilot import ardupilot_binary
-    from sitl.firmware.flight import fly_ardupilot
+class FirmwareFC:
+    """A firmware rig (``rig_class(flight, out)``: ``start() -> monitor``, ``prepare(monitor) ->
+    notes``, ``companion_url``, ``companion_args``, ``deny_gps(monitor)``, ``stop()``, ``name``) as
+    a :class:`fcmpc.fly.mission.FlightController` flying to ``destination``; ``say``: where its notes
+    go (GPS denied, and every :data:`TRUTH_EVERY_S` of wall time the true distance to go)."""
 
-    ardupilot_binary()
-    # a real compass is calibrated by the companion's circles before the mission (COMP_CAL_TURNS):
-    # ArduPilot's own fixed-yaw calibration learns the offsets only (sitl/firmware/compass.py)
-    if options.physics == "json":       # our world as ArduPilot's physics, in lockstep (sitl.physics)
-        from sitl.physics.rig import fly_ardupilot_json as fly_ardupilot
-    elif options.physics != "builtin":
-        raise ValueError(f"physics {options.physics!r}: choose builtin or json")
-    return _fly_on(options, "ardupilot", fly_ardupilot, 50.0, {"COMP_CAL_TURNS": 1} if options.compass == "real" else {})
+    def __init__(self, rig_class, flight: FirmwareFlight, destination: tuple[float, float],
+                 deny_gps_at_arming: bool = True, say: Callable[[str], None] = lambda text: None) -> None:
+        self.rig_class, self.flight, self.deny_gps_at_arming, self.say = rig_class, flight, deny_gps_at_arming, say
+        self.destination = destination
+        self._said_wall_s = 0.0
+        self.name = rig_class.name
+        self.companion_args = tuple(getattr(rig_class, "companion_args", ()))
+        self.rig = None
+        self.monitor: FirmwareMonitor | None = None
+        self.denied_at_s = math.nan
+        self.out: Path | None = None
+
+    @property
+    def companion_url(self) -> str:
+        return self.rig.companion_url
+
+    def start(self, out: Path) -> list[str]:
+        self.out = Path(out)
+        self.rig = self.rig_class(self.flight, self.out)
+        self.monitor = self.rig.start()
+        return self.rig.prepare(self.monitor)
+
+    def companion_ready(self) -> None:
+        pace = "in lockstep" if self.companion_args else f"at {self.flight.speedup:g}x"
+        self.say(f"{self.name} instance {self.flight.instance} {pace}, companion on {self.companion_url}")
+
+    def _tick(self, monitor: FirmwareMonitor) -> None:
+        if self.deny_gps_at_arming and monitor.armed and not math.isfinite(self.denied_at_s):
+            self.rig.deny_gps(monitor)
+            self.denied_at_s = monitor.time_s
+            self.say(f"armed at {monitor.time_s:.0f} s: GPS denied from take-off")
+        if time.monotonic() - self._said_wall_s > TRUTH_EVERY_S and monitor.truth:
+            from companion.nav.geo import geodesic_distance_m
+
+            self._said_wall_s = time.monotonic()
+            s = monitor.truth[-1]
+            self.say(f"{s.time_s / 3600.0:5.2f} h simulated, "
+                     f"{geodesic_distance_m(s.lat_deg, s.lon_deg, *self.destination) / 1000.0:.1f} km to go (true)")
+
+    def wait(self, timeout_s: float) -> tuple[str, str] | None:
+        deadline = time.monotonic() + timeout_s
+        self.monitor.pump(lambda m: self._tick(m) or time.monotonic() >= deadline, timeout_s + 5.0, "the firmware")
+        error = getattr(getattr(self.rig, "bridge", None), "error", None)     # PX4 over HIL: the bridge's thread
+        return ("error", f"{self.name}: {error}") if error is not None else None
+
+    def settle(self, timeout_s: float) -> None:
+        """Until the boat is at rest or ``timeout_s`` of firmware time passed (TimeoutError after as
+        much wall time)."""
+        t_done = self.monitor.time_s
+        self.monitor.pump(lambda m: m.time_s > t_done + timeout_s or _at_rest(m), timeout_s, "the vehicle at rest")
+
+    def stop(self) -> None:
+        try:
+            if self.monitor is not None:
+                self.monitor.close()
+        finally:
+            if self.rig is not None:
+                self.rig.stop()
+
+    def truth(self) -> TruthTrack | None:
+        samples = self.monitor.truth if self.monitor is not None else []
+        if self.out is not None:
+            write_truth_csv(self.out / "truth.csv", samples)
+        if not samples:
+            return None
+        return TruthTrack(np.array([s.time_s for s in samples]), np.array([s.lat_deg for s in samples]),
+                          np.array([s.lon_deg for s in samples]))
 
 
-def fly_on_px4(options: FlyOptions) -> FlyResult:
-    """The same against PX4 SITL with SIH (``$FCMPC_PX4`` or ``../shared/px4``): its Ackermann rover at
-    :data:`sitl.firmware.px4_flight.COMPANION_VALUES` (3 m/s, SIH's magnetometer at 50 Hz) unless ``--param``
-    says otherwise; PX4's pacing is its
-    speed factor (``--speedup``, default 10)."""
-    from sitl.firmware.px4 import px4_root
-    from sitl.firmware.flight import BOAT_CRUISE_KMH
-    from sitl.firmware.px4_flight import COMPANION_VALUES, fly_px4
-    from sitl.firmware.px4_hil import hil_companion_values
+def _at_rest(monitor: FirmwareMonitor) -> bool:
+    truth = monitor.truth
+    if len(truth) < 6:
+        return False
+    from companion.nav.geo import geodesic_distance_m
 
-    if options.physics not in ("builtin", "hil"):
-        raise ValueError(f"physics {options.physics!r}: choose builtin or hil with --fc px4")
-    px4_root()
-    # in lockstep the boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does
-    values = {**COMPANION_VALUES, **hil_companion_values(BOAT_CRUISE_KMH / 3.6), "NAV_SPEED_KMH": BOAT_CRUISE_KMH} \
-        if options.physics == "hil" else COMPANION_VALUES
-    return _fly_on(options, "px4", fly_px4, 10.0, values)
+    a, b = truth[-6], truth[-1]
+    return geodesic_distance_m(a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg) / max(b.time_s - a.time_s, 1e-3) \
+        < SETTLE_SPEED_MPS
 
 
-def _current(options: FlyOptions, scenario) -> tuple[float, float]:
-    """The water's current of this seed in the scenario's world (our world as the firmware's physics)."""
+# (--fc, --physics) -> "module:rig class"; each rig says how its firmware starts, its pace and the
+# companion's parameters for it (check(), default_speedup, companion_values(flight), companion_args)
+RIGS = {("ardupilot", "builtin"): "sitl.firmware.flight:ArduPilotRig",
+        ("ardupilot", "json"): "sitl.physics.rig:ArduPilotJsonRig",
+        ("px4", "builtin"): "sitl.firmware.px4_flight:Px4Rig",
+        ("px4", "hil"): "sitl.firmware.px4_flight:Px4HilRig"}
+
+
+def firmware_flight(options, scenario, dest: tuple[float, float], values: dict,
+                    say: Callable[[str], None] = lambda text: None) -> tuple[FirmwareFC, dict]:
+    """The flight controller of ``options.fc`` (ardupilot or px4) with ``options.physics`` (:data:`RIGS`)
+    and the companion's parameters for it (the scenario's start, ``dest``, the firmware's cruise, its
+    rig's values, what the user set; the scenario's ``[navigator]`` table describes its simulated world,
+    not the firmware's). FirmwareMissing (nothing written) when the firmware is absent; ValueError for a
+    physics it has not."""
+    import importlib
+
+    spec = RIGS.get((options.fc, options.physics))
+    if spec is None:
+        choices = " or ".join(physics for fc, physics in RIGS if fc == options.fc) or "no physics"
+        raise ValueError(f"physics {options.physics!r}: choose {choices} with --fc {options.fc}")
+    module, name = spec.split(":")
+    rig_class = getattr(importlib.import_module(module), name)
+    rig_class.check()
+    start = (scenario.start_lat_deg, scenario.start_lon_deg)
+    flight = FirmwareFlight(start=start, speedup=options.speedup or rig_class.default_speedup,
+                            instance=options.fc_instance, start_unix_s=scenario.start_posix, compass=options.compass,
+                            physics=options.physics, scenario=scenario, seed=options.seed,
+                            current_en_mps=_current(options, scenario))
+    given = {**scenario.nav_overrides(navigator=False), **options.extra_params}
+    companion = {"NAV_START_LAT": start[0], "NAV_START_LON": start[1], "NAV_DEST_LAT": dest[0],
+                 "NAV_DEST_LON": dest[1], "COMP_ARM_ENABLE": 1, "NAV_SPEED_KMH": BOAT_CRUISE_KMH,
+                 **rig_class.companion_values(flight),
+                 **{k: v for k, v in values.items() if k not in _MISSION and k in given}}
+    return FirmwareFC(rig_class, flight, dest, say=say), companion
+
+
+def _current(options, scenario) -> tuple[float, float]:
+    """The water's current of this seed in the scenario's world (our world as ArduPilot's JSON physics)."""
     if options.physics != "json":
         return (0.0, 0.0)
     from sitl.world.vehicle import MotionErrors
 
     return MotionErrors.draw(scenario.motion, np.random.default_rng(options.seed)).current_en_mps
-
-
-def _fly_on(options: FlyOptions, name: str, fly_firmware, default_speedup: float, defaults: dict) -> FlyResult:
-    from sitl.firmware.flight import FirmwareFlight
-
-    scenario, dest, values = prepare(options)
-    wall0 = time.monotonic()
-    out = Path(options.out_dir) if options.out_dir else \
-        REPO / "out" / "fly" / f"{scenario.name}-{name}-{datetime.now():%Y%m%d-%H%M%S}"
-    # the scenario's [navigator] table describes its simulated world, not the firmware's
-    given = {**scenario.nav_overrides(navigator=False), **options.extra_params}
-    companion_values = {k: v for k, v in values.items() if k not in _MISSION and k in given}
-    run = fly_firmware(FirmwareFlight(
-        start=(scenario.start_lat_deg, scenario.start_lon_deg), destination=dest, out_dir=out,
-        values={**defaults, **companion_values}, speedup=options.speedup or default_speedup,
-        instance=options.fc_instance, start_unix_s=scenario.start_posix, timeout_s=options.timeout_s,
-        compass=options.compass, current_en_mps=_current(options, scenario), physics=options.physics,
-        scenario=scenario, seed=options.seed,
-        quiet=options.progress_s is None))
-    t = run.truth
-    truth = TruthTrack(np.asarray(t["time_s"]), np.asarray(t["lat_deg"]), np.asarray(t["lon_deg"])) \
-        if t["time_s"] else None
-    return finish(options, scenario, out, dest, run.status, STATUS_EXIT.get(run.status, 1), run.message, wall0,
-                  truth=truth)

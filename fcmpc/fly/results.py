@@ -126,9 +126,10 @@ class FlyResult:
 
 def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, float]) -> dict:
     """``rest_remaining_m``, ``step_remaining_m``, ``believed_remaining_m``, ``came_to_rest``,
-    ``iterations``, ``sim_s`` from a truth track and the companion's step rows (nan when unknown)."""
+    ``iterations``, ``sim_s`` from a truth track and the companion's step rows (nan when unknown);
+    ``rest_index``: the track's sample where the rest distance is taken (-1 without a track)."""
     out = {"rest_remaining_m": math.nan, "step_remaining_m": math.nan, "believed_remaining_m": math.nan,
-           "came_to_rest": False, "iterations": 0, "sim_s": math.nan}
+           "came_to_rest": False, "iterations": 0, "sim_s": math.nan, "rest_index": -1}
     if steps:
         out["iterations"] = int(steps[-1]["step"])
         out["believed_remaining_m"] = float(steps[-1]["remaining_m"])
@@ -141,7 +142,7 @@ def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, fl
     last = len(t) - 1
     stopped = _stopped_in_the_water(truth, steps)
     if stopped is not None:
-        out["came_to_rest"] = True
+        out["came_to_rest"], out["rest_index"] = True, stopped
         out["rest_remaining_m"] = geodesic_distance_m(truth.lat_deg[stopped], truth.lon_deg[stopped], *dest)
         return out
     first = int(np.searchsorted(t, t[-1] - REST_WINDOW_S, side="right")) - 1   # the window spans REST_WINDOW_S
@@ -150,6 +151,7 @@ def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, fl
                                         truth.lon_deg[last]) for i in range(first, last + 1))
         out["came_to_rest"] = bool(moved < REST_TOL_M)
     out["rest_remaining_m"] = geodesic_distance_m(truth.lat_deg[last], truth.lon_deg[last], *dest)
+    out["rest_index"] = last
     return out
 
 

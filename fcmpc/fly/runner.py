@@ -1,24 +1,17 @@
-"""One closed-loop mission: the simulator and the companion as two processes on loopback.
+"""fcmpc-fly's mission: the scenario and the user's options turned into a flight of the one runner.
 
-:func:`fly` writes the run's parameter file (the scenario's start, destination, altitude and
-date, ``COMP_ARM_ENABLE = 1``), starts the companion (``python -m companion.app``, listening on
-a free UDP port like a ground station), waits until it has bound the port (its ``steps.csv``
-appears: an event, not a sleep), starts the simulator (``python -m sitl.fc --out`` to that
-port), reports progress while the companion flies (one line per control step at most every
-``progress_s`` wall seconds, on stderr), lets the companion linger after the mission's end
-(:func:`linger_s`: the simulated vehicle's stopping time plus the rest window) so the truth log
-shows where the vehicle came to rest, stops the simulator when the companion is done and
-evaluates the records (:mod:`fcmpc.fly.results`, :mod:`fcmpc.fly.plots`).
+:func:`fly` checks everything the user gave before anything is written (:func:`prepare`), picks
+the flight controller (our stand-in, :class:`fcmpc.fly.standin.StandIn`, or firmware through
+:func:`fcmpc.fly.firmware.firmware_flight`), writes the run's parameter file, flies it with the
+one runner (:func:`fcmpc.fly.mission.run_mission`: the processes, the watch, Ctrl-C, stop by
+PID), reports progress while the companion flies (one line per control step at most every
+``progress_s`` wall seconds, on stderr), and evaluates the records the same way whichever flight
+controller flew (:func:`finish`: the three distances, ``result.json``, the plot).
 
-Interrupts: SIGINT (Ctrl-C) or SIGTERM stop both children, and the run is still evaluated:
-``result.json``, the plot and the summary say "interrupted", exit code 128 + signal (130 for
-Ctrl-C). A second Ctrl-C while the results are written raises ``KeyboardInterrupt``. A child
-that stopped on its own before the mission ended (a signal sent to it alone, or a crash) is
-reported as such, not as a miss.
-
-Pacing: lockstep by default (a boundary every 1 s of simulated time for ArduPilot, 0.4 s for
-PX4 whose offboard timeout is 1 s; setpoints at 2.5 Hz), as fast as the two processes go and
-deterministic for a seed; ``speedup`` paces the simulator at N times real time instead.
+Pacing against the stand-in: lockstep by default (a boundary every 1 s of simulated time for
+ArduPilot, 0.4 s for PX4 whose offboard timeout is 1 s; setpoints at 2.5 Hz), as fast as the two
+processes go and deterministic for a seed; ``speedup`` paces the simulator at N times real time
+instead.
 """
 from __future__ import annotations
 
@@ -28,11 +21,7 @@ import json
 import math
 import os
 import re
-import signal
-import socket
-import subprocess
 import sys
-import threading
 import time
 from dataclasses import dataclass, field, replace
 from datetime import datetime
@@ -41,25 +30,17 @@ from typing import Callable, Iterable, TextIO
 
 from companion.nav.geo import geodesic_direct, geodesic_inverse
 from companion.params import validate_all, write_parm_file
+from fcmpc.fly.mission import REPO, CompanionRun, run_mission
 from fcmpc.fly.plots import plot_track
-from fcmpc.fly.results import (REST_WINDOW_S, STATUS_EXIT, FlyResult, TruthTrack, distances, read_steps,
-                               read_truth_track,
-                               write_result)
+from fcmpc.fly.results import FlyResult, TruthTrack, distances, read_steps, write_result
+from fcmpc.fly.standin import LOCKSTEP_PERIOD_S, StandIn, linger_s, stand_in_args
 from sitl.scenario import Scenario, load_scenario
 
-__all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination", "write_short_scenario", "StepProgress",
-           "REPO", "SHORT_KM"]
+__all__ = ["FlyOptions", "fly", "fly_in_process_alike", "prepare", "finish", "short_destination",
+           "write_short_scenario", "StepProgress", "REPO", "SHORT_KM", "companion_run", "stand_in"]
 
-REPO = Path(__file__).resolve().parents[2]
 SHORT_KM = 80.0
-# Lockstep boundaries: the simulator applies setpoints only at boundaries, so the period must stay
-# below the autopilot's setpoint timeout (ArduPilot GUIDED 3 s, PX4 offboard loss 1 s).
-LOCKSTEP_PERIOD_S = {"ardupilot": 1.0, "px4": 0.4}
 SETPOINT_RATE_HZ = 2.5        # COMP_SP_RATE_HZ for lockstep runs (PX4 needs > 2 Hz)
-# Streams the simulator sends by default that the companion does not use (fewer messages, faster).
-SITL_RATES = ("SCALED_IMU:0", "LOCAL_POSITION_NED:0", "SYS_STATUS:0", "GPS_RAW_INT:1", "GLOBAL_POSITION_INT:1")
-BIND_TIMEOUT_S = 60.0         # wall seconds for the companion to open its link
-POLL_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -168,63 +149,6 @@ class StepProgress:
                 f"{float(row['msg_time_s']) / 3600.0:.2f} h simulated, {to_go}, {wall_s:.0f} s wall")
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _env() -> dict:
-    env = dict(os.environ, MAVLINK20="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
-
-
-def _niceness(increment: int) -> Callable[[], None] | None:
-    """A ``preexec_fn`` that lowers a child's scheduling priority by ``increment`` (None: keep it)."""
-    if increment <= 0:
-        return None
-    return lambda: os.nice(increment)
-
-
-def _stop(proc: subprocess.Popen | None, grace_s: float = 10.0) -> None:
-    if proc is None or proc.poll() is not None:
-        return
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=5.0)
-
-
-def _stopped_by_signal(returncode: int) -> bool:
-    """A child's exit code after SIGINT/SIGTERM: killed (negative) or 128 + signal."""
-    return returncode < 0 or returncode in (128 + signal.SIGINT, 128 + signal.SIGTERM)
-
-
-class _Interrupts:
-    """SIGINT/SIGTERM set a flag while the children run (main thread only); a second Ctrl-C raises."""
-
-    def __init__(self) -> None:
-        self.signum = 0
-        self._old: dict[int, object] = {}
-
-    def __enter__(self) -> "_Interrupts":
-        if threading.current_thread() is threading.main_thread():
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                self._old[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def _handle(self, signum, frame) -> None:  # noqa: ARG002
-        self.signum = self.signum or signum
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    def __exit__(self, *exc) -> None:
-        for signum, old in self._old.items():
-            signal.signal(signum, old)
-
-
 def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
     """Validate everything the user gave before anything is written: the scenario, the short
     destination and the parameter values (:class:`companion.params.ParamError` names the bad one)."""
@@ -247,154 +171,68 @@ def prepare(options: FlyOptions) -> tuple[Scenario, tuple[float, float], dict]:
     return scenario, dest, values
 
 
-def linger_s(scenario: Scenario) -> float:
-    """Simulated seconds after the mission's end for the simulated vehicle to stop from top speed
-    (its deceleration limit) and then stay still for the rest window of :mod:`fcmpc.fly.results`."""
-    return scenario.vehicle.max_speed_mps / scenario.vehicle.accel_mps2 + REST_WINDOW_S + 5.0
-
-
-def _commands(options: FlyOptions, scenario: Scenario, out: Path, parm: Path, scenario_arg: str,
-              port: int) -> tuple[list, list]:
-    companion = [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}", "--params", str(parm),
-                 "--log-dir", str(out / "companion"), "--exit-when-done", "--linger-s", f"{linger_s(scenario):g}",
-                 "--max-wall-s", str(options.timeout_s)]
-    if options.lockstep:
-        companion.append("--lockstep")
-    if options.startup_s is not None:
-        companion += ["--startup-s", str(options.startup_s)]
-    if not options.tlog:
-        companion.append("--no-tlog")
-    if options.quiet:
-        companion.append("--quiet")
-    sitl = [sys.executable, "-m", "sitl.fc", "--scenario", scenario_arg, "--seed", str(options.seed),
-            "--out", f"udp:127.0.0.1:{port}", "--log-dir", str(out / "sitl"), "--autopilot", options.autopilot,
-            "--quiet"]
-    for rate in SITL_RATES:
-        sitl += ["--rate", rate]
-    if options.lockstep:
-        sitl += ["--lockstep", "--lockstep-period", str(LOCKSTEP_PERIOD_S[options.autopilot])]
-        if options.speedup:
-            sitl += ["--speedup", str(options.speedup)]
-    else:
-        sitl += ["--speedup", str(options.speedup if options.speedup is not None else 1000.0)]
-    for fault in options.faults:
-        sitl += ["--fault", fault]
-    if options.data_dir:
-        sitl += ["--data-dir", options.data_dir]
-    if scenario.storm.kp_feed or scenario.storm.symh_feed:
-        # the ground station keeps NAV_KP and NAV_SYMH up to date, as in-process the world does: a
-        # storm's indices, or a quiet day's (the scenario's [storm] kp_feed / symh_feed withhold them)
-        sitl.append("--space-weather-feed")
-    return companion, sitl + list(options.sitl_extra)
-
-
-def _companion_outcome(rc: int, summary: dict) -> tuple[str, str]:
-    """(status, message) from the companion's exit code and summary."""
-    if rc == 0 and summary.get("arrived"):
-        return "arrived", ""
-    if rc == 1:
-        return "failed", f"the mission failed: {summary.get('phase', '')}".rstrip(": ")
-    if rc == 3:
-        return "timeout", "the companion gave up (--max-wall-s)"
-    if _stopped_by_signal(rc) or rc == 0:
-        return "interrupted", f"the companion was stopped (exit code {rc}) before the mission ended"
-    return "error", f"the companion exited with {rc}"
-
-
 def fly(options: FlyOptions, stderr: TextIO | None = None) -> FlyResult:
-    """Run one closed-loop mission; see the module docstring. User errors raise before any folder
-    is created (``ScenarioError``, ``ParamError``, ``ValueError``)."""
+    """Fly one mission against ``options.fc`` and evaluate it; see the module docstring. User errors
+    raise before any folder is created (``ScenarioError``, ``ParamError``, ``ValueError``,
+    ``FirmwareMissing``)."""
     err = stderr if stderr is not None else sys.stderr
     wall0 = time.monotonic()
     scenario, dest, values = prepare(options)
-    stamp = f"{datetime.now():%Y%m%d-%H%M%S}-{os.getpid()}"
-    out = Path(options.out_dir) if options.out_dir else \
-        REPO / "out" / "fly" / f"{scenario.name}{'-short' if options.short else ''}-s{options.seed}-{stamp}"
-    out.mkdir(parents=True, exist_ok=True)
-    scenario_arg = options.scenario
-    if options.short:
-        scenario_arg = str(write_short_scenario(scenario, dest, out / f"{scenario.name}_short.toml"))
-    parm = out / "fly.parm"
-    write_parm_file(parm, values, header=f"fcmpc-fly: scenario {scenario.name}, seed {options.seed}")
-    companion_cmd, sitl_cmd = _commands(options, scenario, out, parm, scenario_arg, _free_udp_port())
 
     def say(text: str) -> None:
-        print(text, file=err, flush=True)
+        if options.progress_s is not None:
+            print(f"fcmpc-fly: {text}", file=err, flush=True)
 
-    progress = StepProgress(out / "companion" / "steps.csv", options.progress_s, say)
-    companion = sitl = None
-    status, code, message = "error", 1, ""
-    companion_log = open(out / "companion.log", "w", encoding="utf-8")
-    sitl_log = open(out / "sitl.log", "w", encoding="utf-8")
-    with _Interrupts() as interrupts:
-        try:
-            env = _env()
-            yield_cpu = _niceness(options.nice)
-            companion = subprocess.Popen(companion_cmd, env=env, cwd=REPO, stdout=companion_log,
-                                         stderr=subprocess.STDOUT, preexec_fn=yield_cpu)
-            bound = out / "companion" / "steps.csv"      # created right after the link is open
-            deadline = time.monotonic() + BIND_TIMEOUT_S
-            while not bound.exists() and companion.poll() is None and not interrupts.signum:
-                if time.monotonic() > deadline:
-                    break
-                time.sleep(POLL_S)
-            if bound.exists() and companion.poll() is None and not interrupts.signum:
-                sitl = subprocess.Popen(sitl_cmd, env=env, cwd=REPO, stdout=sitl_log, stderr=subprocess.STDOUT,
-                                        preexec_fn=yield_cpu)
-                if options.progress_s is not None:
-                    say(f"fcmpc-fly: flying {scenario.name}{' (short)' if options.short else ''}, seed "
-                        f"{options.seed}; records in {out}")
-            status, code, message = _watch(options, companion, sitl, interrupts, progress, wall0, out)
-        finally:
-            _stop(companion)
-            _stop(sitl)
-            companion_log.close()
-            sitl_log.close()
-        if interrupts.signum:
-            status, code = "interrupted", 128 + interrupts.signum
-            message = f"stopped by {signal.Signals(interrupts.signum).name}" + (f"; {message}" if message else "")
-    return finish(options, scenario, out, dest, status, code, message, wall0, scenario_arg)
+    stamp = f"{datetime.now():%Y%m%d-%H%M%S}-{os.getpid()}"
+    if options.fc == "sim":
+        name = f"{scenario.name}{'-short' if options.short else ''}-s{options.seed}-{stamp}"
+    else:
+        from fcmpc.fly.firmware import firmware_flight
+
+        fc, values = firmware_flight(options, scenario, dest, values, say)     # FirmwareMissing: nothing written
+        name = f"{scenario.name}-{options.fc}-{stamp}"
+    out = Path(options.out_dir) if options.out_dir else REPO / "out" / "fly" / name
+    out.mkdir(parents=True, exist_ok=True)
+    scenario_arg = options.scenario
+    if options.fc == "sim":
+        if options.short:
+            scenario_arg = str(write_short_scenario(scenario, dest, out / f"{scenario.name}_short.toml"))
+        fc = stand_in(options, scenario, scenario_arg)
+    parm = out / "fly.parm"
+    write_parm_file(parm, values, header=f"fcmpc-fly: scenario {scenario.name}, seed {options.seed}, {fc.name}")
+    progress = StepProgress(out / "companion" / "steps.csv", options.progress_s,
+                            lambda text: print(text, file=err, flush=True))
+    say(f"flying {scenario.name}{' (short)' if options.short else ''}, seed {options.seed}, against {fc.name}; "
+        f"records in {out}")
+    outcome, truth = run_mission(fc, companion_run(options, parm, out), out, options.timeout_s, progress.poll, say)
+    return finish(options, scenario, out, dest, outcome.status, outcome.code, outcome.message, wall0, scenario_arg,
+                  truth)
 
 
-def _watch(options: FlyOptions, companion: subprocess.Popen, sitl: subprocess.Popen | None, interrupts: _Interrupts,
-           progress: StepProgress, wall0: float, out: Path) -> tuple[str, int, str]:
-    """Wait for the companion to finish; (status, exit code, message)."""
-    if sitl is None:
-        rc = companion.poll()
-        if rc is not None:
-            return "error", 1, f"the companion exited with {rc} before opening its link; see {out / 'companion.log'}"
-        if interrupts.signum:
-            return "interrupted", 130, ""
-        return "error", 1, f"the companion did not open its link within {BIND_TIMEOUT_S:g} s"
-    deadline = wall0 + options.timeout_s + 30.0
-    while not interrupts.signum:
-        progress.poll()
-        rc = companion.poll()
-        if rc is not None:
-            summary_path = out / "companion" / "summary.json"
-            summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
-            status, message = _companion_outcome(rc, summary)
-            if status == "error":
-                message += f"; see {out / 'companion.log'}"
-            return status, STATUS_EXIT[status], message
-        if sitl.poll() is not None:
-            rc = sitl.returncode
-            if _stopped_by_signal(rc) or rc == 0:
-                return "interrupted", 130, f"the simulator stopped (exit code {rc}) before the mission ended"
-            return "error", 1, f"the simulator exited with {rc}; see {out / 'sitl.log'}"
-        if time.monotonic() > deadline:
-            return "timeout", 3, f"no result within {options.timeout_s:g} s"
-        time.sleep(POLL_S)
-    return "interrupted", 128 + interrupts.signum, ""
+def stand_in(options: FlyOptions, scenario: Scenario, scenario_arg: str) -> StandIn:
+    """Our stand-in flying ``scenario_arg`` (a bundled name or a TOML file) as ``options`` say."""
+    lockstep = ("--lockstep",) if options.lockstep else ()
+    return StandIn(stand_in_args(options, scenario, scenario_arg), nice=options.nice,
+                   companion_args=("--linger-s", f"{linger_s(scenario):g}", *lockstep))
+
+
+def companion_run(options: FlyOptions, parm: Path, out: Path) -> CompanionRun:
+    """The companion of a ``fcmpc-fly`` run: ``parm``, records in ``<out>/companion``, ending with the
+    mission (``--exit-when-done``) or after ``timeout_s`` of wall time."""
+    args = ["--exit-when-done", "--max-wall-s", str(options.timeout_s)]
+    if options.startup_s is not None:
+        args += ["--startup-s", str(options.startup_s)]
+    if not options.tlog:
+        args.append("--no-tlog")
+    if options.quiet:
+        args.append("--quiet")
+    return CompanionRun(parm, out / "companion", tuple(args), options.nice)
 
 
 def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float, float], status: str, code: int,
            message: str, wall0: float, scenario_arg: str | None = None, truth: TruthTrack | None = None) -> FlyResult:
-    """Evaluate the records in ``out`` (truth track, steps.csv, companion summary), plot, write
-    ``result.json``; independent of which simulator produced the truth track (``truth``: given,
-    or the stand-in's ``sitl/truth.csv``)."""
-    if truth is None:
-        truth = read_truth_track(out / "sitl" / "truth.csv")
+    """Evaluate the records in ``out`` (the truth track, steps.csv, the companion's summary), plot,
+    write ``result.json``; independent of which flight controller produced the truth track."""
     steps = read_steps(out / "companion" / "steps.csv")
     summary_path = out / "companion" / "summary.json"
     companion = json.loads(summary_path.read_text()) if summary_path.exists() else {}
@@ -430,11 +268,11 @@ def _compare_in_process(options: FlyOptions, scenario_arg: str, dest: tuple[floa
 
 
 def fly_in_process_alike(options: FlyOptions, scenario_arg: str, dest: tuple[float, float], seeds: Iterable[int]):
-    """The in-process runs (:func:`sitl.inprocess.fly_in_process`) of this flight's scenario, destination
+    """The in-process runs (:func:`fcmpc.montecarlo.inprocess.fly_in_process`) of this flight's scenario, destination
     and parameters, one per seed (the truth field built once): what ``--compare`` prints, and a spread
     of seeds for the tests."""
     from companion.params import NavConfig
-    from sitl.inprocess import fly_in_process
+    from fcmpc.montecarlo.inprocess import fly_in_process
     from sitl.world.build import build_truth_field
 
     scenario = load_scenario(scenario_arg)

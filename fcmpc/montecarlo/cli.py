@@ -9,6 +9,8 @@
     fcmpc-montecarlo --scenario pacific --budget --runs 10           # the error budget
     fcmpc-montecarlo --sweep NAV_PERIOD_S=180,360,720 --sweep MPC_N=2,4,8 --runs 20 --controllers fc
     fcmpc-montecarlo --engine dask [--cluster tcp://HOST:8786] ...        # on a Dask cluster
+    fcmpc-montecarlo --fc ardupilot --runs 16                   # each run a whole mission against ArduPilot SITL
+    fcmpc-montecarlo --fc px4 --physics hil --runs 4 --short-km 30   # PX4 in lockstep with our world, a 30 km leg
 
 The library is :mod:`fcmpc.montecarlo`; this is its command line. Each run draws its own INS errors
 and sensor noise from its seed; every controller meets the same draws for the same seed.
@@ -18,6 +20,11 @@ Without ``--sweep`` it prints the paper's table beside ours and writes ``runs.cs
 ``summary.json`` and plots into ``out/montecarlo/<scenario>/``; with ``--sweep`` one Parquet row
 per run into ``out/montecarlo/<scenario>/sweep/runs/`` (a second call skips the runs stored),
 the per-cell table (``summary.csv``) and line/heat-map plots (``sweep/plots/``).
+
+With ``--fc sim|ardupilot|px4`` each run is a whole mission of the one runner (what ``fcmpc-fly``
+flies: the companion as a process against our stand-in or the firmware, :mod:`fcmpc.montecarlo.flown`),
+each with its own seed, instance number and temporary folder; the same table, in
+``out/montecarlo/<scenario>-<fc>/``. One worker by default against firmware.
 
 A storm world is scored leave-one-storm-out: its storm-time parameters fitted on the library's other
 storms (:mod:`fcmpc.montecarlo.fit_storms`), never on its own (refused), and ``summary.json`` names the
@@ -31,6 +38,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -53,8 +61,9 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--runs", type=positive_int, default=50, help="runs per controller (and cell); default 50")
     parser.add_argument("--controllers", default=None,
                         help="comma list of lti,ltv,fc; default all three (ltv,fc for storm scenarios)")
-    parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
-                        help="worker processes (or a local cluster's workers); default one per core")
+    parser.add_argument("--workers", type=positive_int, default=None,
+                        help="worker processes (or a local cluster's workers); default one per core (one with "
+                             "--fc ardupilot|px4)")
     parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local process pool (default), dask (pip install -e '.[cluster]') or ray")
     parser.add_argument("--cluster", default=None, metavar="ADDRESS",
@@ -85,6 +94,24 @@ def build_parser() -> ArgumentParser:
                              "the navigator gets no INS position, and auto flies the dead-reckoning filter")
     parser.add_argument("--heading-source", choices=("true", "ins", "magnetic"), default=None,
                         help="override the scenario's [attitude] heading_source")
+    flown = parser.add_argument_group("whole missions against a flight controller (fcmpc-fly's runner)")
+    flown.add_argument("--fc", choices=("sim", "ardupilot", "px4"), default=None,
+                       help="fly each run as a mission: our stand-in (sim), ArduPilot Rover SITL or PX4 SITL; "
+                            "default: in-process")
+    flown.add_argument("--physics", choices=("builtin", "json", "hil"), default="builtin",
+                       help="with --fc ardupilot|px4: the firmware's own physics, or our world in lockstep "
+                            "(json: ArduPilot, hil: PX4); default builtin")
+    flown.add_argument("--short-km", type=float, default=None, metavar="KM",
+                       help="with --fc: fly only the first KM of the route")
+    flown.add_argument("--compass", choices=("real", "ideal"), default="real",
+                       help="with --fc ardupilot: the firmware's compass (fcmpc-fly --compass); default real")
+    flown.add_argument("--fc-instance", type=int, default=None, metavar="I",
+                       help="with --fc ardupilot: the first instance number of the runs; default 80 (PX4: 1-9)")
+    flown.add_argument("--speedup", type=float, default=None, metavar="N",
+                       help="with --fc: the firmware's pace (ArduPilot's built-in boat default 50, PX4 SIH 10; "
+                            "a loaded machine wants less), or the stand-in paced at N instead of lockstep")
+    flown.add_argument("--timeout", type=float, default=7200.0, metavar="S",
+                       help="with --fc: wall seconds before a run is given up; default 7200")
     parser.add_argument("--budget", action="store_true",
                         help="error budget: Fc-MPC with each error source alone, none and all (--runs per row)")
     return parser
@@ -132,6 +159,10 @@ def storm_parameters(args, scenario, from_file: dict) -> tuple[dict, dict | None
 def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.workers is None:
+        args.workers = 1 if args.fc in ("ardupilot", "px4") else os.cpu_count() or 1
+    if args.fc is not None:
+        _check_flown(args)
     scenario = load_scenario(args.scenario)
     real = realistic_counterpart(scenario)
     if args.heading_source:
@@ -154,7 +185,8 @@ def _run(argv: list[str] | None) -> int:
     if args.process_model:
         overrides["FUS_MODEL"] = {"ins": 2, "dead_reckoning": 3}[args.process_model]
     values = validate_all({**scenario.nav_overrides(), **overrides})
-    keys = args.controllers.split(",") if args.controllers else (["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
+    keys = args.controllers.split(",") if args.controllers else (
+        ["fc"] if args.fc else ["ltv", "fc"] if scenario.storm.enabled else ["lti", "ltv", "fc"])
     try:
         controllers = [CONTROLLER_KEYS[k.strip().lower()] for k in keys]
     except KeyError as err:
@@ -170,10 +202,33 @@ def _run(argv: list[str] | None) -> int:
 
         return sweep_main(args, scenario_ref, scenario, controllers, overrides, engine, check_missions, fitted)
     check_missions(values, controllers)
+    if args.fc is not None:
+        from fcmpc.montecarlo.cli_table import flown_main
+
+        return flown_main(args, scenario, values, overrides, controllers, engine, fitted)
 
     if args.budget:
         return budget_main(args, real, values, engine)
     return table_main(args, scenario_ref, values, controllers, engine, fitted)
+
+
+def _check_flown(args) -> None:
+    """``--fc`` flies the scenario as fcmpc-fly does: options that change the in-process world refused."""
+    given = [name for name, on in (("--sweep", args.sweep), ("--budget", args.budget), ("--errors", args.errors),
+                                   ("--no-ins", args.no_ins), ("--heading-source", args.heading_source),
+                                   ("--process-model", args.process_model)) if on]
+    if given:
+        raise UsageError(f"--fc {args.fc} flies the scenario's world as fcmpc-fly does: {', '.join(given)} "
+                         f"is for the in-process Monte Carlo")
+    if args.short_km is not None and not args.short_km > 0:
+        raise UsageError(f"--short-km {args.short_km:g}: must be > 0")
+    if not args.timeout > 0:
+        raise UsageError(f"--timeout {args.timeout:g}: must be > 0")
+    if args.speedup is not None and not (math.isfinite(args.speedup) and args.speedup > 0):
+        raise UsageError(f"--speedup {args.speedup:g}: must be > 0")
+    allowed = {"sim": ("builtin",), "ardupilot": ("builtin", "json"), "px4": ("builtin", "hil")}[args.fc]
+    if args.physics not in allowed:
+        raise UsageError(f"--physics {args.physics} with --fc {args.fc}: choose {' or '.join(allowed)}")
 
 
 def main(argv: list[str] | None = None) -> int:

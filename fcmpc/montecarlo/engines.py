@@ -23,7 +23,7 @@ numpy runs two threads per core made a 50 x 3 Monte Carlo take 23.5 s instead of
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
@@ -61,7 +61,7 @@ def batches(items: list[tuple[int, RunSpec]], workers: int) -> list[list]:
     """Split the tasks into batches, guided as OpenMP's schedule is: each takes a share of the
     runs still left (at most :data:`BATCH_CAP`), so they shrink to one run per task at the end
     and no worker is left finishing a whole batch while the others idle. Big batches first,
-    because the runs of a batch fly side by side (:func:`sitl.inprocess.fly_batch`) and share the
+    because the runs of a batch fly side by side (:func:`fcmpc.montecarlo.inprocess.fly_batch`) and share the
     per-step overhead: here a run costs 0.26 s alone, 0.16 s in a batch of 9, 0.15 s in one of 30;
     fixed batches of 9 with a tail of 24 single runs made a 50 x 3 Monte Carlo on 2 workers about
     1 s slower (14.9 against 13.5 s, medians of three)."""
@@ -74,20 +74,25 @@ def batches(items: list[tuple[int, RunSpec]], workers: int) -> list[list]:
     return split
 
 
-def run_all(specs: Iterable[tuple[int, RunSpec]], engine: Engine) -> Iterator[tuple[int, RunOutput]]:
-    """Yield ``(index, RunOutput)`` for every ``(index, spec)`` as runs finish."""
+def run_all(specs: Iterable[tuple[int, RunSpec]], engine: Engine, task: Callable = run_specs,
+            batched: bool = True) -> Iterator[tuple[int, RunOutput]]:
+    """Yield ``(index, RunOutput)`` for every ``(index, spec)`` as runs finish. ``task`` maps a list
+    of ``(index, spec)`` to a list of ``(index, RunOutput)`` (default :func:`run_specs`, in-process);
+    ``batched`` False hands each task one run (a run that is a mission of processes,
+    :mod:`fcmpc.montecarlo.flown`, gains nothing from company)."""
     items = list(specs)
     if not items:
         return iter(())
     if engine.kind not in ENGINES:
         raise UsageError(f"--engine {engine.kind}: choose from {', '.join(ENGINES)}")
+    split = (lambda workers: batches(items, workers)) if batched else (lambda workers: [[item] for item in items])
     if engine.kind == "dask":
-        return _dask(items, engine)
+        return _dask(split, engine, task)
     if engine.kind == "ray":
-        return _ray(items, engine)
+        return _ray(split, engine, task)
     if engine.cluster:
         raise UsageError("--cluster needs --engine dask or ray")
-    return _local(items, engine.worker_count)
+    return _local(items, engine.worker_count, split, task)
 
 
 def one_blas_thread() -> None:
@@ -102,15 +107,15 @@ def local_pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(workers, initializer=one_blas_thread)
 
 
-def _local(items: list, workers: int) -> Iterator[tuple[int, RunOutput]]:
+def _local(items: list, workers: int, split: Callable, task: Callable) -> Iterator[tuple[int, RunOutput]]:
     if workers <= 1:
         for index, spec in items:
             with threadpool_limits(1):   # for the run only: the caller's own numpy keeps its threads
-                output = run_specs([(index, spec)])[0][1]
+                output = task([(index, spec)])[0][1]
             yield index, output
         return
     with local_pool(workers) as pool:
-        futures = [pool.submit(run_specs, batch) for batch in batches(items, workers)]
+        futures = [pool.submit(task, batch) for batch in split(workers)]
         try:
             for future in as_completed(futures):
                 yield from future.result()
@@ -119,7 +124,7 @@ def _local(items: list, workers: int) -> Iterator[tuple[int, RunOutput]]:
                 future.cancel()
 
 
-def _dask(items: list, engine: Engine) -> Iterator[tuple[int, RunOutput]]:
+def _dask(split: Callable, engine: Engine, task: Callable) -> Iterator[tuple[int, RunOutput]]:
     try:
         from distributed import Client, LocalCluster
         from distributed import as_completed as dask_completed
@@ -139,7 +144,7 @@ def _dask(items: list, engine: Engine) -> Iterator[tuple[int, RunOutput]]:
         client = Client(cluster)
     try:
         workers = max(1, len(client.scheduler_info().get("workers", {})) or engine.worker_count)
-        futures = client.map(run_specs, batches(items, workers), pure=False)
+        futures = client.map(task, split(workers), pure=False)
         for future in dask_completed(futures):
             yield from future.result()
     finally:
@@ -148,7 +153,7 @@ def _dask(items: list, engine: Engine) -> Iterator[tuple[int, RunOutput]]:
             cluster.close()
 
 
-def _ray(items: list, engine: Engine) -> Iterator[tuple[int, RunOutput]]:
+def _ray(split: Callable, engine: Engine, task: Callable) -> Iterator[tuple[int, RunOutput]]:
     try:
         import ray
     except ImportError:
@@ -157,8 +162,8 @@ def _ray(items: list, engine: Engine) -> Iterator[tuple[int, RunOutput]]:
              runtime_env={"env_vars": _ONE_THREAD}, include_dashboard=False, ignore_reinit_error=True,
              log_to_driver=False)
     try:
-        remote = ray.remote(num_cpus=1)(run_specs)
-        pending = [remote.remote(batch) for batch in batches(items, engine.worker_count)]
+        remote = ray.remote(num_cpus=1)(task)
+        pending = [remote.remote(batch) for batch in split(engine.worker_count)]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             yield from ray.get(done[0])

@@ -16,8 +16,13 @@ square of the storms' rates (the mean of their variance rates), a correlation ti
 random walk counted as infinitely long (so a component is a random walk unless most storms revert),
 a correlation the mean.
 
-Not fitted, and why (docs/storms.md, "Fit on some storms, judge on others"): ``FUS_SYMH_K`` (no code fits
-it; the registry's 1.0 is the physics' cos(geomagnetic latitude) rounded, measured 1.02 on May 2024),
+With ``--by-miss`` (:mod:`fcmpc.montecarlo.fit_miss`) the fit goes on: the walks' rates are scaled
+and ``FUS_SYMH_K`` chosen by what they do to the navigator's miss on the training storms (tuning
+seeds 0-99 only), so the fit may choose not to trust the index; it writes
+``params/storms-<names>-by-miss.parm``, which ``--storm-params loo`` then uses (:func:`storm_params_for`).
+
+Not fitted, and why (docs/storms.md, "Fit on some storms, judge on others"): ``FUS_SYMH_K`` without
+``--by-miss`` (the registry's 1.0 is the physics' cos(geomagnetic latitude) rounded, measured 1.02 on May 2024),
 ``FUS_KP_ON`` / ``FUS_SYMH_ON`` (NOAA's G1 and the Dst scale's moderate storm: definitions, not fits),
 ``FUS_BQA_DEG/NT`` (the innovations' adaptive walk, not measured on any storm).
 
@@ -27,6 +32,7 @@ The written file's header names the training storms (``# fitted on storms: a,b``
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -49,6 +55,8 @@ STORM_PARAMS = ("FUS_BQA_N", "FUS_BQA_E", "FUS_BQA_Z", "FUS_BQA_TN", "FUS_BQA_TE
                 "FUS_BQA_RNE", "FUS_BQA_RNZ", "FUS_BQA_REZ",
                 "FUS_SYMH_N", "FUS_SYMH_TN", "FUS_SYMH_RNE", "FUS_SYMH_RNZ")
 FITTED_ON = "fitted on storms:"   # the header line naming the training storms
+BY_MISS = "fitted by miss:"   # the header line of a --by-miss file: what the fit chose
+PARAMS_DIR = Path(__file__).resolve().parents[2] / "params"   # the committed fits (--storm-params loo reads them)
 DEFAULTS_FITTED_ON = ("may2024",)   # the registry's storm-time defaults (companion/registry.py's descriptions)
 _DIGITS = {"FUS_BQA_N": 1, "FUS_BQA_E": 1, "FUS_BQA_Z": 1, "FUS_SYMH_N": 1}   # nT/rt(h) to 0.1; others to 0.01
 
@@ -112,10 +120,18 @@ def pool(fits: Sequence[Mapping[str, float]]) -> dict[str, float]:
     return pooled
 
 
-def fit_storms(names: Iterable[str], data_dir: str | os.PathLike[str] | None = None) -> dict[str, float]:
-    """The storm-time parameters (:data:`STORM_PARAMS`) fitted on the named storms, pooled."""
+def fit_storms(names: Iterable[str], data_dir: str | os.PathLike[str] | None = None,
+               symh_ratio: float | None = None) -> dict[str, float]:
+    """The storm-time parameters (:data:`STORM_PARAMS`) fitted on the named storms, pooled (the north
+    residual with the ring current at ``symh_ratio`` removed; default ``FUS_SYMH_K``'s); each storm's
+    fit is computed once per process."""
     names = _names(names)
-    return pool([fit_storm(name, data_dir) for name in names])
+    return pool([_fit_once(name, None if data_dir is None else str(data_dir), symh_ratio) for name in names])
+
+
+@functools.lru_cache(maxsize=64)
+def _fit_once(name: str, data_dir: str | None, symh_ratio: float | None) -> dict[str, float]:
+    return fit_storm(name, data_dir, symh_ratio)
 
 
 def leave_one_out(held_out: str) -> tuple[str, ...]:
@@ -134,9 +150,9 @@ def parm_header(names: Sequence[str]) -> str:
             "scenario (<name>_real, real time), pooled; FUS_SYMH_K, FUS_KP_ON, FUS_SYMH_ON are not fitted (registry's)")
 
 
-def parm_name(names: Sequence[str]) -> str:
+def parm_name(names: Sequence[str], by_miss: bool = False) -> str:
     """The file name ``fcmpc-fit-storms`` writes for these training storms (under ``params/``)."""
-    return f"storms-{'+'.join(_names(names))}.parm"
+    return f"storms-{'+'.join(_names(names))}{'-by-miss' if by_miss else ''}.parm"
 
 
 def fitted_on(path: str | os.PathLike[str]) -> tuple[str, ...] | None:
@@ -166,8 +182,14 @@ def storm_params_for(scenario: Scenario, spec: str,
     include the scenario's own."""
     if not scenario.storm.enabled:
         raise UsageError(f"--storm-params: scenario {scenario.name!r} has no storm")
-    names = leave_one_out(scenario.storm.event) if spec.strip().lower() == "loo" else _names(spec.split(","))
+    loo = spec.strip().lower() == "loo"
+    names = leave_one_out(scenario.storm.event) if loo else _names(spec.split(","))
     check_held_out(scenario, names)
+    committed = PARAMS_DIR / parm_name(names, by_miss=True)
+    if loo and committed.is_file() and fitted_on(committed) == names:   # the fit by miss, when made
+        from companion.params import read_parm_file
+
+        return read_parm_file(committed), names
     return fit_storms(names, data_dir), names
 
 
@@ -183,10 +205,22 @@ def _run(argv: list[str] | None) -> int:
     parser = ArgumentParser(prog="fcmpc-fit-storms", description=__doc__.split("\n")[0])
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--train", metavar="NAMES", help="comma list of the storm library's storms to fit on")
-    group.add_argument("--loo", metavar="NAME", help="fit on every storm of the library but this one")
+    group.add_argument("--loo", metavar="NAME", help="fit on every storm of the library but this one "
+                                                     "(--by-miss: 'all', one fit per held-out storm)")
     parser.add_argument("--out", default=None, help="the .parm to write; default params/storms-<names>.parm")
     parser.add_argument("--data-dir", default=None, help="real data folder; default ../shared/data")
+    parser.add_argument("--by-miss", action="store_true",
+                        help="scale the walks and choose FUS_SYMH_K by the navigator's miss on the training storms "
+                             "(fcmpc.montecarlo.fit_miss); writes params/storms-<names>-by-miss.parm")
+    parser.add_argument("--seeds", type=int, default=4, help="--by-miss: tuning seeds 0..N-1 (N <= 100); default 4")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="--by-miss: worker processes")
+    parser.add_argument("--scales", default=None, help="--by-miss: comma list of the walks' scales; default 0.1,0.3,1")
+    parser.add_argument("--ratios", default=None, help="--by-miss: comma list of FUS_SYMH_K; default 0,0.5,1")
+    parser.add_argument("--store", default="out/fit-by-miss", help="--by-miss: where the runs are kept (a second "
+                                                                   "call flies only what is missing)")
     args = parser.parse_args(argv)
+    if args.by_miss:
+        return _run_by_miss(args)
     names = leave_one_out(args.loo) if args.loo else _names(args.train.split(","))
     fits = {name: fit_storm(name, args.data_dir) for name in names}
     pooled = pool(list(fits.values()))
@@ -198,6 +232,42 @@ def _run(argv: list[str] | None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     write_parm_file(out, pooled, parm_header(names))
     print(f"written: {out} ({FITTED_ON} {','.join(names)})")
+    return 0
+
+
+def _run_by_miss(args) -> int:
+    """``--by-miss``: each training set (``--train``, ``--loo NAME``, or ``--loo all``) fitted by the miss."""
+    from fcmpc.montecarlo.engines import Engine
+    from fcmpc.montecarlo.fit_miss import fit_by_miss, format_fit
+    from fcmpc.montecarlo.store import RunStore
+    from sitl.storms.events import storm_events
+
+    if args.loo and args.loo.strip().lower() == "all":
+        sets = [leave_one_out(event.name) for event in storm_events()]
+    else:
+        sets = [leave_one_out(args.loo) if args.loo else _names(args.train.split(","))]
+    if args.out and len(sets) > 1:
+        raise UsageError("--out with --loo all: one file per held-out storm, named for its training storms")
+    try:
+        grid = {k: tuple(float(v) for v in getattr(args, k).split(",")) for k in ("scales", "ratios") if getattr(args, k)}
+        fits = fit_by_miss(sets, lambda names, ratio: fit_storms(names, args.data_dir, ratio), range(args.seeds),
+                           Engine("local", args.workers), args.data_dir,
+                           store=RunStore(Path(args.store) / "runs"), **grid)
+    except ValueError as err:
+        raise UsageError(f"--seeds: {err}") from None
+    for fit in fits:
+        print(format_fit(fit))
+        chosen = fit.chosen
+        score = next(score for cand, score, _ in fit.scores if cand == chosen)
+        out = Path(args.out) if args.out else PARAMS_DIR / parm_name(fit.storms, by_miss=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        header = (f"{parm_header(fit.storms).splitlines()[0]}\n{BY_MISS} walks x {chosen.scale:g}, FUS_SYMH_K "
+                  f"{chosen.ratio:g}; score {score:.3f} (mean miss over the feed-off mean miss, 1: the index pays "
+                  f"nothing) on seeds {fit.seeds[0]}-{fit.seeds[-1]}\nwritten by fcmpc-fit-storms --by-miss "
+                  "(fcmpc/montecarlo/fit_miss.py): the truth-fitted walks of each training storm pooled, then "
+                  "scaled and the ring-current ratio chosen by the navigator's miss on the training storms")
+        write_parm_file(out, dict(chosen.values), header)
+        print(f"written: {out} ({FITTED_ON} {','.join(fit.storms)})\n")
     return 0
 
 

@@ -3,7 +3,7 @@
 A :class:`RunSpec` names everything a run depends on: the scenario (a bundled name, a TOML path
 or a :class:`~sitl.scenario.Scenario`), changes to the scenario's fields (a sweep's scenario
 keys, e.g. ``sensors.mag_noise_nt``), every registry parameter's value, the seed and whether the
-storm is on. :func:`run_specs` flies a batch of them in-process (:func:`sitl.inprocess.fly_batch`) and
+storm is on. :func:`run_specs` flies a batch of them in-process (:func:`fcmpc.montecarlo.inprocess.fly_batch`) and
 measures each (:func:`companion.nav.metrics.track_metrics`). Nothing else enters: no clock but the
 run's own wall time (reported, never used), no shared random state, so the same spec gives the
 same numbers bit for bit in any process of any engine (tested against the local pool).
@@ -28,7 +28,7 @@ import numpy as np
 
 from companion.nav.metrics import track_metrics
 from companion.params import NavConfig
-from sitl.inprocess import CHI2_95_2DOF, InProcessFlight, RunResult, fly_batch, nees_per_step
+from fcmpc.montecarlo.inprocess import CHI2_95_2DOF, InProcessFlight, RunResult, fly_batch, nees_per_step
 from sitl.scenario import Scenario, ScenarioError, load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.magnetic import TruthField, decl_incl_from_ned
@@ -171,7 +171,7 @@ def run_spec(spec: RunSpec) -> RunOutput:
 
 def run_specs(batch: list[tuple[int, RunSpec]]) -> list[tuple[int, RunOutput]]:
     """A batch of (index, spec): one task of an engine (the function every engine maps), so small
-    runs do not pay one round trip each. Its runs fly side by side (:func:`sitl.inprocess.fly_batch`:
+    runs do not pay one round trip each. Its runs fly side by side (:func:`fcmpc.montecarlo.inprocess.fly_batch`:
     each as it would alone, bit for bit); each run's ``wall_s`` is its share of the batch's."""
     worlds = [_world(spec) for _, spec in batch]
     navs = [NavConfig.from_values(dict(spec.values)) for _, spec in batch]

@@ -1,7 +1,8 @@
 """One soak: simulator + companion as real processes on loopback, hostile datagrams, a verdict.
 
-The simulator (``sitl.fc``, lockstep: its time advances only when the companion answers)
-flies a short-period mission with the companion (``COMP_ARM_ENABLE 1``). While it runs, a
+The simulator (our stand-in, lockstep: its time advances only when the companion answers)
+flies a short-period mission with the companion (``COMP_ARM_ENABLE 1``), both started and
+stopped by the one mission runner (:class:`fcmpc.fly.mission.MissionProcesses`). While it runs, a
 sender on this process throws :class:`~fcmpc.soak.hostile.Hostile` datagrams at the companion's
 port from a pool of source ports larger than the companion's peer table, paced at ``rate_hz``
 (a flood beyond what a 2-core machine parses is a denial of service, not a parser test). Then
@@ -20,21 +21,20 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fcmpc.fly.mission import CompanionRun, MissionProcesses
+from fcmpc.fly.standin import StandIn
 from fcmpc.soak.hostile import CLASSES, Hostile
 
 __all__ = ["SoakResult", "format_table", "judge_setpoints", "soak"]
 
-REPO = Path(__file__).resolve().parents[2]
 PERIOD_S = 60.0         # 600 m probing moves at cruise: enough for the gradient
 CRUISE_KMH = 36.0
 SOURCE_PORTS = 64        # more than the companion's peer table (32): eviction is exercised
@@ -60,12 +60,6 @@ class SoakResult:
     def all_zero(self) -> bool:
         return not (self.crashes or self.nonfinite_setpoints or self.over_limit_setpoints or self.missions_stalled
                     or self.params_changed or self.fc_reboots_believed or self.mission_restarts)
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def judge_setpoints(tlogs: list[Path], limit_mps: float) -> tuple[int, int, int]:
@@ -100,29 +94,17 @@ def _step_rows(steps_csv: Path) -> list[float]:
     return [row["msg_time_s"] for row in read_steps_csv(steps_csv) if row["event"] == "step"]
 
 
-def _start(workdir: Path, signing_key: Path | None) -> tuple[subprocess.Popen, subprocess.Popen, int, Path]:
+def _processes(workdir: Path, signing_key: Path | None) -> tuple[MissionProcesses, Path]:
+    """The stand-in and the companion of a soak (not yet started) and the companion's parameter file."""
     from companion.params import write_parm_file
 
-    port = _free_port()
     parm = workdir / "companion.parm"
     write_parm_file(parm, {"COMP_ARM_ENABLE": 1, "NAV_PERIOD_S": PERIOD_S, "NAV_SPEED_KMH": CRUISE_KMH,
                            "NAV_MAX_STEPS": 100000})
-    env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
-    argv = [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}", "--params", str(parm),
-            "--log-dir", str(workdir / "companion"), "--lockstep", "--startup-s", str(PERIOD_S), "--quiet"]
-    if signing_key is not None:
-        argv += ["--signing-key", str(signing_key)]
-    companion = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=open(workdir / "companion.err", "wb"))
-    deadline = time.monotonic() + 120.0
-    while not (workdir / "companion" / "steps.csv").exists():   # written once its port is bound
-        if companion.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError(f"companion did not start (exit {companion.poll()}); see {workdir / 'companion.err'}")
-        time.sleep(0.05)
-    sitl = subprocess.Popen(
-        [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration", "1e6",
-         "--log-dir", str(workdir / "sitl"), "--quiet", "--lockstep-timeout", "0.5", "--no-truth-log"],
-        env=env, stdout=subprocess.DEVNULL, stderr=open(workdir / "sitl.err", "wb"))
-    return companion, sitl, port, parm
+    args = ("--startup-s", str(PERIOD_S), "--quiet", *(("--signing-key", str(signing_key)) if signing_key else ()))
+    fc = StandIn(("--lockstep", "--duration", "1e6", "--quiet", "--lockstep-timeout", "0.5", "--no-truth-log"),
+                 companion_args=("--lockstep",))
+    return MissionProcesses(fc, CompanionRun(parm, workdir / "companion", args, grace_s=60.0), workdir), parm
 
 
 def _wait_steps(steps_csv: Path, count: int, procs: list[subprocess.Popen], timeout_s: float) -> None:
@@ -139,59 +121,48 @@ def soak(frames: int, workdir: Path, seed: int = 0, rate_hz: float = 2000.0, sig
     workdir.mkdir(parents=True, exist_ok=True)
     result = SoakResult()
     started = time.monotonic()
-    companion, sitl, port, parm = _start(workdir, signing_key)
+    processes, parm = _processes(workdir, signing_key)
     steps_csv = workdir / "companion" / "steps.csv"
     sockets = []
-    try:
+    with processes:
+        companion, sitl = processes.companion, processes.fc.process
         _wait_steps(steps_csv, 1, [companion, sitl], 300.0)   # the mission is running before the attack
         before_parm = parm.read_text(encoding="utf-8")
         steps_before = len(_step_rows(steps_csv))
         sockets = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(SOURCE_PORTS)]
-        target = ("127.0.0.1", port)
-        hostile = iter(Hostile(seed, signing=signing_key is not None))
-        next_send = time.monotonic()
-        for k in range(frames):
-            kind, data = next(hostile)
-            try:
-                sockets[k % SOURCE_PORTS].sendto(data, target)
-            except OSError:
-                pass
-            result.sent[kind] += 1
-            next_send += 1.0 / rate_hz
-            delay = next_send - time.monotonic()
-            if delay > 0.002:
-                time.sleep(delay)   # pacing the attacker (wall time is this harness's own business)
-            if progress is not None and k % 1000 == 0:
-                progress(k)
+        target = ("127.0.0.1", processes.fc.port)
+        try:
+            hostile = iter(Hostile(seed, signing=signing_key is not None))
+            next_send = time.monotonic()
+            for k in range(frames):
+                kind, data = next(hostile)
+                try:
+                    sockets[k % SOURCE_PORTS].sendto(data, target)
+                except OSError:
+                    pass
+                result.sent[kind] += 1
+                next_send += 1.0 / rate_hz
+                delay = next_send - time.monotonic()
+                if delay > 0.002:
+                    time.sleep(delay)   # pacing the attacker (wall time is this harness's own business)
+                if progress is not None and k % 1000 == 0:
+                    progress(k)
+                if companion.poll() is not None:
+                    break
+            msg_during = _step_rows(steps_csv)
+            _wait_steps(steps_csv, len(msg_during) + 2, [companion, sitl], 300.0)   # and it still steps afterwards
+            after_steps = _step_rows(steps_csv)
+            result.steps_during = len(after_steps) - steps_before
+            result.missions_stalled = int(result.steps_during < 2)
             if companion.poll() is not None:
-                break
-        msg_during = _step_rows(steps_csv)
-        _wait_steps(steps_csv, len(msg_during) + 2, [companion, sitl], 300.0)   # and it still steps afterwards
-        after_steps = _step_rows(steps_csv)
-        result.steps_during = len(after_steps) - steps_before
-        result.missions_stalled = int(result.steps_during < 2)
-        if companion.poll() is not None:
-            result.crashes = 1
-        after_parm = parm.read_text(encoding="utf-8")
-        result.params_changed = sorted(set(after_parm.split("\n")) ^ set(before_parm.split("\n")))
-    finally:
-        for sock in sockets:
-            sock.close()
-        if companion.poll() is None:
-            companion.send_signal(signal.SIGTERM)
-        try:
-            code = companion.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            companion.kill()
-            code = companion.wait(timeout=10)
-        if code not in (0, 128 + signal.SIGTERM, -signal.SIGTERM):
-            result.crashes = 1
-        if sitl.poll() is None:
-            sitl.terminate()
-        try:
-            sitl.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            sitl.kill()
+                result.crashes = 1
+            after_parm = parm.read_text(encoding="utf-8")
+            result.params_changed = sorted(set(after_parm.split("\n")) ^ set(before_parm.split("\n")))
+        finally:
+            for sock in sockets:
+                sock.close()
+    if processes.companion_exit not in (0, 128 + signal.SIGTERM, -signal.SIGTERM):
+        result.crashes = 1
     summary_path = workdir / "companion" / "summary.json"
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))

@@ -5,19 +5,20 @@ its magnetometer-derived yaw. PX4 starts at the mission's start (``SIH_LOC_LAT0/
 ``params/px4-rover.params``; the companion listens on PX4's onboard link (``udpin`` on
 14540+N); a ground station on PX4's GCS link (:class:`~sitl.firmware.monitor.FirmwareMonitor`)
 records SIH's ground truth (HIL_STATE_QUATERNION) and denies GPS when the vehicle arms
-(``SIM_GPS_USED 0``: the simulated receiver reports no fix, as a jammed one does). The run is
-:func:`sitl.firmware.flight.fly_firmware`, shared with ArduPilot.
+(``SIM_GPS_USED 0``: the simulated receiver reports no fix, as a jammed one does). These rigs are
+what is PX4's (its start-up, parameters and physics); the mission is the one runner's
+(:mod:`fcmpc.fly.mission`, through :class:`fcmpc.fly.firmware.FirmwareFC`).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from sitl.firmware.flight import FirmwareFlight, FirmwareRun, fly_firmware
+from sitl.firmware.flight import BOAT_CRUISE_KMH, FirmwareFlight
 from sitl.firmware.monitor import FirmwareMonitor
 from sitl.firmware.px4 import Px4Sitl, px4_root
 
 __all__ = ["COMPANION_VALUES", "HIL_GATE_TIMEOUT_S", "HIL_LOCKSTEP_PERIOD_S", "HIL_VALUES", "MONITOR_RATES_HZ",
-           "Px4HilRig", "Px4Rig", "deny_gps", "fly_px4"]
+           "Px4HilRig", "Px4Rig", "deny_gps"]
 
 # The companion's parameters against PX4 SIH, for the main job and the tests alike:
 # NAV_SPEED_KMH 10.8 (3 m/s): SIH's Ackermann rover with params/px4-rover.params (RO_SPEED_LIM 3);
@@ -49,6 +50,18 @@ class Px4Rig:
     """PX4's side of a flight: SIH, the monitor on the GCS link, the companion on the onboard link."""
 
     name = "PX4 SITL (SIH)"
+    default_speedup = 10.0
+    companion_args: tuple[str, ...] = ()
+
+    @staticmethod
+    def check() -> None:
+        """FirmwareMissing (before anything is written) when PX4 is absent."""
+        px4_root()
+
+    @staticmethod
+    def companion_values(flight: FirmwareFlight) -> dict:   # noqa: ARG004
+        """SIH's Ackermann rover at 3 m/s, its magnetometer at 50 Hz (:data:`COMPANION_VALUES`)."""
+        return dict(COMPANION_VALUES)
 
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         # COM_LOW_BAT_ACT 0: PX4's SITL rcS sets 3 (land), and SIH's simulated battery called it after
@@ -108,6 +121,14 @@ class Px4HilRig(Px4Rig):
     name = "PX4 SITL (lockstep, our world)"
     companion_args = ("--lockstep",)
 
+    @staticmethod
+    def companion_values(flight: FirmwareFlight) -> dict:   # noqa: ARG004
+        """The boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does,
+        the feed turning as PX4 turns it there and claiming 1 m (:func:`sitl.firmware.px4_hil.hil_companion_values`)."""
+        from sitl.firmware.px4_hil import hil_companion_values
+
+        return {**COMPANION_VALUES, **hil_companion_values(BOAT_CRUISE_KMH / 3.6), "NAV_SPEED_KMH": BOAT_CRUISE_KMH}
+
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         from sitl.clock import LockstepGate
         from sitl.firmware.px4_hil import Px4HilBridge, hil_params, hil_world
@@ -141,10 +162,3 @@ class Px4HilRig(Px4Rig):
         import json
 
         (Path(self.sitl.workdir) / "hil_stats.json").write_text(json.dumps(self.bridge.stats(), indent=1))
-
-
-def fly_px4(flight: FirmwareFlight) -> FirmwareRun:
-    """Fly one mission to its end against PX4: SIH (``flight.physics`` "builtin") or in lockstep
-    with our world ("hil"). Raises FirmwareMissing without the firmware."""
-    px4_root()                        # FirmwareMissing before anything is written
-    return fly_firmware(flight, Px4HilRig if flight.physics == "hil" else Px4Rig)

@@ -117,7 +117,8 @@ class JsonPhysicsConfig:
     motion: MotionErrors = NO_MOTION_ERRORS
     waves: WaveMotion = field(default_factory=WaveMotion)
     gate_period_s: float = 0.2          # the companion's setpoint period (COMP_SP_RATE_HZ 5)
-    gate_timeout_s: float = 30.0        # wall seconds without an answer before going on (counted)
+    gate_timeout_s: float = 120.0       # wall seconds without an answer before going on (counted): a hang guard
+    #                                     (a loaded machine once kept the companion 30 s from its answer)
     relay: bool = True
     idle_timeout_s: float = 60.0        # wall seconds without a servo packet: the firmware has gone
 
@@ -150,12 +151,13 @@ class JsonPhysics:
         c = self.config
         dt, home, dyn, motion, waves = c.dt_s, c.home, c.dynamics, c.motion, c.waves
         frames_per_gate = max(1, int(round(c.gate_period_s / dt)))
+        dt_us = int(round(dt * 1e6))
         recv, send = self.sock.recvfrom, self.sock.sendto
         relay = self.relay
-        state, t = self.state, 0.0
-        reply = encode_frame(frame_of(t + dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
-        n = 0
-        wall0, cpu0 = time.perf_counter(), time.process_time()
+        state = self.state
+        reply = encode_frame(frame_of(dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
+        n = 0           # frames answered and stepped: the time is n * dt (one counter, so a signal
+        wall0, cpu0 = time.perf_counter(), time.process_time()   # cannot leave frames and time apart)
         try:
             while not self.stop:
                 try:
@@ -164,18 +166,20 @@ class JsonPhysics:
                     break
                 if len(data) < SERVO_PACKET.size or data[0] | data[1] << 8 != SERVO_MAGIC:
                     continue
-                n += 1
-                if relay is not None and n % frames_per_gate == 0:
-                    relay.boundary(int(round(t * 1e6)))   # the firmware has run its loop at t, our last answer
+                if relay is not None:
+                    t_us = n * dt_us
+                    if (n + 1) % frames_per_gate == 0:
+                        relay.boundary(t_us)      # the firmware has run its loop at t, our last answer
+                    relay.deliver(t_us + dt_us)   # what its loop at t + dt is to read
                 send(reply, addr)
                 throttle, steering = outputs_of(SERVO_PACKET.unpack_from(data)[3:])
                 state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
-                t += dt
-                reply = encode_frame(frame_of(t + dt, state, yaw_rate, accel, waves), home)
+                n += 1
+                reply = encode_frame(frame_of((n + 1) * dt, state, yaw_rate, accel, waves), home)
                 if relay is not None and n % 5 == 0:
                     relay.pump_fc()
         finally:
-            self.state, self.time_s, self.frames = state, t, n
+            self.state, self.time_s, self.frames = state, n * dt, n
             self.wall_s, self.cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
         return self.stats()
 

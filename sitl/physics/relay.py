@@ -17,6 +17,9 @@ calling its GPS_INPUT feed "GPS 2: not healthy" in each of three runs; see the d
 
 From ``hold_from_s`` of physics time the world waits for the companion to appear (the runner starts
 it after the firmware's start-up and compass calibration): its start is a fixed firmware time too.
+Until its first stamped frame (its lockstep loop needs the firmware's messages, so the world cannot
+hold for that) any frame answers a boundary; its start (imports, maps) took 23-48 s of wall time at
+a load average of 25, under the 120 s each boundary waits before going on.
 """
 from __future__ import annotations
 
@@ -38,6 +41,9 @@ __all__ = ["CompanionRelay", "relay_port", "serial1_port"]
 # messages ArduPilot streams with time_boot_ms, and its offset in the payload: ATTITUDE, ATTITUDE_QUATERNION,
 # LOCAL_POSITION_NED, GLOBAL_POSITION_INT, RC_CHANNELS, SCALED_IMU(2, 3) first; SYSTEM_TIME after its uint64
 _STAMP_OFFSET = {30: 0, 31: 0, 32: 0, 33: 0, 65: 0, 26: 0, 116: 0, 129: 0, 2: 8}
+GPS_INPUT_ID = 232
+LATENCY_S = 1.2          # from a frame's stamp to ArduPilot: above its release lag (0.3-1.1 s measured, see the note)
+LATE_US = 20_000         # a frame forwarded more than one physics frame after its due time is late
 
 
 def relay_port(instance: int) -> int:
@@ -57,8 +63,9 @@ class CompanionRelay:
     """ArduPilot SERIAL1 <-> the companion, the companion's frames released at lockstep boundaries."""
 
     def __init__(self, instance: int, timeout_s: float = 30.0, period_s: float = 0.2, hold_from_s: float = 90.0,
-                 start_timeout_s: float = 600.0) -> None:
+                 start_timeout_s: float = 600.0, latency_s: float = LATENCY_S) -> None:
         self.instance = instance
+        self.latency_us = int(round(latency_s * 1e6))
         self.gate = LockstepGate(period_s, timeout_s=timeout_s, start_timeout_s=start_timeout_s, slack_periods=0)
         self.hold_from_us = int(hold_from_s * 1e6)
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -71,6 +78,15 @@ class CompanionRelay:
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
         self._held: deque = deque()
+        self._due: deque = deque()       # released frames, (firmware time due in us, frame), in order
+        self._due_us = 0                 # the due time of the last frame scheduled (never goes back)
+        self.unix_minus_boot_us: int | None = None   # SYSTEM_TIME's pairing: GPS_INPUT's stamp in boot time
+        self.late_frames = 0             # frames forwarded more than a frame after their due time
+        self.max_late_us = 0
+        self.release_lag: dict[int, int] = {}
+        self.gps_gaps: dict[int, int] = {}    # firmware loops between GPS_INPUTs forwarded
+        self._last_gps_us = 0
+        self._now_us = 0
         self.fc_time_ms = 0              # the newest firmware time passed on to the companion
         self._fc_tail = b""              # an incomplete frame at the end of the last read
         self._answer_ms = 0              # what the companion must have answered at this boundary
@@ -117,9 +133,16 @@ class CompanionRelay:
                     break
                 msgid = buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
                 offset = _STAMP_OFFSET.get(msgid)
-                if offset is not None and buf[i + 6] == 1 and buf[i + 1] >= offset + 4:
-                    p = i + 10 + offset
-                    newest = max(newest, buf[p] | buf[p + 1] << 8 | buf[p + 2] << 16 | buf[p + 3] << 24)
+                if offset is not None and buf[i + 6] == 1 and buf[i + 1] > offset:
+                    # MAVLink 2 drops a payload's trailing zero bytes: SYSTEM_TIME's time_boot_ms, its last
+                    # field, arrives as 3 bytes for its first 4.6 hours
+                    p, stop = i + 10 + offset, i + 10 + buf[i + 1]
+                    stamp = int.from_bytes(buf[p:min(p + 4, stop)], "little")
+                    newest = max(newest, stamp)
+                    if msgid == 2:      # SYSTEM_TIME: time_unix_usec (uint64) before time_boot_ms
+                        unix_us = int.from_bytes(buf[i + 10:i + 18], "little")
+                        if unix_us:
+                            self.unix_minus_boot_us = unix_us - stamp * 1000
                 i += size
             elif magic == 0xFE:
                 if i + 2 > end or i + 8 + buf[i + 1] > end:
@@ -200,8 +223,46 @@ class CompanionRelay:
             msg = self._held.popleft()
             stamp = getattr(msg, "time_boot_ms", None)
             gate.observe(stamp if isinstance(stamp, int) else None, self.fc_time_ms * 1000)
-            self._forward(msg)
+            self._schedule(msg, stamp)
         return True
+
+    def _schedule(self, msg, stamp_ms) -> None:
+        """Queue a released frame for the firmware time of its own stamp plus :attr:`latency_us`; an
+        unstamped frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it. GPS_INPUT
+        carries UNIX time (``time_usec``), placed on the boot clock with SYSTEM_TIME's pairing."""
+        if isinstance(stamp_ms, int) and stamp_ms > 0:
+            stamp_us = stamp_ms * 1000
+        elif msg.get_msgId() == GPS_INPUT_ID and self.unix_minus_boot_us is not None:
+            stamp_us = msg.time_usec - self.unix_minus_boot_us
+        else:
+            stamp_us = 0
+        if stamp_us:
+            lag = (self._now_us - stamp_us) // 100_000       # released this late after its stamp (0.1 s bins)
+            self.release_lag[lag] = self.release_lag.get(lag, 0) + 1
+        self._due_us = max(self._due_us, stamp_us + self.latency_us)
+        self._due.append((self._due_us, msg))
+
+    def deliver(self, now_us: int) -> None:
+        """Forward the released frames due by the firmware time ``now_us`` (called before each frame's
+        answer, so ArduPilot's loop at ``now_us`` reads them): each reaches ArduPilot a fixed latency
+        after its stamp, so the 10 Hz GPS_INPUT arrives every 100 ms of firmware time, as from a GPS."""
+        due = self._due
+        gps = False
+        while due and due[0][0] <= now_us:
+            due_us, msg = due[0]
+            if msg.get_msgId() == GPS_INPUT_ID:
+                if gps:             # one per loop: ArduPilot's GPS driver keeps only the newest of a loop
+                    return
+                gps = True
+                gap = (now_us - self._last_gps_us) // 20_000     # in firmware loops
+                self.gps_gaps[gap] = self.gps_gaps.get(gap, 0) + 1
+                self._last_gps_us = now_us
+            due.popleft()
+            late = now_us - due_us
+            if late > LATE_US:
+                self.late_frames += 1
+                self.max_late_us = max(self.max_late_us, late)
+            self._forward(msg)
 
     def _forward(self, msg) -> None:
         if self.fc is None:
@@ -220,6 +281,7 @@ class CompanionRelay:
         companion has answered what it was given up to the last boundary (less one period: it
         answers once per setpoint period of firmware time)."""
         self.pump_fc()
+        self._now_us = now_us
         gate = self.gate
         boundary_us = self._answer_ms * 1000 - gate.period_us
         self._answer_ms = self.fc_time_ms
@@ -251,7 +313,11 @@ class CompanionRelay:
 
     def stats(self) -> dict:
         return {**self.gate.stats(), "relay_bytes_to_companion": self.bytes_to_companion,
-                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.fc_time_ms / 1000.0, "start_wait_wall_s": round(self.start_wait_wall_s, 3)}
+                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.fc_time_ms / 1000.0,
+                "start_wait_wall_s": round(self.start_wait_wall_s, 3), "relay_latency_s": self.latency_us / 1e6,
+                "relay_late_frames": self.late_frames, "relay_max_late_s": self.max_late_us / 1e6,
+                "relay_release_lag_hist_0.1s": dict(sorted(self.release_lag.items())),
+                "relay_gps_gap_hist_loops": dict(sorted((k, v) for k, v in self.gps_gaps.items() if k < 100))}
 
     def close(self) -> None:
         for sock in (self.fc, self.companion, self.listener):

@@ -2,10 +2,9 @@
 
 The world's process (:mod:`sitl.physics.ardupilot_json`) answers every ArduPilot frame and waits
 for the companion at every lockstep boundary, so ArduPilot's clock advances only as fast as both
-answer: no wall-time pacing, nothing a loaded machine can break. The GPS-denied mission test is
-written but skipped: through the relay ArduPilot calls the companion's GPS_INPUT feed unhealthy and
-refuses to arm (docs/notes/2026-12-06-ardupilot-json-lockstep.md), so the wall-paced GPS-lost test
-in test_ardupilot.py stays.
+answer: no wall-time pacing, nothing a loaded machine can break. The GPS-lost mission test here
+replaced the wall-paced one of test_ardupilot.py (ArduPilot's 3 s GUIDED timeout was 60 ms of wall
+time at 50x); the other wall-paced tests with the built-in motorboat stay as the independent check.
 """
 from __future__ import annotations
 
@@ -107,19 +106,21 @@ def test_ardupilots_throttle_and_steering_move_our_boat_where_ardupilot_believes
     assert geodesic_distance_m(last.lat_deg, last.lon_deg, stats["lat_deg"], stats["lon_deg"]) < 1.0
 
 
-@pytest.mark.skipif(not os.environ.get("FCMPC_JSON_GPS_TEST"),
-                    reason="ArduPilot refuses to arm: 'GPS 2: not healthy' for the companion's GPS_INPUT feed through "
-                           "the lockstep relay (docs/notes/2026-12-06-ardupilot-json-lockstep.md); "
-                           "FCMPC_JSON_GPS_TEST=1 runs it")
 @pytest.mark.slow
-def test_lockstep_gps_denied_from_take_off_guided_kept_and_on_course(json_rig):
-    """GPS denied the moment the boat arms: the companion feeds GPS_INPUT, ArduPilot stays in GUIDED for
-    30 simulated minutes and our world's boat (moved by ArduPilot's own steering and throttle) follows the
-    companion's courses. The world waited for the companion at every boundary and never gave up."""
-    rig = json_rig("gps_denied")
+def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
+    """GPS lost 30 s (of firmware time) after arming: the companion feeds GPS_INPUT, ArduPilot stays in
+    GUIDED for 30 simulated minutes and our world's boat (moved by ArduPilot's own steering and throttle)
+    follows the companion's courses. The world waited for the companion at every boundary and never
+    gave up; the companion's frames reached ArduPilot at their stamps plus the relay's latency (the
+    GPS_INPUT feed at the 100 ms of firmware time ArduPilot judges a GPS's health on), most of them on time."""
+    rig = json_rig("gps_lost")
     log_dir = rig.start_companion(startup_s=30.0, NAV_DEST_LAT=28.0, NAV_DEST_LON=158.0, NAV_PERIOD_S=120.0)
     mon = rig.monitor
-    mon.pump(lambda m: m.armed and m.mode == GUIDED, WALL_S, "armed in GUIDED")
+    # ArduPilot may refuse to arm for a while ("GPS 2: not healthy", once for 1,500 s of firmware time:
+    # the note's open point); the companion retries, so the wall-time guard is generous
+    mon.pump(lambda m: m.armed and m.mode == GUIDED, 3 * WALL_S, "armed in GUIDED")
+    t_arm = mon.time_s
+    mon.pump(lambda m: m.time_s >= t_arm + 30.0, WALL_S, "30 s after arming")
     mon.set_param("SIM_GPS1_ENABLE", 0)
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
@@ -128,3 +129,7 @@ def test_lockstep_gps_denied_from_take_off_guided_kept_and_on_course(json_rig):
     assert_guided_and_on_course_without_gps(mon, log_dir, t_lost)
     stats = rig.close()
     assert stats["lockstep_boundaries"] > 9000 and stats["lockstep_timeouts"] == 0, stats
+    # a frame released after its due time (a companion slower than the relay's latency, on a loaded machine:
+    # 6 % at a load average of 22 on 2 cores) goes at once, one GPS_INPUT per loop; with a latency of 0.6 s,
+    # shorter than the release lag, 67 % were late
+    assert stats["relay_late_frames"] < 0.2 * stats["relay_frames_to_fc"], stats

@@ -154,7 +154,7 @@ def test_heading_states_put_the_realistic_worlds_misses_inside_the_filters_ellip
     the filter's own 95 % ellipse, and more than without them (FUS_BH 0). Measured: 10 and 8 of
     10 (50 seeds: 94 % with them, median miss 15.2 km; 86 % and 18.1 km without)."""
     from companion.params import NavConfig, validate_all
-    from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
+    from fcmpc.montecarlo.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 

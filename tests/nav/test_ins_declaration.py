@@ -19,7 +19,7 @@ from companion.params import NavConfig, validate_all
 from companion.registry import SPEC_BY_NAME
 from fcmpc.montecarlo.runs import apply_scenario_changes
 from sitl.budget import only, with_errors
-from sitl.inprocess import CHI2_95_2DOF, InProcessFlight, fly_batch, nees_per_step
+from fcmpc.montecarlo.inprocess import CHI2_95_2DOF, InProcessFlight, fly_batch, nees_per_step
 from sitl.scenario import ins_declaration, load_scenario
 from sitl.world.build import build_truth_field
 

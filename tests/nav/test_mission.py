@@ -5,7 +5,7 @@ Two worlds:
 * ``NoiselessWorld`` (here): the WMM read exactly at the true position, which moves along the
   geodesic of each command (geographiclib Direct, not the mission's own flat-earth dead
   reckoning). Deterministic and fast: for headings, bad measurements and the sequence.
-* ``sitl.inprocess.fly_in_process``: the Pacific scenario's vehicle limits, INS errors and
+* ``fcmpc.montecarlo.inprocess.fly_in_process``: the Pacific scenario's vehicle limits, INS errors and
   averaged sensor noise, seeded. For arrival accuracy and the paper's variants.
 
 Arrival tolerance, from the noise rather than from a run: at the destination the averaged
@@ -33,7 +33,7 @@ from companion.nav.elements import element_set
 from companion.nav.field import decl_incl_gradient, model_for_date
 from companion.nav.mission import REJECTED, Measurement, Mission, Phase, compensation
 from companion.params import Controller, NavConfig, validate_all
-from sitl.inprocess import fly_in_process
+from fcmpc.montecarlo.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 

@@ -22,7 +22,7 @@ from companion.nav.navfilter import NavigationFilter
 from companion.nav.period import PeriodAverage, PeriodAverager
 from companion.nav.process import DeadReckoningProcess, DeadReckoningSpec, InsProcess
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
+from fcmpc.montecarlo.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from tests.nav.bare import bare_bias, bare_filter
@@ -212,7 +212,7 @@ def test_local_model_error_states_make_the_realistic_world_filter_honest(shared_
     the filter's."""
     from dataclasses import replace
 
-    from sitl.inprocess import InProcessFlight, fly_batch
+    from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch
 
     scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)
@@ -243,7 +243,7 @@ def test_the_ins_attitude_in_the_measurement_makes_the_realistic_world_filter_mo
     scenario's installation declares) is at most 3 and under 0.85 of the same runs' with 0.
     Measured: 2.49 against 3.42 (50 seeds each half: mean NEES 3.06 / 3.14 against 3.41 / 3.38,
     median miss 13.46 / 14.55 against 14.62 / 15.98 km)."""
-    from sitl.inprocess import InProcessFlight, fly_batch
+    from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch
 
     scenario = load_scenario("pacific")
     truth = build_truth_field(scenario, shared_data)

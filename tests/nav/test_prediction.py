@@ -53,7 +53,7 @@ def test_gradient_angles_on_the_issue_routes():
 def test_prediction_is_the_navigators_own_covariance_in_flown_runs():
     """The same configuration flown in the realistic world (the INS aboard, its heading): the filter's
     own 1-sigma at the end of each run is what the prediction said, to within 25 % in the median."""
-    from sitl.inprocess import InProcessFlight, fly_batch
+    from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 

@@ -148,7 +148,7 @@ the mission there (164 km off), which would hide the lock-in this test is about.
     from dataclasses import replace
 
     from companion.params import NavConfig, validate_all
-    from sitl.inprocess import fly_in_process
+    from fcmpc.montecarlo.inprocess import fly_in_process
     from sitl.scenario import load_scenario
     from sitl.world.build import build_truth_field
 

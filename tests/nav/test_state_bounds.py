@@ -9,7 +9,7 @@ import pytest
 from companion.nav.field import model_for_date
 from companion.nav.mission import Mission, Phase
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import fly_in_process
+from fcmpc.montecarlo.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from tests.nav.test_mission import fly_noiseless

@@ -67,7 +67,7 @@ from pymavlink import mavutil
 from companion.io.records import read_steps_csv
 from companion.nav.geo import geodesic_inverse
 from fcmpc.fly import FlyOptions, fly
-from fcmpc.fly.runner import LOCKSTEP_PERIOD_S
+from fcmpc.fly.standin import LOCKSTEP_PERIOD_S
 from sitl.scenario import SCENARIO_DIR, load_scenario
 from tests.companion.test_closed_loop import ISSUE_MISS_M
 

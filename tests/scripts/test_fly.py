@@ -159,7 +159,7 @@ def test_plot_of_an_interrupted_run_says_so_in_km(tmp_path):
 
 def test_nice_lowers_the_childrens_priority_by_the_increment_and_zero_keeps_it():
     """``FlyOptions.nice``: the children's ``preexec_fn`` adds the increment to their niceness."""
-    from fcmpc.fly.runner import _niceness
+    from fcmpc.fly.mission import niceness as _niceness
 
     probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
     own = os.nice(0)
@@ -183,7 +183,7 @@ def test_a_paper_world_says_its_gifts_before_and_after_the_flight(monkeypatch, c
 
 def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypatch, capsys):
     """fcmpc-fly scores a storm world as fcmpc-montecarlo does: its storm-time parameters fitted on
-    the library's other storms (the committed .parm of that fit is the reference), a --param wins,
+    the library's other storms (the committed .parm of that fit by the miss is the reference), a --param wins,
     and parameters fitted on the world's own storm are refused before anything flies."""
     import fcmpc.fly.cli
     from companion.params import read_parm_file
@@ -193,10 +193,31 @@ def test_a_storm_world_flies_storm_parameters_fitted_without_its_storm(monkeypat
     assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--param", "FUS_BQA_N=12"]) == 0
     said = capsys.readouterr().err
     assert "fitted on halloween2003,march2011,stpatrick2015, not on may2024" in said
-    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015.parm")
+    committed = read_parm_file(REPO / "params" / "storms-halloween2003+march2011+stpatrick2015-by-miss.parm")
     given = flown[0].extra_params
     assert given["FUS_BQA_N"] == 12
     assert {k: v for k, v in committed.items() if k != "FUS_BQA_N"} == {
         k: pytest.approx(given[k], abs=0.051) for k in committed if k != "FUS_BQA_N"}
     assert fcmpc.fly.cli.main(["--scenario", "short_storm", "--no-plot", "--storm-params", "may2024"]) == 2
     assert "fitted on may2024" in capsys.readouterr().err and len(flown) == 1
+
+
+def test_the_runner_reports_a_flight_controller_that_ends_on_its_own_and_stops_the_companion(tmp_path):
+    """The one runner against a stand-in that exits at once (an option it refuses): an error naming
+    its log, the companion stopped by PID, no truth."""
+    from companion.params import write_parm_file
+    from fcmpc.fly.mission import CompanionRun, run_mission
+    from fcmpc.fly.standin import StandIn
+
+    parm = tmp_path / "fly.parm"
+    write_parm_file(parm, {"COMP_ARM_ENABLE": 1})
+    fc = StandIn(("--no-such-option",))
+    outcome, truth = run_mission(fc, CompanionRun(parm, tmp_path / "companion", ("--quiet",)), tmp_path, 120.0)
+    assert outcome.status == "error" and outcome.code == 1, outcome
+    assert "the simulator exited with 2" in outcome.message and str(tmp_path / "sitl.log") in outcome.message
+    assert "--no-such-option" in (tmp_path / "sitl.log").read_text()
+    assert truth is None and fc.process.returncode == 2
+    assert (tmp_path / "companion" / "steps.csv").exists()      # it had opened its link ...
+    alive = [c for c in _children(os.getpid()) if "companion.app" in Path(f"/proc/{c}/cmdline").read_text()
+             and "zombie" not in Path(f"/proc/{c}/status").read_text()]
+    assert not alive, "the companion outlived the run"           # ... and was stopped

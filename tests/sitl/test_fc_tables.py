@@ -18,7 +18,7 @@ from pymavlink import mavextra
 
 from companion.nav.field import model_for_date
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import InProcessFlight, fly_batch, fly_in_process
+from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch, fly_in_process
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.fc_tables import ardupilot_tables

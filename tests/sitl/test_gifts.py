@@ -17,7 +17,7 @@ from companion.nav.field import model_for_setting
 from companion.nav.geo import geodesic_distance_m, geodesic_direct, geodesic_inverse
 from companion.params import NavConfig, validate_all
 from sitl.gifts import gift_line, gifts
-from sitl.inprocess import InProcessFlight
+from fcmpc.montecarlo.inprocess import InProcessFlight
 from sitl.scenario import ALIASES, PAPER_PREFIX, SCENARIO_DIR, StormConfig, load_scenario
 from sitl.sensors import make_error_models
 from sitl.world.build import build_truth_field

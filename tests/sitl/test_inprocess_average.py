@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import fly_in_process, trapezoid_weights
+from fcmpc.montecarlo.inprocess import fly_in_process, trapezoid_weights
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 

@@ -1,4 +1,4 @@
-"""Missions flown side by side (sitl.inprocess.fly_batch, the Monte Carlo's way) are each the
+"""Missions flown side by side (fcmpc.montecarlo.inprocess.fly_batch, the Monte Carlo's way) are each the
 mission flown alone, bit for bit; the stacked INS propagation is each model's own.
 
 Oracle: the single-mission path (fly_in_process, InsErrorModel.propagate), which the Monte
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import InProcessFlight, fly_batch, fly_in_process
+from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch, fly_in_process
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 from sitl.world.ins import InsErrorConfig, InsErrorModel, propagate_together

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import InProcessFlight, fly_batch
+from fcmpc.montecarlo.inprocess import InProcessFlight, fly_batch
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 

@@ -4,7 +4,7 @@ companion's own navigator, the plausibility judge included, and in the paper's i
 judge excludes nothing and changes no number.
 
 The expected values were produced by main's code at commit 5737ccb (before the change), with
-``sitl.inprocess.fly_in_process`` on the bundled ``paper_pacific`` preset and its truth field: each
+``fcmpc.montecarlo.inprocess.fly_in_process`` on the bundled ``paper_pacific`` preset and its truth field: each
 run's steps, distance to the destination where it came to rest (m) and final true position
 (degrees), printed with ``repr``. Any change to the navigation core, the averaging or the world that
 moves them by one bit fails here; a deliberate one regenerates them and says why in its commit.
@@ -14,7 +14,7 @@ from __future__ import annotations
 import pytest
 
 from companion.params import Controller, NavConfig, validate_all
-from sitl.inprocess import fly_in_process
+from fcmpc.montecarlo.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 

@@ -22,7 +22,7 @@ from companion.nav.geo import geodesic_distance_m, metres_per_degree
 from companion.nav.magnetometer import tilt_compensated_di
 from companion.nav.mission import Measurement, Mission
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import fly_in_process
+from fcmpc.montecarlo.inprocess import fly_in_process
 from sitl.scenario import ScenarioError, load_scenario
 from sitl.sensors import Attitude, SensorSuite, WaveMotion, make_error_models
 from sitl.world.attitude import AttitudeErrorConfig, AttitudeErrors
@@ -321,7 +321,7 @@ def test_calibration_residual_gives_a_constant_d_error_that_does_not_average_awa
 
 # --- the ideal preset stays the paper's world -----------------------------------------------------
 def _fly_before_issue_9(nav: NavConfig, scenario, seed: int, truth) -> tuple[int, float]:
-    """sitl.inprocess.fly_in_process as it was before issue 9 (its measurement path verbatim but
+    """fcmpc.montecarlo.inprocess.fly_in_process as it was before issue 9 (its measurement path verbatim but
     for the average: the time average over the period by ``np.trapezoid``, the period's start
     included, where it averaged the sub-step ends alone and so sat half a sub-step late)."""
     ins_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)

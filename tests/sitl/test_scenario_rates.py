@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from companion.params import NavConfig, validate_all
-from sitl.inprocess import fly_in_process
+from fcmpc.montecarlo.inprocess import fly_in_process
 from sitl.scenario import load_scenario
 from sitl.storms import component_rates, component_walks
 from sitl.world.build import build_truth_field, expected_mission_duration_s, storm_component_walks

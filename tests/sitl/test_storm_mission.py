@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from companion.params import NavConfig, read_parm_file, validate_all
-from sitl.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
+from fcmpc.montecarlo.inprocess import CHI2_95_2DOF, fly_in_process, nees_per_step
 from sitl.scenario import load_scenario
 from sitl.world.build import build_truth_field
 

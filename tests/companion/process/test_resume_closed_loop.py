@@ -11,6 +11,7 @@ import math
 import signal
 import subprocess
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -21,17 +22,10 @@ from companion.params import write_parm_file
 from companion.process.resume import NavStateStore
 from fcmpc.fly import FlyOptions
 from fcmpc.fly.results import read_truth_track
-from fcmpc.fly.runner import (
-    REPO,
-    _commands,
-    _env,
-    _stop,
-    prepare,
-    write_short_scenario,
-)
+from fcmpc.fly.mission import REPO, MissionProcesses, child_env
+from fcmpc.fly.runner import companion_run, prepare, stand_in, write_short_scenario
+from sitl.firmware.processes import stop_process
 from tests.companion.test_closed_loop import ISSUE_MISS_M
-from tests.ports import free_port
-from tests.processes import wait_for_file
 
 HANG_S = 800.0          # a hung-run guard, not a pace
 KILL_AFTER_STEPS = 4    # start-up step, two probes, a cruise step: the kill is in mid-route
@@ -51,16 +45,13 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
     scenario_arg = str(write_short_scenario(scenario, dest, tmp_path / "short.toml"))
     parm = tmp_path / "fly.parm"
     write_parm_file(parm, values)
-    companion_cmd, sitl_cmd = _commands(options, scenario, tmp_path, parm, scenario_arg, free_port())
-    env = _env()
-    first = subprocess.Popen(companion_cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    second = sitl = None
-    try:
-        wait_for_file(tmp_path / "companion" / "steps.csv", [first], 60.0)
-        sitl = subprocess.Popen(sitl_cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    fc, run = stand_in(options, scenario, scenario_arg), companion_run(options, parm, tmp_path)
+    # the one runner's processes: the stand-in and the companion, started as fcmpc-fly starts them
+    with MissionProcesses(fc, run, tmp_path) as processes:
+        first = processes.companion
         deadline = time.monotonic() + HANG_S
         while len(_steps(tmp_path / "companion" / "steps.csv")) < KILL_AFTER_STEPS:
-            assert first.poll() is None and sitl.poll() is None, "a process ended before the kill"
+            assert first.poll() is None and fc.process.poll() is None, "a process ended before the kill"
             assert time.monotonic() < deadline, "no mid-route step within the hang guard"
             time.sleep(0.05)   # the polling interval, not a guess at how long a step takes
         first.send_signal(signal.SIGKILL)
@@ -70,13 +61,13 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
         # under load) leaves the state of the step before, which is then the one to go on from
         saved, problem = NavStateStore(tmp_path / "fly.navstate").load()
         assert saved is not None, problem
-        log2 = str(tmp_path / "companion2")
-        cmd2 = [log2 if a == str(tmp_path / "companion") else a for a in companion_cmd]
-        second = subprocess.Popen(cmd2, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        assert second.wait(timeout=HANG_S) == 0, "the resumed mission did not arrive"
-    finally:
-        for proc in (first, second, sitl):
-            _stop(proc)
+        cmd2 = replace(run, log_dir=tmp_path / "companion2").argv(fc.companion_url, fc.companion_args)
+        second = subprocess.Popen(cmd2, env=child_env(), cwd=REPO, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL)
+        try:
+            assert second.wait(timeout=HANG_S) == 0, "the resumed mission did not arrive"
+        finally:
+            stop_process(second)
     summary = json.loads((tmp_path / "companion2" / "summary.json").read_text())
     last = before[-1]
     assert last["step"] - 1 <= saved.command.step <= last["step"]

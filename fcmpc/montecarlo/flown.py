@@ -1,0 +1,118 @@
+"""Monte Carlo over a flight controller: each run a whole mission of the one runner (``fcmpc-montecarlo --fc``).
+
+Where the in-process Monte Carlo (:mod:`fcmpc.montecarlo.runs`) flies the navigator against our
+world in one process, a flown run is what ``fcmpc-fly`` does: the companion as a process against
+our stand-in (``--fc sim``) or real firmware (``--fc ardupilot|px4``, its own physics or ours in
+lockstep), through :func:`fcmpc.fly.runner.fly`. Each run has its own seed, its own instance
+number (:func:`instance_for`: the firmware's ports shift with it) and its own temporary folder;
+what is kept of it (``result.json``, the parameters, the companion's summary and steps) is copied
+to ``<out>/runs/s<seed>/``. Its row is measured as an in-process row is (:class:`RunRow`:
+:func:`companion.nav.metrics.track_metrics` on the true positions at each control step, start
+included, ending where the vehicle came to rest), so :func:`fcmpc.montecarlo.tables.summarise`
+and ``format_table`` print the same table.
+
+The engines are the in-process Monte Carlo's (:func:`fcmpc.montecarlo.engines.run_all` with
+:func:`fly_specs` as the task, one run per task): the local pool, or Dask. A firmware run is tens
+of minutes of wall time for the full Pacific (ArduPilot's wall-paced motorboat about 35 min, PX4
+longer); ``--short-km`` flies the first kilometres of the route.
+"""
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from companion.nav.metrics import track_metrics
+from companion.params import Controller
+from fcmpc.fly.runner import FlyOptions, fly
+from fcmpc.montecarlo.runs import RunOutput, RunRow
+
+__all__ = ["FlownSpec", "KEPT", "fly_specs", "instance_for", "plan_flown"]
+
+# What is kept of a run's folder (the firmware's own folders, eeprom, logs and tlogs are not)
+KEPT = ("result.json", "fly.parm", "companion.log", "companion/summary.json", "companion/steps.csv")
+INSTANCES = {"ardupilot": (80, 89), "px4": (1, 9)}     # ArduPilot -I: TCP 5760 + 10 I; PX4: 0..9 only
+
+
+@dataclass(frozen=True)
+class FlownSpec:
+    """One flown run: ``fcmpc-fly``'s options (``out_dir`` and ``fc_instance`` are the run's own,
+    set when it flies) and where its records are kept."""
+
+    options: FlyOptions
+    keep_dir: str
+
+
+def plan_flown(options: FlyOptions, runs: int, first_seed: int, out: Path) -> list[tuple[int, FlownSpec]]:
+    """``runs`` specs of ``options`` on seeds ``first_seed``... (quiet, no plot, no tlog)."""
+    base = replace(options, plot=False, tlog=False, progress_s=None, quiet=True, compare=False)
+    return [(k, FlownSpec(replace(base, seed=first_seed + k), str(out / "runs" / f"s{first_seed + k}")))
+            for k in range(runs)]
+
+
+def instance_for(fc: str, index: int, first: int | None = None) -> int:
+    """The instance number of run ``index``: the first free one (its ports unbound) from the run's
+    own slot of the FC's range (ArduPilot 80-89, PX4 1-9) on, so runs side by side never share one."""
+    if fc == "ardupilot":
+        from sitl.firmware.ardupilot import free_instance
+
+        low, high = INSTANCES["ardupilot"] if first is None else (first, first + 9)
+        return free_instance(first=low + index % (high - low + 1), last=high)
+    if fc == "px4":
+        from sitl.firmware.px4 import free_px4_instance
+
+        low, high = INSTANCES["px4"]
+        return free_px4_instance(first=low + index % (high - low + 1))
+    return 0      # our stand-in: a free UDP port of its own
+
+
+def fly_specs(batch: list[tuple[int, FlownSpec]]) -> list[tuple[int, RunOutput]]:
+    """The engines' task: fly each run of the batch in its own temporary folder and measure it."""
+    return [(index, _fly_one(index, spec)) for index, spec in batch]
+
+
+def _fly_one(index: int, spec: FlownSpec) -> RunOutput:
+    options = spec.options
+    instance = instance_for(options.fc, index, options.fc_instance or None)
+    keep = Path(spec.keep_dir)
+    with tempfile.TemporaryDirectory(prefix=f"fcmpc-mc-{options.fc}-s{options.seed}-") as tmp:
+        started = time.perf_counter()
+        result = fly(replace(options, out_dir=tmp, fc_instance=instance))
+        wall = time.perf_counter() - started
+        output = _measure(result, Path(tmp), options, wall)
+        for name in KEPT:
+            if (Path(tmp) / name).is_file():
+                (keep / name).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(Path(tmp) / name, keep / name)
+    return output
+
+
+def _measure(result, out: Path, options: FlyOptions, wall: float) -> RunOutput:
+    """The run's row: the true positions at the start, at each control step and at rest."""
+    from companion.params import read_parm_file
+    from fcmpc.fly.results import distances, read_steps, read_truth_track
+
+    truth = read_truth_track(out / "sitl" / "truth.csv") or read_truth_track(out / "truth.csv")
+    steps = read_steps(out / "companion" / "steps.csv")
+    values = read_parm_file(out / "fly.parm") if (out / "fly.parm").is_file() else {}
+    start = (float(values.get("NAV_START_LAT", math.nan)), float(values.get("NAV_START_LON", math.nan)))
+    dest = (result.dest_lat_deg, result.dest_lon_deg)
+    controller = Controller.NAMES[int(values.get("NAV_CONTROLLER", Controller.FC))]
+    if truth is None or len(truth) == 0:
+        lat, lon = np.array([start[0]]), np.array([start[1]])
+    else:
+        rest = distances(truth, steps, dest)["rest_index"]
+        points = [start] + [truth.position_at(float(s["msg_time_s"])) for s in steps] + \
+            [(float(truth.lat_deg[rest]), float(truth.lon_deg[rest]))]
+        lat, lon = np.array([p[0] for p in points]), np.array([p[1] for p in points])
+    m = track_metrics(lat, lon, start, dest, result.iterations)
+    row = RunRow(controller, options.seed, False, result.status, result.message, m.iterations,
+                 result.rest_remaining_m / 1e3, m.length_m / 1e3, m.step_variance_m2 / 1e6,
+                 m.mean_deviation_m / 1e3, m.max_deviation_m / 1e3, m.path_matching_rate_pct, m.final_lat_deg,
+                 m.final_lon_deg, math.nan, wall, process_model=options.fc)
+    return RunOutput(row, lat, lon)

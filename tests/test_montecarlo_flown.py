@@ -1,0 +1,65 @@
+"""``fcmpc-montecarlo --fc``: the Monte Carlo whose runs are whole missions of the one runner
+(:mod:`fcmpc.montecarlo.flown`). The closed loop here is our stand-in (real processes on loopback,
+lockstep); against ArduPilot or PX4 a run's start-up alone costs about a minute of wall time
+(ArduPilot arms 688 s of its time in, at 50x), so the firmware is not flown in CI."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pytest
+
+from companion.nav.geo import geodesic_distance_m
+from companion.params import read_parm_file
+from fcmpc.montecarlo.cli import main
+from fcmpc.montecarlo.flown import INSTANCES, instance_for
+
+
+@pytest.mark.slow
+def test_two_flown_runs_print_the_in_process_table_each_run_its_own_seed_and_folder(tmp_path, capsys):
+    """2 runs of a 1 km leg against the stand-in (about 35 s of wall time on two cores)."""
+    code = main(["--fc", "sim", "--runs", "2", "--short-km", "1", "--param", "NAV_PERIOD_S=60", "--no-plots",
+                 "--quiet", "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "Fc-MPC ours (paper)" in printed and "CEP50, median miss (km)" in printed     # the in-process table
+    assert "2 missions in" in printed and "against sim" in printed
+    folder = tmp_path / "pacific-sim"
+    rows = list(csv.DictReader(open(folder / "runs.csv")))
+    assert [int(r["seed"]) for r in rows] == [0, 1]
+    misses = []
+    for row in rows:
+        kept = folder / "runs" / f"s{row['seed']}"
+        result = json.loads((kept / "result.json").read_text())        # what fcmpc-fly itself reported
+        assert result["status"] == row["phase"] == "arrived" and result["seed"] == int(row["seed"])
+        assert math.isclose(float(row["remaining_km"]), result["rest_remaining_m"] / 1e3, rel_tol=1e-9)
+        # the row's end is where fcmpc-fly took the miss: the true position at rest
+        dest = (result["dest_lat_deg"], result["dest_lon_deg"])
+        end = geodesic_distance_m(float(row["final_lat"]), float(row["final_lon"]), *dest)
+        assert abs(end - result["rest_remaining_m"]) < 1.0
+        values = read_parm_file(kept / "fly.parm")
+        start = (values["NAV_START_LAT"], values["NAV_START_LON"])
+        assert abs(geodesic_distance_m(*start, *dest) - 1000.0) < 1.0          # the 1 km leg
+        assert int(row["iterations"]) == result["iterations"] > 0
+        misses.append(result["rest_remaining_m"])
+    assert misses[0] != misses[1]                 # each run drew its own seed's world
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["fc"] == "sim" and summary["summary"]["Fc-MPC"]["arrived"] == 2
+
+
+def test_runs_side_by_side_get_their_own_firmware_instances():
+    low, high = INSTANCES["ardupilot"]
+    picked = {instance_for("ardupilot", k) for k in range(3)}
+    assert len(picked) == 3 and all(low <= i <= high for i in picked)
+    assert instance_for("ardupilot", 0, first=40) >= 40
+    assert 1 <= instance_for("px4", 12) <= 9 and instance_for("sim", 5) == 0
+
+
+@pytest.mark.parametrize("extra, said", [(["--budget"], "--budget"), (["--errors=-crustal"], "--errors"),
+                                         (["--physics", "hil"], "--physics hil with --fc sim"),
+                                         (["--short-km", "0"], "--short-km 0")])
+def test_flown_runs_refuse_what_only_the_in_process_world_has(tmp_path, capsys, extra, said):
+    assert main(["--fc", "sim", "--runs", "1", "--out", str(tmp_path), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and said in err[0], err
