@@ -356,3 +356,19 @@ def test_the_companion_is_started_as_a_process_in_one_place():
     fcmpc-montecarlo --fc against any flight controller; nothing else in the packages writes its own."""
     starters = sorted(_rel(p) for p in _project_files() if "companion.app" in _string_constants(p))
     assert starters == ["fcmpc/fly/mission.py"], starters
+
+
+@pytest.mark.parametrize("path", _modules("sitl"), ids=_rel)
+def test_sitl_keeps_the_world_and_the_stand_in_and_starts_no_process(path: Path):
+    """Processes (firmware, the companion, the world's own processes) are started by the tools
+    (fcmpc/firmware, fcmpc/fly); sitl/ is what runs inside them."""
+    bad = {name for name in _imports(path) if name.split(".")[0] in ("subprocess", "multiprocessing")}
+    assert not bad, f"{_rel(path)} imports {sorted(bad)}: starting processes is the tools' job"
+
+
+@pytest.mark.parametrize("path", _modules("fcmpc/firmware"), ids=_rel)
+def test_firmware_rigs_know_their_firmware_not_the_mission(path: Path):
+    """fcmpc/firmware holds what is each firmware's own (start-up, parameters, physics); the mission
+    (companion, watch, scoring) is the runner's: no rig imports fcmpc.fly or fcmpc.montecarlo."""
+    bad = {name for name in _project_imports(path) if name.startswith(("fcmpc.fly", "fcmpc.montecarlo"))}
+    assert not bad, f"{_rel(path)} imports {sorted(bad)}"

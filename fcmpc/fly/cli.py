@@ -67,7 +67,7 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--compass", choices=("real", "ideal"), default="real",
                    help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
                         "noise and motor interference, calibrated as a boat's user does (real, the default), or "
-                        "SITL's perfect one (ideal); see sitl/firmware/compass.py")
+                        "SITL's perfect one (ideal); see fcmpc/firmware/compass.py")
     p.add_argument("--physics", choices=("builtin", "sih", "json", "hil"), default="builtin",
                    help="the firmware's physics: its own (builtin: ArduPilot's motorboat paced by the wall clock, "
                         "PX4's SIH paced by --speedup; 'sih' says the same), or our world in lockstep with the "
@@ -116,7 +116,7 @@ def _run(argv: list[str] | None) -> int:
     gifted = gift_line(scenario) if options.fc == "sim" else ""   # real firmware flies in its own world
     if gifted:
         print(f"fcmpc-fly: {gifted}", file=sys.stderr, flush=True)
-    from sitl.firmware import FirmwareMissing
+    from fcmpc.firmware import FirmwareMissing
 
     if options.fc == "px4" and not 0 <= options.fc_instance <= 9:
         raise UsageError(f"--fc-instance {options.fc_instance}: PX4 instances are 0..9")

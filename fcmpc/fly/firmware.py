@@ -1,10 +1,10 @@
 """Real flight-controller firmware as a flight controller of the one runner (``fcmpc-fly --fc ardupilot|px4``).
 
-Each firmware's own start-up lives with it: :class:`sitl.firmware.flight.ArduPilotRig` (ArduPilot
-Rover SITL with its motorboat), :class:`sitl.physics.rig.ArduPilotJsonRig` (with our world as its
-JSON physics, in lockstep), :class:`sitl.firmware.px4_flight.Px4Rig` (PX4 with SIH) and
-:class:`~sitl.firmware.px4_flight.Px4HilRig` (with our world over HIL, in lockstep). A rig starts
-the processes and hands back a ground-station monitor (:class:`~sitl.firmware.monitor.FirmwareMonitor`).
+Each firmware's own start-up lives with it: :class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig` (ArduPilot
+Rover SITL with its motorboat), :class:`fcmpc.firmware.ardupilot_json_rig.ArduPilotJsonRig` (with our world as its
+JSON physics, in lockstep), :class:`fcmpc.firmware.px4_rig.Px4Rig` (PX4 with SIH) and
+:class:`~fcmpc.firmware.px4_rig.Px4HilRig` (with our world over HIL, in lockstep). A rig starts
+the processes and hands back a ground-station monitor (:class:`~fcmpc.firmware.monitor.FirmwareMonitor`).
 :class:`FirmwareFC` is what every rig has in common for the runner: it pumps the monitor (the
 truth: SIMSTATE or HIL_STATE_QUATERNION), denies GPS the moment the vehicle arms (GPS for
 start-up only, as in the paper's scenario), waits after the mission until the boat is at rest,
@@ -21,8 +21,8 @@ from typing import Callable
 import numpy as np
 
 from fcmpc.fly.results import TruthTrack
-from sitl.firmware.flight import BOAT_CRUISE_KMH, FirmwareFlight
-from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
+from fcmpc.firmware.ardupilot_rig import BOAT_CRUISE_KMH, FirmwareFlight
+from fcmpc.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 __all__ = ["FirmwareFC", "SETTLE_SPEED_MPS", "firmware_flight"]
 
@@ -119,10 +119,10 @@ def _at_rest(monitor: FirmwareMonitor) -> bool:
 
 # (--fc, --physics) -> "module:rig class"; each rig says how its firmware starts, its pace and the
 # companion's parameters for it (check(), default_speedup, companion_values(flight), companion_args)
-RIGS = {("ardupilot", "builtin"): "sitl.firmware.flight:ArduPilotRig",
-        ("ardupilot", "json"): "sitl.physics.rig:ArduPilotJsonRig",
-        ("px4", "builtin"): "sitl.firmware.px4_flight:Px4Rig",
-        ("px4", "hil"): "sitl.firmware.px4_flight:Px4HilRig"}
+RIGS = {("ardupilot", "builtin"): "fcmpc.firmware.ardupilot_rig:ArduPilotRig",
+        ("ardupilot", "json"): "fcmpc.firmware.ardupilot_json_rig:ArduPilotJsonRig",
+        ("px4", "builtin"): "fcmpc.firmware.px4_rig:Px4Rig",
+        ("px4", "hil"): "fcmpc.firmware.px4_rig:Px4HilRig"}
 
 
 def firmware_flight(options, scenario, dest: tuple[float, float], values: dict,

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from fcmpc.fly.results import STATUS_EXIT, TruthTrack
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.processes import stop_process
 
 __all__ = ["BIND_TIMEOUT_S", "POLL_S", "REPO", "CompanionRun", "FlightController", "MissionProcesses", "Outcome",
            "child_env", "run_mission", "stopped_by_signal"]

@@ -68,7 +68,7 @@ class FlyOptions:
     fc_instance: int = 0                 # ArduPilot SITL -I (TCP 5760 + 10 i)
     compass: str = "real"                # the firmware's own compass: a real installation's errors, or "ideal"
     physics: str = "builtin"             # the firmware's own (builtin), or our world in lockstep: json (ArduPilot),
-                                         # hil (PX4; sitl.firmware.px4_hil)
+                                         # hil (PX4; sitl.physics.px4_hil)
     nice: int = 0                        # niceness added to both children (os.nice): a lockstep run keeps no
                                          # wall pace, so beside wall-paced work (real firmware) it can yield
 

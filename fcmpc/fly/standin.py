@@ -15,7 +15,7 @@ from pathlib import Path
 
 from fcmpc.fly.mission import REPO, child_env, niceness, stopped_by_signal
 from fcmpc.fly.results import REST_WINDOW_S, TruthTrack, read_truth_track
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.processes import stop_process
 from sitl.scenario import Scenario
 
 __all__ = ["LOCKSTEP_PERIOD_S", "SITL_RATES", "StandIn", "free_udp_port", "linger_s", "stand_in_args"]

@@ -59,12 +59,12 @@ def instance_for(fc: str, index: int, first: int | None = None) -> int:
     """The instance number of run ``index``: the first free one (its ports unbound) from the run's
     own slot of the FC's range (ArduPilot 80-89, PX4 1-9) on, so runs side by side never share one."""
     if fc == "ardupilot":
-        from sitl.firmware.ardupilot import free_instance
+        from fcmpc.firmware.ardupilot import free_instance
 
         low, high = INSTANCES["ardupilot"] if first is None else (first, first + 9)
         return free_instance(first=low + index % (high - low + 1), last=high)
     if fc == "px4":
-        from sitl.firmware.px4 import free_px4_instance
+        from fcmpc.firmware.px4 import free_px4_instance
 
         low, high = INSTANCES["px4"]
         return free_px4_instance(first=low + index % (high - low + 1))

@@ -28,7 +28,7 @@ from companion.io.status_page.plot import DEST_COLOUR, ELLIPSE_COLOUR, TRACK_COL
 from companion.io.status_page.address import parse_http_address
 from companion.io.status_page.server import MAX_CONNECTIONS, TrackReader
 from companion.params import default_values
-from sitl.firmware.processes import stop_process as _stop
+from fcmpc.firmware.processes import stop_process as _stop
 from tests.ports import free_port
 from tests.processes import wait_for_file
 

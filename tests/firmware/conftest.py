@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from companion.params import write_parm_file
-from sitl.firmware import ArduPilotSitl, FirmwareMissing, ardupilot_binary
-from sitl.firmware.ardupilot import free_instance
-from sitl.firmware.monitor import FirmwareMonitor, write_truth_csv
+from fcmpc.firmware import ArduPilotSitl, FirmwareMissing, ardupilot_binary
+from fcmpc.firmware.ardupilot import free_instance
+from fcmpc.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 REPO = Path(__file__).resolve().parents[2]
 _TAKEN: set[int] = set()     # instances this test session handed out (free_instance skips busy ports too)
@@ -195,7 +195,7 @@ PX4_STARTUP_S = 30.0
 
 
 def _px4_root_or_skip() -> Path:
-    from sitl.firmware.px4 import px4_root
+    from fcmpc.firmware.px4 import px4_root
 
     try:
         return px4_root()
@@ -210,8 +210,8 @@ class Px4TestRig(Rig):
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speed: float = PX4_SPEED,
                  monitor: bool = True) -> None:
-        from sitl.firmware.px4 import Px4Sitl, free_px4_instance
-        from sitl.firmware.px4_flight import MONITOR_RATES_HZ
+        from fcmpc.firmware.px4 import Px4Sitl, free_px4_instance
+        from fcmpc.firmware.px4_rig import MONITOR_RATES_HZ
 
         self.tmp = tmp_path
         root = _px4_root_or_skip()
@@ -232,7 +232,7 @@ class Px4TestRig(Rig):
         return self.sitl.companion_url
 
     def start_companion(self, startup_s: float | None = PX4_STARTUP_S, **values) -> Path:
-        from sitl.firmware.px4_flight import COMPANION_VALUES   # the companion as fcmpc-fly --fc px4 flies it
+        from fcmpc.firmware.px4_rig import COMPANION_VALUES   # the companion as fcmpc-fly --fc px4 flies it
 
         return super().start_companion(startup_s, **{**COMPANION_VALUES, **values})
 

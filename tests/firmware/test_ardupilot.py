@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.io.link import MessageClock
 from companion.io.sensors.mag_units import highres_nt_per_unit, mag_messages
 from companion.io.sensors.mavlink_source import MavlinkDecoder
-from sitl.firmware.compass import ARDUPILOT_REAL, ardupilot_compass_params, calibrate_fixed_yaw
+from fcmpc.firmware.compass import ARDUPILOT_REAL, ardupilot_compass_params, calibrate_fixed_yaw
 from tests.firmware.conftest import assert_forward_on as _assert_forward_on
 from tests.firmware.conftest import moving_pairs as _moving
 
@@ -28,7 +28,7 @@ WALL_S = 300.0          # generous: a loaded 2-core machine runs SITL far below 
                          ids=["NE-SE, SITL's perfect compass", "SW-NW, a real compass and the companion's circles"])
 def test_start_up_ends_and_every_quadrant_is_driven_forward(rig_factory, probes, compass):
     """SITL's own compass is noise-free (SIM_MAG_RND 0); a real one is not (log171's hard and soft
-    iron, noise, a CompassMot result's motor interference: ``sitl.firmware.compass``), calibrated by
+    iron, noise, a CompassMot result's motor interference: ``fcmpc.firmware.compass``), calibrated by
     ArduPilot's fixed-yaw calibration as a boat's user does, which learns its offsets only. With the
     real one the companion flies its calibration circles first (COMP_CAL_TURNS 1): without them every
     period after the first turn was excluded (the fix would jump 530-640 km). With either, start-up
@@ -156,7 +156,7 @@ def test_main_job_stopped_by_a_signal_still_writes_its_records(tmp_path, signum)
     import subprocess
     import sys
 
-    from sitl.firmware.ardupilot import free_instance
+    from fcmpc.firmware.ardupilot import free_instance
     from tests.firmware.conftest import _TAKEN, REPO, _binary_or_skip
     from tests.processes import Lines, reaped
 

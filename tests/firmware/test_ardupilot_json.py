@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from sitl.firmware import ArduPilotSitl
-from sitl.firmware.ardupilot import free_instance
-from sitl.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware import ArduPilotSitl
+from fcmpc.firmware.ardupilot import free_instance
+from fcmpc.firmware.monitor import FirmwareMonitor
 from sitl.physics.relay import relay_port
-from sitl.physics.rig import JSON_PARAMS, start_world, stop_world
+from fcmpc.firmware.ardupilot_json_rig import JSON_PARAMS, start_world, stop_world
 from tests.firmware.conftest import _TAKEN, _WORKER, Rig, _binary_or_skip
 from tests.firmware.conftest import assert_guided_and_on_course_without_gps
 
@@ -80,7 +80,7 @@ def test_ardupilots_throttle_and_steering_move_our_boat_where_ardupilot_believes
     the boat, within a metre, after hundreds of metres (the NED offsets invert ArduPilot's
     ``Location::offset``), the boat ran forward along its heading, and every frame was 20 ms."""
     from companion.nav.geo import geodesic_distance_m, geodesic_inverse
-    from sitl.firmware.monitor import mavlink
+    from fcmpc.firmware.monitor import mavlink
 
     rig = json_rig("manual", params={"GPS2_TYPE": 0, "RC_OVERRIDE_TIME": -1}, relay=False)
     mon = rig.monitor

@@ -1,7 +1,7 @@
 """The companion against real PX4 SITL with SIH (Ackermann rover): what the PX4 issue names.
 
 Every test starts PX4 in its own folder with its own ``PX4_INSTANCE`` (a free one, see
-:func:`sitl.firmware.px4.free_px4_instance`), a monitor on PX4's ground-station link
+:func:`fcmpc.firmware.px4.free_px4_instance`), a monitor on PX4's ground-station link
 (HIL_STATE_QUATERNION, SIH's ground truth) and the companion listening on PX4's onboard link,
 and waits on events (texts, heartbeats, firmware time), never on sleeps.
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from companion.params import REGISTRY, read_parm_file
-from sitl.firmware.px4 import read_qgc_params
+from fcmpc.firmware.px4 import read_qgc_params
 from tests.firmware.conftest import assert_forward_on, moving_pairs
 from tests.ports import free_port
 
@@ -150,7 +150,7 @@ def test_companion_sigkill_leads_to_px4s_offboard_loss_failsafe(px4_factory):
     mon.pump(lambda m: m.time_s >= t_failsafe + 25.0, WALL_S, "holding")
     assert not moving_pairs(mon.truth, t_failsafe + 15.0, t_failsafe + 25.0, min_speed_mps=0.5), \
         "still moving 15 s into Hold"
-    # PX4's logger is off (sitl.firmware.px4.SIMULATOR_PARAMS): armed for a while, it wrote no ULog
+    # PX4's logger is off (fcmpc.firmware.px4.SIMULATOR_PARAMS): armed for a while, it wrote no ULog
     assert not list((rig.tmp / "px4").rglob("*.ulg")), "PX4 wrote a ULog"
 
 
@@ -250,7 +250,7 @@ def test_shipped_px4_params_parse_and_name_real_parameters():
     values = read_qgc_params(REPO / "params" / "px4-rover.params")
     assert values["MAV_USEHILGPS"] == 1 and values["COM_OBL_RC_ACT"] == 5
     try:
-        from sitl.firmware.px4 import px4_root
+        from fcmpc.firmware.px4 import px4_root
 
         xml = px4_root() / "parameters.xml"
     except Exception as err:  # noqa: BLE001 - FirmwareMissing: names cannot be checked here

@@ -29,7 +29,7 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course(px4_factory):
     distance to go wandering 79 -> 124-144 km; since the plausibility check judges a jump against
     Table 3's own covariance, 1-4 of the 11 periods are excluded and fly the last command on), so
     the mission flies, but not toward its destination."""
-    from sitl.firmware.px4_flight import deny_gps
+    from fcmpc.firmware.px4_rig import deny_gps
 
     # 8x, not 12x: HIL_GPS must keep coming through a loaded machine's stalls (EKF2_NOAID_TOUT of
     # simulated time); one run at 12x on a machine at load 16 lost the feed for over 5 s at GPS loss

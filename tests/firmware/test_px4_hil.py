@@ -1,4 +1,4 @@
-"""The companion against real PX4 in lockstep with our world (``sitl.firmware.px4_hil``): GPS lost after start-up.
+"""The companion against real PX4 in lockstep with our world (``sitl.physics.px4_hil``): GPS lost after start-up.
 
 In CI in place of the SIH test of the same claim (``test_px4_gps_lost.py``: GPS lost after start-up,
 OFFBOARD kept, the true track on the companion's courses for 30 simulated minutes; 419 s in CI at 5x,
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from companion.params import write_parm_file
-from sitl.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware.monitor import FirmwareMonitor
 from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, commands_flown
 from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED
 
@@ -34,9 +34,9 @@ class HilRig(Rig):
 
     def __init__(self, tmp_path: Path, seed: int = 0) -> None:
         from sitl.clock import LockstepGate
-        from sitl.firmware.px4 import Px4Sitl, free_px4_instance
-        from sitl.firmware.px4_flight import HIL_GATE_TIMEOUT_S, HIL_LOCKSTEP_PERIOD_S, HIL_VALUES, MONITOR_RATES_HZ
-        from sitl.firmware.px4_hil import Px4HilBridge, hil_params, hil_world
+        from fcmpc.firmware.px4 import Px4Sitl, free_px4_instance
+        from fcmpc.firmware.px4_rig import HIL_GATE_TIMEOUT_S, HIL_LOCKSTEP_PERIOD_S, HIL_VALUES, MONITOR_RATES_HZ
+        from sitl.physics.px4_hil import Px4HilBridge, hil_params, hil_world
         from sitl.scenario import load_scenario
 
         self.tmp = tmp_path
@@ -57,8 +57,8 @@ class HilRig(Rig):
         self.monitor.start()
 
     def start_companion(self, startup_s: float | None = 30.0, **values) -> Path:
-        from sitl.firmware.px4_flight import COMPANION_VALUES
-        from sitl.firmware.px4_hil import HIL_COMPANION_VALUES
+        from fcmpc.firmware.px4_rig import COMPANION_VALUES
+        from sitl.physics.px4_hil import HIL_COMPANION_VALUES
 
         parm = self.tmp / "companion.parm"
         write_parm_file(parm, {"NAV_START_LAT": 33.0, "NAV_START_LON": 152.0, "COMP_ARM_ENABLE": 1,

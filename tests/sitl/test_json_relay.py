@@ -17,7 +17,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from sitl.firmware.ardupilot import free_instance  # noqa: E402
+from fcmpc.firmware.ardupilot import free_instance  # noqa: E402
 from sitl.physics.relay import CompanionRelay, relay_port, serial1_port  # noqa: E402
 
 UNIX0_US = 1_715_364_000_000_000     # SITL's start date, UNIX us at boot

@@ -1,4 +1,4 @@
-"""The PX4 lockstep bridge's frames (``sitl.firmware.px4_hil``), against a stand-in for PX4's
+"""The PX4 lockstep bridge's frames (``sitl.physics.px4_hil``), against a stand-in for PX4's
 ``simulator_mavlink`` on a real TCP socket: no firmware needed."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.nav.ins_error import EARTH_RATE_RADPS
-from sitl.firmware.px4_hil import (ACCEL_LSB, ARMED_FLAG, FIELDS_IMU_MAG_BARO, GYRO_LSB, HIL_RATE_HZ, HilSensors, HilWorld,
+from sitl.physics.px4_hil import (ACCEL_LSB, ARMED_FLAG, FIELDS_IMU_MAG_BARO, GYRO_LSB, HIL_RATE_HZ, HilSensors, HilWorld,
                                    Px4HilBridge, simulator_port)
 from sitl.sensors import GRAVITY_MPS2, WaveMotion
 from sitl.world.vehicle import VehicleState

@@ -24,7 +24,7 @@ from fcmpc.fly import FlyOptions
 from fcmpc.fly.results import read_truth_track
 from fcmpc.fly.mission import REPO, MissionProcesses, child_env
 from fcmpc.fly.runner import companion_run, prepare, stand_in, write_short_scenario
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.processes import stop_process
 from tests.companion.test_closed_loop import ISSUE_MISS_M
 
 HANG_S = 800.0          # a hung-run guard, not a pace

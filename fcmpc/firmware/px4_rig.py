@@ -3,7 +3,7 @@
 The world is PX4's own: SIH's Ackermann rover, its magnetic field (PX4's WMM tables), EKF2 with
 its magnetometer-derived yaw. PX4 starts at the mission's start (``SIH_LOC_LAT0/LON0``) with
 ``params/px4-rover.params``; the companion listens on PX4's onboard link (``udpin`` on
-14540+N); a ground station on PX4's GCS link (:class:`~sitl.firmware.monitor.FirmwareMonitor`)
+14540+N); a ground station on PX4's GCS link (:class:`~fcmpc.firmware.monitor.FirmwareMonitor`)
 records SIH's ground truth (HIL_STATE_QUATERNION) and denies GPS when the vehicle arms
 (``SIM_GPS_USED 0``: the simulated receiver reports no fix, as a jammed one does). These rigs are
 what is PX4's (its start-up, parameters and physics); the mission is the one runner's
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sitl.firmware.flight import BOAT_CRUISE_KMH, FirmwareFlight
-from sitl.firmware.monitor import FirmwareMonitor
-from sitl.firmware.px4 import Px4Sitl, px4_root
+from fcmpc.firmware.ardupilot_rig import BOAT_CRUISE_KMH, FirmwareFlight
+from fcmpc.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware.px4 import Px4Sitl, px4_root
 
 __all__ = ["COMPANION_VALUES", "HIL_GATE_TIMEOUT_S", "HIL_LOCKSTEP_PERIOD_S", "HIL_VALUES", "MONITOR_RATES_HZ",
            "Px4HilRig", "Px4Rig", "deny_gps"]
@@ -114,7 +114,7 @@ HIL_VALUES = {"COM_LOW_BAT_ACT": 0, "COM_OF_LOSS_T": HIL_OFFBOARD_LOSS_S, "COM_D
 
 
 class Px4HilRig(Px4Rig):
-    """PX4 in lockstep with our world (:mod:`sitl.firmware.px4_hil`): the bridge is PX4's physics and
+    """PX4 in lockstep with our world (:mod:`sitl.physics.px4_hil`): the bridge is PX4's physics and
     relays its onboard link to the companion, which runs with ``--lockstep``; the monitor reads the
     truth PX4 forwards from the bridge (HIL_STATE_QUATERNION)."""
 
@@ -124,14 +124,14 @@ class Px4HilRig(Px4Rig):
     @staticmethod
     def companion_values(flight: FirmwareFlight) -> dict:   # noqa: ARG004
         """The boat is ours (sitl.world.actuated, 10 m/s at full throttle): it cruises as ArduPilot's does,
-        the feed turning as PX4 turns it there and claiming 1 m (:func:`sitl.firmware.px4_hil.hil_companion_values`)."""
-        from sitl.firmware.px4_hil import hil_companion_values
+        the feed turning as PX4 turns it there and claiming 1 m (:func:`sitl.physics.px4_hil.hil_companion_values`)."""
+        from sitl.physics.px4_hil import hil_companion_values
 
         return {**COMPANION_VALUES, **hil_companion_values(BOAT_CRUISE_KMH / 3.6), "NAV_SPEED_KMH": BOAT_CRUISE_KMH}
 
     def __init__(self, flight: FirmwareFlight, out: Path, params: dict | None = None) -> None:
         from sitl.clock import LockstepGate
-        from sitl.firmware.px4_hil import Px4HilBridge, hil_params, hil_world
+        from sitl.physics.px4_hil import Px4HilBridge, hil_params, hil_world
         from sitl.scenario import load_scenario
 
         scenario = flight.scenario if flight.scenario is not None else load_scenario("pacific")

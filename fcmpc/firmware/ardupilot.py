@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from companion.params import format_value
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.processes import stop_process
 
 __all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "project_parm", "read_ardupilot_parm",
            "free_instance"]

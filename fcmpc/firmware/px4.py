@@ -14,7 +14,7 @@ its own temporary one; ``-i N`` shifts its UDP ports (``px4-rc.mavlink``):
 
 ``simulator="mavlink"`` starts PX4's MAVLink simulator interface instead of SIH (``PX4_SIMULATOR``
 other than ``sihsim`` with the same airframe: ``px4-rc.simulator`` then runs ``px4-rc.mavlinksim``,
-``simulator_mavlink start -c 4560+N``): our world is the physics (:mod:`sitl.firmware.px4_hil`), and
+``simulator_mavlink start -c 4560+N``): our world is the physics (:mod:`sitl.physics.px4_hil`), and
 PX4 runs in lockstep with it (its sensor simulators ``sensor_*_sim`` start only with SIH).
 
 Parameters are applied at start through PX4's own ``PX4_PARAM_<NAME>=<value>`` environment
@@ -35,8 +35,8 @@ import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sitl.firmware.ardupilot import FirmwareMissing, project_parm
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.ardupilot import FirmwareMissing, project_parm
+from fcmpc.firmware.processes import stop_process
 
 __all__ = ["MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
 

@@ -3,7 +3,7 @@
 The world is ArduPilot's own: its simulated boat (``--model motorboat``, waves, wind 3 m/s),
 its magnetic field (ArduPilot's IGRF tables, not the navigator's WMM), its compass-derived yaw,
 its EKF. :class:`ArduPilotRig` is what is ArduPilot's: SITL in its own folder and instance, a
-ground station on SERIAL0 (:class:`~sitl.firmware.monitor.FirmwareMonitor`: the truth is SIMSTATE),
+ground station on SERIAL0 (:class:`~fcmpc.firmware.monitor.FirmwareMonitor`: the truth is SIMSTATE),
 the real compass's errors and its fixed-yaw calibration before the companion starts, the companion
 on SERIAL1, GPS denied by ``SIM_GPS1_ENABLE 0``. The mission itself (the companion, GPS denied at
 arming, the boat at rest, the records) is the one runner's (:mod:`fcmpc.fly.mission`).
@@ -13,9 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from sitl.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
-from sitl.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
-from sitl.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
+from fcmpc.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
+from fcmpc.firmware.monitor import FirmwareMonitor
 
 __all__ = ["FirmwareFlight", "BOAT_CRUISE_KMH", "ArduPilotRig"]
 
@@ -32,8 +32,8 @@ class FirmwareFlight:
     speedup: float = 50.0
     instance: int = 0
     start_unix_s: float | None = None
-    compass: str = "real"          # the firmware's compass: sitl.firmware.compass ("real" or "ideal")
-    physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.firmware.px4_hil)
+    compass: str = "real"          # the firmware's compass: fcmpc.firmware.compass ("real" or "ideal")
+    physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.physics.px4_hil)
     scenario: object = None        # the world of a "hil" flight (sitl.scenario.Scenario; default pacific)
     seed: int = 0
     current_en_mps: tuple[float, float] = (0.0, 0.0)   # our world as the physics (sitl.physics): its current (E, N)
@@ -54,7 +54,7 @@ class ArduPilotRig:
     def companion_values(flight: FirmwareFlight) -> dict:
         """The companion's parameters for ArduPilot's boat: a real compass is calibrated by the
         companion's circles before the mission (COMP_CAL_TURNS); ArduPilot's own fixed-yaw
-        calibration learns the offsets only (sitl/firmware/compass.py)."""
+        calibration learns the offsets only (fcmpc/firmware/compass.py)."""
         return {"COMP_CAL_TURNS": 1} if flight.compass == "real" else {}
 
     def __init__(self, flight: FirmwareFlight, out: Path) -> None:

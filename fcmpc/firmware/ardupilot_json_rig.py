@@ -6,7 +6,7 @@ and ``-I`` instance, the monitor on SERIAL0 as with the built-in motorboat, and 
 the relay's port and ``--lockstep`` (a stamped message every setpoint period). Everything the
 built-in path does on top (the real compass's errors and its fixed-yaw calibration, GPS denied at
 arming, SIMSTATE as the truth: ArduPilot's copy of our state) is the same
-(:class:`sitl.firmware.flight.ArduPilotRig`). Each process is stopped by its PID.
+(:class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig`). Each process is stopped by its PID.
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sitl.firmware.flight import REPO, ArduPilotRig, FirmwareFlight
-from sitl.firmware.processes import stop_process
+from fcmpc.firmware.ardupilot_rig import REPO, ArduPilotRig, FirmwareFlight
+from fcmpc.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
 __all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world"]

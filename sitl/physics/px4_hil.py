@@ -1,6 +1,6 @@
 """Our world as PX4's physics in lockstep, through PX4's MAVLink simulator interface (``simulator_mavlink``).
 
-PX4 started with ``PX4_SIMULATOR=mavlink`` (:class:`sitl.firmware.px4.Px4Sitl`, ``simulator="mavlink"``)
+PX4 started with ``PX4_SIMULATOR=mavlink`` (:class:`fcmpc.firmware.px4.Px4Sitl`, ``simulator="mavlink"``)
 connects as a TCP client to port 4560+N. Its clock is set by every HIL_SENSOR's ``time_usec``
 (``px4_clock_settime``; the start-up script itself waits for the first one), and once armed it
 answers a frame with HIL_ACTUATOR_CONTROLS (after EKF2 and the other lockstep components have

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 
-from sitl.firmware.monitor import FirmwareMonitor, mavlink
+from fcmpc.firmware.monitor import FirmwareMonitor, mavlink
 
 __all__ = ["ARDUPILOT_REAL", "COMPASSES", "calibrate_fixed_yaw", "ardupilot_compass_params"]
 
