@@ -32,3 +32,22 @@ def test_the_storm_table_compares_the_feed_on_with_the_feed_off_and_names_the_tr
     assert cells == ["May 2024", "halloween2003, march2011 (57, 0.5)", "11.00", "22.00", "94 %", "10.00", "20.00",
                      "94 %", "+10%", "12.50", "50/50/50"]
     assert "seeds 1000-1049" in text
+
+
+def test_a_storm_cell_counts_only_the_runs_of_its_own_sweep(tmp_path, shared_data):
+    """A store folder keeps runs flown with other code or parameters beside the current ones (a new
+    registry entry changes every run's key): the cell's figures come from this sweep's runs alone."""
+    from pathlib import Path
+
+    from fcmpc.montecarlo.results import run_storm
+    from fcmpc.montecarlo.store import RunStore
+
+    root = Path(__file__).resolve().parents[1]
+    feed_off = dict(STORM_VARIANTS)["feed off"]
+    first = run_storm("march2011", feed_off, 2, tmp_path, root)
+    (runs,) = tmp_path.glob("storms/*/march2011_real/sweep/runs")
+    stale = dict(RunStore(runs).read().to_pylist()[0], run_key="flown-by-older-code", remaining_km=1e4)
+    RunStore(runs).append([stale])
+    again = run_storm("march2011", feed_off, 2, tmp_path, root)
+    assert first["runs"] == again["runs"] == 2
+    assert again["median_km"] == first["median_km"] < 1e3

@@ -60,7 +60,7 @@ def sweep_main(args: Namespace, scenario_ref: str | Scenario, scenario: Scenario
                                                      "runs_per_cell": args.runs, **counts,
                                                      "runs_per_s": rate, "engine": engine.kind,
                                                      "workers": workers, "storm_params": storm_params,
-                                                     "cells": summary}, indent=2, default=float))
+                                                     "cells": summary, "run_keys": list(plan.keys)}, indent=2, default=float))
     cells = len(plan.specs) // max(1, args.runs * len(controllers))
     print(f"\n{scenario.name}: {cells} cells x {len(controllers)} controllers x {args.runs} runs = "
           f"{counts['planned']} runs; {counts['skipped']} already stored, {counts['flown']} flown in "

@@ -132,11 +132,13 @@ def run_storm(event: str, variant: tuple[str, ...], runs: int, out: Path, root: 
     folder = (out / "storms" / f"{event}-{re.sub(r'[^a-z0-9]+', '-', ' '.join(variant[1::2]))}").resolve()
     _montecarlo(storm_argv(event, variant), runs, folder, root)
     sweep = folder / f"{event}_real" / "sweep"
-    rows = [r for r in RunStore(sweep / "runs").read().to_pylist() if r["controller"] == "Fc-MPC"
-            and FIRST_SEED <= r["seed"] < FIRST_SEED + runs]
+    stored = json.loads((sweep / "summary.json").read_text())
+    # only this sweep's runs: the store keeps older ones (other code, other parameters) beside them
+    rows = [r for r in RunStore(sweep / "runs").read(set(stored["run_keys"])).to_pylist()
+            if r["controller"] == "Fc-MPC" and FIRST_SEED <= r["seed"] < FIRST_SEED + runs]
     miss = [float(r["remaining_km"]) for r in rows]
     inside = [float(r["in_ellipse95"]) for r in rows if r["in_ellipse95"] is not None]
-    fitted = json.loads((sweep / "summary.json").read_text()).get("storm_params") or {}
+    fitted = stored.get("storm_params") or {}
     return {"median_km": statistics.median(miss), "p90_km": _p90(miss), "inside_pct": 100.0 * sum(inside) / len(inside) if inside else math.nan,
             "runs": len(miss), "storms": fitted.get("storms") or [],
             "symh_k": rows[0]["FUS_SYMH_K"], "bqa_n": rows[0]["FUS_BQA_N"]}
