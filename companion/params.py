@@ -210,6 +210,11 @@ class CompanionConfig:
                        heartbeat_timeout_s=min(base.heartbeat_timeout_s, ceiling))
 
     @property
+    def feed_accel_limit_mps2(self) -> float:
+        """The position feed's turn limit: COMP_FEED_ACCEL, its 0 meaning none (the feed steps)."""
+        return self.feed_accel_mps2 or math.inf
+
+    @property
     def mag_offset_mgauss(self) -> tuple[float, float, float]:
         return self.mag_ofs_x, self.mag_ofs_y, self.mag_ofs_z
 

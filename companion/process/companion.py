@@ -99,7 +99,7 @@ class CompanionApp:
         self.mag = mag = MagProcessor(mag_calibration(comp), comp.spike_nt, track_yaw_offset=comp.trim_max_deg > 0.0)
         self.health = health = Health(health_limits(comp))
         self.fc_view = fc_view = FcView(comp.heading_source, comp.position_publish, comp.feed_blend_mps,
-                                             comp.feed_accel_mps2 or math.inf)
+                                        comp.feed_accel_limit_mps2)
         # the parts, each given what it uses; the mission's shared state is one record
         self.settings = settings = Settings(params, mag, health, fc_view, nav, comp)
         self.mission_state = state = MissionState()

@@ -6,8 +6,6 @@ mission takes what may change in flight (:meth:`Mission.reconfigure`) and names 
 """
 from __future__ import annotations
 
-import math
-
 from companion.failsafe import Health, HealthLimits
 from companion.fc_view import FcView
 from companion.io.param_server import ParamServer
@@ -57,6 +55,6 @@ class Settings:
         self.health.limits = health_limits(comp)
         self.fc_view.position_publish = comp.position_publish
         self.fc_view.feed.blend_mps = comp.feed_blend_mps
-        self.fc_view.feed.accel_mps2 = comp.feed_accel_mps2 or math.inf
+        self.fc_view.feed.accel_mps2 = comp.feed_accel_limit_mps2
         self.nav = NavConfig.from_values(values)
         return apply_live_config(running, self.nav) if running is not None else []
