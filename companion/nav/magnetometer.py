@@ -264,7 +264,9 @@ class MagProcessor:
     """Message time before which gravity-referenced I is left out (a new command's transient)."""
     track_yaw_offset: bool = False
     """Feed :attr:`yaw_offset` (only the steering trim, ``COMP_TRIM_DEG`` > 0, reads it)."""
-    recorder: object = None   # recorder(time_s, calibrated_body_nt, roll_rad, pitch_rad) per sample kept (calibration circles)
+    recorder: object = None
+    """``recorder(time_s, calibrated_body_nt, roll_rad, pitch_rad, imu)`` per sample kept (the calibration
+    circles); ``imu``: ``(time_s, specific_force_body, gyro_body)`` of the same instant, or None."""
 
     def __post_init__(self) -> None:
         self.spikes = SpikeFilter(self.spike_nt)
@@ -346,7 +348,7 @@ class MagProcessor:
             return False
         self.last_di = (d, i)
         if self.recorder is not None:
-            self.recorder(time_s, calibrated, rpy[0], rpy[1])
+            self.recorder(time_s, calibrated, rpy[0], rpy[1], imu)
         if self.track_yaw_offset and imu is not None and abs(imu[2][2]) <= self.max_turn_radps:
             self.yaw_offset.add(time_s, rpy[2], calibrated, imu[1])
         if self.paused:

@@ -3,9 +3,13 @@
 A boat or a ground vehicle cannot be tumbled for a full 3-D calibration, and a calibration made
 standing still misses the motor's field. So, with the start known from GPS, once armed in
 GUIDED/OFFBOARD the companion drives ``COMP_CAL_TURNS`` slow full circles at the cruise speed
-(the course turning at ``COMP_CAL_DPS``), records every kept magnetometer sample with its roll
-and pitch, and fits the hard iron and the horizontal soft iron to the field model's H and Z at
-the start (:func:`companion.nav.calibration.fit_level_calibration`; the motor's field at cruise
+(the course turning at ``COMP_CAL_DPS``), records every kept magnetometer sample with the
+accelerometer and gyro of its instant, and fits the hard iron and the horizontal soft iron to the
+field model's H and Z at the start, levelled by the specific force with the circle's centripetal
+acceleration (gyro x the cruise speed) removed
+(:func:`companion.nav.calibration.fit_circle_calibration`; the flight controller's roll and
+pitch only for a sample without the IMU: ArduPilot's EKF tilt was 1.4 deg off on the circle in
+lockstep, and a fit levelled with it made the mission's inclination err with the heading) (:func:`companion.nav.calibration.fit_level_calibration`; the motor's field at cruise
 becomes part of the hard iron). The fit, chained onto the MAG_* the samples were corrected with,
 is written to MAG_* (so the ground station sees it and the file keeps it) and said in STATUSTEXT;
 then one more circle is driven with the new calibration and its average, taken with the motor
@@ -21,7 +25,7 @@ import numpy as np
 
 from companion.io.link import mavlink
 from companion.io.param_server import ParamServer
-from companion.nav.calibration import CalibrationRefused, chained, down_in_body, fit_level_calibration, registry_values
+from companion.nav.calibration import CIRCLE_COLUMNS, CalibrationRefused, chained, fit_circle_calibration, registry_values
 from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagProcessor
 from companion.params import validate
@@ -30,6 +34,8 @@ from companion.process.settings import Settings
 from companion.process.voice import Voice
 
 __all__ = ["CalibrationTurn"]
+
+_NAN3 = (math.nan, math.nan, math.nan)
 
 
 class CalibrationTurn:
@@ -46,7 +52,7 @@ class CalibrationTurn:
         self.done = False            # once per process: a restart or a reboot does not circle again
         self.t0 = math.nan
         self.fitted = False          # the fit is applied; the last circle is the start-up average
-        self.samples: list[tuple[float, float, float, float, float]] = []
+        self.samples: list[tuple[float, ...]] = []   # body field (3), roll, pitch, specific force (3), gyro (3)
 
     def wanted(self, source: str) -> bool:
         """A calibration manoeuvre before this mission: asked for, not yet flown, and a GPS start."""
@@ -59,8 +65,9 @@ class CalibrationTurn:
         self.voice.say(f"FcMPC: calibrating the magnetometer: {comp.cal_turns} circle(s) at "
                        f"{comp.cal_rate_dps:g} deg/s, then one for the start-up average")
 
-    def _record(self, time_s: float, calibrated, roll: float, pitch: float) -> None:
-        self.samples.append((*calibrated, roll, pitch))
+    def _record(self, time_s: float, calibrated, roll: float, pitch: float, imu=None) -> None:
+        force, gyro = (imu[1], imu[2]) if imu is not None else (_NAN3, _NAN3)
+        self.samples.append((*calibrated, roll, pitch, *force, *gyro))
 
     def turned_rad(self, now: float) -> float:
         return math.radians(self.settings.comp.cal_rate_dps) * (now - self.t0)
@@ -90,10 +97,9 @@ class CalibrationTurn:
         lat, lon, _ = self.preparation.start_position()
         c = self.settings.nav
         model = model_for_setting(c.year, c.wmm).elements(lat, lon, c.alt_m, c.year)
-        rows = np.array(self.samples, dtype=float).reshape(-1, 5)
+        rows = np.array(self.samples, dtype=float).reshape(-1, CIRCLE_COLUMNS)
         try:
-            fit = fit_level_calibration(rows[:, :3], down_in_body(rows[:, 3], rows[:, 4]), float(model.h_nt),
-                                        float(model.z_nt))
+            fit, by_attitude = fit_circle_calibration(rows, c.speed_mps, float(model.h_nt), float(model.z_nt))
             values = {name: validate(name, value) for name, value in
                       registry_values(chained(self.mag.calibration, fit)).items()}
         except (CalibrationRefused, ValueError) as err:
@@ -105,6 +111,7 @@ class CalibrationTurn:
         self.settings.apply()
         self.mag.clear()          # the start-up average: the next circle, with the new calibration
         ofs = ", ".join(f"{values[f'MAG_OFS_{a}']:+.0f}" for a in "XYZ")
+        level = "attitude" if by_attitude > 0.5 else "accelerometer"
         self.voice.say(f"FcMPC: magnetometer calibrated on {len(rows)} samples: residual {fit.residual_nt:.0f} nT rms, "
-                       f"{100.0 * fit.cell_share:.0f} % of headings; MAG_OFS {ofs} mG, soft iron "
+                       f"{100.0 * fit.cell_share:.0f} % of headings, level by {level}; MAG_OFS {ofs} mG, soft iron "
                        f"{values['MAG_SCALE_X']:.3f} {values['MAG_SCALE_Y']:.3f} {values['MAG_SOFT_XY']:+.3f}"[:200])
