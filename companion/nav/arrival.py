@@ -20,17 +20,26 @@ the estimate puts the destination, instead of up to epsilon from it, still movin
 leg's speed. Only for Fc-MPC, whose position estimate says where the destination is, and not with
 a constant speed (``NAV_SPEED_MODE`` 1), whose leg would overshoot.
 
+A period excluded by the plausibility check (:mod:`companion.nav.plausibility`) leaves the last
+command flying on. Once that leg has covered the distance to the estimated destination
+(:func:`passed_destination`), flying it on would only carry the vehicle past it, blind: the
+mission ends there instead, at rest where the estimate puts the destination, and says why
+(ArduPilot lockstep Pacific, 2026-12-06: 35 periods excluded after the final legs, the vehicle
+driven on for 3 h and stopped 77 km away, never at rest).
+
 A rule on the estimate's own uncertainty (stop when the destination lies inside its 1-sigma
 ellipse after a final leg) was measured and not kept: it drops a correction the filter has just
 made, and at ten times the magnetometer noise its median miss rose from 0.985 to 1.034 km.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from companion.nav.config import NavConfig
 
-__all__ = ["BELOW_EPSILON", "Arrival", "arrival_reason", "is_final_leg", "legs_reason"]
+__all__ = ["BELOW_EPSILON", "Arrival", "arrival_reason", "is_final_leg", "legs_reason", "passed_destination",
+           "PASSED_MAX_OFF_COURSE_RAD"]
 
 BELOW_EPSILON = "estimated distance below epsilon"
 
@@ -43,6 +52,25 @@ def legs_reason(legs: int) -> str:
 def is_final_leg(remaining_m: float, speed_mps: float, period_s: float) -> bool:
     """A leg from ``remaining_m`` (m) is planned to reach the destination within one period."""
     return remaining_m <= speed_mps * period_s
+
+
+PASSED_MAX_OFF_COURSE_RAD = math.radians(45.0)   # a leg further off the bearing is not one to the destination
+
+
+def passed_destination(remaining_m: float, off_course_rad: float, speed_mps: float, elapsed_s: float,
+                       arrive_m: float) -> bool:
+    """A leg commanded ``remaining_m`` (m) from the estimated destination, on a course
+    ``off_course_rad`` off the bearing to it (within :data:`PASSED_MAX_OFF_COURSE_RAD`), flown on at
+    ``speed_mps`` for ``elapsed_s``, has come within ``arrive_m`` (epsilon) of its closest approach.
+
+    >>> passed_destination(1700.0, 0.1, 5.7, 300.0, 500.0), passed_destination(20000.0, 0.0, 8.0, 300.0, 500.0)
+    (True, False)
+    >>> passed_destination(1700.0, 2.0, 5.7, 300.0, 500.0)   # a probe leg away from it
+    False
+    """
+    if not (math.isfinite(remaining_m) and abs(off_course_rad) <= PASSED_MAX_OFF_COURSE_RAD):
+        return False
+    return speed_mps * max(elapsed_s, 0.0) >= remaining_m * math.cos(off_course_rad) - arrive_m
 
 
 def arrival_reason(remaining_m: float, arrive_m: float, final_legs: int, arrive_legs: int) -> str | None:

@@ -376,6 +376,18 @@ class Mission:
         self._advance(meas.time_s, s, theta, speed)
         return command
 
+    def end_blind(self, time_s: float, reason: str) -> Command:
+        """End the mission at ``time_s`` without a measurement (the navigator excluded the period after
+        the last leg had reached the estimated destination, :func:`companion.nav.arrival.passed_destination`):
+        the estimate dead-reckoned along the last command to ``time_s``, arrived there."""
+        if self.finished is not None:
+            return self.finished
+        if self.last is not None:
+            moved = self.last.velocity_en * max(time_s - self.last.time_s, 0.0)
+            self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))
+        remaining, _ = geodesic_inverse(self.est[0], self.est[1], self.config.dest_lat_deg, self.config.dest_lon_deg)
+        return self._finish(time_s, Phase.ARRIVED, reason, remaining)
+
     def _take(self, estimate: Estimate) -> None:
         self.estimate = estimate
         self.est = (estimate.lat_deg, estimate.lon_deg)

@@ -14,7 +14,9 @@ all call it, so every figure the Monte Carlo prints describes what the vehicle r
 2. **Plausibility** (:mod:`companion.nav.plausibility`): from the second step on, the measurement is
    judged against the last estimate flown on with the last command; an implausible one is
    excluded (no command: the last one flies on, and the next period is measured one period later)
-   unless the excluded fixes agree, when the core re-anchors there and takes it.
+   unless the excluded fixes agree, when the core re-anchors there and takes it; once the last
+   command has carried the vehicle to the estimated destination, an excluded period ends the
+   mission there instead of flying it on past it, blind (:func:`companion.nav.arrival.passed_destination`).
 3. **The core's step** (:meth:`companion.nav.mission.Mission.step`: the fix, the filter's update,
    the MPC), which never raises on a measurement (:mod:`companion.nav.screening`).
 4. At the first step, the start (a known position): the |F| level the plausibility band is judged
@@ -36,13 +38,15 @@ from typing import Callable
 
 import numpy as np
 
+from companion.nav.arrival import passed_destination
 from companion.nav.elements import hz_standard_errors
-from companion.nav.geo import offset_position
+from companion.nav.geo import geodesic_inverse, offset_position
 from companion.nav.heading import window_heading_rad
 from companion.nav.mission import Command, Measurement, Mission
 from companion.nav.period import PeriodAverage, measured_inclination
 from companion.nav.plausibility import Judgement, MagPlausibility, element_noise, f_offset_nt, judge, navigator_bias
 from companion.nav.steering import is_new_course
+from companion.nav.step_io import Phase
 
 __all__ = ["NEW_COMMAND_COURSE_RAD", "SETTLE_AFTER_COMMAND_S", "Navigator", "Period", "StepResult"]
 
@@ -129,6 +133,9 @@ class Navigator:
         core0 = timer()
         if judgement is not None and not judgement.ok and reanchored is None:
             if not self._overdue(judgement):
+                ended = self._end_blind(previous, meas, judgement)
+                if ended is not None:
+                    return StepResult(meas, ended[0], judgement, None, ended[1], judge_s=core0 - judge0)
                 return StepResult(meas, None, judgement, None, verdict, judge_s=core0 - judge0)
             verdict = ("WARNING", f"FcMPC: {self.plausibility.taken_anyway()} periods excluded in a row: this one "
                                   f"is taken ({judgement.words()})")
@@ -142,6 +149,24 @@ class Navigator:
         new_course = is_new_course(before, command.course_rad, command.speed_mps)
         self.command = command
         return StepResult(meas, command, judgement, reanchored, verdict, settle, new_course, core0 - judge0, core_s)
+
+    def _end_blind(self, previous: Command | None, meas: Measurement,
+                   judgement: Judgement) -> tuple[Command, tuple[str, str]] | None:
+        """(the mission's end, what to say) when the excluded period ``meas`` came after the last
+        command had reached the estimated destination; None to fly it on."""
+        config = self.mission.config
+        if previous is None or previous.done or previous.phase != Phase.CRUISE:
+            return None
+        _, bearing = geodesic_inverse(previous.est_lat_deg, previous.est_lon_deg, config.dest_lat_deg,
+                                      config.dest_lon_deg)
+        off_course = math.remainder(previous.course_rad - bearing, 2.0 * math.pi)
+        if not passed_destination(previous.remaining_m, off_course, previous.speed_mps, meas.time_s - previous.time_s,
+                                  config.arrive_m):
+            return None
+        reason = f"at the estimated destination on dead reckoning, the period after the leg there excluded ({judgement.words()})"
+        command = self.mission.end_blind(meas.time_s, reason)
+        self.command = command
+        return command, ("WARNING", f"FcMPC: arrived {reason}")
 
     def _overdue(self, judgement: Judgement) -> bool:
         """True when this exclusion would exceed NAV_EXCL_MAX in a row: the period is taken (the core's

@@ -71,3 +71,37 @@ def test_after_nav_excl_max_exclusions_in_a_row_the_next_period_is_taken(limit):
     expected = [False] * 8 if limit == 0 else [k % (limit + 1) == 0 for k in range(1, 9)]
     assert taken == expected
     assert navigator.plausibility.excluded == 8 - sum(expected)     # a period taken is not counted excluded
+
+
+def test_an_excluded_period_after_the_leg_to_the_estimated_destination_ends_the_mission_there():
+    """Once the last leg has carried the vehicle to its estimated destination, an excluded period
+    ends the mission there (arrived, said as a warning) instead of flying that leg on, blind (the
+    ArduPilot lockstep Pacific: 35 periods excluded after the final legs, stopped 77 km away)."""
+    from companion.nav.arrival import is_final_leg
+    from companion.nav.mission import Phase
+    from companion.nav.field import model_for_date
+    from tests.nav.test_mission import NoiselessWorld, nav_config
+
+    nav = nav_config(None, distance_m=20e3, NAV_ELEMENTS=1)
+    world = NoiselessWorld(nav, model_for_date(nav.year))
+    mission = Mission(nav, world.model)
+    mission.set_start_fix(5.0)
+    navigator = Navigator(mission)
+
+    def period(meas, f_extra_nt: float = 0.0) -> Period:
+        average = PeriodAverage(meas.decl_deg, meas.incl_deg, 3600, meas.time_s - 180.0, meas.time_s - 360.0,
+                                meas.time_s, f_nt=meas.f_nt + f_extra_nt, decl_se_deg=0.01, incl_se_deg=0.01,
+                                f_se_nt=3.0)
+        return Period(meas.time_s, average, 360.0 if meas.time_s else 0.0)
+
+    command = navigator.step(period(world.measure())).command
+    while not (command.phase == Phase.CRUISE and is_final_leg(command.remaining_m, nav.speed_mps, nav.period_s)):
+        command = navigator.step(period(world.fly(command))).command
+        assert command is not None and not command.done
+    flown = world.fly(command)
+    result = navigator.step(period(flown, 3000.0))                     # a 3000 nT offset appears at the end
+    assert not result.judgement.ok and result.command is not None and result.command.done
+    assert result.command.phase == Phase.ARRIVED and "dead reckoning" in result.command.reason
+    assert result.verdict[0] == "WARNING" and "arrived" in result.verdict[1]
+    assert result.command.remaining_m < nav.arrive_m and world.miss_m() < nav.arrive_m
+    assert navigator.step(period(world.measure(), 3000.0)).command is result.command   # the mission stays ended
