@@ -390,11 +390,11 @@ def fit_level_calibration(samples_nt: ArrayLike, down_body: ArrayLike, horizonta
 
 
 CIRCLE_COLUMNS = 11
+"""A calibration circle's sample: body field (3, nT), the flight controller's roll and pitch (rad),
+specific force (3, m/s^2) and gyro (3, rad/s) of the same instant (NaN: none)."""
 LEVEL_WINDOW = 301
 """Samples (about 30 s of a 10 Hz magnetometer) over which :func:`fit_circle_calibration` takes the
 accelerometer's level: many wave periods, a few degrees of the circle."""
-"""A calibration circle's sample: body field (3, nT), the flight controller's roll and pitch (rad),
-specific force (3, m/s^2) and gyro (3, rad/s) of the same instant (NaN: none)."""
 
 
 def _moving_mean(x: np.ndarray, window: int) -> np.ndarray:
@@ -407,30 +407,33 @@ def _moving_mean(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def fit_circle_calibration(rows: ArrayLike, speed_mps: float, horizontal_nt: float, vertical_nt: float,
-                           limits: CalibrationLimits = CalibrationLimits()) -> tuple[CalibrationFit, float]:
+                           limits: CalibrationLimits = CalibrationLimits()) -> tuple[CalibrationFit, bool]:
     """The level fit of samples (n, :data:`CIRCLE_COLUMNS`) recorded on circles flown at ``speed_mps``,
-    and the share of them levelled by the flight controller's attitude alone (no IMU reading).
+    and whether the accelerometer set its level (False: no sample had an IMU reading, the flight
+    controller's attitude alone levelled it).
 
     Each sample's down is the flight controller's (it follows the waves' roll and pitch sample by
     sample, which the accelerometer's specific force, shaken by the waves' accelerations, does
     not), moved by the difference between the specific force's down
     (:func:`down_from_specific_force`, the turn's centripetal part removed) and the attitude's, each
     a moving mean over :data:`LEVEL_WINDOW` samples: the accelerometer sets the level, the attitude
-    its motion. A mean
-    tilt error of the flight controller (ArduPilot's EKF: +1.4 deg of pitch on the circle, in
-    lockstep) would otherwise become soft iron, and the mission's gravity-referenced I err with
-    the heading. Raises :class:`CalibrationRefused` as :func:`fit_level_calibration`."""
+    its motion (the speed-up at the circle's start, whose acceleration tilts the specific force,
+    0.5 m/s^2 by 3 deg, is the caller's to leave out). A mean tilt error of the flight controller (ArduPilot's
+    EKF: +1.4 deg of pitch on the circle, in lockstep) would otherwise become soft iron, and the
+    mission's gravity-referenced I err with the heading. Raises :class:`CalibrationRefused` as
+    :func:`fit_level_calibration`."""
     rows = np.asarray(rows, dtype=float).reshape(-1, CIRCLE_COLUMNS)
     attitude = down_in_body(rows[:, 3], rows[:, 4])
     gravity = down_from_specific_force(rows[:, 5:8], rows[:, 8:11], speed_mps)
     both = np.isfinite(gravity).all(axis=1) & np.isfinite(attitude).all(axis=1)
-    down = attitude.copy()
+    down = attitude
     if both.any():   # the attitude's motion (waves), the accelerometer's level
         shift = _moving_mean(gravity[both], LEVEL_WINDOW) - _moving_mean(attitude[both], LEVEL_WINDOW)
-        moved = attitude[both] + shift
-        down[both] = moved / np.linalg.norm(moved, axis=1)[:, None]
+        at, index = np.flatnonzero(both), np.arange(len(rows))
+        moved = attitude + np.column_stack([np.interp(index, at, shift[:, k]) for k in range(3)])
+        down = moved / np.linalg.norm(moved, axis=1)[:, None]
     fit = fit_level_calibration(rows[:, :3], down, horizontal_nt, vertical_nt, limits)
-    return fit, 1.0 - float(both.mean()) if len(rows) else 1.0
+    return fit, bool(both.any())
 
 
 def companion_params(fit: CalibrationFit) -> dict[str, float]:

@@ -20,6 +20,12 @@ compass, each with where it comes from:
   SITL's motorboat draws 50 A at full throttle (measured: SYS_STATUS.current_battery 5000 cA in
   MANUAL at full throttle), so at cruise the compass is offset by a few tens of mGauss (a few
   thousand nT) whenever the motor runs, and not while the boat stands for its start-up average.
+  **Not with ``--physics json``** (measured 2026-12-06, docs/notes/2026-12-06-ardupilot-json-lockstep.md
+  section 6): there SITL's compass shows no current dependence at all (the body field's residual
+  against the model within 50 nT at 40, 10 and 1 A on one heading, where 0.68 mGauss/A would move
+  z by 2,000 nT), although SYS_STATUS reports 39.9 A while cruising. SITL adds ``SIM_MAG_MOT``
+  times its physics backend's battery current (``Aircraft::update_mag_field_bf``); where the JSON
+  backend's differs from the one SYS_STATUS reports was not traced.
 
 How a boat's user calibrates it: a boat cannot be turned through every attitude for ArduPilot's
 onboard calibration, so ArduPilot's "large vehicle" calibration (``MAV_CMD_FIXED_MAG_CAL_YAW``) is

@@ -267,13 +267,13 @@ def test_a_circle_levelled_by_the_accelerometer_ignores_the_flight_controllers_t
     h, z = float(np.hypot(*field[:2])), float(field[2])
     by_attitude = fit_level_calibration(rows[:, :3], down_in_body(rows[:, 3], rows[:, 4]), h, z)
     assert np.abs(_inclination_errors_deg(by_attitude.calibration, field)).max() > 1.0
-    fit, attitude_share = fit_circle_calibration(rows, 8.0, h, z)
-    assert attitude_share == 0.0
+    fit, by_accelerometer = fit_circle_calibration(rows, 8.0, h, z)
+    assert by_accelerometer
     assert np.abs(_inclination_errors_deg(fit.calibration, field)).max() < 0.1
     assert np.abs(np.array(fit.offset_nt) - LEVEL_O).max() < 100.0
     # without the IMU (a source that gives none) the attitude is all there is
     rows[:, 5:] = np.nan
-    assert fit_circle_calibration(rows, 8.0, h, z)[1] == 1.0
+    assert not fit_circle_calibration(rows, 8.0, h, z)[1]
 
 
 def test_the_centripetal_acceleration_is_removed_with_the_speed_flown() -> None:
