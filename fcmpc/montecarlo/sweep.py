@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.cli import UsageError
+from companion.nav.metrics import percentile
 from companion.params import (
     SPEC_BY_NAME,
     Controller,
@@ -145,7 +146,7 @@ def summarise_cells(rows: list[dict], axes: tuple[SweepAxis, ...]) -> list[dict]
         entry = {**{a.name: members[0][a.name] for a in axes}, "cell": cell, "controller": controller,
                  "runs": len(members), "arrived": sum(r["phase"] == "arrived" for r in members),
                  "median_km": float(np.median(miss)), "mean_km": float(miss.mean()),
-                 "p90_km": float(np.percentile(miss, 90)),
+                 "p90_km": float(percentile(miss, 0.9)),
                  "mean_dev_km": float(np.mean([r["mean_dev_km"] for r in members])),
                  "iterations": float(np.mean([r["iterations"] for r in members])),
                  "length_km": float(np.mean([r["length_km"] for r in members]))}
