@@ -38,8 +38,15 @@ from dataclasses import dataclass
 
 from companion.nav.config import NavConfig
 
-__all__ = ["BELOW_EPSILON", "Arrival", "arrival_reason", "is_final_leg", "legs_reason", "passed_destination",
-           "PASSED_MAX_OFF_COURSE_RAD"]
+__all__ = [
+    "BELOW_EPSILON",
+    "PASSED_MAX_OFF_COURSE_RAD",
+    "Arrival",
+    "arrival_reason",
+    "is_final_leg",
+    "legs_reason",
+    "passed_destination",
+]
 
 BELOW_EPSILON = "estimated distance below epsilon"
 

@@ -25,7 +25,7 @@ the hard-iron offset (nT, subtracted) and ``W`` a symmetric soft-iron matrix cho
 
 A vehicle that only turns about its vertical axis (a boat's or a car's circles) gives a ring of
 directions: the full fit is refused, and :func:`fit_level_calibration` fits what a ring can
-tell, with the attitude's roll and pitch and the model's horizontal and vertical components:
+tell (what is down on such a circle: :mod:`companion.nav.circle_level`), with the attitude's roll and pitch and the model's horizontal and vertical components:
 the hard iron (3), the horizontal soft iron (x-x, x-y, y-y) and a vertical scale taken as the
 mean of the horizontal ones (it cannot be told from the vertical hard iron on a ring).
 
@@ -60,10 +60,6 @@ __all__ = [
     "fit_calibration",
     "fit_level_calibration",
     "down_in_body",
-    "down_from_specific_force",
-    "CIRCLE_COLUMNS",
-    "LEVEL_WINDOW",
-    "fit_circle_calibration",
     "direction_coverage",
     "ardupilot_compass_params",
     "companion_params",
@@ -281,36 +277,6 @@ def down_in_body(roll_rad: ArrayLike, pitch_rad: ArrayLike) -> np.ndarray:
     return np.column_stack([-np.sin(pitch), np.sin(roll) * np.cos(pitch), np.cos(roll) * np.cos(pitch)])
 
 
-def down_from_specific_force(force_body: ArrayLike, gyro_body_radps: ArrayLike, speed_mps: float) -> np.ndarray:
-    """Unit vectors (n, 3) of NED's down in the body frame from the accelerometer alone: the
-    specific force with the turn's centripetal acceleration ``w x v`` removed (``v = (speed, 0, 0)``:
-    a vehicle moving along its body x at ``speed_mps``; ``w``: the gyro), negated and normalised;
-    NaN rows where the force is not finite or zero.
-
-    The level fit's reference for a vehicle whose attitude estimate is biased: ArduPilot's EKF
-    carried +1.4 deg of pitch on the calibration circle of a lockstep run (its tilt traded against
-    an accelerometer bias, docs/notes/2026-12-06-ardupilot-json-lockstep.md section 6); a fit
-    levelled with it turned that tilt into soft iron, and the gravity-referenced I of the mission
-    then erred by -1.3 to +1.6 deg with the heading. The specific force is the reference that
-    inclination is measured against.
-
-    >>> d = down_from_specific_force([(0.0, 0.1745, -9.81)], [(0.0, 0.0, 0.02181)], 8.0)   # 1.25 deg/s right
-    >>> [round(float(v), 4) + 0.0 for v in d[0]]
-    [0.0, 0.0, 1.0]
-    """
-    f = np.asarray(force_body, dtype=float).reshape(-1, 3)
-    w = np.asarray(gyro_body_radps, dtype=float).reshape(-1, 3)
-    if len(w) != len(f):
-        raise ValueError(f"gyro_body_radps has {len(w)} rows for {len(f)} specific forces")
-    centripetal = np.cross(w, np.array([float(speed_mps), 0.0, 0.0]))
-    gravity = -(f - centripetal)
-    norm = np.linalg.norm(gravity, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        down = gravity / norm[:, None]
-    down[~(np.isfinite(norm) & (norm > 0.0))] = np.nan
-    return down
-
-
 def fit_level_calibration(samples_nt: ArrayLike, down_body: ArrayLike, horizontal_nt: float, vertical_nt: float,
                           limits: CalibrationLimits = CalibrationLimits()) -> CalibrationFit:
     """The calibration of a vehicle that turned about its vertical axis (samples (n, 3) nT with
@@ -387,53 +353,6 @@ def fit_level_calibration(samples_nt: ArrayLike, down_body: ArrayLike, horizonta
     if problems:
         raise CalibrationRefused("level calibration refused: " + "; ".join(problems) + "\n" + fit.describe())
     return fit
-
-
-CIRCLE_COLUMNS = 11
-"""A calibration circle's sample: body field (3, nT), the flight controller's roll and pitch (rad),
-specific force (3, m/s^2) and gyro (3, rad/s) of the same instant (NaN: none)."""
-LEVEL_WINDOW = 301
-"""Samples (about 30 s of a 10 Hz magnetometer) over which :func:`fit_circle_calibration` takes the
-accelerometer's level: many wave periods, a few degrees of the circle."""
-
-
-def _moving_mean(x: np.ndarray, window: int) -> np.ndarray:
-    """Centred moving mean of the rows of ``x`` over ``window`` rows (fewer at the ends)."""
-    half = window // 2
-    csum = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    idx = np.arange(len(x))
-    lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, len(x))
-    return (csum[hi] - csum[lo]) / (hi - lo)[:, None]
-
-
-def fit_circle_calibration(rows: ArrayLike, speed_mps: float, horizontal_nt: float, vertical_nt: float,
-                           limits: CalibrationLimits = CalibrationLimits()) -> tuple[CalibrationFit, bool]:
-    """The level fit of samples (n, :data:`CIRCLE_COLUMNS`) recorded on circles flown at ``speed_mps``,
-    and whether the accelerometer set its level (False: no sample had an IMU reading, the flight
-    controller's attitude alone levelled it).
-
-    Each sample's down is the flight controller's (it follows the waves' roll and pitch sample by
-    sample, which the accelerometer's specific force, shaken by the waves' accelerations, does
-    not), moved by the difference between the specific force's down
-    (:func:`down_from_specific_force`, the turn's centripetal part removed) and the attitude's, each
-    a moving mean over :data:`LEVEL_WINDOW` samples: the accelerometer sets the level, the attitude
-    its motion (the speed-up at the circle's start, whose acceleration tilts the specific force,
-    0.5 m/s^2 by 3 deg, is the caller's to leave out). A mean tilt error of the flight controller (ArduPilot's
-    EKF: +1.4 deg of pitch on the circle, in lockstep) would otherwise become soft iron, and the
-    mission's gravity-referenced I err with the heading. Raises :class:`CalibrationRefused` as
-    :func:`fit_level_calibration`."""
-    rows = np.asarray(rows, dtype=float).reshape(-1, CIRCLE_COLUMNS)
-    attitude = down_in_body(rows[:, 3], rows[:, 4])
-    gravity = down_from_specific_force(rows[:, 5:8], rows[:, 8:11], speed_mps)
-    both = np.isfinite(gravity).all(axis=1) & np.isfinite(attitude).all(axis=1)
-    down = attitude
-    if both.any():   # the attitude's motion (waves), the accelerometer's level
-        shift = _moving_mean(gravity[both], LEVEL_WINDOW) - _moving_mean(attitude[both], LEVEL_WINDOW)
-        at, index = np.flatnonzero(both), np.arange(len(rows))
-        moved = attitude + np.column_stack([np.interp(index, at, shift[:, k]) for k in range(3)])
-        down = moved / np.linalg.norm(moved, axis=1)[:, None]
-    fit = fit_level_calibration(rows[:, :3], down, horizontal_nt, vertical_nt, limits)
-    return fit, bool(both.any())
 
 
 def companion_params(fit: CalibrationFit) -> dict[str, float]:

@@ -60,7 +60,7 @@ from companion.nav.step_io import Command, Measurement, Phase
 from companion.nav.table3 import F_NT_PER_DEG, Table3Estimator
 from companion.registry import hold_frozen
 
-__all__ = ["REJECTED", "Measurement", "Command", "Phase", "Mission", "compensation", "governed_target",
+__all__ = ["REJECTED", "Measurement", "Command", "Phase", "Mission", "compensation", "end_blind", "governed_target",
            "uses_filter"]
 
 KMH = 1.0 / 3.6
@@ -376,18 +376,6 @@ class Mission:
         self._advance(meas.time_s, s, theta, speed)
         return command
 
-    def end_blind(self, time_s: float, reason: str) -> Command:
-        """End the mission at ``time_s`` without a measurement (the navigator excluded the period after
-        the last leg had reached the estimated destination, :func:`companion.nav.arrival.passed_destination`):
-        the estimate dead-reckoned along the last command to ``time_s``, arrived there."""
-        if self.finished is not None:
-            return self.finished
-        if self.last is not None:
-            moved = self.last.velocity_en * max(time_s - self.last.time_s, 0.0)
-            self.est = tuple(float(v) for v in offset_position(self.est[0], self.est[1], moved[0], moved[1]))
-        remaining, _ = geodesic_inverse(self.est[0], self.est[1], self.config.dest_lat_deg, self.config.dest_lon_deg)
-        return self._finish(time_s, Phase.ARRIVED, reason, remaining)
-
     def _take(self, estimate: Estimate) -> None:
         self.estimate = estimate
         self.est = (estimate.lat_deg, estimate.lon_deg)
@@ -442,6 +430,20 @@ class Mission:
                                           fix_lat_deg=fix[0], fix_lon_deg=fix[1], fused=fused,
                                           solver_ok=solver_ok, reason=reason), **self._filter_fields()})
         return self.finished
+
+
+def end_blind(mission: Mission, time_s: float, reason: str) -> Command:
+    """End ``mission`` at ``time_s`` without a measurement (the navigator excluded the period after the
+    last leg had reached the estimated destination, :func:`companion.nav.arrival.passed_destination`):
+    the estimate dead-reckoned along the last command to ``time_s``, arrived there."""
+    if mission.finished is not None:
+        return mission.finished
+    last, c = mission.last, mission.config
+    if last is not None:
+        moved = last.velocity_en * max(time_s - last.time_s, 0.0)
+        mission.est = tuple(float(v) for v in offset_position(mission.est[0], mission.est[1], moved[0], moved[1]))
+    remaining, _ = geodesic_inverse(mission.est[0], mission.est[1], c.dest_lat_deg, c.dest_lon_deg)
+    return mission._finish(time_s, Phase.ARRIVED, reason, remaining)
 
 
 def governed_target(s_qp: np.ndarray, target_qp: np.ndarray, b: np.ndarray, reach_units: float) -> np.ndarray:

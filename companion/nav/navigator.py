@@ -42,7 +42,7 @@ from companion.nav.arrival import passed_destination
 from companion.nav.elements import hz_standard_errors
 from companion.nav.geo import geodesic_inverse, offset_position
 from companion.nav.heading import window_heading_rad
-from companion.nav.mission import Command, Measurement, Mission
+from companion.nav.mission import Command, Measurement, Mission, end_blind
 from companion.nav.period import PeriodAverage, measured_inclination
 from companion.nav.plausibility import Judgement, MagPlausibility, element_noise, f_offset_nt, judge, navigator_bias
 from companion.nav.steering import is_new_course
@@ -164,7 +164,7 @@ class Navigator:
                                   config.arrive_m):
             return None
         reason = f"at the estimated destination on dead reckoning, the period after the leg there excluded ({judgement.words()})"
-        command = self.mission.end_blind(meas.time_s, reason)
+        command = end_blind(self.mission, meas.time_s, reason)
         self.command = command
         return command, ("WARNING", f"FcMPC: arrived {reason}")
 

@@ -7,7 +7,7 @@ GUIDED/OFFBOARD the companion drives ``COMP_CAL_TURNS`` slow full circles at the
 accelerometer and gyro of its instant, and fits the hard iron and the horizontal soft iron to the
 field model's H and Z at the start, levelled by the specific force with the circle's centripetal
 acceleration (gyro x the cruise speed) removed
-(:func:`companion.nav.calibration.fit_circle_calibration`; the flight controller's roll and
+(:func:`companion.nav.circle_level.fit_circle_calibration`; the flight controller's roll and
 pitch only for a sample without the IMU: ArduPilot's EKF tilt was 1.4 deg off on the circle in
 lockstep, and a fit levelled with it made the mission's inclination err with the heading) (:func:`companion.nav.calibration.fit_level_calibration`; the motor's field at cruise
 becomes part of the hard iron). The fit, chained onto the MAG_* the samples were corrected with,
@@ -25,7 +25,8 @@ import numpy as np
 
 from companion.io.link import mavlink
 from companion.io.param_server import ParamServer
-from companion.nav.calibration import CIRCLE_COLUMNS, CalibrationRefused, chained, fit_circle_calibration, registry_values
+from companion.nav.calibration import CalibrationRefused, chained, registry_values
+from companion.nav.circle_level import CIRCLE_COLUMNS, fit_circle_calibration
 from companion.nav.field import model_for_setting
 from companion.nav.magnetometer import MagProcessor
 from companion.params import validate

@@ -19,12 +19,11 @@ from companion.nav.calibration import (
     ardupilot_compass_params,
     companion_params,
     direction_coverage,
-    down_from_specific_force,
     down_in_body,
     fit_calibration,
-    fit_circle_calibration,
     fit_level_calibration,
 )
+from companion.nav.circle_level import down_from_specific_force, fit_circle_calibration
 from companion.frames import ned_to_body
 from companion.nav.field import WorldMagneticModel
 from companion.nav.magnetometer import MILLIGAUSS_TO_NT, MagCalibration

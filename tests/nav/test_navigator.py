@@ -78,8 +78,8 @@ def test_an_excluded_period_after_the_leg_to_the_estimated_destination_ends_the_
     ends the mission there (arrived, said as a warning) instead of flying that leg on, blind (the
     ArduPilot lockstep Pacific: 35 periods excluded after the final legs, stopped 77 km away)."""
     from companion.nav.arrival import is_final_leg
-    from companion.nav.mission import Phase
     from companion.nav.field import model_for_date
+    from companion.nav.mission import Phase
     from tests.nav.test_mission import NoiselessWorld, nav_config
 
     nav = nav_config(None, distance_m=20e3, NAV_ELEMENTS=1)
