@@ -128,10 +128,10 @@ def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
              "30 minutes without GPS")
     assert_guided_and_on_course_without_gps(mon, log_dir, t_lost)
     stats = rig.close()
-    # the gate read the companion as its frames' due times neared (about 2.6 times a simulated second),
-    # waited when it was behind, never gave up and never had to let a frame through before it was known
-    assert stats["lockstep_reads"] > 2000 and stats["lockstep_timeouts"] == 0, stats
+    # the gate read the companion as its frames' due times neared (2,708 times in 2,671 s, waiting at 157 of
+    # them, at a load average of 12), never gave up and never let a frame through before it was known
+    assert stats["lockstep_reads"] > 1000 and stats["lockstep_timeouts"] == 0, stats
     assert stats["lockstep_fallbacks"] == 0, stats
-    # late frames only before the companion's first stamped frame (3 in 56,689 on a 20 km leg at a load
-    # average of 11); the relay of the boundaries before it let 6 % through late at a load average of 22
+    # late frames only before the companion's first stamped frame (none here; 3 in 56,689 on a 20 km leg);
+    # the relay of boundaries every 0.2 s before the gate let 6 % through late at a load average of 22
     assert stats["relay_late_frames"] < 0.01 * stats["relay_frames_to_fc"], stats
