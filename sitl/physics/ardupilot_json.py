@@ -155,6 +155,7 @@ class JsonPhysics:
         dt_us = int(round(dt * 1e6))
         sock = self.sock
         relay_frame = self.relay.frame if self.relay is not None else None
+        relay_answered = self.relay.answered if self.relay is not None else None
         state = self.state
         reply = encode_frame(frame_of(dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
         n = 0           # frames answered and stepped: the time is n * dt (one counter, so a signal
@@ -168,6 +169,8 @@ class JsonPhysics:
                     if relay_frame is not None:
                         relay_frame((n + 1) * dt_us)    # what ArduPilot's loop at t + dt is to read
                     send(reply)
+                    if relay_answered is not None:
+                        relay_answered((n + 1) * dt_us)
                     throttle, steering = outputs_of(data)
                     state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
                     n += 1

@@ -268,16 +268,20 @@ class CompanionRelay:
 
     def frame(self, now_us: int) -> None:
         """Before ArduPilot's loop at firmware time ``now_us`` (called before each frame's answer):
-        pass its output on when a pump is due, make sure every frame due by ``now_us`` is known (the
-        gate), and forward those, at most one GPS_INPUT a loop."""
-        if now_us >= self._next_pump_us:
-            self._next_pump_us = now_us + self.pump_period_us
-            self.pump_fc(now_us)
+        make sure every frame due by ``now_us`` is known (the gate), and forward those, at most one
+        GPS_INPUT a loop."""
         if self._due_us <= now_us:
             self._gate(now_us)
         due = self._due
         if due and due[0][0] <= now_us:
             self._deliver(now_us)
+
+    def answered(self, now_us: int) -> None:
+        """After the answer that lets ArduPilot's loop at ``now_us`` run: pass its output on when a pump
+        is due (while ArduPilot runs its loop, off the round trip's critical path)."""
+        if now_us >= self._next_pump_us:
+            self._next_pump_us = now_us + self.pump_period_us
+            self.pump_fc(now_us)
 
     def _gate(self, now_us: int) -> None:
         """Read the companion; once it sends stamped frames, wait until one is due after ``now_us``

@@ -84,6 +84,7 @@ class _Loopback:
         for now_us in range(first_us, end_us, 20_000):
             sent = self.relay.frames_to_fc
             self.relay.frame(now_us)
+            self.relay.answered(now_us)
             if self.relay.frames_to_fc > sent:
                 _readable(self.fc)
                 arrived += [(now_us, m.get_type()) for m in mavlink.MAVLink(None).parse_buffer(self.fc.recv(65536))]
