@@ -45,7 +45,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-__all__ = ["CompanionRelay", "relay_port", "serial1_port"]
+__all__ = ["CompanionRelay", "FirmwareTimes", "relay_port", "serial1_port"]
 
 # messages ArduPilot streams with time_boot_ms, and its offset in the payload: ATTITUDE, ATTITUDE_QUATERNION,
 # LOCAL_POSITION_NED, GLOBAL_POSITION_INT, RC_CHANNELS, SCALED_IMU(2, 3) first; SYSTEM_TIME after its uint64
@@ -68,6 +68,50 @@ def relay_port(instance: int) -> int:
 
 def serial1_port(instance: int) -> int:
     return 5762 + 10 * instance
+
+
+class FirmwareTimes:
+    """The newest ``time_boot_ms`` in ArduPilot's output, and SYSTEM_TIME's pairing of UNIX and boot time,
+    read from the frames' headers alone (the firmware's stream is the heavy direction: no decoding, no CRC)."""
+
+    def __init__(self) -> None:
+        self.time_ms = 0                 # the newest firmware time seen
+        self.unix_minus_boot_us: int | None = None
+        self._tail = b""                 # an incomplete frame at the end of the last read
+
+    def feed(self, data: bytes) -> None:
+        """The next bytes of ArduPilot's output."""
+        buf = self._tail + data if self._tail else data
+        i, end, newest = 0, len(buf), self.time_ms
+        while i < end:
+            magic = buf[i]
+            if magic == 0xFD:
+                if i + 10 > end:
+                    break
+                size = 12 + buf[i + 1] + (13 if buf[i + 2] & 1 else 0)
+                if i + size > end:
+                    break
+                msgid = buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
+                offset = _STAMP_OFFSET.get(msgid)
+                if offset is not None and buf[i + 6] == 1 and buf[i + 1] > offset:
+                    # MAVLink 2 drops a payload's trailing zero bytes: SYSTEM_TIME's time_boot_ms, its last
+                    # field, arrives as 3 bytes for its first 4.6 hours
+                    p, stop = i + 10 + offset, i + 10 + buf[i + 1]
+                    stamp = int.from_bytes(buf[p:min(p + 4, stop)], "little")
+                    newest = max(newest, stamp)
+                    if msgid == 2:      # SYSTEM_TIME: time_unix_usec (uint64) before time_boot_ms
+                        unix_us = int.from_bytes(buf[i + 10:i + 18], "little")
+                        if unix_us:
+                            self.unix_minus_boot_us = unix_us - stamp * 1000
+                i += size
+            elif magic == 0xFE:
+                if i + 2 > end or i + 8 + buf[i + 1] > end:
+                    break
+                i += 8 + buf[i + 1]
+            else:
+                i += 1
+        self._tail = bytes(buf[i:]) if i < end else b""
+        self.time_ms = newest
 
 
 class CompanionRelay:
@@ -100,14 +144,12 @@ class CompanionRelay:
         self._stamped = False            # the companion has sent a stamped frame: the gate is closed from now on
         self._heard = False
         self._next_pump_us = 0
-        self.unix_minus_boot_us: int | None = None   # SYSTEM_TIME's pairing: GPS_INPUT's stamp in boot time
         self.late_frames = 0             # stamped frames forwarded more than a frame after their due time
         self.max_late_us = 0
         self.fc_lag: dict[int, int] = {}  # firmware time minus the newest time passed on, at each pump (0.1 s bins)
         self.gps_gaps: dict[int, int] = {}    # firmware loops between GPS_INPUTs forwarded
         self._last_gps_us = 0
-        self.fc_time_ms = 0              # the newest firmware time passed on to the companion
-        self._fc_tail = b""              # an incomplete frame at the end of the last read
+        self.times = FirmwareTimes()     # of what was passed on to the companion
         self._tries = 0
         self.bytes_to_companion = 0
         self.frames_to_fc = 0
@@ -118,6 +160,8 @@ class CompanionRelay:
         self.max_wait_wall_s = 0.0
         self.timeouts = 0
         self.fallbacks = 0
+        self.last_fallback_us = -1       # firmware time of the last one (before the companion's own streams
+        #                                  flow, ArduPilot's only timed message on its port comes once a second)
 
     # ------------------------------------------------------------------ connections
     def _connect_fc(self) -> None:
@@ -142,41 +186,6 @@ class CompanionRelay:
         self.companion = sock
 
     # ------------------------------------------------------------------ ArduPilot -> companion
-    def _note_fc_time(self, data: bytes) -> None:
-        """The newest ``time_boot_ms`` of ArduPilot's own frames in ``data``, by their headers alone
-        (the firmware's stream is the heavy direction: no decoding, no CRC)."""
-        buf = self._fc_tail + data if self._fc_tail else data
-        i, end, newest = 0, len(buf), self.fc_time_ms
-        while i < end:
-            magic = buf[i]
-            if magic == 0xFD:
-                if i + 10 > end:
-                    break
-                size = 12 + buf[i + 1] + (13 if buf[i + 2] & 1 else 0)
-                if i + size > end:
-                    break
-                msgid = buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
-                offset = _STAMP_OFFSET.get(msgid)
-                if offset is not None and buf[i + 6] == 1 and buf[i + 1] > offset:
-                    # MAVLink 2 drops a payload's trailing zero bytes: SYSTEM_TIME's time_boot_ms, its last
-                    # field, arrives as 3 bytes for its first 4.6 hours
-                    p, stop = i + 10 + offset, i + 10 + buf[i + 1]
-                    stamp = int.from_bytes(buf[p:min(p + 4, stop)], "little")
-                    newest = max(newest, stamp)
-                    if msgid == 2:      # SYSTEM_TIME: time_unix_usec (uint64) before time_boot_ms
-                        unix_us = int.from_bytes(buf[i + 10:i + 18], "little")
-                        if unix_us:
-                            self.unix_minus_boot_us = unix_us - stamp * 1000
-                i += size
-            elif magic == 0xFE:
-                if i + 2 > end or i + 8 + buf[i + 1] > end:
-                    break
-                i += 8 + buf[i + 1]
-            else:
-                i += 1
-        self._fc_tail = bytes(buf[i:]) if i < end else b""
-        self.fc_time_ms = newest
-
     def pump_fc(self, now_us: int | None = None) -> None:
         """Pass on everything ArduPilot has written (dropped while no companion is connected);
         ``now_us``: the firmware's time, for the statistics of how far its output trails it."""
@@ -186,22 +195,28 @@ class CompanionRelay:
                 return
         if self.companion is None:
             self._accept()
+        fc = self.fc
         while True:
             try:
-                data = self.fc.recv(262144)
+                data = fc.recv(262144)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:
                 data = b""
             if not data:            # ArduPilot closed the port
-                self.fc.close()
+                fc.close()
                 self.fc = None
                 return
-            self._note_fc_time(data)
+            # acknowledge at once (Linux leaves quick-ack mode again after a read): SITL's TCP port writes
+            # small frames with Nagle's algorithm on, so each waited in ArduPilot's send queue for our
+            # delayed ACK (40 ms of wall time) or its retransmission timer (200 ms); its output trailed the
+            # firmware's clock by up to 0.9 s on a loaded machine (ss -ti: Send-Q held, 0.5 % retransmitted)
+            fc.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+            self.times.feed(data)
             if self.companion is not None:
                 self._to_companion(data)
-        if now_us is not None and self.fc_time_ms:
-            lag = (now_us - self.fc_time_ms * 1000) // 100_000
+        if now_us is not None and self.times.time_ms:
+            lag = (now_us - self.times.time_ms * 1000) // 100_000
             self.fc_lag[lag] = self.fc_lag.get(lag, 0) + 1
 
     def _to_companion(self, data: bytes) -> None:
@@ -256,11 +271,11 @@ class CompanionRelay:
         stamp_ms = getattr(msg, "time_boot_ms", None)
         if isinstance(stamp_ms, int) and stamp_ms > 0:
             stamp_us = stamp_ms * 1000
-        elif msg.get_msgId() == GPS_INPUT_ID and self.unix_minus_boot_us is not None:
-            stamp_us = msg.time_usec - self.unix_minus_boot_us
+        elif msg.get_msgId() == GPS_INPUT_ID and self.times.unix_minus_boot_us is not None:
+            stamp_us = msg.time_usec - self.times.unix_minus_boot_us
         else:
             stamp_us = 0
-        stamped = 0 < stamp_us <= self.fc_time_ms * 1000 + self.fallback_us
+        stamped = 0 < stamp_us <= self.times.time_ms * 1000 + self.fallback_us
         if stamped:
             self._stamped = True
             self._due_us = max(self._due_us, stamp_us + self.latency_us)
@@ -304,9 +319,10 @@ class CompanionRelay:
         self._read_companion()
         if self._due_us > now_us or not self._stamped:
             return
-        answered_us = self.fc_time_ms * 1000 - self.fallback_us
+        answered_us = self.times.time_ms * 1000 - self.fallback_us
         if self._due_us - self.latency_us >= answered_us:
             self.fallbacks += 1         # answered all it could: the serial link trails by more than the latency
+            self.last_fallback_us = now_us
             return
         self.waits += 1
         start = time.monotonic()
@@ -314,6 +330,7 @@ class CompanionRelay:
         while self._due_us <= now_us and self.companion is not None:
             if self._due_us - self.latency_us >= answered_us:
                 self.fallbacks += 1
+                self.last_fallback_us = now_us
                 break
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
@@ -357,10 +374,10 @@ class CompanionRelay:
 
     def stats(self) -> dict:
         return {"lockstep_reads": self.reads, "lockstep_waits": self.waits, "lockstep_timeouts": self.timeouts,
-                "lockstep_fallbacks": self.fallbacks, "lockstep_wait_wall_s": round(self.wait_wall_s, 3),
+                "lockstep_fallbacks": self.fallbacks, "lockstep_last_fallback_s": self.last_fallback_us / 1e6, "lockstep_wait_wall_s": round(self.wait_wall_s, 3),
                 "lockstep_max_wait_wall_s": round(self.max_wait_wall_s, 3),
                 "relay_bytes_to_companion": self.bytes_to_companion,
-                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.fc_time_ms / 1000.0,
+                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.times.time_ms / 1000.0,
                 "start_wait_wall_s": round(self.start_wait_wall_s, 3), "relay_latency_s": self.latency_us / 1e6,
                 "relay_pump_period_s": self.pump_period_us / 1e6,
                 "relay_late_frames": self.late_frames, "relay_max_late_s": self.max_late_us / 1e6,

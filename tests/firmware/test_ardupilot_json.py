@@ -124,14 +124,16 @@ def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
     mon.set_param("SIM_GPS1_ENABLE", 0)
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
-    mon.pump(lambda m: m.truth[-1].time_s >= t_lost + 1800.0 or m.mode != GUIDED, 3 * WALL_S,
+    mon.pump(lambda m: m.truth[-1].time_s > t_lost + 1800.0 or m.mode != GUIDED, 3 * WALL_S,
              "30 minutes without GPS")
     assert_guided_and_on_course_without_gps(mon, log_dir, t_lost)
     stats = rig.close()
     # the gate read the companion as its frames' due times neared (2,708 times in 2,671 s, waiting at 157 of
     # them, at a load average of 12), never gave up and never let a frame through before it was known
     assert stats["lockstep_reads"] > 1000 and stats["lockstep_timeouts"] == 0, stats
-    assert stats["lockstep_fallbacks"] == 0, stats
+    # ... but at the start: before the companion asks for its streams, ArduPilot's only timed message on its
+    # port comes once a second (MAV2_POSITION), less fresh than the latency needs (6 fallbacks in one run)
+    assert stats["lockstep_last_fallback_s"] < t_arm, stats
     # late frames only before the companion's first stamped frame (none here; 3 in 56,689 on a 20 km leg);
     # the relay of boundaries every 0.2 s before the gate let 6 % through late at a load average of 22
     assert stats["relay_late_frames"] < 0.01 * stats["relay_frames_to_fc"], stats

@@ -109,7 +109,7 @@ def test_companion_frames_reach_ardupilot_at_their_stamp_plus_the_latency_one_gp
     relay = rig.relay
     # ArduPilot at 90.339 s: SYSTEM_TIME (its time_boot_ms truncated to 3 bytes by MAVLink 2) then ATTITUDE
     rig.from_fc(mavlink.MAVLink_system_time_message(UNIX0_US + 90_339_000, 90_339).pack(FC_MAV) + _attitude(90_400))
-    assert relay.fc_time_ms == 90_400 and relay.unix_minus_boot_us == UNIX0_US
+    assert relay.times.time_ms == 90_400 and relay.times.unix_minus_boot_us == UNIX0_US
     # three GPS_INPUT 100 ms apart (UNIX time) and a setpoint on the boot clock
     rig.from_companion(_setpoint(90_100) + _gps_and_setpoint(90_200_000, 90_400))
     arrived = rig.loops(90_420_000, 91_420_000)
