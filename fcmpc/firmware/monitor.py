@@ -17,6 +17,7 @@ import csv
 import math
 import os
 import select
+import socket
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -160,6 +161,10 @@ class FirmwareMonitor:
         if not select.select([conn.port], [], [], wait_s)[0]:
             return
         data = conn.recv(262144)
+        # acknowledge at once (Linux leaves quick-ack mode after a read): ArduPilot SITL sleeps a wall
+        # millisecond at a time while SERIAL0's unacknowledged output exceeds 1 kB (SITL_State: "check the
+        # outbound TCP queue size"), and a delayed ACK (40 ms) kept it there
+        conn.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
         self._pending.extend(m for m in conn.mav.parse_buffer(data) or () if m.get_type() != "BAD_DATA")
 
     def drain(self) -> None:
