@@ -12,9 +12,11 @@ Conditions (parameters in brackets):
                on **both** clocks: message time catches a flight controller that still streams
                but stopped its heartbeat (message time goes on); wall time catches one that
                went silent altogether (then message time stops, and an age in message time
-               would never grow). The wall-time rule assumes heartbeats arrive at least every
-               COMP_HB_TMO_S of wall time, true on a vehicle and for a simulator at speed-up
-               >= 1 (lockstep included: the simulator streams while it waits).
+               would never grow). The wall time is the time the companion spent waiting on its
+               link since that heartbeat (``MavlinkLink.listened_s``): a dead flight controller
+               sends nothing while the companion waits, whereas time the companion was busy or
+               blocked (a long step, a loaded machine; in lockstep the world waiting for it) is
+               not the flight controller's silence, and its frames of that time are still queued.
 ``params``     the parameter file was broken at start-up (never cleared in this run)
 ``nav``        the navigation core failed: solver failure, estimate diverged from the
                geomagnetic fix by more than [COMP_DIVERGE_KM] and beyond their joint 99.99 %

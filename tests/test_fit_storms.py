@@ -140,3 +140,32 @@ def test_leave_one_out_uses_the_fit_by_miss_and_it_never_names_the_storm_it_scor
         assert "FUS_SYMH_K" in values and set(STORM_PARAMS) <= set(values)
         with pytest.raises(OwnStormError, match=event.name):
             check_held_out(load_scenario(f"{event.name}_real"), (*names, event.name))
+
+
+@pytest.mark.slow
+def test_a_fit_by_miss_on_its_own_store_writes_the_same_parm_and_reads_each_storm_once(shared_data, tmp_path,
+                                                                                      monkeypatch):
+    """The smallest fit (march2011, seed 0, one candidate: two real in-process runs, feed on and off):
+    flown into a store, then again on that store, it writes the same .parm, the second call flying
+    nothing (no new part file); each storm's scenario is read once a fit, not once per run."""
+    import sitl.scenario
+    from fcmpc.montecarlo import fit_miss
+    from fcmpc.montecarlo.store import RunStore
+
+    reads = []
+    for module in (sitl.scenario, fit_miss):
+        real = getattr(module, "load_scenario", sitl.scenario.load_scenario)
+        monkeypatch.setattr(module, "load_scenario", lambda name, real=real: reads.append(name) or real(name),
+                            raising=False)
+    store = tmp_path / "store"
+    argv = ["--train", "march2011", "--by-miss", "--seeds", "1", "--scales", "1", "--ratios", "0", "--workers", "1",
+            "--store", str(store), "--data-dir", str(shared_data)]
+    assert main([*argv, "--out", str(tmp_path / "first.parm")]) == 0
+    fit_reads = [name for name in reads if name == "march2011_real"]
+    parts = RunStore(store / "runs").parts()
+    assert len(parts) == 1 and RunStore(store / "runs").read().num_rows == 2
+    assert main([*argv, "--out", str(tmp_path / "second.parm")]) == 0
+    assert RunStore(store / "runs").parts() == parts
+    assert (tmp_path / "second.parm").read_text() == (tmp_path / "first.parm").read_text()
+    assert "FUS_SYMH_K" in read_parm_file(tmp_path / "first.parm")
+    assert fit_reads == ["march2011_real"]

@@ -289,3 +289,15 @@ def test_a_sweep_can_withhold_a_storms_space_weather_feed():
     assert scenario_keys(storm)["storm.kp_feed"] is True and scenario_keys(storm)["storm.symh_feed"] is True
     changed = apply_scenario_changes(storm, (("storm.kp_feed", 0.0), ("storm.symh_feed", 1.0)))
     assert (changed.storm.kp_feed, changed.storm.symh_feed) == (False, True)
+
+
+def test_a_sweep_cells_p90_is_the_storm_tables_nearest_rank():
+    """fcmpc-montecarlo's cell table and fcmpc-results' storm table print one p90 (May 2024's feed-on
+    cell had printed 29.47 here against 29.43 there): ten misses 1..10 km give the 9th smallest, 9,
+    where interpolating would give 9.1; the median stays the middle value, 5.5."""
+    from fcmpc.montecarlo.sweep import SweepAxis, summarise_cells
+
+    rows = [{"cell": "NAV_PERIOD_S=360", "controller": "Fc-MPC", "NAV_PERIOD_S": 360, "remaining_km": float(miss),
+             "phase": "arrived", "mean_dev_km": 0.0, "iterations": 100, "length_km": 700.0} for miss in range(10, 0, -1)]
+    (cell,) = summarise_cells(rows, (SweepAxis("NAV_PERIOD_S", (360,)),))
+    assert (cell["p90_km"], cell["median_km"], cell["runs"]) == (9.0, 5.5, 10)

@@ -38,9 +38,13 @@ def test_two_flown_runs_print_the_in_process_table_each_run_its_own_seed_and_fol
         dest = (result["dest_lat_deg"], result["dest_lon_deg"])
         end = geodesic_distance_m(float(row["final_lat"]), float(row["final_lon"]), *dest)
         assert abs(end - result["rest_remaining_m"]) < 1.0
+        # measured on the true track fcmpc-fly's result carries (start, each step, rest), not re-read
+        track = list(zip(result["track_lat_deg"], result["track_lon_deg"]))
+        assert track[-1] == (float(row["final_lat"]), float(row["final_lon"])) and len(track) > result["iterations"]
+        assert result["controller"] == row["controller"] == "Fc-MPC"
         values = read_parm_file(kept / "fly.parm")
         start = (values["NAV_START_LAT"], values["NAV_START_LON"])
-        assert abs(geodesic_distance_m(*start, *dest) - 1000.0) < 1.0          # the 1 km leg
+        assert abs(geodesic_distance_m(*start, *dest) - 1000.0) < 1.0 and track[0] == start   # the 1 km leg
         assert int(row["iterations"]) == result["iterations"] > 0
         misses.append(result["rest_remaining_m"])
     assert misses[0] != misses[1]                 # each run drew its own seed's world

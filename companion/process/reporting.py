@@ -20,20 +20,7 @@ from companion.process.mission_state import MissionState
 from companion.process.options import GPS_START_MAX_AGE_S
 from companion.nav.plausibility import Judgement
 
-__all__ = ["Reporting", "percentile", "plausibility_record"]
-
-
-def percentile(values: list[float], q: float) -> float:
-    """The ``q``-quantile by the nearest-rank rule (NaN for no values).
-
-    >>> percentile([3.0, 1.0, 2.0], 0.5), percentile([], 0.5)
-    (2.0, nan)
-    """
-    if not values:
-        return math.nan
-    ordered = sorted(values)
-    k = min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))
-    return ordered[k]
+__all__ = ["Reporting", "plausibility_record"]
 
 
 class Reporting:

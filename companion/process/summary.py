@@ -17,6 +17,7 @@ from companion.io.param_server import ParamServer
 from companion.io.records import write_summary
 from companion.nav.elements import ELEMENT_SETS
 from companion.nav.magnetometer import MagProcessor
+from companion.nav.metrics import percentile
 from companion.nav.mission import Phase
 from companion.process.control_step import ControlStep
 from companion.process.intake import SampleIntake
@@ -25,7 +26,6 @@ from companion.process.mission_state import MissionState
 from companion.process.mode_commands import ModeCommands
 from companion.process.operator_commands import OperatorCommands
 from companion.nav.plausibility import MagPlausibility
-from companion.process.reporting import percentile
 from companion.process.resume import Resume
 from companion.process.voice import Voice
 

@@ -36,7 +36,7 @@ from companion.nav.geo import geodesic_distance_m
 from sitl.truthlog import read_truth_csv
 
 __all__ = ["REST_SPEED_MPS", "REST_TOL_M", "REST_WINDOW_S", "STATUS_EXIT", "TruthTrack", "FlyResult", "read_truth_track",
-           "read_steps", "distances", "result_json", "write_result", "summary_lines"]
+           "read_steps", "distances", "true_track", "result_json", "write_result", "summary_lines"]
 
 REST_TOL_M = 2.0         # moved less than this over REST_WINDOW_S: at rest
 REST_WINDOW_S = 10.0
@@ -122,6 +122,9 @@ class FlyResult:
     mc_iterations: int = 0
     companion: dict = field(default_factory=dict)
     message: str = ""
+    controller: str = ""                       # NAV_CONTROLLER's name, as flown
+    track_lat_deg: tuple[float, ...] = ()      # the true track at the start, each control step and at rest
+    track_lon_deg: tuple[float, ...] = ()      # (:func:`true_track`: what fcmpc-montecarlo --fc measures)
 
 
 def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, float]) -> dict:
@@ -153,6 +156,17 @@ def distances(truth: TruthTrack | None, steps: list[dict], dest: tuple[float, fl
     out["rest_remaining_m"] = geodesic_distance_m(truth.lat_deg[last], truth.lon_deg[last], *dest)
     out["rest_index"] = last
     return out
+
+
+def true_track(truth: TruthTrack | None, steps: list[dict], start: tuple[float, float],
+               rest_index: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The true (lat, lon) at the start, at each control step and at ``rest_index`` (of
+    :func:`distances`), as an in-process run's track is measured; the start alone without a track."""
+    points = [start]
+    if truth is not None and len(truth) > 0:
+        points += [truth.position_at(float(s["msg_time_s"])) for s in steps]
+        points.append((float(truth.lat_deg[rest_index]), float(truth.lon_deg[rest_index])))
+    return tuple(float(p[0]) for p in points), tuple(float(p[1]) for p in points)
 
 
 def _stopped_in_the_water(truth: TruthTrack, steps: list[dict]) -> int | None:

@@ -29,10 +29,10 @@ from pathlib import Path
 from typing import Callable, Iterable, TextIO
 
 from companion.nav.geo import geodesic_direct, geodesic_inverse
-from companion.params import validate_all, write_parm_file
+from companion.params import Controller, validate_all, write_parm_file
 from fcmpc.fly.mission import REPO, CompanionRun, run_mission
 from fcmpc.fly.plots import plot_track
-from fcmpc.fly.results import FlyResult, TruthTrack, distances, read_steps, write_result
+from fcmpc.fly.results import FlyResult, TruthTrack, distances, read_steps, true_track, write_result
 from fcmpc.fly.standin import LOCKSTEP_PERIOD_S, StandIn, linger_s, stand_in_args
 from sitl.scenario import Scenario, load_scenario
 
@@ -206,7 +206,7 @@ def fly(options: FlyOptions, stderr: TextIO | None = None) -> FlyResult:
         f"records in {out}")
     outcome, truth = run_mission(fc, companion_run(options, parm, out), out, options.timeout_s, progress.poll, say)
     return finish(options, scenario, out, dest, outcome.status, outcome.code, outcome.message, wall0, scenario_arg,
-                  truth)
+                  truth, values)
 
 
 def stand_in(options: FlyOptions, scenario: Scenario, scenario_arg: str) -> StandIn:
@@ -230,19 +230,24 @@ def companion_run(options: FlyOptions, parm: Path, out: Path) -> CompanionRun:
 
 
 def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float, float], status: str, code: int,
-           message: str, wall0: float, scenario_arg: str | None = None, truth: TruthTrack | None = None) -> FlyResult:
+           message: str, wall0: float, scenario_arg: str | None = None, truth: TruthTrack | None = None,
+           values: dict | None = None) -> FlyResult:
     """Evaluate the records in ``out`` (the truth track, steps.csv, the companion's summary), plot,
-    write ``result.json``; independent of which flight controller produced the truth track."""
+    write ``result.json``; independent of which flight controller produced the truth track.
+    ``values``: the flown parameters (the start and the controller; default the scenario's)."""
     steps = read_steps(out / "companion" / "steps.csv")
     summary_path = out / "companion" / "summary.json"
     companion = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     d = distances(truth, steps, dest)
+    values = values or validate_all(scenario.nav_overrides())
+    lat, lon = true_track(truth, steps, (values["NAV_START_LAT"], values["NAV_START_LON"]), d["rest_index"])
     result = FlyResult(status=status, exit_code=code, scenario=scenario.name, seed=options.seed,
                        iterations=d["iterations"], rest_remaining_m=d["rest_remaining_m"],
                        step_remaining_m=d["step_remaining_m"], believed_remaining_m=d["believed_remaining_m"],
                        came_to_rest=d["came_to_rest"], wall_s=time.monotonic() - wall0, sim_s=d["sim_s"],
                        out_dir=str(out), plot_path=None, dest_lat_deg=dest[0], dest_lon_deg=dest[1],
-                       companion={k: v for k, v in companion.items() if k != "events"}, message=message)
+                       companion={k: v for k, v in companion.items() if k != "events"}, message=message,
+                       controller=Controller.NAMES[int(values["NAV_CONTROLLER"])], track_lat_deg=lat, track_lon_deg=lon)
     if truth is None:
         result = replace(result, message=(message + "; " if message else "") + "no truth track was written")
     if options.compare and status != "interrupted":

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.nav.metrics import percentile
 from companion.params import Controller
 from fcmpc.montecarlo.batch import run_montecarlo
 from fcmpc.montecarlo.engines import Engine
@@ -54,7 +55,7 @@ def run_budget(real: Scenario, runs: int, workers: int, values: dict, data_dir: 
             fix = np.array([p.fix_error_m for p in predicted[source]]) / 1e3
         rows.append({"source": source, "e_decl_deg": float(np.median(np.abs(e[:, 0]))),
                      "e_incl_deg": float(np.median(np.abs(e[:, 1]))), "predicted_km": float(np.median(fix)),
-                     "median_km": float(np.median(miss)), "p90_km": float(np.percentile(miss, 90)),
+                     "median_km": float(np.median(miss)), "p90_km": float(percentile(miss, 0.9)),
                      "arrived": int(sum(r.phase == "arrived" for r in flown)), "runs": runs})
     return rows
 

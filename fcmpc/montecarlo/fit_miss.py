@@ -25,14 +25,15 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from companion.params import Controller, validate_all
-from fcmpc.montecarlo.engines import Engine, run_all
-from fcmpc.montecarlo.runs import RunRow, RunSpec
-from fcmpc.montecarlo.store import RunStore, run_key
+from fcmpc.montecarlo.engines import Engine
+from fcmpc.montecarlo.runs import RunRow, RunSpec, apply_scenario_changes
+from fcmpc.montecarlo.store import RunStore, fly_missing, run_key
+from sitl.scenario import Scenario, load_scenario
 
 __all__ = ["FEED_OFF", "RATIOS", "SCALES", "TUNING_SEEDS", "Candidate", "Fit", "Walks", "candidates", "fit_by_miss",
            "format_fit"]
@@ -80,13 +81,10 @@ def candidates(names: Sequence[str], walks: Walks, scales: Sequence[float] = SCA
     return out
 
 
-def _spec(storm: str, values: Iterable[tuple[str, float]], seed: int, feed_off: bool,
+def _spec(scenario: Scenario, values: Iterable[tuple[str, float]], seed: int, feed_off: bool,
           data_dir: str | None) -> RunSpec:
-    from sitl.scenario import load_scenario
-
-    scenario = load_scenario(f"{storm}_real")
     merged = validate_all({**scenario.nav_overrides(), **dict(values), "NAV_CONTROLLER": Controller.FC})
-    return RunSpec(f"{storm}_real", tuple(merged.items()), seed, True, FEED_OFF if feed_off else (), data_dir)
+    return RunSpec(scenario.name, tuple(merged.items()), seed, True, FEED_OFF if feed_off else (), data_dir)
 
 
 def fit_by_miss(training_sets: Sequence[Sequence[str]], walks: Walks, seeds: Sequence[int], engine: Engine,
@@ -100,14 +98,18 @@ def fit_by_miss(training_sets: Sequence[Sequence[str]], walks: Walks, seeds: Seq
         raise ValueError(f"tuning seeds must lie in {TUNING_SEEDS.start}..{TUNING_SEEDS.stop - 1} (judging: 1000 on)")
     folder = None if data_dir is None else str(data_dir)
     grids = {tuple(names): candidates(names, walks, scales, ratios) for names in training_sets}
+    scenarios = {storm: load_scenario(f"{storm}_real") for names in grids for storm in names}   # each read once
+    worlds = {(storm, off): repr(apply_scenario_changes(scenario, FEED_OFF if off else ()))
+              for storm, scenario in scenarios.items() for off in (False, True)}
     specs: dict[tuple, RunSpec] = {}
     for names, grid in grids.items():
         for storm in names:
             for seed in seeds:
-                specs.setdefault((storm, (), seed, True), _spec(storm, (), seed, True, folder))
+                specs.setdefault((storm, (), seed, True), _spec(scenarios[storm], (), seed, True, folder))
                 for cand in grid:
-                    specs.setdefault((storm, cand.values, seed, False), _spec(storm, cand.values, seed, False, folder))
-    rows = _fly(specs, engine, store, progress)
+                    specs.setdefault((storm, cand.values, seed, False),
+                                     _spec(scenarios[storm], cand.values, seed, False, folder))
+    rows = _fly(specs, {k: run_key(spec, worlds[(k[0], k[3])]) for k, spec in specs.items()}, engine, store, progress)
     fits = []
     for names, grid in grids.items():
         scored = []
@@ -126,33 +128,18 @@ def fit_by_miss(training_sets: Sequence[Sequence[str]], walks: Walks, seeds: Seq
     return fits
 
 
-def _fly(specs: dict[tuple, RunSpec], engine: Engine, store: RunStore | None, progress: bool) -> dict[tuple, RunRow]:
-    """Every spec's row, from ``store`` when it holds the run, else flown (and stored as it finishes)."""
+def _fly(specs: dict[tuple, RunSpec], digests: dict[tuple, str], engine: Engine, store: RunStore | None,
+         progress: bool) -> dict[tuple, RunRow]:
+    """Every spec's row: flown when ``store`` lacks it (:func:`fcmpc.montecarlo.store.fly_missing`), else read."""
     keys = list(specs)
-    digests = [run_key(specs[k], repr(_world_scenario(specs[k]))) for k in keys]
-    stored = {r["run_key"]: r for r in store.read(set(digests)).to_pylist()} if store is not None else {}
-    names = [f.name for f in fields(RunRow)]
-    rows = {k: RunRow(**{n: stored[d][n] for n in names}) for k, d in zip(keys, digests) if d in stored}
-    todo = [(i, specs[k]) for i, k in enumerate(keys) if k not in rows]
-    results = run_all(todo, engine)
-    if progress:
-        import sys
-
-        from tqdm import tqdm
-
-        results = tqdm(results, total=len(todo), desc=f"fit by miss ({len(rows)} stored)", unit="run", file=sys.stderr)
-    for index, out in results:
-        rows[keys[index]] = out.row
-        if store is not None:
-            store.append([{"run_key": digests[index], **asdict(out.row)}])
+    flown = fly_missing([specs[k] for k in keys], [digests[k] for k in keys], store, engine, None,
+                        "fit by miss", progress)
+    rows = {keys[i]: row for i, row in flown.rows.items()}
+    if len(rows) < len(keys):
+        stored = {r["run_key"]: r for r in store.read({digests[k] for k in keys if k not in rows}).to_pylist()}
+        names = [f.name for f in fields(RunRow)]
+        rows.update({k: RunRow(**{n: stored[digests[k]][n] for n in names}) for k in keys if k not in rows})
     return rows
-
-
-def _world_scenario(spec: RunSpec):
-    from fcmpc.montecarlo.runs import apply_scenario_changes
-    from sitl.scenario import load_scenario
-
-    return apply_scenario_changes(load_scenario(spec.scenario), spec.scenario_changes)
 
 
 def format_fit(fit: Fit) -> str:

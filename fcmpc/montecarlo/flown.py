@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.nav.metrics import track_metrics
-from companion.params import Controller
+from fcmpc.fly.results import FlyResult
 from fcmpc.fly.runner import FlyOptions, fly
 from fcmpc.montecarlo.runs import RunOutput, RunRow
 
@@ -84,7 +84,7 @@ def _fly_one(index: int, spec: FlownSpec) -> RunOutput:
         started = time.perf_counter()
         result = fly(replace(options, out_dir=tmp, fc_instance=instance))
         wall = time.perf_counter() - started
-        output = _measure(result, Path(tmp), options, wall)
+        output = _measure(result, options, wall)
         for name in KEPT:
             if (Path(tmp) / name).is_file():
                 (keep / name).parent.mkdir(parents=True, exist_ok=True)
@@ -92,26 +92,12 @@ def _fly_one(index: int, spec: FlownSpec) -> RunOutput:
     return output
 
 
-def _measure(result, out: Path, options: FlyOptions, wall: float) -> RunOutput:
-    """The run's row: the true positions at the start, at each control step and at rest."""
-    from companion.params import read_parm_file
-    from fcmpc.fly.results import distances, read_steps, read_truth_track
-
-    truth = read_truth_track(out / "sitl" / "truth.csv") or read_truth_track(out / "truth.csv")
-    steps = read_steps(out / "companion" / "steps.csv")
-    values = read_parm_file(out / "fly.parm") if (out / "fly.parm").is_file() else {}
-    start = (float(values.get("NAV_START_LAT", math.nan)), float(values.get("NAV_START_LON", math.nan)))
-    dest = (result.dest_lat_deg, result.dest_lon_deg)
-    controller = Controller.NAMES[int(values.get("NAV_CONTROLLER", Controller.FC))]
-    if truth is None or len(truth) == 0:
-        lat, lon = np.array([start[0]]), np.array([start[1]])
-    else:
-        rest = distances(truth, steps, dest)["rest_index"]
-        points = [start] + [truth.position_at(float(s["msg_time_s"])) for s in steps] + \
-            [(float(truth.lat_deg[rest]), float(truth.lon_deg[rest]))]
-        lat, lon = np.array([p[0] for p in points]), np.array([p[1] for p in points])
-    m = track_metrics(lat, lon, start, dest, result.iterations)
-    row = RunRow(controller, options.seed, False, result.status, result.message, m.iterations,
+def _measure(result: FlyResult, options: FlyOptions, wall: float) -> RunOutput:
+    """The run's row, on the true track ``fcmpc-fly`` measured its own miss on (the start, each
+    control step, the point of rest: :func:`fcmpc.fly.results.true_track`)."""
+    lat, lon = np.array(result.track_lat_deg), np.array(result.track_lon_deg)
+    m = track_metrics(lat, lon, (lat[0], lon[0]), (result.dest_lat_deg, result.dest_lon_deg), result.iterations)
+    row = RunRow(result.controller, options.seed, False, result.status, result.message, m.iterations,
                  result.rest_remaining_m / 1e3, m.length_m / 1e3, m.step_variance_m2 / 1e6,
                  m.mean_deviation_m / 1e3, m.max_deviation_m / 1e3, m.path_matching_rate_pct, m.final_lat_deg,
                  m.final_lon_deg, math.nan, wall, process_model=options.fc)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.nav.metrics import percentile
 from sitl.scenario import Scenario
 
 __all__ = ["outlier_fence_km", "plot_results"]
@@ -85,6 +86,6 @@ def outlier_fence_km(rows: list, route_km: float) -> float:
     dev = dev[np.isfinite(dev)]
     if dev.size == 0:
         return math.inf
-    q1, q3 = np.percentile(dev, [25, 75])
+    q1, q3 = percentile(dev, 0.25), percentile(dev, 0.75)
     return float(max(q3 + 3.0 * (q3 - q1), 0.05 * route_km))
 

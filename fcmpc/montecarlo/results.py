@@ -31,6 +31,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from companion.nav.metrics import percentile
+
 __all__ = ["Row", "ROWS", "STORM_VARIANTS", "TABLES", "render", "render_storms", "run_row", "run_storm", "splice",
            "storm_table", "main"]
 
@@ -98,12 +100,6 @@ def _montecarlo(argv: tuple[str, ...], runs: int, folder: Path, root: Path) -> N
         raise RuntimeError(f"fcmpc-montecarlo {' '.join(argv)} exited {done.returncode}")
 
 
-def _p90(miss: list[float]) -> float:
-    """The 90th percentile as the ``ceil(0.9 n)``-th smallest miss."""
-    miss = sorted(miss)
-    return miss[min(len(miss) - 1, math.ceil(0.9 * len(miss)) - 1)]
-
-
 def run_row(row: Row, runs: int, out: Path, root: Path) -> dict:
     """Fly one row with the ``fcmpc-montecarlo`` command of the checkout at ``root`` and return its
     Fc-MPC summary plus the p90 of its runs."""
@@ -115,7 +111,7 @@ def run_row(row: Row, runs: int, out: Path, root: Path) -> dict:
     summary = json.loads(summary_file.read_text())["summary"]["Fc-MPC"]
     with open(summary_file.with_name("runs.csv"), newline="") as handle:
         miss = [float(r["remaining_km"]) for r in csv.DictReader(handle) if r["controller"] == "Fc-MPC"]
-    summary["p90_remaining_km"] = _p90(miss)
+    summary["p90_remaining_km"] = percentile(miss, 0.9)
     return summary
 
 
@@ -139,7 +135,7 @@ def run_storm(event: str, variant: tuple[str, ...], runs: int, out: Path, root: 
     miss = [float(r["remaining_km"]) for r in rows]
     inside = [float(r["in_ellipse95"]) for r in rows if r["in_ellipse95"] is not None]
     fitted = stored.get("storm_params") or {}
-    return {"median_km": statistics.median(miss), "p90_km": _p90(miss), "inside_pct": 100.0 * sum(inside) / len(inside) if inside else math.nan,
+    return {"median_km": statistics.median(miss), "p90_km": percentile(miss, 0.9), "inside_pct": 100.0 * sum(inside) / len(inside) if inside else math.nan,
             "runs": len(miss), "storms": fitted.get("storms") or [],
             "symh_k": rows[0]["FUS_SYMH_K"], "bqa_n": rows[0]["FUS_BQA_N"]}
 

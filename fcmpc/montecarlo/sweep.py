@@ -15,14 +15,13 @@ from __future__ import annotations
 import difflib
 import itertools
 import math
-import sys
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from companion.cli import UsageError
+from companion.nav.metrics import percentile
 from companion.params import (
     SPEC_BY_NAME,
     Controller,
@@ -30,9 +29,9 @@ from companion.params import (
     validate,
     validate_all,
 )
-from fcmpc.montecarlo.engines import Engine, run_all
-from fcmpc.montecarlo.runs import RunOutput, RunSpec, apply_scenario_changes, scenario_keys
-from fcmpc.montecarlo.store import RunStore, run_key
+from fcmpc.montecarlo.engines import Engine
+from fcmpc.montecarlo.runs import RunSpec, apply_scenario_changes, scenario_keys
+from fcmpc.montecarlo.store import RunStore, fly_missing, run_key
 from sitl.scenario import Scenario
 
 __all__ = ["SweepAxis", "SweepPlan", "format_cells", "parse_sweep", "plan_sweep", "run_sweep", "summarise_cells"]
@@ -127,41 +126,12 @@ def plan_sweep(scenario_ref: str | Scenario, scenario: Scenario, axes: list[Swee
     return SweepPlan(tuple(axes), tuple(specs), tuple(keys), tuple(cells), tuple(inputs))
 
 
-def _row(plan: SweepPlan, index: int, output: RunOutput) -> dict:
-    return {"run_key": plan.keys[index], **plan.inputs[index], **asdict(output.row)}
-
-
 def run_sweep(plan: SweepPlan, store: RunStore, engine: Engine, progress: bool = True,
               flush_every: int = 64, flush_s: float = 30.0) -> dict:
     """Fly the runs of ``plan`` not yet in ``store``, appending rows as they finish.
     Returns counts: planned, skipped (already stored), flown, and the wall seconds."""
-    done = store.keys()
-    todo = [(i, spec) for i, spec in enumerate(plan.specs) if plan.keys[i] not in done]
-    started = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(plan.specs), initial=len(plan.specs) - len(todo), unit="run", file=sys.stderr,
-                   desc="sweep")
-    pending: list[dict] = []
-    last_flush = time.monotonic()
-    flown = 0
-    try:
-        for index, output in run_all(todo, engine):
-            pending.append(_row(plan, index, output))
-            flown += 1
-            if bar is not None:
-                bar.update()
-            if len(pending) >= flush_every or time.monotonic() - last_flush > flush_s:
-                store.append(pending)
-                pending, last_flush = [], time.monotonic()
-    finally:
-        store.append(pending)       # an interruption keeps every finished run
-        if bar is not None:
-            bar.close()
-    return {"planned": len(plan.specs), "skipped": len(plan.specs) - len(todo), "flown": flown,
-            "wall_s": time.perf_counter() - started}
+    flown = fly_missing(plan.specs, plan.keys, store, engine, plan.inputs, "sweep", progress, flush_every, flush_s)
+    return {"planned": flown.planned, "skipped": flown.skipped, "flown": len(flown.rows), "wall_s": flown.wall_s}
 
 
 def summarise_cells(rows: list[dict], axes: tuple[SweepAxis, ...]) -> list[dict]:
@@ -176,7 +146,7 @@ def summarise_cells(rows: list[dict], axes: tuple[SweepAxis, ...]) -> list[dict]
         entry = {**{a.name: members[0][a.name] for a in axes}, "cell": cell, "controller": controller,
                  "runs": len(members), "arrived": sum(r["phase"] == "arrived" for r in members),
                  "median_km": float(np.median(miss)), "mean_km": float(miss.mean()),
-                 "p90_km": float(np.percentile(miss, 90)),
+                 "p90_km": float(percentile(miss, 0.9)),
                  "mean_dev_km": float(np.mean([r["mean_dev_km"] for r in members])),
                  "iterations": float(np.mean([r["iterations"] for r in members])),
                  "length_km": float(np.mean([r["length_km"] for r in members]))}

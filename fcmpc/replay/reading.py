@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 
 from companion.io.sensors.base import SensorError
-from companion.io.sensors.replay import sniff_log_format
+from companion.io.sensors.replay import log_head, sniff_log_format
 from fcmpc.replay.csvlog import read_csv
 from fcmpc.replay.logdata import CSV, ULOG, LogData
 from fcmpc.replay.mavlog import read_mavlink_boots
@@ -24,17 +24,13 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 def sniff_format(path: str | os.PathLike[str]) -> str:
     """``dataflash``, ``tlog``, ``ulog`` or ``csv``; SensorError naming what the file is not."""
     p = Path(path)
-    try:
-        with p.open("rb") as f:
-            head = f.read(16)
-    except OSError as err:
-        raise SensorError(f"cannot read log {str(p)!r}: {err}") from err
+    head = log_head(p)
     if head.startswith(ULOG_MAGIC):
         return ULOG
     if p.suffix.lower() == ".csv":
         return CSV
     try:
-        return sniff_log_format(p)
+        return sniff_log_format(p, head)
     except SensorError as err:
         raise SensorError(f"{err}; nor a PX4 ULog (starts 'ULog' 01 12 35) nor a .csv "
                           "(see the README's CSV columns)") from err

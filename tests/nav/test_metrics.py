@@ -18,6 +18,7 @@ from companion.nav.metrics import (
     cep_paper,
     mean_terminal_location,
     path_deviation_m,
+    percentile,
     step_lengths_m,
     track_metrics,
 )
@@ -65,6 +66,21 @@ def test_cep_paper_differs_from_the_rms_of_the_inner_half():
 
 
 # --- path deviation (eq. 60-62) --------------------------------------------------------------------
+def test_percentile_is_the_nearest_rank():
+    """The house's one percentile (every p90 miss, the companion's latency p99), on ten misses by hand.
+
+    Misses 12, 3, 7, 30, 18, 5, 9, 21, 15, 26 km sorted: 3, 5, 7, 9, 12, 15, 18, 21, 26, 30.
+    p90: ceil(0.9 x 10) = 9th smallest = 26 (interpolating, as np.percentile does, would give
+    26 + 0.1 x (30 - 26) = 26.4); p25: ceil(2.5) = 3rd = 7; p50: ceil(5) = 5th = 12 (the median,
+    the mean of the 5th and 6th, is 13.5: percentile is not the median); p100: 30; p1: ceil(0.1) =
+    1st = 3. One value is every percentile of itself; no values: NaN.
+    """
+    miss = [12.0, 3.0, 7.0, 30.0, 18.0, 5.0, 9.0, 21.0, 15.0, 26.0]
+    assert [percentile(miss, q) for q in (0.9, 0.25, 0.5, 1.0, 0.01)] == [26.0, 7.0, 12.0, 30.0, 3.0]
+    assert percentile(np.array(miss), 0.9) == 26.0 and cep50(miss) == 13.5
+    assert percentile([4.2], 0.9) == 4.2 and math.isnan(percentile([], 0.9))
+
+
 def test_points_on_the_geodesic_have_no_deviation():
     along = np.linspace(0.0, LINE.s13, 37)
     lat, lon = np.array([on_line(s)[0] for s in along]), np.array([on_line(s)[1] for s in along])

@@ -176,7 +176,7 @@ class FcState:
     custom_mode: int = 0
     system_status: int = 0
     last_heartbeat_time_s: float = -math.inf     # message time of the last heartbeat
-    last_heartbeat_wall_s: float = -math.inf     # wall (monotonic) time of the last heartbeat
+    last_heartbeat_listened_s: float = -math.inf  # the link's listening clock at the last heartbeat
     last_message_wall_s: float = -math.inf       # wall time of the last message of any kind
     heartbeats: int = 0
     acks: dict[int, int] = field(default_factory=dict)   # command -> last MAV_RESULT

@@ -82,6 +82,9 @@ class MavlinkLink(LinkOutputs):
         self.tlog_path = Path(tlog_path) if tlog_path else None
         self.tlog_max_bytes = tlog_max_bytes
         self.wall = wall_clock
+        # wall seconds spent waiting on the socket (wait_readable): the clock a silent flight controller
+        # is judged on, which the companion's own busy or blocked time does not advance
+        self.listened_s = 0.0
         # no ceiling given: the registry's default SAFE_SPEED_KMH, never none at all
         self.speed_ceiling_mps = (SPEC_BY_NAME["SAFE_SPEED_KMH"].default / 3.6 if speed_ceiling_mps is None
                                   else speed_ceiling_mps)
@@ -192,15 +195,18 @@ class MavlinkLink(LinkOutputs):
 
     # --- receiving ----------------------------------------------------------------------------
     def wait_readable(self, timeout_s: float) -> bool:
-        """Wait up to ``timeout_s`` wall seconds for bytes to read."""
+        """Wait up to ``timeout_s`` wall seconds for bytes to read; the wait advances :attr:`listened_s`."""
         fd = self.conn.fileno() if self.conn is not None else None
-        if fd is None:  # pragma: no cover - connections without a file descriptor
-            time.sleep(timeout_s)
-            return True
+        start = self.wall()
         try:
+            if fd is None:  # pragma: no cover - connections without a file descriptor
+                time.sleep(timeout_s)
+                return True
             readable, _, _ = select.select([fd], [], [], max(timeout_s, 0.0))
         except (OSError, ValueError):
             return False
+        finally:
+            self.listened_s += max(0.0, self.wall() - start)
         return bool(readable)
 
     def read(self, max_bytes: int = 1 << 16) -> list:
@@ -320,7 +326,7 @@ class MavlinkLink(LinkOutputs):
             fc.vehicle_type = msg.type
             fc.base_mode, fc.custom_mode, fc.system_status = msg.base_mode, msg.custom_mode, msg.system_status
             fc.last_heartbeat_time_s = clock.now_s
-            fc.last_heartbeat_wall_s = now_wall
+            fc.last_heartbeat_listened_s = self.listened_s
         elif mtype == "COMMAND_ACK" and getattr(msg, "target_component", 0) in (0, self.component):
             fc.acks[msg.command] = msg.result
         return True
@@ -345,6 +351,10 @@ class MavlinkLink(LinkOutputs):
         return fresh
 
     def heartbeat_age_s(self) -> tuple[float, float]:
-        """(message-time age, wall-time age) of the FC's last heartbeat."""
+        """(message-time age, wall-time age) of the FC's last heartbeat. The wall-time age counts only
+        the time spent waiting on the socket since (:attr:`listened_s`): a dead flight controller
+        sends nothing while the companion waits, but time the companion itself was busy or blocked
+        (a long step; in lockstep the world waiting for it) is not the flight controller's silence,
+        and its frames of that time are still queued."""
         msg_age = self.clock.now_s - self.fc.last_heartbeat_time_s if self.clock.started else math.inf
-        return msg_age, self.wall() - self.fc.last_heartbeat_wall_s
+        return msg_age, self.listened_s - self.fc.last_heartbeat_listened_s

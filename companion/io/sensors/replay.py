@@ -77,7 +77,7 @@ from companion.io.sensors.base import (  # noqa: E402
     StreamEnd,
 )
 
-__all__ = ["LogFormat", "LogReplaySource", "sniff_log_format"]
+__all__ = ["LogFormat", "LogReplaySource", "log_head", "sniff_log_format"]
 
 MILLIGAUSS_TO_NT = 100.0
 GAUSS_TO_NT = 100_000.0
@@ -91,14 +91,20 @@ class LogFormat:
     TLOG = "tlog"
 
 
-def sniff_log_format(path: str | os.PathLike[str]) -> str:
-    """``"dataflash"`` or ``"tlog"`` from the first bytes, else :class:`SensorError`."""
-    p = Path(path)
+def log_head(path: str | os.PathLike[str]) -> bytes:
+    """The first 16 bytes of a log, which tell its format; :class:`SensorError` when it cannot be read."""
     try:
-        with p.open("rb") as f:
-            head = f.read(16)
+        with Path(path).open("rb") as f:
+            return f.read(16)
     except OSError as err:
-        raise SensorError(f"replay: cannot read log {str(p)!r}: {err}") from err
+        raise SensorError(f"replay: cannot read log {str(path)!r}: {err}") from err
+
+
+def sniff_log_format(path: str | os.PathLike[str], head: bytes | None = None) -> str:
+    """``"dataflash"`` or ``"tlog"`` from the first bytes (``head``: :func:`log_head`, read when not
+    given), else :class:`SensorError`."""
+    p = Path(path)
+    head = log_head(p) if head is None else head
     if not head:
         raise SensorError(f"replay: log {str(p)!r} is empty")
     # A DataFlash log starts with the FMT record describing FMT: A3 95 80.
