@@ -93,7 +93,8 @@ class MavlinkLink(LinkOutputs):
         self.clock = MessageClock()
         self.stats = LinkStats()
         self.peers = PeerTable(self._new_parser, wall_clock, peer_capacity,
-                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)), stranger_rate_hz)
+                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)), stranger_rate_hz,
+                               listened=lambda: self.listened_s)
         self.conn = None
         self._mav = None
         self._tlog: Tlog | None = None
