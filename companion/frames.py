@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["Matrix3", "Vector3", "body_to_ned", "mat_nb_from_euler", "mats_nb_from_euler", "ned_to_body"]
+__all__ = ["Matrix3", "Vector3", "body_to_ned", "mat_nb_from_euler", "mats_nb_from_euler", "ned_to_body", "rotate"]
 
 Vector3 = tuple[float, float, float]
 Matrix3 = tuple[Vector3, Vector3, Vector3]
@@ -53,11 +53,16 @@ def body_to_ned(vec_b: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: floa
     >>> [round(c, 9) for c in body_to_ned((1.0, 0.0, 0.0), 0.0, 0.0, math.pi / 2)]  # nose east
     [0.0, 1.0, 0.0]
     """
-    m = mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad)
-    x, y, z = vec_b
-    return (m[0][0] * x + m[0][1] * y + m[0][2] * z,
-            m[1][0] * x + m[1][1] * y + m[1][2] * z,
-            m[2][0] * x + m[2][1] * y + m[2][2] * z)
+    return rotate(mat_nb_from_euler(roll_rad, pitch_rad, yaw_rad), vec_b)
+
+
+def rotate(mat: Matrix3, vec: Vector3) -> Vector3:
+    """``mat @ vec`` of a 3x3 matrix (rows) and a vector, in floats: one matrix from
+    :func:`mat_nb_from_euler` for several vectors of the same instant."""
+    x, y, z = vec
+    return (mat[0][0] * x + mat[0][1] * y + mat[0][2] * z,
+            mat[1][0] * x + mat[1][1] * y + mat[1][2] * z,
+            mat[2][0] * x + mat[2][1] * y + mat[2][2] * z)
 
 
 def ned_to_body(vec_n: Vector3, roll_rad: float, pitch_rad: float, yaw_rad: float) -> Vector3:

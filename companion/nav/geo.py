@@ -42,13 +42,31 @@ def _finite_scalar(value) -> bool:
     return isinstance(value, (float, int)) and math.isfinite(value)
 
 
+def _finite_scalars(a, b, c, d) -> bool:
+    """:func:`_finite_scalar` of four values in one call (the 10 Hz position feed's per-sample cost)."""
+    isfinite = math.isfinite
+    return (isinstance(a, (float, int)) and isinstance(b, (float, int)) and isinstance(c, (float, int))
+            and isinstance(d, (float, int)) and isfinite(a) and isfinite(b) and isfinite(c) and isfinite(d))
+
+
+def _scalar_radii_m(lat_deg: float) -> tuple[float, float]:
+    """:func:`radii_of_curvature_m` of a finite scalar latitude."""
+    s = math.sin(math.radians(lat_deg))
+    w = math.sqrt(1.0 - _E2 * s * s)
+    return _A * (1.0 - _E2) / (w * w * w), _A / w
+
+
+def _scalar_metres_per_degree(lat_deg: float, alt_m: float = 0.0) -> tuple[float, float]:
+    """:func:`metres_per_degree` of a finite scalar latitude."""
+    m, n = _scalar_radii_m(lat_deg)
+    return _RAD_PER_DEG * (n + alt_m) * math.cos(math.radians(lat_deg)), _RAD_PER_DEG * (m + alt_m)
+
+
 def radii_of_curvature_m(lat_deg: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Meridian radius M and prime-vertical radius N (metres) at geodetic latitude (floats for a
     finite scalar latitude)."""
     if _finite_scalar(lat_deg):
-        s = math.sin(math.radians(lat_deg))
-        w = math.sqrt(1.0 - _E2 * s * s)
-        return _A * (1.0 - _E2) / (w * w * w), _A / w
+        return _scalar_radii_m(lat_deg)
     s2 = np.sin(np.radians(lat_deg)) ** 2
     w = np.sqrt(1.0 - _E2 * s2)
     return _A * (1.0 - _E2) / w**3, _A / w
@@ -56,9 +74,9 @@ def radii_of_curvature_m(lat_deg: float | np.ndarray) -> tuple[np.ndarray, np.nd
 
 def metres_per_degree(lat_deg: float | np.ndarray, alt_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(east metres per degree of longitude, north metres per degree of latitude)."""
-    m, n = radii_of_curvature_m(lat_deg)
     if _finite_scalar(lat_deg):
-        return _RAD_PER_DEG * (n + alt_m) * math.cos(math.radians(lat_deg)), _RAD_PER_DEG * (m + alt_m)
+        return _scalar_metres_per_degree(lat_deg, alt_m)
+    m, n = radii_of_curvature_m(lat_deg)
     return (
         np.radians(1.0) * (n + alt_m) * np.cos(np.radians(lat_deg)),
         np.radians(1.0) * (m + alt_m),
@@ -70,6 +88,9 @@ _RAD_PER_DEG = math.radians(1.0)
 
 def enu_offset(lat0_deg: float, lon0_deg: float, lat_deg, lon_deg) -> tuple[np.ndarray, np.ndarray]:
     """Local (east_m, north_m) of positions relative to a reference, tangent at the reference."""
+    if _finite_scalars(lat0_deg, lon0_deg, lat_deg, lon_deg):
+        east_per_deg, north_per_deg = _scalar_metres_per_degree(lat0_deg)
+        return ((lon_deg - lon0_deg + 180.0) % 360.0 - 180.0) * east_per_deg, (lat_deg - lat0_deg) * north_per_deg
     east_per_deg, north_per_deg = metres_per_degree(lat0_deg)
     if _finite_scalar(lon_deg) and _finite_scalar(lat_deg) and _finite_scalar(lon0_deg):
         return ((lon_deg - lon0_deg + 180.0) % 360.0 - 180.0) * east_per_deg, (lat_deg - lat0_deg) * north_per_deg
@@ -79,9 +100,10 @@ def enu_offset(lat0_deg: float, lon0_deg: float, lat_deg, lon_deg) -> tuple[np.n
 
 def offset_position(lat_deg: float, lon_deg: float, east_m, north_m) -> tuple[np.ndarray, np.ndarray]:
     """Position displaced by a local (east_m, north_m) from (lat_deg, lon_deg)."""
-    east_per_deg, north_per_deg = metres_per_degree(lat_deg)
-    if _finite_scalar(east_m) and _finite_scalar(north_m) and _finite_scalar(lon_deg) and _finite_scalar(lat_deg):
+    if _finite_scalars(lat_deg, lon_deg, east_m, north_m):
+        east_per_deg, north_per_deg = _scalar_metres_per_degree(lat_deg)
         return lat_deg + north_m / north_per_deg, (lon_deg + east_m / east_per_deg + 180.0) % 360.0 - 180.0
+    east_per_deg, north_per_deg = metres_per_degree(lat_deg)
     lat = lat_deg + np.asarray(north_m) / north_per_deg
     lon = (lon_deg + np.asarray(east_m) / east_per_deg + 180.0) % 360.0 - 180.0
     return lat, lon

@@ -42,7 +42,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from companion.frames import Matrix3, Vector3, body_to_ned
+from companion.frames import Matrix3, Vector3, body_to_ned, mat_nb_from_euler, rotate
 from companion.nav.period import PeriodAverage, PeriodAverager
 from companion.nav.steering import YawOffsetTracker
 
@@ -341,7 +341,9 @@ class MagProcessor:
             return False
         calibrated = self.calibration.apply(mag_body_nt)
         rpy = att.at(time_s, self.max_attitude_age_s)
-        d, i, ned = tilt_compensated_di(calibrated, *rpy)
+        rotation = mat_nb_from_euler(*rpy)   # tilt compensation; the specific force's below too
+        ned = rotate(rotation, calibrated)
+        d, i = decl_incl_deg(*ned)
         if not self.spikes.accept(ned):
             st.spikes += 1
             st.last_reject = "spike"
@@ -358,7 +360,7 @@ class MagProcessor:
         if imu is not None and abs(imu[2][2]) <= self.max_turn_radps and time_s >= self.settle_until_s:
             f = imu[1]
             dot = calibrated[0] * f[0] + calibrated[1] * f[1] + calibrated[2] * f[2]
-            force_ned = body_to_ned(f, *rpy)
+            force_ned = rotate(rotation, f)
             self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned, calibrated, f)
         else:
             self.averager.add(time_s - self.mission_offset_s, d, i, ned, dot, force_ned)

@@ -84,18 +84,23 @@ class PeriodAverager:
     right; the result is wrapped back into (-180, 180]. The samples are rows of one array that
     grows by doubling: writing a row costs about a microsecond more per sample than appending a
     tuple did, and the averages at the step are column operations on a slice, with no list of
-    tuples to convert there (the step's latency is what the companion waits on).
+    tuples to convert there (the step's latency is what the companion waits on). The samples in
+    use are rows ``_first`` to ``_count``: :meth:`drop_before` on samples in time order (a
+    sliding window, every tick while waiting) moves ``_first`` instead of copying the window.
     """
 
     def __init__(self) -> None:
         self._rows = np.empty((64, SAMPLE_COLUMNS))
+        self._first = 0
         self._count = 0
         self._ref_d: float | None = None
 
     def __len__(self) -> int:
-        return self._count
+        return self._count - self._first
 
     def _room(self, extra: int) -> None:
+        if self._count + extra > len(self._rows) and self._first:   # the dropped rows' room first
+            self._keep(self._rows[self._first:self._count].copy())
         while self._count + extra > len(self._rows):
             self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
 
@@ -142,6 +147,7 @@ class PeriodAverager:
 
     def _keep(self, rows: np.ndarray) -> None:
         """Keep only ``rows`` (a copy, in order) for the next period."""
+        self._first = 0
         self._count = len(rows)
         self._rows[:self._count] = rows
         self._ref_d = float(rows[0, 1]) if self._count else None
@@ -151,7 +157,7 @@ class PeriodAverager:
 
         The usual period (samples in time order, every one a gravity and heading sample) is read
         through views of the rows, with no copies; the averages are the same numbers either way."""
-        rows = self._rows[:self._count]
+        rows = self._rows[self._first:self._count]
         due = rows[:, 0] <= end_time_s
         n = int(np.count_nonzero(due))
         a = rows[:n] if due[:n].all() else rows[due]      # (n, 17): every average a column operation
@@ -176,9 +182,20 @@ class PeriodAverager:
         return result
 
     def drop_before(self, time_s: float) -> None:
-        rows = self._rows[:self._count]
-        self._keep(rows[rows[:, 0] >= time_s])
+        """Forget the samples older than ``time_s``."""
+        rows = self._rows[self._first:self._count]
+        kept = rows[:, 0] >= time_s
+        dropped = len(rows) - int(np.count_nonzero(kept))
+        if dropped == len(rows):
+            self.clear()
+        elif kept[dropped:].all():   # in time order: the oldest go, the rest stay where they are
+            if dropped:
+                self._first += dropped
+                self._ref_d = float(self._rows[self._first, 1])
+        else:
+            self._keep(rows[kept])
 
     def clear(self) -> None:
+        self._first = 0
         self._count = 0
         self._ref_d = None

@@ -209,8 +209,12 @@ def companion_rows(result: dict) -> list[Row]:
         if key in ("mission_cpu_s_per_sim_hour", "parse_floor_cpu_s_per_sim_hour", "messages_per_sim_hour"):
             continue
         if key == "capacity_msgs_per_s":
-            rows.append((f"companion {key}", f"{value}", f"first version {CAPACITY_FIRST_MSGS_PER_S:,.0f} (README); "
+            rows.append((f"companion {key}", f"{value}",
+                         f"per CPU s of the receiving thread; first version {CAPACITY_FIRST_MSGS_PER_S:,.0f} (README); "
                          f"{float(value) / CAPACITY_FIRST_MSGS_PER_S:.2f}x", ">= 55,000"))
+        elif key == "capacity_other_threads_cpu_s":
+            rows.append(("companion: its other thread's CPU meanwhile (the route's prediction, once)", f"{value:g} s",
+                         "", ""))
         else:
             rows.append((f"companion {key}", f"{value}", "", ""))
     return rows

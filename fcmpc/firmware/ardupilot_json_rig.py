@@ -34,8 +34,23 @@ CRUISE_THROTTLE_PCT = 80
 # triangle ramp of 0.05 deg/s per minute for SIM_DRIFT_TIME 5 minutes, the same on all three axes, 0.25 deg/s
 # at its peak); measured on a 20 km leg, 0.10-0.15 deg/s on every axis while the boat ran straight, and
 # ArduPilot's pitch 3-4 deg off our world's once GPS was gone. Our world's IMU is the IMU here.
+# Each MAVLink port carries what its reader asks for (SET_MESSAGE_INTERVAL) and not ArduPilot's default stream
+# groups (MAVn_*, SRn_* before 4.7; n = 1 is SERIAL0, 2 SERIAL1), which sent about 25 messages at 1 Hz to each
+# (measured in the companion's tlog) that neither reads: ArduPilot spent CPU packing them, the world relaying
+# them and the companion and the monitor parsing them. The companion's port (SERIAL1, at SITL's default 57600
+# baud modelled as 1,920 bytes/s of firmware time) ran full, its output trailing the firmware's clock by a queue
+# the relay's latency has to cover: 921600 baud, as a companion's link is wired on a boat. The monitor (SERIAL0)
+# keeps EXTRA1 (ATTITUDE just before SIMSTATE: the truth's firmware time) and EXTRA2 (VFR_HUD); the companion's
+# port keeps POSITION (GLOBAL_POSITION_INT, LOCAL_POSITION_NED at 1 Hz): the companion starts its clock on the
+# first timed message and asks for its streams only then, and with every group off it waited for ever whenever
+# ArduPilot sent no HOME_POSITION or GPS_GLOBAL_ORIGIN after it connected (the GPS-lost test, 37,000 s). SERIAL2
+# (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
+# with 3-4 select() calls every loop (strace), for nobody.
+_UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
+PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
+               **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
-               "SIM_DRIFT_SPEED": 0}
+               "SIM_DRIFT_SPEED": 0, **PORT_PARAMS}
 
 
 class ArduPilotJsonRig(ArduPilotRig):

@@ -16,7 +16,10 @@ from __future__ import annotations
 import csv
 import math
 import os
+import select
+import socket
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,6 +69,7 @@ class FirmwareMonitor:
         self._hello_wall_s = -math.inf
         self.acks: dict[int, int] = {}          # COMMAND_ACK results of the autopilot, by command
         self.params: dict[str, float] = {}      # PARAM_VALUEs the autopilot sent
+        self._pending: deque = deque()           # read from the socket, not yet handled
 
     @property
     def gps_fix(self) -> int:
@@ -132,20 +136,43 @@ class FirmwareMonitor:
     def pump(self, until, timeout_wall_s: float, what: str = "condition") -> None:
         """Read messages until ``until(self)`` is true; TimeoutError after ``timeout_wall_s``."""
         deadline = time.monotonic() + timeout_wall_s
+        pending = self._pending
         while not until(self):
+            if pending:
+                self.handle(pending.popleft())
+                continue
             if time.monotonic() > deadline:
                 raise TimeoutError(f"{what} not reached within {timeout_wall_s:g} s of wall time "
                                    f"(firmware time {self.time_s:.1f} s, mode {self.mode}, armed {self.armed}); "
                                    f"last texts: {self.texts[-5:]}")
             self._hello()
-            msg = self.conn.recv_match(blocking=True, timeout=0.5)
+            self._read(0.5)
+
+    def _read(self, wait_s: float) -> None:
+        """What the port has (waiting up to ``wait_s`` for it) into :attr:`_pending`. On TCP (ArduPilot's
+        SERIAL0) all of it in one read: pymavlink's ``recv_match`` reads a message in two system calls
+        (header, then the rest), and the monitor was a fifth of a lockstep run's CPU seconds."""
+        conn = self.conn
+        if not isinstance(conn, mavutil.mavtcp) or conn.port is None:
+            msg = conn.recv_match(blocking=True, timeout=wait_s)
             if msg is not None:
-                self.handle(msg)
+                self._pending.append(msg)
+            return
+        if not select.select([conn.port], [], [], wait_s)[0]:
+            return
+        data = conn.recv(262144)
+        # acknowledge at once (Linux leaves quick-ack mode after a read): ArduPilot SITL sleeps a wall
+        # millisecond at a time while SERIAL0's unacknowledged output exceeds 1 kB (SITL_State: "check the
+        # outbound TCP queue size"), and a delayed ACK (40 ms) kept it there
+        conn.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+        self._pending.extend(m for m in conn.mav.parse_buffer(data) or () if m.get_type() != "BAD_DATA")
 
     def drain(self) -> None:
         """Read every message already queued, without waiting: :attr:`time_s` is then the firmware's
         time of the newest one (a monitor that has not read for a while lags the firmware by what
         sits in its socket: seconds of firmware time at a speed-up on a loaded machine)."""
+        while self._pending:
+            self.handle(self._pending.popleft())
         while (msg := self.conn.recv_match(blocking=False)) is not None:
             self.handle(msg)
 

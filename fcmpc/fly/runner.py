@@ -239,7 +239,7 @@ def finish(options: FlyOptions, scenario: Scenario, out: Path, dest: tuple[float
     summary_path = out / "companion" / "summary.json"
     companion = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     d = distances(truth, steps, dest)
-    values = values or validate_all(scenario.nav_overrides())
+    values = validate_all(values or scenario.nav_overrides())   # a firmware flight's values are what it set
     lat, lon = true_track(truth, steps, (values["NAV_START_LAT"], values["NAV_START_LON"]), d["rest_index"])
     result = FlyResult(status=status, exit_code=code, scenario=scenario.name, seed=options.seed,
                        iterations=d["iterations"], rest_remaining_m=d["rest_remaining_m"],

@@ -25,11 +25,11 @@ firmware runs its next loop (on the second core), so the outputs act one frame (
 an ESC's and a rudder servo's latency would.
 
 The companion's link passes through :class:`~sitl.physics.relay.CompanionRelay` (ArduPilot's
-SERIAL1 <-> the companion): every ``gate_period_s`` of physics time the world waits until the
-companion has answered (a message stamped, as ``companion --lockstep`` stamps them, with the
-firmware time it has seen, :class:`sitl.clock.LockstepGate`), and the companion's messages reach
-ArduPilot only at those boundaries, in order. The firmware's clock advances with our frames, ours
-waits for the companion: a run does not depend on how fast the machine is.
+SERIAL1 <-> the companion): each of the companion's messages (stamped, as ``companion --lockstep``
+stamps them, with the firmware time it has seen) reaches ArduPilot a fixed latency of firmware time
+after its stamp, and before each frame the world makes sure every message due by then is known,
+waiting for the companion only when it has fallen that far behind. The firmware's clock advances
+with our frames, ours waits for the companion: a run does not depend on how fast the machine is.
 """
 from __future__ import annotations
 
@@ -53,6 +53,7 @@ __all__ = ["JsonPhysicsConfig", "JsonPhysics", "json_port", "ned_from_home", "ou
 
 SERVO_MAGIC = 18458
 SERVO_PACKET = struct.Struct("<HHI16H")
+_RUDDER_THROTTLE = struct.Struct("<8xH2xH")     # pwm[0] (SERVO1, steering) and pwm[2] (SERVO3, throttle)
 # ArduPilot's Location::offset: 1e-7 degree of latitude is LOCATION_SCALING_FACTOR metres
 LOCATION_SCALING_M_PER_DEG = 0.011131884502145034 * 1e7
 FRAME_TEMPLATE = ('\n{"timestamp":%.4f,"imu":{"gyro":[%.7f,%.7f,%.7f],"accel_body":[%.6f,%.6f,%.6f]},'
@@ -82,14 +83,14 @@ def ned_from_home(lat_deg: float, lon_deg: float, home: tuple[float, float]) -> 
     return d_lat * LOCATION_SCALING_M_PER_DEG, d_lon * LOCATION_SCALING_M_PER_DEG * scale
 
 
-def outputs_of(pwm: tuple[int, ...]) -> tuple[float, float]:
-    """(throttle, steering), normalised to -1..1, from a rover's SERVO3 and SERVO1 pulses (us);
+def outputs_of(packet: bytes) -> tuple[float, float]:
+    """(throttle, steering), normalised to -1..1, from a servo packet's SERVO3 and SERVO1 pulses (us);
     a channel at 0 (not yet output) is neutral.
 
-    >>> outputs_of((2000, 0, 1750) + (0,) * 13)
+    >>> outputs_of(SERVO_PACKET.pack(SERVO_MAGIC, 50, 7, 2000, 0, 1750, *(0,) * 13))
     (0.5, 1.0)
     """
-    steer, throttle = pwm[0], pwm[2]
+    steer, throttle = _RUDDER_THROTTLE.unpack_from(packet)
     return ((throttle - 1500) / 500.0 if throttle else 0.0), ((steer - 1500) / 500.0 if steer else 0.0)
 
 
@@ -116,7 +117,6 @@ class JsonPhysicsConfig:
     dynamics: BoatDynamics = field(default_factory=BoatDynamics)
     motion: MotionErrors = NO_MOTION_ERRORS
     waves: WaveMotion = field(default_factory=WaveMotion)
-    gate_period_s: float = 0.2          # the companion's setpoint period (COMP_SP_RATE_HZ 5)
     gate_timeout_s: float = 120.0       # wall seconds without an answer before going on (counted): a hang guard
     #                                     (a loaded machine once kept the companion 30 s from its answer)
     relay: bool = True
@@ -125,8 +125,6 @@ class JsonPhysicsConfig:
     def __post_init__(self) -> None:
         if not (0.0 < self.dt_s <= 0.02 + 1e-12):
             raise ValueError(f"dt_s {self.dt_s}: ArduPilot Rover needs a physics rate >= its 50 Hz loop")
-        if self.gate_period_s < self.dt_s:
-            raise ValueError(f"gate_period_s {self.gate_period_s} shorter than a frame ({self.dt_s} s)")
 
 
 class JsonPhysics:
@@ -137,7 +135,11 @@ class JsonPhysics:
         self.relay = relay
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", json_port(config.instance)))
-        self.sock.settimeout(config.idle_timeout_s)
+        # the idle timeout in the kernel (SO_RCVTIMEO) on a blocking socket: one system call a frame
+        # (Python's settimeout polls before each recv: 3 us more CPU a frame and twice the wall time, measured)
+        seconds = int(config.idle_timeout_s)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
+                             struct.pack("ll", seconds, int((config.idle_timeout_s - seconds) * 1e6)))
         self.state = VehicleState(config.home[0], config.home[1], math.radians(config.heading_deg) % (2 * math.pi),
                                   0.0, 0.0, *config.motion.current_en_mps)
         self.time_s = 0.0
@@ -150,34 +152,32 @@ class JsonPhysics:
         """Until ArduPilot goes quiet for ``idle_timeout_s`` or :attr:`stop`; returns the statistics."""
         c = self.config
         dt, home, dyn, motion, waves = c.dt_s, c.home, c.dynamics, c.motion, c.waves
-        frames_per_gate = max(1, int(round(c.gate_period_s / dt)))
         dt_us = int(round(dt * 1e6))
-        recv, send = self.sock.recvfrom, self.sock.sendto
-        relay = self.relay
+        sock = self.sock
+        relay_frame = self.relay.frame if self.relay is not None else None
+        relay_answered = self.relay.answered if self.relay is not None else None
         state = self.state
         reply = encode_frame(frame_of(dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
         n = 0           # frames answered and stepped: the time is n * dt (one counter, so a signal
         wall0, cpu0 = time.perf_counter(), time.process_time()   # cannot leave frames and time apart)
         try:
+            data, addr = sock.recvfrom(256)
+            sock.connect(addr)              # ArduPilot's one sender: recv and send without addresses
+            recv, send = sock.recv, sock.send
             while not self.stop:
-                try:
-                    data, addr = recv(256)
-                except socket.timeout:
-                    break
-                if len(data) < SERVO_PACKET.size or data[0] | data[1] << 8 != SERVO_MAGIC:
-                    continue
-                if relay is not None:
-                    t_us = n * dt_us
-                    if (n + 1) % frames_per_gate == 0:
-                        relay.boundary(t_us)      # the firmware has run its loop at t, our last answer
-                    relay.deliver(t_us + dt_us)   # what its loop at t + dt is to read
-                send(reply, addr)
-                throttle, steering = outputs_of(SERVO_PACKET.unpack_from(data)[3:])
-                state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
-                n += 1
-                reply = encode_frame(frame_of((n + 1) * dt, state, yaw_rate, accel, waves), home)
-                if relay is not None and n % 5 == 0:
-                    relay.pump_fc()
+                if len(data) >= SERVO_PACKET.size and data[0] | data[1] << 8 == SERVO_MAGIC:
+                    if relay_frame is not None:
+                        relay_frame((n + 1) * dt_us)    # what ArduPilot's loop at t + dt is to read
+                    send(reply)
+                    if relay_answered is not None:
+                        relay_answered((n + 1) * dt_us)
+                    throttle, steering = outputs_of(data)
+                    state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
+                    n += 1
+                    reply = encode_frame(frame_of((n + 1) * dt, state, yaw_rate, accel, waves), home)
+                data = recv(256)
+        except (BlockingIOError, socket.timeout):
+            pass                            # idle_timeout_s without a packet: ArduPilot has gone
         finally:
             self.state, self.time_s, self.frames = state, n * dt, n
             self.wall_s, self.cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
@@ -195,22 +195,23 @@ class JsonPhysics:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m sitl.physics.ardupilot_json --instance I --home LAT,LON ...``: the world's process."""
-    from sitl.physics.relay import CompanionRelay
+    from sitl.physics.relay import LATENCY_S, CompanionRelay
 
     p = argparse.ArgumentParser(prog="python -m sitl.physics.ardupilot_json", description=__doc__.split("\n")[0])
     p.add_argument("--instance", type=int, required=True)
     p.add_argument("--home", required=True, help="LAT,LON in degrees")
     p.add_argument("--heading-deg", type=float, default=0.0)
     p.add_argument("--current-en", default="0,0", help="the water's current east,north in m/s")
-    p.add_argument("--gate-period", type=float, default=0.2)
+    p.add_argument("--relay-latency", type=float, default=LATENCY_S,
+                   help="firmware seconds from a companion message's stamp to ArduPilot (default %(default)s)")
     p.add_argument("--no-relay", action="store_true", help="no companion link (a physics-only measurement)")
     p.add_argument("--stats", default=None, help="write the run's statistics here (JSON) at the end")
     args = p.parse_args(argv)
     lat, lon = (float(v) for v in args.home.split(","))
     east, north = (float(v) for v in args.current_en.split(","))
-    config = JsonPhysicsConfig(args.instance, (lat, lon), args.heading_deg, motion=MotionErrors((east, north)),
-                               gate_period_s=args.gate_period)
-    relay = None if args.no_relay else CompanionRelay(args.instance, config.gate_timeout_s)
+    config = JsonPhysicsConfig(args.instance, (lat, lon), args.heading_deg, motion=MotionErrors((east, north)))
+    relay = None if args.no_relay else CompanionRelay(args.instance, config.gate_timeout_s,
+                                                      latency_s=args.relay_latency)
     physics = JsonPhysics(config, relay)
 
     def _stop(signum, frame) -> None:  # noqa: ARG001

@@ -2,24 +2,35 @@
 
 ArduPilot's SERIAL1 (TCP ``5762 + 10 I``) is the companion's port on a vehicle; here the world's
 process connects to it and listens for the companion on ``relay_port(I)`` (TCP ``9008 + 10 I``).
-What ArduPilot sends is passed on as it is read (unparsed but for the headers, from which
-the newest firmware time passed on is kept: the firmware's stream is the heavy direction). What
-the companion sends is split into MAVLink frames (pymavlink) and held: at each lockstep boundary
-(every ``period_s`` of physics time) the frames go to ArduPilot in order up to and including the one
-that answers (:meth:`sitl.clock.LockstepGate.satisfied`: stamped, as ``companion --lockstep`` stamps
-them, with a firmware time no older than one period before the newest time the companion had been
-given at the previous boundary); the rest wait for the next boundary. The threshold follows what the
-companion was given, not ArduPilot's clock: ArduPilot's serial output lags its clock by a
-bandwidth-limited queue (a threshold on its clock stalled 464 s into a run). The companion's timing
-therefore never decides when ArduPilot sees a message, only the message sequence does. (Passing the
-companion's frames on at once instead, every 0.1 s, or all of them at each boundary, left ArduPilot
-calling its GPS_INPUT feed "GPS 2: not healthy" in each of three runs; see the dated note.)
+What ArduPilot sends is passed on every ``pump_period_s`` of firmware time, unparsed but for the
+headers, from which the newest firmware time passed on is kept (the heavy direction). What the
+companion sends is split into MAVLink frames (pymavlink), each due at a fixed firmware time: its own
+stamp (``time_boot_ms`` as ``companion --lockstep`` stamps it: the newest firmware time it has seen;
+GPS_INPUT's UNIX ``time_usec`` placed on the boot clock with SYSTEM_TIME's pairing) plus
+``latency_s``; an unstamped frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it.
+ArduPilot's loop at firmware time ``T`` reads the frames due by ``T``, at most one GPS_INPUT a loop,
+so the 10 Hz feed arrives every 100 ms of firmware time, as from a GPS (a feed passed on in bursts
+left ArduPilot calling it "GPS 2: not healthy"; see the dated note).
 
-From ``hold_from_s`` of physics time the world waits for the companion to appear (the runner starts
-it after the firmware's start-up and compass calibration): its start is a fixed firmware time too.
-Until its first stamped frame (its lockstep loop needs the firmware's messages, so the world cannot
-hold for that) any frame answers a boundary; its start (imports, maps) took 23-48 s of wall time at
-a load average of 25, under the 120 s each boundary waits before going on.
+**The gate, on ArduPilot's clock.** Before ArduPilot's loop at ``T`` runs, every frame due by ``T``
+must be known, or which loop reads it would depend on the machine's pace. The companion's stamps never
+go back, so one frame due after ``T`` (a stamp later than ``T - latency``) proves it: the world reads
+the companion only when the frames it holds are all due by ``T`` (lazily, once per few hundred ms of
+firmware time), and waits (``select`` on the companion's socket: an event, never a poll) only when the
+companion has not yet answered that far. The companion may thus run up to ``latency_s`` less what it
+has not been given yet (``pump_period_s``, the serial link's queue) and its answer period behind the
+world without the world stopping: the world and the companion meet only when the companion falls that
+far behind, instead of every 0.2 s (the first version waited at 594,375 boundaries on the Pacific and
+spent two thirds of its wall time there). The gate cannot stall: the companion can answer only what it
+was given, so the wait also ends once it has answered the newest firmware time passed on, less two
+answer periods (``fallback``, counted; frames due earlier than that are then forwarded late, counted).
+Determinism: which loop reads a frame is fixed by its stamp, and the stamp by the companion's message
+sequence, not by when either process runs; a run depends on the machine only through a lockstep
+timeout (``timeout_s`` of wall time, a hang guard) or a fallback, both counted in :meth:`stats`.
+
+From ``hold_from_s`` of firmware time the world waits for the companion to appear (the runner starts
+it after the firmware's start-up and compass calibration); until its first stamped frame (its lockstep
+loop needs the firmware's messages, so the world cannot hold for that) the gate is open.
 """
 from __future__ import annotations
 
@@ -34,15 +45,15 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from sitl.clock import LockstepGate  # noqa: E402
-
-__all__ = ["CompanionRelay", "relay_port", "serial1_port"]
+__all__ = ["CompanionRelay", "FirmwareTimes", "relay_port", "serial1_port"]
 
 # messages ArduPilot streams with time_boot_ms, and its offset in the payload: ATTITUDE, ATTITUDE_QUATERNION,
 # LOCAL_POSITION_NED, GLOBAL_POSITION_INT, RC_CHANNELS, SCALED_IMU(2, 3) first; SYSTEM_TIME after its uint64
 _STAMP_OFFSET = {30: 0, 31: 0, 32: 0, 33: 0, 65: 0, 26: 0, 116: 0, 129: 0, 2: 8}
 GPS_INPUT_ID = 232
-LATENCY_S = 1.2          # from a frame's stamp to ArduPilot: above its release lag (0.3-1.1 s measured, see the note)
+LATENCY_S = 1.2          # from a frame's stamp to ArduPilot (see the note); > pump period + 2 answer periods
+ANSWER_PERIOD_S = 0.2    # the companion sends a stamped frame at least this often (COMP_SP_RATE_HZ 5, --lockstep)
+PUMP_PERIOD_S = 0.2      # ArduPilot's output passed on to the companion this often (firmware time)
 LATE_US = 20_000         # a frame forwarded more than one physics frame after its due time is late
 
 
@@ -59,70 +70,19 @@ def serial1_port(instance: int) -> int:
     return 5762 + 10 * instance
 
 
-class CompanionRelay:
-    """ArduPilot SERIAL1 <-> the companion, the companion's frames released at lockstep boundaries."""
+class FirmwareTimes:
+    """The newest ``time_boot_ms`` in ArduPilot's output, and SYSTEM_TIME's pairing of UNIX and boot time,
+    read from the frames' headers alone (the firmware's stream is the heavy direction: no decoding, no CRC)."""
 
-    def __init__(self, instance: int, timeout_s: float = 30.0, period_s: float = 0.2, hold_from_s: float = 90.0,
-                 start_timeout_s: float = 600.0, latency_s: float = LATENCY_S) -> None:
-        self.instance = instance
-        self.latency_us = int(round(latency_s * 1e6))
-        self.gate = LockstepGate(period_s, timeout_s=timeout_s, start_timeout_s=start_timeout_s, slack_periods=0)
-        self.hold_from_us = int(hold_from_s * 1e6)
-        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.listener.bind(("127.0.0.1", relay_port(instance)))
-        self.listener.listen(1)
-        self.listener.setblocking(False)
-        self.fc: socket.socket | None = None
-        self.companion: socket.socket | None = None
-        self._parser = mavlink.MAVLink(None)
-        self._parser.robust_parsing = True
-        self._held: deque = deque()
-        self._due: deque = deque()       # released frames, (firmware time due in us, frame), in order
-        self._due_us = 0                 # the due time of the last frame scheduled (never goes back)
-        self.unix_minus_boot_us: int | None = None   # SYSTEM_TIME's pairing: GPS_INPUT's stamp in boot time
-        self.late_frames = 0             # frames forwarded more than a frame after their due time
-        self.max_late_us = 0
-        self.release_lag: dict[int, int] = {}
-        self.gps_gaps: dict[int, int] = {}    # firmware loops between GPS_INPUTs forwarded
-        self._last_gps_us = 0
-        self._now_us = 0
-        self.fc_time_ms = 0              # the newest firmware time passed on to the companion
-        self._fc_tail = b""              # an incomplete frame at the end of the last read
-        self._answer_ms = 0              # what the companion must have answered at this boundary
-        self._tries = 0
-        self.bytes_to_companion = 0
-        self.frames_to_fc = 0
-        self.start_wait_wall_s = 0.0
+    def __init__(self) -> None:
+        self.time_ms = 0                 # the newest firmware time seen
+        self.unix_minus_boot_us: int | None = None
+        self._tail = b""                 # an incomplete frame at the end of the last read
 
-    # ------------------------------------------------------------------ connections
-    def _connect_fc(self) -> None:
-        self._tries += 1
-        if self._tries % 50 != 1:      # ArduPilot opens SERIAL1 after its first frames: try now and then
-            return
-        try:
-            sock = socket.create_connection(("127.0.0.1", serial1_port(self.instance)), timeout=1.0)
-        except OSError:
-            return
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setblocking(False)
-        self.fc = sock
-
-    def _accept(self) -> None:
-        try:
-            sock, _ = self.listener.accept()
-        except (BlockingIOError, InterruptedError):
-            return
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setblocking(False)
-        self.companion = sock
-
-    # ------------------------------------------------------------------ ArduPilot -> companion
-    def _note_fc_time(self, data: bytes) -> None:
-        """The newest ``time_boot_ms`` of ArduPilot's own frames in ``data``, by their headers alone
-        (the firmware's stream is the heavy direction: no decoding, no CRC)."""
-        buf = self._fc_tail + data if self._fc_tail else data
-        i, end, newest = 0, len(buf), self.fc_time_ms
+    def feed(self, data: bytes) -> None:
+        """The next bytes of ArduPilot's output."""
+        buf = self._tail + data if self._tail else data
+        i, end, newest = 0, len(buf), self.time_ms
         while i < end:
             magic = buf[i]
             if magic == 0xFD:
@@ -150,173 +110,278 @@ class CompanionRelay:
                 i += 8 + buf[i + 1]
             else:
                 i += 1
-        self._fc_tail = bytes(buf[i:]) if i < end else b""
-        self.fc_time_ms = newest
+        self._tail = bytes(buf[i:]) if i < end else b""
+        self.time_ms = newest
 
-    def pump_fc(self) -> None:
-        """Pass on everything ArduPilot has written (dropped while no companion is connected)."""
+
+class CompanionRelay:
+    """ArduPilot SERIAL1 <-> the companion, the companion's frames due at their stamps plus the latency."""
+
+    def __init__(self, instance: int, timeout_s: float = 30.0, hold_from_s: float = 90.0,
+                 start_timeout_s: float = 600.0, latency_s: float = LATENCY_S,
+                 pump_period_s: float = PUMP_PERIOD_S, answer_period_s: float = ANSWER_PERIOD_S) -> None:
+        if not latency_s > pump_period_s + 2.0 * answer_period_s:
+            raise ValueError(f"relay latency {latency_s} s: must exceed what the companion cannot have answered yet, "
+                             f"the pump period {pump_period_s} s and two answer periods ({answer_period_s} s each)")
+        self.instance = instance
+        self.latency_us = int(round(latency_s * 1e6))
+        self.pump_period_us = int(round(pump_period_s * 1e6))
+        self.fallback_us = int(round(2.0 * answer_period_s * 1e6))
+        self.timeout_s = timeout_s
+        self.start_timeout_s = start_timeout_s
+        self.hold_from_us = int(hold_from_s * 1e6)
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind(("127.0.0.1", relay_port(instance)))
+        self.listener.listen(1)
+        self.listener.setblocking(False)
+        self.fc: socket.socket | None = None
+        self.companion: socket.socket | None = None
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self._due: deque = deque()       # the companion's frames, (firmware time due in us, stamped, frame), in order
+        self._due_us = 0                 # the due time of the last frame scheduled (never goes back)
+        self._stamped = False            # the companion has sent a stamped frame: the gate is closed from now on
+        self._heard = False
+        self._next_pump_us = 0
+        self.late_frames = 0             # stamped frames forwarded more than a frame after their due time
+        self.max_late_us = 0
+        self.fc_lag: dict[int, int] = {}  # firmware time minus the newest time passed on, at each pump (0.1 s bins)
+        self.gps_gaps: dict[int, int] = {}    # firmware loops between GPS_INPUTs forwarded
+        self._last_gps_us = 0
+        self.times = FirmwareTimes()     # of what was passed on to the companion
+        self._tries = 0
+        self.bytes_to_companion = 0
+        self.frames_to_fc = 0
+        self.start_wait_wall_s = 0.0
+        self.reads = 0                   # the companion's socket read because a frame's due time was near
+        self.waits = 0                   # ... and the world had to wait for it
+        self.wait_wall_s = 0.0
+        self.max_wait_wall_s = 0.0
+        self.timeouts = 0
+        self.fallbacks = 0
+        self.last_fallback_us = -1       # firmware time of the last one (before the companion's own streams
+        #                                  flow, ArduPilot's only timed message on its port comes once a second)
+
+    # ------------------------------------------------------------------ connections
+    def _connect_fc(self) -> None:
+        self._tries += 1
+        if self._tries % 50 != 1:      # ArduPilot opens SERIAL1 after its first frames: try now and then
+            return
+        try:
+            sock = socket.create_connection(("127.0.0.1", serial1_port(self.instance)), timeout=1.0)
+        except OSError:
+            return
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.fc = sock
+
+    def _accept(self) -> None:
+        try:
+            sock, _ = self.listener.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.companion = sock
+
+    # ------------------------------------------------------------------ ArduPilot -> companion
+    def pump_fc(self, now_us: int | None = None) -> None:
+        """Pass on everything ArduPilot has written (dropped while no companion is connected);
+        ``now_us``: the firmware's time, for the statistics of how far its output trails it."""
         if self.fc is None:
             self._connect_fc()
             if self.fc is None:
                 return
         if self.companion is None:
             self._accept()
+        fc = self.fc
         while True:
             try:
-                data = self.fc.recv(262144)
+                data = fc.recv(262144)
             except (BlockingIOError, InterruptedError):
-                return
+                break
             except OSError:
                 data = b""
             if not data:            # ArduPilot closed the port
-                self.fc.close()
+                fc.close()
                 self.fc = None
                 return
-            self._note_fc_time(data)
+            # acknowledge at once (Linux leaves quick-ack mode again after a read): SITL's TCP port writes
+            # small frames with Nagle's algorithm on, so each waited in ArduPilot's send queue for our
+            # delayed ACK (40 ms of wall time) or its retransmission timer (200 ms); its output trailed the
+            # firmware's clock by up to 0.9 s on a loaded machine (ss -ti: Send-Q held, 0.5 % retransmitted)
+            fc.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+            self.times.feed(data)
             if self.companion is not None:
                 self._to_companion(data)
+        if now_us is not None and self.times.time_ms:
+            lag = (now_us - self.times.time_ms * 1000) // 100_000
+            self.fc_lag[lag] = self.fc_lag.get(lag, 0) + 1
 
     def _to_companion(self, data: bytes) -> None:
+        sock = self.companion
         try:
-            self.companion.setblocking(True)
-            self.companion.sendall(data)
+            sent = sock.send(data)          # loopback: all of it, unless the companion is far behind
+            if sent < len(data):
+                sock.setblocking(True)
+                sock.sendall(data[sent:])
+                sock.setblocking(False)
             self.bytes_to_companion += len(data)
+        except BlockingIOError:
+            sock.setblocking(True)
+            try:
+                sock.sendall(data)
+                self.bytes_to_companion += len(data)
+            except OSError:
+                self._companion_lost()
+                return
+            sock.setblocking(False)
         except OSError:
             self._companion_lost()
-        else:
-            self.companion.setblocking(False)
 
     def _companion_lost(self) -> None:
         if self.companion is not None:
             self.companion.close()
         self.companion = None
-        self._held.clear()
 
     # ------------------------------------------------------------------ companion -> ArduPilot
-    def _read_companion(self, wait_s: float) -> None:
-        if self.companion is None:
-            if wait_s > 0.0:
-                select.select([self.listener], [], [], wait_s)
-            self._accept()
-            return
-        if wait_s > 0.0:
-            select.select([self.companion], [], [], wait_s)
+    def _read_companion(self) -> None:
+        """Schedule whatever the companion has sent (without waiting)."""
         try:
-            data = self.companion.recv(65536)
+            data = self.companion.recv(262144)
         except (BlockingIOError, InterruptedError):
             return
         except OSError as err:
-            data = b"" if err.errno != errno.EAGAIN else None
-            if data is None:
+            if err.errno == errno.EAGAIN:
                 return
+            data = b""
         if not data:
             self._companion_lost()
             return
-        self._held.extend(self._parser.parse_buffer(data) or ())
+        self._heard = True
+        for msg in self._parser.parse_buffer(data) or ():
+            self._schedule(msg)
 
-    def _release(self, boundary_us: int) -> bool:
-        """Forward held frames in order until one answers ``boundary_us``; True when answered."""
-        gate = self.gate
-        while not gate.satisfied(boundary_us):
-            if not self._held:
-                return False
-            msg = self._held.popleft()
-            stamp = getattr(msg, "time_boot_ms", None)
-            gate.observe(stamp if isinstance(stamp, int) else None, self.fc_time_ms * 1000)
-            self._schedule(msg, stamp)
-        return True
-
-    def _schedule(self, msg, stamp_ms) -> None:
-        """Queue a released frame for the firmware time of its own stamp plus :attr:`latency_us`; an
-        unstamped frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it. GPS_INPUT
-        carries UNIX time (``time_usec``), placed on the boot clock with SYSTEM_TIME's pairing."""
+    def _schedule(self, msg) -> None:
+        """Queue a frame for the firmware time of its own stamp plus :attr:`latency_us`; an unstamped
+        frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it. GPS_INPUT carries UNIX
+        time (``time_usec``), placed on the boot clock with SYSTEM_TIME's pairing. A stamp later than
+        anything passed on (another boot's) counts as none."""
+        stamp_ms = getattr(msg, "time_boot_ms", None)
         if isinstance(stamp_ms, int) and stamp_ms > 0:
             stamp_us = stamp_ms * 1000
-        elif msg.get_msgId() == GPS_INPUT_ID and self.unix_minus_boot_us is not None:
-            stamp_us = msg.time_usec - self.unix_minus_boot_us
+        elif msg.get_msgId() == GPS_INPUT_ID and self.times.unix_minus_boot_us is not None:
+            stamp_us = msg.time_usec - self.times.unix_minus_boot_us
         else:
             stamp_us = 0
-        if stamp_us:
-            lag = (self._now_us - stamp_us) // 100_000       # released this late after its stamp (0.1 s bins)
-            self.release_lag[lag] = self.release_lag.get(lag, 0) + 1
-        self._due_us = max(self._due_us, stamp_us + self.latency_us)
-        self._due.append((self._due_us, msg))
+        stamped = 0 < stamp_us <= self.times.time_ms * 1000 + self.fallback_us
+        if stamped:
+            self._stamped = True
+            self._due_us = max(self._due_us, stamp_us + self.latency_us)
+        self._due.append((self._due_us, stamped, msg))
 
-    def deliver(self, now_us: int) -> None:
-        """Forward the released frames due by the firmware time ``now_us`` (called before each frame's
-        answer, so ArduPilot's loop at ``now_us`` reads them): each reaches ArduPilot a fixed latency
-        after its stamp, so the 10 Hz GPS_INPUT arrives every 100 ms of firmware time, as from a GPS."""
+    def frame(self, now_us: int) -> None:
+        """Before ArduPilot's loop at firmware time ``now_us`` (called before each frame's answer):
+        make sure every frame due by ``now_us`` is known (the gate), and forward those, at most one
+        GPS_INPUT a loop."""
+        if self._due_us <= now_us:
+            self._gate(now_us)
         due = self._due
+        if due and due[0][0] <= now_us:
+            self._deliver(now_us)
+
+    def answered(self, now_us: int) -> None:
+        """After the answer that lets ArduPilot's loop at ``now_us`` run: pass its output on when a pump
+        is due (while ArduPilot runs its loop, off the round trip's critical path)."""
+        if now_us >= self._next_pump_us:
+            self._next_pump_us = now_us + self.pump_period_us
+            self.pump_fc(now_us)
+
+    def _gate(self, now_us: int) -> None:
+        """Read the companion; once it sends stamped frames, wait until one is due after ``now_us``
+        (or it answered the newest firmware time passed on, less the fallback; or it is gone)."""
+        if self.companion is None:
+            if self._heard or now_us < self.hold_from_us or self.fc is None:
+                return              # not yet held for, or gone (it exits when its mission is done)
+            start = time.monotonic()          # hold the world until the companion speaks
+            while not self._heard and time.monotonic() - start < self.start_timeout_s:
+                self.pump_fc()
+                if self.companion is None:
+                    select.select([self.listener], [], [], 0.5)
+                    continue
+                select.select([self.companion], [], [], 0.5)
+                if self.companion is not None:
+                    self._read_companion()
+            self.start_wait_wall_s += time.monotonic() - start
+            return
+        self.reads += 1
+        self._read_companion()
+        if self._due_us > now_us or not self._stamped:
+            return
+        answered_us = self.times.time_ms * 1000 - self.fallback_us
+        if self._due_us - self.latency_us >= answered_us:
+            self.fallbacks += 1         # answered all it could: the serial link trails by more than the latency
+            self.last_fallback_us = now_us
+            return
+        self.waits += 1
+        start = time.monotonic()
+        deadline = start + self.timeout_s
+        while self._due_us <= now_us and self.companion is not None:
+            if self._due_us - self.latency_us >= answered_us:
+                self.fallbacks += 1
+                self.last_fallback_us = now_us
+                break
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                self.timeouts += 1
+                break
+            select.select([self.companion], [], [], min(remaining, 1.0))
+            self._read_companion()
+        waited = time.monotonic() - start
+        self.wait_wall_s += waited
+        self.max_wait_wall_s = max(self.max_wait_wall_s, waited)
+
+    def _deliver(self, now_us: int) -> None:
+        due = self._due
+        out = []
         gps = False
         while due and due[0][0] <= now_us:
-            due_us, msg = due[0]
+            due_us, stamped, msg = due[0]
             if msg.get_msgId() == GPS_INPUT_ID:
                 if gps:             # one per loop: ArduPilot's GPS driver keeps only the newest of a loop
-                    return
+                    break
                 gps = True
                 gap = (now_us - self._last_gps_us) // 20_000     # in firmware loops
                 self.gps_gaps[gap] = self.gps_gaps.get(gap, 0) + 1
                 self._last_gps_us = now_us
             due.popleft()
-            late = now_us - due_us
-            if late > LATE_US:
-                self.late_frames += 1
-                self.max_late_us = max(self.max_late_us, late)
-            self._forward(msg)
-
-    def _forward(self, msg) -> None:
-        if self.fc is None:
-            return
-        self.fc.setblocking(True)
-        try:
-            self.fc.sendall(msg.get_msgbuf())
-            self.frames_to_fc += 1
-        except OSError:
-            pass
-        if self.fc is not None:
-            self.fc.setblocking(False)
-
-    def boundary(self, now_us: int) -> None:
-        """ArduPilot has run its loop at our time ``now_us``: pass its output on, then wait until the
-        companion has answered what it was given up to the last boundary (less one period: it
-        answers once per setpoint period of firmware time)."""
-        self.pump_fc()
-        self._now_us = now_us
-        gate = self.gate
-        boundary_us = self._answer_ms * 1000 - gate.period_us
-        self._answer_ms = self.fc_time_ms
-        if not gate.peer_heard:
-            if now_us < self.hold_from_us or self.fc is None:
-                self._read_companion(0.0)
-                if not self._held:
-                    return
-            else:                       # hold the world until the companion speaks
-                start = time.monotonic()
-                while not self._held and time.monotonic() - start < gate.start_timeout_s:
-                    self.pump_fc()
-                    self._read_companion(0.05)
-                self.start_wait_wall_s += time.monotonic() - start
-                if not self._held:
-                    return
-        start = time.monotonic()
-        deadline = start + gate.timeout_s
-        timed_out = False
-        while not self._release(boundary_us):
-            if self.companion is None:      # gone (it exits when the mission is done): the world runs on
-                break
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0:
-                timed_out = True
-                break
-            self._read_companion(min(remaining, 0.05))
-        gate.finish(time.monotonic() - start, timed_out)
+            if stamped:
+                late = now_us - due_us
+                if late > LATE_US:
+                    self.late_frames += 1
+                    self.max_late_us = max(self.max_late_us, late)
+            out.append(msg.get_msgbuf())
+        if out and self.fc is not None:
+            self.fc.setblocking(True)
+            try:
+                self.fc.sendall(b"".join(out))
+                self.frames_to_fc += len(out)
+            except OSError:
+                pass
+            if self.fc is not None:
+                self.fc.setblocking(False)
 
     def stats(self) -> dict:
-        return {**self.gate.stats(), "relay_bytes_to_companion": self.bytes_to_companion,
-                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.fc_time_ms / 1000.0,
+        return {"lockstep_reads": self.reads, "lockstep_waits": self.waits, "lockstep_timeouts": self.timeouts,
+                "lockstep_fallbacks": self.fallbacks, "lockstep_last_fallback_s": self.last_fallback_us / 1e6, "lockstep_wait_wall_s": round(self.wait_wall_s, 3),
+                "lockstep_max_wait_wall_s": round(self.max_wait_wall_s, 3),
+                "relay_bytes_to_companion": self.bytes_to_companion,
+                "relay_frames_to_fc": self.frames_to_fc, "fc_time_s": self.times.time_ms / 1000.0,
                 "start_wait_wall_s": round(self.start_wait_wall_s, 3), "relay_latency_s": self.latency_us / 1e6,
+                "relay_pump_period_s": self.pump_period_us / 1e6,
                 "relay_late_frames": self.late_frames, "relay_max_late_s": self.max_late_us / 1e6,
-                "relay_release_lag_hist_0.1s": dict(sorted(self.release_lag.items())),
+                "relay_fc_lag_hist_0.1s": dict(sorted(self.fc_lag.items())),
                 "relay_gps_gap_hist_loops": dict(sorted((k, v) for k, v in self.gps_gaps.items() if k < 100))}
 
     def close(self) -> None:

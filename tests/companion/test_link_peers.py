@@ -162,6 +162,45 @@ def test_fc_pinned_second_autopilot_reported_impostor_dropped(link):
             s.close()
 
 
+class _Wall:
+    """An injected wall clock: moved by hand, or by ``tick`` seconds at every reading."""
+
+    def __init__(self) -> None:
+        self.t, self.tick = 0.0, 0.0
+
+    def __call__(self) -> float:
+        self.t += self.tick
+        return self.t
+
+
+def test_the_fc_is_re_pinned_only_after_silence_the_companion_listened_to():
+    """The FC's frames queued behind an impostor's heartbeat while the companion was blocked for
+    10 s (longer than REPIN_WALL_S) do not let the impostor take the link; 6 s of listening to a
+    silent FC do (a router or a restarted simulator on a new port)."""
+    wall, port = _Wall(), free_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", wall_clock=wall)
+    link.open()
+    fc, newport = Sender(port), Sender(port)
+    try:
+        fc.send("HEARTBEAT", **AUTOPILOT, mavlink_version=3)
+        _pump(link, lambda g: len(g) >= 1)
+        wall.t += 10.0                                                   # the companion is blocked
+        newport.send("HEARTBEAT", **{**AUTOPILOT, "custom_mode": 15}, mavlink_version=3)
+        fc.send("SYSTEM_TIME", time_unix_usec=0, time_boot_ms=10_100)
+        _pump(link, lambda g: any(getattr(m, "time_boot_ms", 0) == 10_100 for m in g))
+        assert link.peers.fc_address == fc.sock.getsockname() and link.peers.impostor_frames == 1
+        wall.tick = 1.0                                                  # listening to a silent FC
+        while link.listened_s < 6.0:
+            assert not link.wait_readable(0.0)
+        newport.send("HEARTBEAT", **{**AUTOPILOT, "custom_mode": 15}, mavlink_version=3)
+        _pump(link, lambda g: len(g) >= 1)
+        assert link.peers.fc_address == newport.sock.getsockname() and link.peers.impostor_frames == 1
+    finally:
+        link.close()
+        fc.close()
+        newport.close()
+
+
 def test_fc_sysid_given_on_the_command_line_is_the_only_one_followed():
     port = free_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{port}", sysid=3, fc_compid=1)

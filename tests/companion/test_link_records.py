@@ -61,3 +61,21 @@ def test_sd_notify_ready_and_watchdog_at_half_the_period(tmp_path):
         sock.close()
     outside = Notifier({})
     assert not outside.ready() and not outside.watchdog()
+
+
+def test_a_datagrams_frames_are_recorded_as_written_one_by_one(tmp_path):
+    """``write_all`` (a datagram's frames, one time stamp) writes the records ``write`` writes for each,
+    and rotates at the cap the same way."""
+    frames = [b"\xfd" + bytes([k]) * (20 + k) for k in range(12)]
+    for cap in (0, 200):
+        (tmp_path / str(cap)).mkdir()
+        by_one = Tlog(tmp_path / str(cap) / "one.tlog", max_bytes=cap, unix=lambda: 1.5e9)
+        for frame in frames:
+            by_one.write(frame)
+        by_one.close()
+        together = Tlog(tmp_path / str(cap) / "all.tlog", max_bytes=cap, unix=lambda: 1.5e9)
+        together.write_all(frames[:5])
+        together.write_all([bytearray(f) for f in frames[5:]])
+        together.close()
+        assert (tmp_path / str(cap) / "all.tlog").read_bytes() == (tmp_path / str(cap) / "one.tlog").read_bytes()
+        assert together.rotations == by_one.rotations and (by_one.rotations > 0) == (cap > 0)

@@ -12,7 +12,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.io.link.transport import BATCH_DATAGRAM_BYTES, UdpTransport  # noqa: E402
+from companion.io.link.transport import BATCH_DATAGRAM_BYTES, StreamTransport, UdpTransport  # noqa: E402
 from tests.ports import free_port  # noqa: E402
 
 
@@ -94,6 +94,31 @@ def test_outside_a_batch_each_frame_is_its_own_datagram(pair):
     while len(got) < 3:
         got += _datagrams(rx)
     assert got == frames
+
+
+def test_a_batch_on_a_tcp_link_leaves_in_one_write_in_order():
+    """Against a lockstep simulator on TCP (ArduPilot's JSON relay) a pass of the loop is one write."""
+    server = socket.create_server(("127.0.0.1", 0))
+    tx = StreamTransport(f"tcp:127.0.0.1:{server.getsockname()[1]}", 115200, 1, 191)
+    peer, _ = server.accept()
+    try:
+        frames = _frames(5)
+        tx.begin_batch()
+        for frame in frames:
+            tx.write(frame)
+        peer.setblocking(False)
+        with pytest.raises(BlockingIOError):
+            peer.recv(65535)            # nothing written before the batch ended
+        tx.end_batch()
+        peer.settimeout(5.0)
+        got = b""
+        while len(got) < len(b"".join(frames)):
+            got += peer.recv(65535)
+        assert got == b"".join(frames)
+    finally:
+        tx.close()
+        peer.close()
+        server.close()
 
 
 def test_a_port_in_use_is_refused_not_shared():

@@ -227,3 +227,28 @@ def test_processor_mission_offset_shifts_sample_times():
     proc.add_mag(100.0, (28000.0, 0.0, 30000.0))
     assert proc.take(59.0).count == 0
     assert proc.take(60.0).count == 1
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.3])
+def test_a_sliding_window_gives_the_average_of_a_fresh_averager_bit_for_bit(jitter):
+    """``drop_before`` every 0.4 s over a 300 s window (as the companion does while it waits),
+    samples in time order (the window's front moves, no copy) or jittered out of order (a masked
+    copy): each later period is exactly the period of an averager given only the samples kept,
+    the declination wrapping across 180 deg on the way."""
+    rng = np.random.default_rng(7)
+    times = np.arange(1, 4001) * 0.1 + rng.normal(0.0, jitter, 4000)
+    decl = (175.0 + np.arange(4000) * 0.004 + rng.normal(0.0, 0.2, 4000) + 180.0) % 360.0 - 180.0
+    sliding = PeriodAverager()
+    for k, (t, d) in enumerate(zip(times, decl)):
+        sliding.add(float(t), float(d), 40.0 + 0.001 * k, (25000.0 + k, -2000.0, 35000.0))
+        if k % 4 == 3:
+            sliding.drop_before(float(t) - 300.0)
+    start = float(times[-1]) - 300.0
+    fresh = PeriodAverager()
+    for k in np.flatnonzero(times >= start):
+        fresh.add(float(times[k]), float(decl[k]), 40.0 + 0.001 * k, (25000.0 + k, -2000.0, 35000.0))
+    assert len(sliding) == len(fresh) and len(fresh) > 2000
+    end = start + 150.0
+    assert repr(sliding.take(end)) == repr(fresh.take(end)) and len(sliding) == len(fresh)
+    sliding.drop_before(1e9)
+    assert len(sliding) == 0 and not sliding.take(1e9).valid

@@ -1,8 +1,8 @@
 """Real ArduPilot Rover SITL with OUR world as its physics (``--model JSON``), in lockstep.
 
 The world's process (:mod:`sitl.physics.ardupilot_json`) answers every ArduPilot frame and waits
-for the companion at every lockstep boundary, so ArduPilot's clock advances only as fast as both
-answer: no wall-time pacing, nothing a loaded machine can break. The GPS-lost mission test here
+for the companion whenever one of its messages could be due that it has not sent yet, so ArduPilot's
+clock advances only as fast as both answer: no wall-time pacing, nothing a loaded machine can break. The GPS-lost mission test here
 replaced the wall-paced one of test_ardupilot.py (ArduPilot's 3 s GUIDED timeout was 60 ms of wall
 time at 50x); the other wall-paced tests with the built-in motorboat stay as the independent check.
 """
@@ -110,9 +110,9 @@ def test_ardupilots_throttle_and_steering_move_our_boat_where_ardupilot_believes
 def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
     """GPS lost 30 s (of firmware time) after arming: the companion feeds GPS_INPUT, ArduPilot stays in
     GUIDED for 30 simulated minutes and our world's boat (moved by ArduPilot's own steering and throttle)
-    follows the companion's courses. The world waited for the companion at every boundary and never
+    follows the companion's courses. The world waited for the companion whenever it had to and never
     gave up; the companion's frames reached ArduPilot at their stamps plus the relay's latency (the
-    GPS_INPUT feed at the 100 ms of firmware time ArduPilot judges a GPS's health on), most of them on time."""
+    GPS_INPUT feed at the 100 ms of firmware time ArduPilot judges a GPS's health on)."""
     rig = json_rig("gps_lost")
     log_dir = rig.start_companion(startup_s=30.0, NAV_DEST_LAT=28.0, NAV_DEST_LON=158.0, NAV_PERIOD_S=120.0)
     mon = rig.monitor
@@ -124,12 +124,16 @@ def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
     mon.set_param("SIM_GPS1_ENABLE", 0)
     mon.pump(lambda m: m.truth and m.truth[-1].gps_fix < 3, WALL_S, "GPS lost")
     t_lost = mon.time_s
-    mon.pump(lambda m: m.truth[-1].time_s >= t_lost + 1800.0 or m.mode != GUIDED, 3 * WALL_S,
+    mon.pump(lambda m: m.truth[-1].time_s > t_lost + 1800.0 or m.mode != GUIDED, 3 * WALL_S,
              "30 minutes without GPS")
     assert_guided_and_on_course_without_gps(mon, log_dir, t_lost)
     stats = rig.close()
-    assert stats["lockstep_boundaries"] > 9000 and stats["lockstep_timeouts"] == 0, stats
-    # a frame released after its due time (a companion slower than the relay's latency, on a loaded machine:
-    # 6 % at a load average of 22 on 2 cores) goes at once, one GPS_INPUT per loop; with a latency of 0.6 s,
-    # shorter than the release lag, 67 % were late
-    assert stats["relay_late_frames"] < 0.2 * stats["relay_frames_to_fc"], stats
+    # the gate read the companion as its frames' due times neared (2,708 times in 2,671 s, waiting at 157 of
+    # them, at a load average of 12), never gave up and never let a frame through before it was known
+    assert stats["lockstep_reads"] > 1000 and stats["lockstep_timeouts"] == 0, stats
+    # ... but at the start: before the companion asks for its streams, ArduPilot's only timed message on its
+    # port comes once a second (MAV2_POSITION), less fresh than the latency needs (6 fallbacks in one run)
+    assert stats["lockstep_last_fallback_s"] < t_arm, stats
+    # late frames only before the companion's first stamped frame (none here; 3 in 56,689 on a 20 km leg);
+    # the relay of boundaries every 0.2 s before the gate let 6 % through late at a load average of 22
+    assert stats["relay_late_frames"] < 0.01 * stats["relay_frames_to_fc"], stats

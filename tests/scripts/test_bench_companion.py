@@ -37,13 +37,16 @@ def test_the_capacity_replay_and_the_parse_floor_run_on_a_recorded_stream(tmp_pa
     assert b"".join(datagrams) == b"".join(frames) and max(map(len, datagrams)) <= 1400
     cpu_s, parsed = parse_floor_cpu_s(datagrams)
     assert parsed == len(frames) and cpu_s >= 0.0
-    assert capacity_msgs_per_s(datagrams, "NAV_PERIOD_S 60\n", tmp_path) > 0.0
+    rate, others_cpu_s = capacity_msgs_per_s(datagrams, "NAV_PERIOD_S 60\n", tmp_path)
+    assert rate > 0.0 and others_cpu_s >= 0.0
 
 
 def test_the_rows_put_the_missions_cpu_beside_the_parse_floor_and_the_capacity_beside_its_first_version():
     rows = companion_rows({"mission_cpu_s_per_sim_hour": 12.5, "parse_floor_cpu_s_per_sim_hour": 0.9,
-                           "messages_per_sim_hour": 87500, "lockstep_sim_speedup": 600.0, "capacity_msgs_per_s": 60000.0})
-    cpu, speedup, capacity = rows
+                           "messages_per_sim_hour": 87500, "lockstep_sim_speedup": 600.0, "capacity_msgs_per_s": 60000.0,
+                           "capacity_other_threads_cpu_s": 4.25})
+    cpu, speedup, capacity, others = rows
     assert cpu[1] == "12.5 s" and "87,500 messages" in cpu[2] and cpu[2].endswith("0.9 s")
     assert speedup[:2] == ("companion lockstep_sim_speedup", "600.0")
     assert capacity[1] == "60000.0" and "55,400" in capacity[2] and capacity[3] == ">= 55,000"
+    assert others[1] == "4.25 s" and "prediction" in others[0]

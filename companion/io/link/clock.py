@@ -86,12 +86,13 @@ class MessageClock:
         if not math.isfinite(t):
             self.far_future += 1
             return False
-        if not self.started:
+        now = self.now_s
+        if now != now:   # not started (NaN)
             self.now_s = t
             return True
-        now = self.now_s
         if now - self.reorder_s <= t <= now + self.future_s:
-            self.now_s = max(now, t)
+            if t > now:
+                self.now_s = t
             self._candidate = None          # the old base still ticks: any candidate was forged or stale
             return True
         if now - self.reboot_s <= t < now:

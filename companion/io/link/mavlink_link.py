@@ -93,7 +93,8 @@ class MavlinkLink(LinkOutputs):
         self.clock = MessageClock()
         self.stats = LinkStats()
         self.peers = PeerTable(self._new_parser, wall_clock, peer_capacity,
-                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)), stranger_rate_hz)
+                               PeerPolicy(sysid, fc_compid, frozenset(gcs_sysids)), stranger_rate_hz,
+                               listened=lambda: self.listened_s)
         self.conn = None
         self._mav = None
         self._tlog: Tlog | None = None
@@ -248,22 +249,23 @@ class MavlinkLink(LinkOutputs):
         if signing is not None:
             signing.after_parse(parser, self._mav)
         out = []
+        admit, systems = self.peers.admit, peer.systems
         for msg in msgs:
-            if msg.get_type() == "BAD_DATA":
+            if msg._type == "BAD_DATA":
                 stats.bad_frames += 1
                 peer.bad_frames += 1
                 continue
-            if not self.peers.admit(address, msg):
+            if not admit(address, msg):
                 continue
-            peer.frames += 1
-            peer.systems.add(msg.get_srcSystem())
-            if self._tlog is not None:
-                self._tlog.write(msg.get_msgbuf())
+            systems.add(msg._header.srcSystem)
             msg._fcmpc_address = address
             out.append(msg)
+        peer.frames += len(out)
         stats.messages_in += len(out)
-        if self._tlog is not None:
-            self._tlog.maybe_flush()
+        tlog = self._tlog
+        if tlog is not None:
+            tlog.write_all([msg._msgbuf for msg in out])   # one time stamp: they arrived together
+            tlog.maybe_flush()
         return out
 
     def _signing_tick(self) -> None:
@@ -289,13 +291,14 @@ class MavlinkLink(LinkOutputs):
         base is dropped (False). A second autopilot is reported once through
         :attr:`reported_autopilots` (the application says so), never followed.
         """
-        fc = self.fc
-        if self.peers.fc_ids is None:   # a message handed in directly (not through read): pin here
-            self.peers.admit(getattr(msg, "_fcmpc_address", None), msg)
-        ids = self.peers.fc_ids
+        fc, peers = self.fc, self.peers
+        if peers.fc_ids is None:   # a message handed in directly (not through read): pin here
+            peers.admit(getattr(msg, "_fcmpc_address", None), msg)
+        ids = peers.fc_ids
         if ids is None:
             return False
-        if (msg.get_srcSystem(), msg.get_srcComponent()) != ids:
+        header = msg._header
+        if header.srcSystem != ids[0] or header.srcComponent != ids[1]:
             return False
         if not fc.detected:
             # Nothing of the FC's is kept before the heartbeat that says which autopilot it is: one
@@ -317,7 +320,7 @@ class MavlinkLink(LinkOutputs):
         clock = self.clock
         if fc.heartbeats and not math.isfinite(fc.last_heartbeat_time_s) and clock.started:
             fc.last_heartbeat_time_s = clock.now_s   # the heartbeat came before the first time stamp
-        mtype = msg.get_type()
+        mtype = msg._type
         if mtype == "HEARTBEAT":
             clock.heartbeat()
             fc.heartbeats += 1
@@ -331,12 +334,13 @@ class MavlinkLink(LinkOutputs):
 
     def _judge_time(self, msg) -> bool:
         clock = self.clock
-        if msg.get_type() == "SYSTEM_TIME":
-            return clock.observe_system_time(msg.time_unix_usec, msg.time_boot_ms)
-        boot_ms = getattr(msg, "time_boot_ms", None)
+        fields = msg.__dict__   # a message's fields are its attributes
+        boot_ms = fields.get("time_boot_ms")
+        if msg._type == "SYSTEM_TIME":
+            return clock.observe_system_time(msg.time_unix_usec, boot_ms)
         if boot_ms is not None:
             return clock.judge(boot_ms * 1e-3)
-        usec = getattr(msg, "time_usec", None)
+        usec = fields.get("time_usec")
         if usec and usec < clock.UNIX_USEC_LIMIT:
             return clock.judge(usec * 1e-6)
         return True

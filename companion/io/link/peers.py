@@ -13,9 +13,10 @@ companion from 4 % to 67 % CPU and gave a stranger all telemetry). Here:
   longest ago, never the flight controller's or an allowed ground station's address;
 * the flight controller is pinned (:class:`PeerPolicy`): given system/component ids, or the
   first autopilot heard, then fixed for the run; its frames from any other address are refused
-  (an impostor) unless its own address has been silent for ``repin_wall_s`` of wall time (a
-  router or a restarted simulator with a new port); a second autopilot is reported, not
-  followed;
+  (an impostor) unless its own address has been silent for ``repin_wall_s`` of the time the
+  companion spent listening (``listened``: a companion busy or blocked while the FC's frames
+  queue behind a stranger's does not count it as the FC's silence), as a router or a restarted
+  simulator with a new port; a second autopilot is reported, not followed;
 * outputs go only to the flight controller's address and to the addresses of allowed ground
   stations (:meth:`PeerTable.destinations`), never to a stranger;
 * datagrams from other addresses share a budget of ``STRANGER_RATE_HZ`` per wall second
@@ -51,6 +52,7 @@ class Peer:
     address: Hashable
     parser: object
     last_wall_s: float
+    last_listened_s: float = 0.0
     frames: int = 0
     bad_frames: int = 0
     bytes_in: int = 0
@@ -83,11 +85,12 @@ class PeerTable:
 
     def __init__(self, make_parser: Callable[[], object], wall: Callable[[], float],
                  capacity: int = PEER_CAPACITY, policy: PeerPolicy | None = None,
-                 stranger_rate_hz: float = STRANGER_RATE_HZ) -> None:
+                 stranger_rate_hz: float = STRANGER_RATE_HZ, listened: Callable[[], float] | None = None) -> None:
         if capacity < 2:
             raise ValueError(f"peer table capacity {capacity} must be at least 2")
         self.make_parser = make_parser
         self.wall = wall
+        self.listened = listened or wall     # the clock the FC's silence is judged on (re-pinning)
         self.capacity = capacity
         self.policy = policy or PeerPolicy()
         self.peers: OrderedDict[Hashable, Peer] = OrderedDict()
@@ -115,6 +118,7 @@ class PeerTable:
         else:
             self.peers.move_to_end(address)
         peer.last_wall_s = now
+        peer.last_listened_s = self.listened()
         return peer
 
     def _evict(self) -> None:
@@ -158,7 +162,7 @@ class PeerTable:
             if address == self.fc_address:
                 return True
             fc_peer = self.peers.get(self.fc_address)
-            silent = fc_peer is None or self.wall() - fc_peer.last_wall_s >= policy.repin_wall_s
+            silent = fc_peer is None or self.listened() - fc_peer.last_listened_s >= policy.repin_wall_s
             if silent and policy.is_autopilot_heartbeat(msg):
                 self.fc_address = address
                 return True

@@ -49,6 +49,23 @@ class Tlog:
         self._file.write(record)
         self._size += len(record)
 
+    def write_all(self, frames: list) -> None:
+        """Frames that arrived together (one datagram): one time stamp for all, as :meth:`write` each."""
+        if not frames:
+            return
+        stamp = struct.pack(">Q", int(self.unix() * 1e6) & ~3)
+        if self.max_bytes:
+            for frame in frames:
+                record = stamp + bytes(frame)
+                if self._size + len(record) > self.max_bytes and self._size > 0:
+                    self._rotate()
+                self._file.write(record)
+                self._size += len(record)
+            return
+        data = b"".join([part for frame in frames for part in (stamp, frame)])
+        self._file.write(data)
+        self._size += len(data)
+
     def maybe_flush(self) -> None:
         """Flush if a second of wall time has passed since the last flush (call it often)."""
         now = self.wall()

@@ -73,14 +73,6 @@ def _on_earth(lat_deg: float, lon_deg: float) -> bool:
     return -90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0
 
 
-def _finite(*values: float) -> bool:
-    f = math.isfinite
-    for v in values:
-        if not f(v):
-            return False
-    return True
-
-
 class MavlinkDecoder:
     """MAVLink message -> samples, on the flight controller's clock."""
 
@@ -101,7 +93,8 @@ class MavlinkDecoder:
 
     def _mag_flags(self, instance: int, raw: tuple, saturates: bool, time_s: float = math.nan) -> SampleFlag:
         flags = SampleFlag.NONE
-        if not saturates and not _finite(*raw):
+        f = math.isfinite
+        if not saturates and not (f(raw[0]) and f(raw[1]) and f(raw[2])):
             flags |= SampleFlag.READ_ERROR
             self.last_problem["mag"] = "non-finite magnetometer values"
             return flags
@@ -164,10 +157,11 @@ class MavlinkDecoder:
         mtype = msg.get_type()
         if mtype == "ATTITUDE":
             t = msg.time_boot_ms * 1e-3
-            values = (msg.roll, msg.pitch, msg.yaw)
-            self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-            if _finite(*values, *self.rates):
-                return [AttitudeSample(t, msg.roll, msg.pitch, wrap_2pi(msg.yaw))]
+            roll, pitch, yaw = msg.roll, msg.pitch, msg.yaw
+            rates = self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            f = math.isfinite
+            if f(roll) and f(pitch) and f(yaw) and f(rates[0]) and f(rates[1]) and f(rates[2]):
+                return [AttitudeSample(t, roll, pitch, wrap_2pi(yaw))]
             self.last_problem["attitude"] = "non-finite ATTITUDE"
             return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
         if mtype == "RAW_IMU" or mtype in _SCALED_INSTANCE:

@@ -102,14 +102,19 @@ class FrozenDetector:
         dt = time_s - self._time_s if math.isfinite(self._time_s) else 0.0
         self._time_s = time_s
         rate = None
-        if gyro_radps is not None and all(math.isfinite(g) for g in gyro_radps):
-            if self._bias is None:   # a first reading at rest is the bias; one while turning is not
-                still = math.sqrt(sum(g * g for g in gyro_radps)) <= STILL_RADPS
-                self._bias = list(gyro_radps) if still else [0.0, 0.0, 0.0]
+        isfinite = math.isfinite
+        if gyro_radps is not None and isfinite(gyro_radps[0]) and isfinite(gyro_radps[1]) \
+                and isfinite(gyro_radps[2]):
+            gx, gy, gz = gyro_radps
+            bias = self._bias
+            if bias is None:   # a first reading at rest is the bias; one while turning is not
+                still = math.sqrt(gx * gx + gy * gy + gz * gz) <= STILL_RADPS
+                bias = self._bias = [gx, gy, gz] if still else [0.0, 0.0, 0.0]
             elif 0.0 < dt < 1.0:
                 gain = dt / self.bias_tau_s
-                self._bias = [b + gain * (g - b) for b, g in zip(self._bias, gyro_radps)]
-            rate = [g - b for g, b in zip(gyro_radps, self._bias)]
+                bias = self._bias = [bias[0] + gain * (gx - bias[0]), bias[1] + gain * (gy - bias[1]),
+                                     bias[2] + gain * (gz - bias[2])]
+            rate = (gx - bias[0], gy - bias[1], gz - bias[2])
         if raw != self._last:
             self._last, self._repeats, self._frozen = raw, 1, False
             self.repeating_since_s = time_s
