@@ -83,5 +83,9 @@ class ArduPilotRig:
     def deny_gps(self, monitor: FirmwareMonitor) -> None:
         monitor.set_param("SIM_GPS1_ENABLE", 0)
 
+    def companion_ended(self) -> None:
+        """Nothing to release: the motorboat runs on the wall clock, and the JSON relay never waits
+        for what the companion was not given."""
+
     def stop(self) -> None:
         self.sitl.stop()

@@ -95,6 +95,9 @@ class Px4Rig:
     def deny_gps(self, monitor: FirmwareMonitor) -> None:
         deny_gps(monitor)
 
+    def companion_ended(self) -> None:
+        """Nothing to release: SIH runs on the wall clock and never waits for the companion."""
+
     def stop(self) -> None:
         self.sitl.stop()
 
@@ -153,6 +156,11 @@ class Px4HilRig(Px4Rig):
 
     def deny_gps(self, monitor: FirmwareMonitor) -> None:   # noqa: ARG002
         self.bridge.deny_gps()
+
+    def companion_ended(self) -> None:
+        """The world stops waiting for the companion (its gate would hold PX4's clock for
+        ``HIL_GATE_TIMEOUT_S`` of wall time at every boundary while the boat comes to rest)."""
+        self.bridge.release_companion()
 
     def stop(self) -> None:
         """Stop PX4 and the bridge; the bridge's counts (frames, timeouts, lockstep waits) go to

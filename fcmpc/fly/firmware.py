@@ -85,6 +85,7 @@ class FirmwareFC:
     def settle(self, timeout_s: float) -> None:
         """Until the boat is at rest or ``timeout_s`` of firmware time passed (TimeoutError after as
         much wall time)."""
+        self.rig.companion_ended()
         t_done = self.monitor.time_s
         self.monitor.pump(lambda m: m.time_s > t_done + timeout_s or _at_rest(m), timeout_s, "the vehicle at rest")
 

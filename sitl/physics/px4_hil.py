@@ -198,6 +198,7 @@ class Px4HilBridge:
         self.actuator_timeout_at_s: list[float] = []     # PX4's time of each (the first few are worth a look)
         self.error: BaseException | None = None
         self._stop = threading.Event()
+        self._companion_gone = threading.Event()
         self._thread: threading.Thread | None = None
         self._field_ned = (0.0, 0.0, 0.0)
         self._gps_error_m = np.zeros(2)
@@ -236,6 +237,11 @@ class Px4HilBridge:
     def deny_gps(self) -> None:
         """The receiver loses its fix from the next GPS report on (a jammed receiver still reports)."""
         self.gps_fix = False
+
+    def release_companion(self) -> None:
+        """The companion has ended (its mission is over): the world no longer waits for it, so PX4's
+        clock runs on while the boat comes to rest."""
+        self._companion_gone.set()
 
     def stop(self) -> None:
         self._stop.set()
@@ -301,12 +307,12 @@ class Px4HilBridge:
         Until the companion is first heard the boundaries pass: PX4 starts (its start-up script
         sleeps in PX4's time) before the rig starts the companion."""
         gate = self.gate
-        if not gate.peer_heard:
+        if not gate.peer_heard or self._companion_gone.is_set():
             return
         start = time.perf_counter()
         limit = gate.timeout_s
         timed_out = False
-        while not gate.satisfied(boundary_us) and not self._stop.is_set():
+        while not gate.satisfied(boundary_us) and not self._stop.is_set() and not self._companion_gone.is_set():
             if time.perf_counter() - start > limit:
                 timed_out = True
                 break

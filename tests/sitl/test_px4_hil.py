@@ -87,3 +87,31 @@ def test_lockstep_each_frame_waits_for_the_answer_and_outputs_move_the_boat():
     assert np.all(np.diff(times[:100]) == round(1e6 / HIL_RATE_HZ))
     assert bridge.actuator_timeouts == 0
     assert bridge.throttle == 1.0 and world.state.speed_mps > 1.0
+
+
+def test_once_the_companion_has_ended_the_world_no_longer_waits_for_it():
+    """After the mission (the companion gone) PX4's clock must run on while the boat comes to rest:
+    a gate that heard the companion once, and would hold each boundary for a minute, no longer holds
+    a frame once the companion is released. Without the release this stand-in's 10 s socket timeout
+    ends the test at the first boundary the companion never answered."""
+    from sitl.clock import LockstepGate
+    gate = LockstepGate(0.4, timeout_s=60.0)
+    gate.observe(0, 0)                                   # heard once, then silent for good
+    bridge = Px4HilBridge(9, _world(), 0.0, gate=gate).listen()
+    bridge.release_companion()
+    bridge.start(accept_timeout_s=10.0)
+    px4 = socket.create_connection(("127.0.0.1", simulator_port(9)), timeout=10.0)
+    parser, mav = mavlink2.MAVLink(None), mavlink2.MAVLink(None, srcSystem=10, srcComponent=1)
+    times = []
+    try:
+        while len(times) < 200:                          # 4 s of PX4's time: ten boundaries
+            for msg in parser.parse_buffer(px4.recv(65536)) or ():
+                if msg.get_type() == "HIL_SENSOR":
+                    times.append(msg.time_usec)
+                    px4.sendall(mav.hil_actuator_controls_encode(msg.time_usec, [0.0] * 16, ARMED_FLAG | 1, 1)
+                                .pack(mav))
+    finally:
+        px4.close()
+        bridge.stop()
+    assert np.all(np.diff(times[:200]) == round(1e6 / HIL_RATE_HZ))
+    assert gate.timeouts == 0
