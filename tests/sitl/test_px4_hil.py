@@ -9,6 +9,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.nav.ins_error import EARTH_RATE_RADPS
+from sitl.clock import LockstepGate
 from sitl.physics.px4_hil import (ACCEL_LSB, ARMED_FLAG, FIELDS_IMU_MAG_BARO, GYRO_LSB, HIL_RATE_HZ, HilSensors, HilWorld,
                                    Px4HilBridge, simulator_port)
 from sitl.sensors import GRAVITY_MPS2, WaveMotion
@@ -30,6 +31,26 @@ def _decode(bridge: Px4HilBridge, message):
 def _count(value: float, lsb: float) -> int:
     """simulator_mavlink's int16 FIFO count: C's conversion truncates toward zero."""
     return int(np.float32(value) / np.float32(lsb))
+
+
+def _fly_against_a_standin(bridge: Px4HilBridge, instance: int, frames: int, controls: list[float]) -> list[int]:
+    """A stand-in for simulator_mavlink over TCP: it answers every HIL_SENSOR with ``controls``,
+    stamped with the frame's time, until ``frames`` frames; their times (the bridge is stopped)."""
+    bridge.start(accept_timeout_s=10.0)
+    px4 = socket.create_connection(("127.0.0.1", simulator_port(instance)), timeout=10.0)
+    parser, mav = mavlink2.MAVLink(None), mavlink2.MAVLink(None, srcSystem=instance + 1, srcComponent=1)
+    times = []
+    try:
+        while len(times) < frames:
+            for msg in parser.parse_buffer(px4.recv(65536)) or ():
+                if msg.get_type() == "HIL_SENSOR":
+                    times.append(msg.time_usec)
+                    px4.sendall(mav.hil_actuator_controls_encode(msg.time_usec, controls, ARMED_FLAG | 1, 1)
+                                .pack(mav))
+    finally:
+        px4.close()
+        bridge.stop()
+    return times[:frames]
 
 
 def test_a_frame_carries_the_world_in_the_body_frame():
@@ -69,22 +90,8 @@ def test_lockstep_each_frame_waits_for_the_answer_and_outputs_move_the_boat():
     the boat speeds up under PX4's throttle."""
     world = _world()
     bridge = Px4HilBridge(8, world, 0.0).listen()
-    bridge.start(accept_timeout_s=10.0)
-    px4 = socket.create_connection(("127.0.0.1", simulator_port(8)), timeout=10.0)
-    parser, mav = mavlink2.MAVLink(None), mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
-    times = []
-    try:
-        while len(times) < 100:
-            for msg in parser.parse_buffer(px4.recv(65536)) or ():
-                if msg.get_type() == "HIL_SENSOR":
-                    times.append(msg.time_usec)
-                    controls = [0.0, 1.0] + [0.0] * 14
-                    px4.sendall(mav.hil_actuator_controls_encode(msg.time_usec, controls, ARMED_FLAG | 1, 1)
-                                .pack(mav))
-    finally:
-        px4.close()
-        bridge.stop()
-    assert np.all(np.diff(times[:100]) == round(1e6 / HIL_RATE_HZ))
+    times = _fly_against_a_standin(bridge, 8, 100, [0.0, 1.0] + [0.0] * 14)
+    assert np.all(np.diff(times) == round(1e6 / HIL_RATE_HZ))
     assert bridge.actuator_timeouts == 0
     assert bridge.throttle == 1.0 and world.state.speed_mps > 1.0
 
@@ -94,24 +101,10 @@ def test_once_the_companion_has_ended_the_world_no_longer_waits_for_it():
     a gate that heard the companion once, and would hold each boundary for a minute, no longer holds
     a frame once the companion is released. Without the release this stand-in's 10 s socket timeout
     ends the test at the first boundary the companion never answered."""
-    from sitl.clock import LockstepGate
     gate = LockstepGate(0.4, timeout_s=60.0)
     gate.observe(0, 0)                                   # heard once, then silent for good
     bridge = Px4HilBridge(9, _world(), 0.0, gate=gate).listen()
     bridge.release_companion()
-    bridge.start(accept_timeout_s=10.0)
-    px4 = socket.create_connection(("127.0.0.1", simulator_port(9)), timeout=10.0)
-    parser, mav = mavlink2.MAVLink(None), mavlink2.MAVLink(None, srcSystem=10, srcComponent=1)
-    times = []
-    try:
-        while len(times) < 200:                          # 4 s of PX4's time: ten boundaries
-            for msg in parser.parse_buffer(px4.recv(65536)) or ():
-                if msg.get_type() == "HIL_SENSOR":
-                    times.append(msg.time_usec)
-                    px4.sendall(mav.hil_actuator_controls_encode(msg.time_usec, [0.0] * 16, ARMED_FLAG | 1, 1)
-                                .pack(mav))
-    finally:
-        px4.close()
-        bridge.stop()
-    assert np.all(np.diff(times[:200]) == round(1e6 / HIL_RATE_HZ))
+    times = _fly_against_a_standin(bridge, 9, 200, [0.0] * 16)      # 4 s of PX4's time: ten boundaries
+    assert np.all(np.diff(times) == round(1e6 / HIL_RATE_HZ))
     assert gate.timeouts == 0
