@@ -147,6 +147,7 @@ class CompanionApp:
         self.last_tick_time = math.nan
         self._waiting_said_wall = self.wall_start
         self.fc_reboots = 0
+        self._streams_asked_early = False
 
     # ------------------------------------------------------------------ what the parts hold
     @property
@@ -260,6 +261,11 @@ class CompanionApp:
             self.fc_view.packet(msg, link.clock.now_s)
             if link.clock.reboots != self.fc_reboots:
                 self._fc_rebooted()
+            if not link.clock.started and not self._streams_asked_early and link.fc.detected:
+                # the clock starts on a timed message: a port streaming none (every stream group off)
+                # would leave WAIT_FC, and its stream requests, waiting for ever
+                self._streams_asked_early = True
+                self.out.request_streams()
             was_detected = self.state != State.WAIT_FC
             if self.intake.decode(msg):   # the sample path: intake -> magnetometer pipeline -> tick
                 self.out.stop_superseded_streams()

@@ -4,8 +4,9 @@ from __future__ import annotations
 import math
 
 import pytest
+from pymavlink import mavutil
 
-from companion.app import State
+from companion.app import AppOptions, CompanionApp, State
 from companion.io.link import mavlink
 from companion.io.sensors.base import SampleKind
 from companion.process.machine import Event
@@ -208,3 +209,23 @@ def test_px4s_messages_read_before_its_first_heartbeat_do_not_start_the_companio
     finally:
         fc.close()
         app.close()
+
+
+def test_the_streams_are_asked_for_at_the_first_heartbeat_before_any_timed_message(tmp_path):
+    """A flight controller whose port streams nothing timed (every stream group off, as ArduPilot
+    4.7's MAVn_* allow): the companion's clock starts on a timed message, so it asks for its streams
+    at the FC's first heartbeat rather than wait for one that never comes."""
+    port = free_port()
+    fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    app = CompanionApp(AppOptions(connect=f"udpout:127.0.0.1:{port}", params=str(tmp_path / "p.parm"),
+                                  log_dir=str(tmp_path / "log"), quiet=True, tlog=False))
+    app.open()
+    try:
+        app.handle(_msg("HEARTBEAT", **{**ARMED_GUIDED, "base_mode": 1, "custom_mode": 4}))
+        assert not app.link.clock.started and app.state == State.WAIT_FC
+        asked = {int(m.param1) for m in _sent(fc)
+                 if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL}
+        assert {mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, mavlink.MAVLINK_MSG_ID_ATTITUDE} <= asked
+    finally:
+        app.close()
+        fc.close()
