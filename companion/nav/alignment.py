@@ -114,11 +114,6 @@ class AlignmentFit:
                 f"{self.bias_before_deg:+.2f} -> {self.bias_after_deg:+.2f} deg; information "
                 + ", ".join(f"{v:.3f}" for v in self.information))
 
-    def status_text(self) -> str:
-        """One line of at most 50 characters (a MAVLink STATUSTEXT)."""
-        r = self.rotation_deg
-        return f"MagRot {r[0]:+.1f} {r[1]:+.1f} {r[2]:+.1f}deg r{self.residual_deg:.2f}"[:50]
-
 
 def rotation_matrix(rotation_deg: ArrayLike) -> Matrix3:
     """The rotation of ZYX Euler angles (roll, pitch, yaw in degrees) from the magnetometer's
