@@ -1,10 +1,10 @@
 """ArduPilot's compass with motor interference on our world's boat (``--physics json``), and its compensation.
 
 SITL adds ``SIM_MAG_MOT`` times the physics backend's battery current to the body field
-(``Aircraft::update_mag_field_bf``); the JSON backend takes that current only from the frame's
-``battery`` key, which our world now sends (:func:`sitl.physics.ardupilot_json.motor_current_a`).
-Before, the field did not move with the throttle at all (docs/notes/2026-12-06-ardupilot-json-lockstep.md,
-sections 6 and 9).
+(``Aircraft::update_mag_field_bf``), and the shared binary's JSON backend sets no current: before this,
+the field did not move with the throttle at all (the same run-up fitted +0.07 mGauss/A for -0.71). Our
+world now puts that field on the compass through ``SIM_MAG1_OFS`` (:mod:`sitl.physics.motor_field`;
+docs/notes/2026-12-06-ardupilot-json-lockstep.md, section 9).
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from tests.firmware.test_ardupilot_json import WALL_S, json_rig  # noqa: F401  (
 SIM_MAG_MOT = (ARDUPILOT_REAL["SIM_MAG_MOT_X"], ARDUPILOT_REAL["SIM_MAG_MOT_Y"], ARDUPILOT_REAL["SIM_MAG_MOT_Z"])
 # tolerance of the fitted change per ampere, each axis: the compass's soft iron (uncorrected here: DIA
 # 0.996-1.008, ODI up to 0.018) scales SIM_MAG_MOT by up to 2 % (0.02 mGauss/A), the noise (SIM_MAG_RND 2.6
-# mGauss) and the waves' roll and pitch over ~300 samples add about as much
+# mGauss) and what the roll and pitch regressors leave of the waves over ~800 samples add about as much
 TOLERANCE_MGAUSS_PER_A = 0.05
 
 
