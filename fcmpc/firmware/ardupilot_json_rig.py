@@ -104,6 +104,9 @@ class ArduPilotJsonRig(ArduPilotRig):
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
         return super().start()
 
+    def alive(self) -> bool:
+        return super().alive() and self.world is not None and self.world.poll() is None
+
     @property
     def companion_url(self) -> str:
         return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
@@ -123,7 +126,7 @@ def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[
     with open(out / "physics.log", "wb") as log:
         return subprocess.Popen(
             [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
-             "--home", f"{home[0]!r},{home[1]!r}", "--current-en", f"{east!r},{north!r}",
+             f"--home={home[0]!r},{home[1]!r}", f"--current-en={east!r},{north!r}",   # '=': "-0.04,..." is a value
              "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"]),
              *([f"--motor-field={motor_field}"] if motor_field else []),
              *(["--hold-from-s", f"{hold_from_s:g}"] if hold_from_s is not None else [])],
