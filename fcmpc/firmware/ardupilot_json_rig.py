@@ -20,7 +20,7 @@ from fcmpc.firmware.ardupilot_rig import REPO, ArduPilotRig, FirmwareFlight
 from fcmpc.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
-__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world"]
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world", "motor_field"]
 
 # The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
 # SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
@@ -49,6 +49,33 @@ CRUISE_THROTTLE_PCT = 80
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
 PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
+# The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
+# current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
+# SIM_MAG1_OFS over SERIAL2 (its own link, every stream group off: it reads nothing)
+MOTOR_LINK_PARAMS = {"SERIAL2_PROTOCOL": 2, **{f"MAV3_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
+_MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
+HOLD_REAL_COMPASS_S = 300.0
+
+
+def motor_field(params: dict) -> tuple[dict, str | None]:
+    """ArduPilot's parameters and the world's ``--motor-field`` for a compass's ``params``: a SIM_MAG_MOT
+    leaves ArduPilot (where it would act on no current) for the world, with the offsets and soft iron it
+    is applied through; without one, (``params``, None).
+
+    >>> motor_field({"SIM_MAG_MOT_X": -0.71, "SIM_MAG_MOT_Z": 0.68})[1]
+    '-0.71,0,0.68;0,0,0;1,1,1;0,0,0'
+    """
+    if not any(params.get(name, 0.0) for name in _MOT):
+        return dict(params), None
+
+    def vector(prefix: str, default: float) -> str:
+        return ",".join(f"{params.get(prefix + axis, default):g}" for axis in "XYZ")
+
+    text = ";".join((vector("SIM_MAG_MOT_", 0.0), vector("SIM_MAG1_OFS_", 0.0), vector("SIM_MAG1_DIA_", 1.0),
+                     vector("SIM_MAG1_ODI_", 0.0)))
+    return {**params, **{name: 0.0 for name in _MOT}, **MOTOR_LINK_PARAMS}, text
+
+
 JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
                "SIM_DRIFT_SPEED": 0, **PORT_PARAMS}
 
@@ -63,14 +90,18 @@ class ArduPilotJsonRig(ArduPilotRig):
         super().__init__(flight, out)
         self.sitl.model = "JSON"
         self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
-        self.sitl.params = {**self.sitl.params, **JSON_PARAMS}
+        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS})
+        self.motor_field = self.world_motor_field is not None
         self.out = out
         self.flight = flight
         self.world: subprocess.Popen | None = None
 
     def start(self):
         f = self.flight
-        self.world = start_world(f.instance, f.start, f.current_en_mps, self.out)
+        # the companion starts after the rig's preparation: with a real compass the motor run-up (about 100 s
+        # of firmware time after the fixed-yaw calibration) has to fit before the world waits for it
+        self.world = start_world(f.instance, f.start, f.current_en_mps, self.out, motor_field=self.world_motor_field,
+                                 hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
         return super().start()
 
     def alive(self) -> bool:
@@ -85,16 +116,20 @@ class ArduPilotJsonRig(ArduPilotRig):
 
 
 def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],
-                out: Path, relay: bool = True) -> subprocess.Popen:
+                out: Path, relay: bool = True, motor_field: str | None = None,
+                hold_from_s: float | None = None) -> subprocess.Popen:
     """The world's process for ArduPilot instance ``instance`` (before ArduPilot starts): its log
     ``physics.log`` and, once stopped, its statistics ``physics.json`` in ``out``. Without ``relay``
-    no companion link and no lockstep wait (ArduPilot runs as fast as the world answers)."""
+    no companion link and no lockstep wait (ArduPilot runs as fast as the world answers);
+    ``motor_field``: its ``--motor-field`` (:func:`motor_field`); ``hold_from_s``: its ``--hold-from-s``."""
     east, north = current_en_mps
     with open(out / "physics.log", "wb") as log:
         return subprocess.Popen(
             [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
              f"--home={home[0]!r},{home[1]!r}", f"--current-en={east!r},{north!r}",   # '=': "-0.04,..." is a value
-             "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"])],
+             "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"]),
+             *([f"--motor-field={motor_field}"] if motor_field else []),
+             *(["--hold-from-s", f"{hold_from_s:g}"] if hold_from_s is not None else [])],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fcmpc.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
-from fcmpc.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
+from fcmpc.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw, calibrate_motor_interference
 from fcmpc.firmware.monitor import STARTUP_GUARD_S, FirmwareMonitor
 
 __all__ = ["FirmwareFlight", "BOAT_CRUISE_KMH", "ArduPilotRig"]
@@ -32,7 +32,7 @@ class FirmwareFlight:
     speedup: float = 50.0
     instance: int = 0
     start_unix_s: float | None = None
-    compass: str = "real"          # the firmware's compass: fcmpc.firmware.compass ("real" or "ideal")
+    compass: str = "real"          # the firmware's compass: fcmpc.firmware.compass.COMPASSES
     physics: str = "builtin"       # PX4: "builtin" (SIH) or "hil" (our world in lockstep, sitl.physics.px4_hil)
     scenario: object = None        # the world of a "hil" flight (sitl.scenario.Scenario; default pacific)
     seed: int = 0
@@ -55,7 +55,7 @@ class ArduPilotRig:
         """The companion's parameters for ArduPilot's boat: a real compass is calibrated by the
         companion's circles before the mission (COMP_CAL_TURNS); ArduPilot's own fixed-yaw
         calibration learns the offsets only (fcmpc/firmware/compass.py)."""
-        return {"COMP_CAL_TURNS": 1} if flight.compass == "real" else {}
+        return {"COMP_CAL_TURNS": 1} if flight.compass.startswith("real") else {}
 
     def __init__(self, flight: FirmwareFlight, out: Path) -> None:
         self.compass = flight.compass
@@ -70,13 +70,24 @@ class ArduPilotRig:
         monitor.start(timeout_s=STARTUP_GUARD_S, alive=self.alive)
         return monitor
 
+    # SITL's motorboat puts no motor field on its compass (its model never sets the battery current that
+    # SIM_MAG_MOT multiplies; fcmpc/firmware/compass.py): a run-up there would fit nothing
+    motor_field = False
+
     def alive(self) -> bool:
         """Every process of the firmware's side runs (SITL; the JSON rig adds its world)."""
         return self.sitl.alive()
 
     def prepare(self, monitor: FirmwareMonitor) -> list[str]:
-        """Before the companion starts: a real compass is calibrated as a boat's user does it."""
-        return [calibrate_fixed_yaw(monitor)] if self.compass == "real" else []
+        """Before the companion starts: a real compass is calibrated as a boat's user does it, the
+        offsets at a known heading, then, where the motor's field reaches the compass and the compass
+        is ``real`` (not ``real-nomot``), its interference by a throttle run-up on the mooring (COMPASS_MOT)."""
+        if not self.compass.startswith("real"):
+            return []
+        notes = [calibrate_fixed_yaw(monitor)]
+        if self.compass == "real" and self.motor_field:
+            notes.append(calibrate_motor_interference(monitor).words())
+        return notes
 
     companion_args: tuple[str, ...] = ()
 

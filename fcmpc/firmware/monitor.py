@@ -74,6 +74,7 @@ class FirmwareMonitor:
         self.acks: dict[int, int] = {}          # COMMAND_ACK results of the autopilot, by command
         self.params: dict[str, float] = {}      # PARAM_VALUEs the autopilot sent
         self._pending: deque = deque()           # read from the socket, not yet handled
+        self.listeners: dict = {}               # message type -> callable(msg): more than the truth (a calibration)
 
     @property
     def gps_fix(self) -> int:
@@ -189,6 +190,9 @@ class FirmwareMonitor:
         boot_ms = getattr(msg, "time_boot_ms", None)
         if boot_ms is not None and msg.get_srcComponent() == 1 and msg.get_srcSystem() == self.target_system:
             self.time_s = boot_ms * 1e-3
+        listener = self.listeners.get(mtype)
+        if listener is not None and msg.get_srcComponent() == 1 and msg.get_srcSystem() == self.target_system:
+            listener(msg)
         if mtype == "HEARTBEAT" and msg.get_srcComponent() == 1 and msg.get_srcSystem() == self.target_system:
             self.mode, self.armed = msg.custom_mode, bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         elif mtype == "STATUSTEXT":

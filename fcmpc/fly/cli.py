@@ -64,9 +64,10 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--fc-instance", type=int, default=0, metavar="I",
                    help="ArduPilot SITL instance (-I): its TCP ports are 5760 + 10 I; PX4 instance (0-9): the "
                         "companion listens on UDP 14540 + I; default 0")
-    p.add_argument("--compass", choices=("real", "ideal"), default="real",
+    p.add_argument("--compass", choices=("real", "real-nomot", "ideal"), default="real",
                    help="with --fc ardupilot: the firmware's compass with a real installation's hard and soft iron, "
-                        "noise and motor interference, calibrated as a boat's user does (real, the default), or "
+                        "noise and motor interference, calibrated as a boat's user does (real, the default; "
+                        "real-nomot: with --physics json, its motor left uncompensated, COMPASS_MOTCT 0), or "
                         "SITL's perfect one (ideal); see fcmpc/firmware/compass.py")
     p.add_argument("--physics", choices=("builtin", "sih", "json", "hil"), default="builtin",
                    help="the firmware's physics: its own (builtin: ArduPilot's motorboat paced by the wall clock, "

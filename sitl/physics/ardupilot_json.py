@@ -17,7 +17,9 @@ simulated hours are 5.2 million frames (``docs/notes/2026-12-06-ardupilot-json-l
 What the interface cannot carry (the evidence is ``SIM_JSON.h``'s key table): a magnetometer. ArduPilot
 computes its compass from our position and attitude with its own field tables
 (``update_mag_field_bf()``: "the model does not provide mag field"), and its GPS from our position
-(``SIM_GPS1_ENABLE 0`` denies it as before).
+(``SIM_GPS1_ENABLE 0`` denies it as before). Nor, in the shared binary, a battery current, so SITL's motor
+interference (``SIM_MAG_MOT`` x the backend's current) never acts: with ``--motor-field`` the world puts
+the motor's field on the compass itself (:mod:`sitl.physics.motor_field`, over ArduPilot's SERIAL2).
 
 The loop is pipelined: the answer to frame ``n`` (the state at ``t_n + dt``) is ready when the
 packet arrives and leaves at once; the world then steps with that packet's outputs while the
@@ -44,6 +46,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+from sitl.physics.motor_field import MotorField, MotorFieldConfig
 from sitl.sensors import WaveMotion
 from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState
@@ -120,6 +123,7 @@ class JsonPhysicsConfig:
     gate_timeout_s: float = 120.0       # wall seconds without an answer before going on (counted): a hang guard
     #                                     (a loaded machine once kept the companion 30 s from its answer)
     relay: bool = True
+    motor_field: MotorFieldConfig | None = None   # the motor's field on the compass (None: the binary's, none)
     idle_timeout_s: float = 60.0        # wall seconds without a servo packet: the firmware has gone
 
     def __post_init__(self) -> None:
@@ -133,6 +137,7 @@ class JsonPhysics:
     def __init__(self, config: JsonPhysicsConfig, relay=None) -> None:
         self.config = config
         self.relay = relay
+        self.motor = MotorField(config.instance, config.motor_field) if config.motor_field is not None else None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", json_port(config.instance)))
         # the idle timeout in the kernel (SO_RCVTIMEO) on a blocking socket: one system call a frame
@@ -156,6 +161,7 @@ class JsonPhysics:
         sock = self.sock
         relay_frame = self.relay.frame if self.relay is not None else None
         relay_answered = self.relay.answered if self.relay is not None else None
+        motor_update = self.motor.update if self.motor is not None else None
         state = self.state
         reply = encode_frame(frame_of(dt, state, 0.0, 0.0, waves), home)   # the first answer: at rest
         n = 0           # frames answered and stepped: the time is n * dt (one counter, so a signal
@@ -172,6 +178,8 @@ class JsonPhysics:
                     if relay_answered is not None:
                         relay_answered((n + 1) * dt_us)
                     throttle, steering = outputs_of(data)
+                    if motor_update is not None:
+                        motor_update((n + 1) * dt_us, throttle)
                     state, yaw_rate, accel = step_boat(state, dt, throttle, steering, dyn, motion)
                     n += 1
                     reply = encode_frame(frame_of((n + 1) * dt, state, yaw_rate, accel, waves), home)
@@ -190,6 +198,8 @@ class JsonPhysics:
                "us_per_frame_cpu": round(self.cpu_s / max(self.frames, 1) * 1e6, 1)}
         if self.relay is not None:
             out.update(self.relay.stats())
+        if self.motor is not None:
+            out.update(self.motor.stats())
         return out
 
 
@@ -205,12 +215,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--relay-latency", type=float, default=LATENCY_S,
                    help="firmware seconds from a companion message's stamp to ArduPilot (default %(default)s)")
     p.add_argument("--no-relay", action="store_true", help="no companion link (a physics-only measurement)")
+    p.add_argument("--hold-from-s", type=float, default=90.0,
+                   help="firmware seconds after which the world waits for the companion to appear: past the "
+                        "rig's preparation (default %(default)s)")
+    p.add_argument("--motor-field", default=None, metavar="MOT;OFS;DIA;ODI",
+                   help="put SIM_MAG_MOT's field on the compass (sitl.physics.motor_field): SIM_MAG_MOT and "
+                        "SIM_MAG1_OFS, _DIA, _ODI as ArduPilot has them, each x,y,z")
     p.add_argument("--stats", default=None, help="write the run's statistics here (JSON) at the end")
     args = p.parse_args(argv)
     lat, lon = (float(v) for v in args.home.split(","))
     east, north = (float(v) for v in args.current_en.split(","))
-    config = JsonPhysicsConfig(args.instance, (lat, lon), args.heading_deg, motion=MotionErrors((east, north)))
-    relay = None if args.no_relay else CompanionRelay(args.instance, config.gate_timeout_s,
+    config = JsonPhysicsConfig(args.instance, (lat, lon), args.heading_deg, motion=MotionErrors((east, north)),
+                               motor_field=MotorFieldConfig.parse(args.motor_field) if args.motor_field else None)
+    relay = None if args.no_relay else CompanionRelay(args.instance, config.gate_timeout_s, args.hold_from_s,
                                                       latency_s=args.relay_latency)
     physics = JsonPhysics(config, relay)
 
@@ -225,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
         stats = physics.stats()
     if relay is not None:
         relay.close()
+    if physics.motor is not None:
+        physics.motor.close()
     if args.stats:
         with open(args.stats, "w") as handle:
             json.dump(stats, handle, indent=1)

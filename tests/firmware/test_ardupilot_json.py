@@ -32,7 +32,8 @@ class JsonRig(Rig):
 
     companion_args = ("--lockstep",)
 
-    def __init__(self, tmp_path: Path, params: dict | None = None, relay: bool = True) -> None:
+    def __init__(self, tmp_path: Path, params: dict | None = None, relay: bool = True,
+                 motor_field: str | None = None) -> None:
         self.tmp = tmp_path
         tmp_path.mkdir(parents=True, exist_ok=True)
         instance = free_instance(first=51 + (_WORKER % 4) * 10 + os.getpid() % 5, taken=_TAKEN)
@@ -41,7 +42,7 @@ class JsonRig(Rig):
         self.companion: subprocess.Popen | None = None
         self.monitor = None
         self.stats: dict = {}
-        self.world = start_world(instance, (33.0, 152.0), (0.0, 0.0), tmp_path, relay)
+        self.world = start_world(instance, (33.0, 152.0), (0.0, 0.0), tmp_path, relay, motor_field)
         self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, model="JSON", speedup=1e6,
                                   params={**JSON_PARAMS, **(params or {})}, binary=_binary_or_skip(),
                                   start_unix_s=START_UNIX_S)
