@@ -120,8 +120,10 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
 # east grew to 46 deg in 10 minutes, the tilt error to 6-13 deg and the vertical accelerometer bias to
 # its 0.4 m/s^2 limit: "High Accelerometer Bias", failsafe); COMP_FEED_ACCEL: the fed track turns as
 # PX4's rover controller turned our boat, measured at two speeds (speed x turn rate: 3 m/s at 9.5 deg/s,
-# 8 m/s at 25 deg/s), linear between them
-HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0}
+# 8 m/s at 25 deg/s), linear between them; COMP_MAG_HZ 10 (the registry's): our magnetometer has a real
+# sensor's 100 nT of noise, not SIH's 2000-3000 nT that the SIH rig's 50 Hz averages away, and every
+# SCALED_IMU is a datagram through the bridge and a parse in the companion (section 9 of the note)
+HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0, "COMP_MAG_HZ": 10.0}
 TURN_ACCEL_MEASURED = ((3.0, 0.5), (8.0, 3.0))     # (speed m/s, lateral acceleration m/s^2)
 
 
