@@ -42,12 +42,13 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.frames import ned_to_body
 from companion.nav.ins_error import EARTH_RATE_RADPS
 from sitl.clock import LockstepGate
+from sitl.physics.mavlink_frames import actuator_controls, frames, time_boot_ms
 from sitl.sensors import Normals, WaveMotion
 from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.magerrors import MagErrors
 from sitl.world.vehicle import NO_MOTION_ERRORS, MotionErrors, VehicleState
 
-__all__ = ["ACCEL_LSB", "GYRO_LSB", "actuator_controls", "HIL_COMPANION_VALUES", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge",
+__all__ = ["ACCEL_LSB", "GYRO_LSB", "HIL_COMPANION_VALUES", "HIL_RATE_HZ", "HilSensors", "HilWorld", "Px4HilBridge",
            "hil_companion_values", "hil_params", "hil_world", "rounded_count", "simulator_port"]
 
 HIL_RATE_HZ = 50.0
@@ -83,50 +84,6 @@ def rounded_count(value: float, lsb: float) -> float:
     (1, -2)
     """
     return value + math.copysign(0.5 * lsb, value)
-
-
-# PX4's answer to every frame: its outputs, read without pymavlink's parser (its per-message checks and
-# object were a sixth of our world's CPU seconds per frame, section 9 of the note); the layout is pymavlink's
-_ACTUATORS = mavlink2.MAVLink_hil_actuator_controls_message
-MAVLINK2_MAGIC, MAVLINK2_HEADER, MAVLINK2_CRC, MAVLINK2_SIGNATURE = 0xFD, 10, 2, 13
-
-
-def actuator_controls(buf: bytearray) -> list[tuple]:
-    """The fields (``time_usec, flags, controls[16], mode``) of every HIL_ACTUATOR_CONTROLS in the whole
-    MAVLink 2 frames at the head of ``buf``, which are removed from it (an incomplete last frame stays
-    for the next read); other messages are skipped, and bytes before a frame's start are dropped.
-    The checksum is not checked: the simulator link is TCP on this machine, which delivers its bytes intact.
-
-    >>> px4 = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-    >>> wire = b"x" + px4.heartbeat_encode(1, 12, 0, 0, 0).pack(px4) + b"".join(
-    ...     px4.hil_actuator_controls_encode(t, [0.5, -0.25] + [0.0] * 14, 129, 0).pack(px4) for t in (20000, 40000))
-    >>> buf = bytearray(wire[:-5])
-    >>> [(f[0], f[2], f[3], f[-1]) for f in actuator_controls(buf)], len(buf) > 0
-    ([(20000, 0.5, -0.25, 129)], True)
-    >>> buf += wire[-5:]
-    >>> [f[0] for f in actuator_controls(buf)], len(buf)
-    ([40000], 0)
-    """
-    found = []
-    start, end = 0, len(buf)
-    unpack, size = _ACTUATORS.unpacker.unpack, _ACTUATORS.unpacker.size
-    while start < end:
-        if buf[start] != MAVLINK2_MAGIC:
-            nxt = buf.find(MAVLINK2_MAGIC, start)
-            start = end if nxt < 0 else nxt
-            continue
-        if end - start < MAVLINK2_HEADER:
-            break
-        length = buf[start + 1]
-        total = MAVLINK2_HEADER + length + MAVLINK2_CRC + (MAVLINK2_SIGNATURE if buf[start + 2] & 1 else 0)
-        if end - start < total:
-            break
-        if buf[start + 7] | buf[start + 8] << 8 | buf[start + 9] << 16 == _ACTUATORS.id and length <= size:
-            payload = bytes(buf[start + MAVLINK2_HEADER:start + MAVLINK2_HEADER + length])
-            found.append(unpack(payload + bytes(size - length)))   # MAVLink 2 drops trailing zero bytes
-        start += total
-    del buf[:start]
-    return found
 
 
 def simulator_port(instance: int) -> int:
@@ -232,8 +189,6 @@ class Px4HilBridge:
         self.companion_port = companion_port if companion_port is not None else 24540 + instance
         self.mav = mavlink2.MAVLink(None, srcSystem=instance + 1, srcComponent=51)
         self.mav.robust_parsing = True
-        self.companion_parser = mavlink2.MAVLink(None)
-        self.companion_parser.robust_parsing = True
         self.t_us = 0
         self.frames = 0
         self.gps_fix = True
@@ -383,8 +338,8 @@ class Px4HilBridge:
                 data = sock.recv(65536)
                 self._px4_side.sendto(data, self._px4_onboard)
                 if self.gate is not None:
-                    for msg in self.companion_parser.parse_buffer(data) or ():
-                        self.gate.observe(getattr(msg, "time_boot_ms", None), self.t_us)
+                    for msgid, payload in frames(bytearray(data)):
+                        self.gate.observe(time_boot_ms(msgid, payload), self.t_us)
 
     def _outputs(self, fields: tuple) -> None:
         """One HIL_ACTUATOR_CONTROLS's fields (:func:`actuator_controls`)."""
