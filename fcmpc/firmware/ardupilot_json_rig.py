@@ -73,6 +73,9 @@ class ArduPilotJsonRig(ArduPilotRig):
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out)
         return super().start()
 
+    def alive(self) -> bool:
+        return super().alive() and self.world is not None and self.world.poll() is None
+
     @property
     def companion_url(self) -> str:
         return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
