@@ -6,8 +6,10 @@ connects as a TCP client to port 4560+N. Its clock is set by every HIL_SENSOR's 
 answers a frame with HIL_ACTUATOR_CONTROLS (after EKF2 and the other lockstep components have
 caught up), so PX4's time advances only with our frames:
 
-* each frame (:data:`HIL_RATE_HZ`, the lowest IMU rate PX4 accepts: ``IMU_INTEG_RATE`` >= 50 Hz,
-  at 25 Hz EKF2 reported "missing data") moves the boat with PX4's last outputs
+* each frame (:data:`HIL_RATE_HZ`, the lowest IMU rate PX4 accepts: VehicleIMU constrains
+  ``IMU_INTEG_RATE`` to >= 50 Hz; at 40 Hz EKF2 reported "missing data" and PX4 left frames
+  unanswered, at 25 Hz with ``EKF2_PREDICT_US`` 40000 it flew a 3 km leg 106-1,122 m off where 50 Hz
+  ends 67-68 m off: docs/notes/2026-12-06-px4-hil-lockstep.md, section 9) moves the boat with PX4's last outputs
   (:func:`sitl.world.actuated.step_boat`: ``controls[0]`` steering, ``controls[1]`` throttle, as
   ``PWM_MAIN_FUNC1/2`` of the Ackermann airframe map them) and sends HIL_SENSOR: the IMU's specific
   force and body rates with noise, the magnetometer from the world's true field in the body frame
