@@ -205,7 +205,10 @@ class WorldMagneticModel:
         for array in answer:
             array.setflags(write=False)
         if len(recent) >= KEPT_EVALUATIONS:
-            del recent[next(iter(recent))]   # the oldest (dicts keep their insertion order)
+            # the oldest (dicts keep their insertion order); pop, not del: the route's prediction
+            # (companion.process.forecast, a thread of its own) evaluates the same model as the
+            # control step, and both may drop the same oldest answer (a KeyError in the step)
+            recent.pop(next(iter(recent), None), None)
         recent[key] = answer
         return answer
 

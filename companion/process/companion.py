@@ -258,10 +258,11 @@ class CompanionApp:
         """Receive hook: every message read from the link."""
         link = self.link
         if link.observe(msg):
-            self.fc_view.packet(msg, link.clock.now_s)
-            if link.clock.reboots != self.fc_reboots:
+            clock = link.clock
+            self.fc_view.packet(msg, clock.now_s)
+            if clock.reboots != self.fc_reboots:
                 self._fc_rebooted()
-            if not link.clock.started and not self._streams_asked_early and link.fc.detected:
+            if not self._streams_asked_early and not clock.started and link.fc.detected:
                 # the clock starts on a timed message: a port streaming none (every stream group off)
                 # would leave WAIT_FC, and its stream requests, waiting for ever
                 self._streams_asked_early = True
@@ -271,9 +272,10 @@ class CompanionApp:
                 self.out.stop_superseded_streams()
             if msg._type == "LOCAL_POSITION_NED":
                 self.mission_state.local_ned = (msg.time_boot_ms * 1e-3, msg.x, msg.y)
-            if (link.clock.now_s >= self.next_tick or not was_detected) and link.clock.started:
+            now = clock.now_s   # NaN until the clock starts: no tick then
+            if (now >= self.next_tick or not was_detected) and now == now:
                 self.tick()
-            self.telemetry.feed_due(link.clock.now_s)
+            self.telemetry.feed_due(clock.now_s)
         elif not self.params.mavlink_packet(msg):   # PARAM_* are the parameter server's
             self.operator.mavlink_packet(msg)       # COMMAND_LONG to 191: the operator's commands
 

@@ -132,8 +132,9 @@ class SampleIntake:
         when the decoder replaced a magnetometer stream by a preferred one (to be turned off)."""
         self.messages_from_fc += 1
         decoder = self.decoder
+        kinds = self.source_kinds   # hashing a SampleKind is a Python call: skipped when empty
         for sample in decoder.decode(msg):
-            if sample.kind not in self.source_kinds:
+            if not kinds or sample.kind not in kinds:
                 self.use(sample, sample.time_s, decoder.rates)
         return bool(decoder.superseded)
 

@@ -210,8 +210,15 @@ def companion_rows(result: dict) -> list[Row]:
             continue
         if key == "capacity_msgs_per_s":
             rows.append((f"companion {key}", f"{value}",
-                         f"per CPU s of the receiving thread; first version {CAPACITY_FIRST_MSGS_PER_S:,.0f} (README); "
+                         "the FC's messages through the link (parse, tlog) and the receive hook, with the outputs they "
+                         "trigger, per CPU s of the receiving thread (the prediction's apart), median of the replays; "
+                         f"first version {CAPACITY_FIRST_MSGS_PER_S:,.0f} (README); "
                          f"{float(value) / CAPACITY_FIRST_MSGS_PER_S:.2f}x", ">= 55,000"))
+        elif key == "capacity_spread_msgs_per_s":
+            rows.append(("companion capacity: slowest and fastest replay", f"{value[0]}-{value[1]}", "", ""))
+        elif key == "capacity_parse_floor_msgs_per_s":
+            rows.append((f"companion {key}", f"{value}", "pymavlink's parse_buffer alone on the same datagrams, per "
+                         "CPU s: the ceiling no companion on pymavlink passes", ""))
         elif key == "capacity_other_threads_cpu_s":
             rows.append(("companion: its other thread's CPU meanwhile (the route's prediction, once)", f"{value:g} s",
                          "", ""))

@@ -93,7 +93,7 @@ def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[
     with open(out / "physics.log", "wb") as log:
         return subprocess.Popen(
             [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
-             "--home", f"{home[0]!r},{home[1]!r}", "--current-en", f"{east!r},{north!r}",
+             f"--home={home[0]!r},{home[1]!r}", f"--current-en={east!r},{north!r}",   # '=': "-0.04,..." is a value
              "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"])],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 

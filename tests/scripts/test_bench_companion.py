@@ -44,9 +44,11 @@ def test_the_capacity_replay_and_the_parse_floor_run_on_a_recorded_stream(tmp_pa
 def test_the_rows_put_the_missions_cpu_beside_the_parse_floor_and_the_capacity_beside_its_first_version():
     rows = companion_rows({"mission_cpu_s_per_sim_hour": 12.5, "parse_floor_cpu_s_per_sim_hour": 0.9,
                            "messages_per_sim_hour": 87500, "lockstep_sim_speedup": 600.0, "capacity_msgs_per_s": 60000.0,
-                           "capacity_other_threads_cpu_s": 4.25})
-    cpu, speedup, capacity, others = rows
+                           "capacity_spread_msgs_per_s": [52000, 61000], "capacity_other_threads_cpu_s": 4.25,
+                           "capacity_parse_floor_msgs_per_s": 130000.0})
+    cpu, speedup, capacity, spread, others, floor = rows
     assert cpu[1] == "12.5 s" and "87,500 messages" in cpu[2] and cpu[2].endswith("0.9 s")
     assert speedup[:2] == ("companion lockstep_sim_speedup", "600.0")
     assert capacity[1] == "60000.0" and "55,400" in capacity[2] and capacity[3] == ">= 55,000"
     assert others[1] == "4.25 s" and "prediction" in others[0]
+    assert spread[1] == "52000-61000" and floor[1] == "130000.0" and "parse_buffer" in floor[2]

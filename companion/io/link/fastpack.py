@@ -48,16 +48,15 @@ class FramePacker:
             args = args + self._defaults[len(args):]
         payload = self._pack(*self._wire(args))
         payload = payload.rstrip(b"\x00") or payload[:1]          # MAVLink 2 trims trailing zeros
-        header = _HEADER.pack(253, len(payload), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, self._id_low,
-                              self._id_high)
-        body = header[1:] + payload
+        frame = _HEADER.pack(253, len(payload), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, self._id_low,
+                             self._id_high) + payload
         if _mcrf4xx is not None:
-            crc = _mcrf4xx(self._extra, _mcrf4xx(body, 0xFFFF))
+            crc = _mcrf4xx(self._extra, _mcrf4xx(memoryview(frame)[1:], 0xFFFF))
         else:
-            x25 = mavlink.x25crc(body)
+            x25 = mavlink.x25crc(frame[1:])
             x25.accumulate(self._extra)
             crc = x25.crc
-        return header + payload + _CRC.pack(crc)
+        return frame + _CRC.pack(crc)
 
     def send(self, mav, *args) -> bytes | None:
         """Write the frame to ``mav``'s file as ``mav.send`` does: the frame, or None when signing

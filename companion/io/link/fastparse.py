@@ -84,9 +84,10 @@ def _crc(body: bytes, extra: bytes) -> int:
     return crc.crc
 
 
-def _message(spec: _Spec, frame: bytes, plen: int, compat: int, seq: int, sysid: int, compid: int, msg_id: int,
-             crc: int):
-    """The message pymavlink's ``MAVLink.decode`` builds from an unsigned MAVLink 2 ``frame``."""
+def _message(spec: _Spec, frame: bytearray, plen: int, compat: int, seq: int, sysid: int, compid: int,
+             msg_id: int, crc: int):
+    """The message pymavlink's ``MAVLink.decode`` builds from an unsigned MAVLink 2 ``frame`` (the
+    frame's own bytearray becomes the message's ``_msgbuf``)."""
     payload = frame[10:10 + plen]
     size = spec.size
     if plen < size:
@@ -98,16 +99,17 @@ def _message(spec: _Spec, frame: bytes, plen: int, compat: int, seq: int, sysid:
         values = list(values)
         for i in spec.strings:
             values[i] = values[i].rstrip(b"\x00")
-    header = _Header(msg_id, 0, compat, plen, seq, sysid, compid)
-    msgbuf = bytearray(frame)
+    header = _new(_Header)   # MAVLink_header's attributes, in its constructor's order
+    header.__dict__ = {"mlen": plen, "seq": seq, "srcSystem": sysid, "srcComponent": compid, "msgId": msg_id,
+                       "incompat_flags": 0, "compat_flags": compat}
     if not spec.plain:
         msg = spec.cls(*values)
-        msg._header, msg._payload, msg._msgbuf, msg._crc = header, msgbuf[6:-2], msgbuf, crc
+        msg._header, msg._payload, msg._msgbuf, msg._crc = header, frame[6:-2], frame, crc
         return msg
     msg = _new(spec.cls)
     state = spec.template.copy()
     state.update(zip(spec.names, values))
-    state["_header"], state["_payload"], state["_msgbuf"], state["_crc"] = header, msgbuf[6:-2], msgbuf, crc
+    state["_header"], state["_payload"], state["_msgbuf"], state["_crc"] = header, frame[6:-2], frame, crc
     msg.__dict__ = state
     return msg
 
@@ -120,11 +122,11 @@ def parse_datagram(parser, data: bytes) -> list:
         return parser.parse_buffer(data) or []
     fresh = len(data)
     if parser.buf_len():                       # a stream: the start of a frame is waiting
-        data = bytes(parser.buf[parser.buf_index:]) + bytes(data)
+        data = parser.buf[parser.buf_index:] + data
         parser.buf, parser.buf_index = bytearray(), 0
         parser.expected_length = mavlink.HEADER_LEN_V1 + 2
     else:
-        data = bytes(data)
+        data = bytearray(data)                 # each frame's slice is its message's _msgbuf
     out = []
     specs, header, crc_of, message = _SPECS, _HEADER.unpack_from, _CRC.unpack_from, _message
     n, i = len(data), 0
@@ -142,5 +144,5 @@ def parse_datagram(parser, data: bytes) -> list:
     parser.total_bytes_received += fresh - (n - i)   # parse_buffer counts the rest
     parser.total_packets_received += len(out)
     if i < n:
-        out += parser.parse_buffer(data[i:]) or []
+        out += parser.parse_buffer(bytes(data[i:])) or []
     return out

@@ -153,7 +153,8 @@ class PeerTable:
         Pins the flight controller on the first acceptable autopilot heartbeat; notes allowed
         ground stations' addresses (for outputs) and other autopilots (reported, not followed).
         """
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        header = msg._header
+        src = (header.srcSystem, header.srcComponent)
         policy = self.policy
         if self.fc_ids is None and policy.may_pin(msg):
             self.fc_ids, self.fc_address = src, address

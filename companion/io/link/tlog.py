@@ -21,6 +21,7 @@ __all__ = ["FLUSH_WALL_S", "KEEP_ROTATED", "Tlog"]
 
 FLUSH_WALL_S = 1.0
 KEEP_ROTATED = 3
+_STAMP = struct.Struct(">Q")
 
 
 class Tlog:
@@ -43,7 +44,7 @@ class Tlog:
         self._last_flush = wall()
 
     def write(self, frame: bytes) -> None:
-        record = struct.pack(">Q", int(self.unix() * 1e6) & ~3) + bytes(frame)
+        record = _STAMP.pack(int(self.unix() * 1e6) & ~3) + (frame if type(frame) is bytes else bytes(frame))
         if self.max_bytes and self._size + len(record) > self.max_bytes and self._size > 0:
             self._rotate()
         self._file.write(record)
@@ -53,7 +54,7 @@ class Tlog:
         """Frames that arrived together (one datagram): one time stamp for all, as :meth:`write` each."""
         if not frames:
             return
-        stamp = struct.pack(">Q", int(self.unix() * 1e6) & ~3)
+        stamp = _STAMP.pack(int(self.unix() * 1e6) & ~3)
         if self.max_bytes:
             for frame in frames:
                 record = stamp + bytes(frame)

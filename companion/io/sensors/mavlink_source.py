@@ -154,7 +154,7 @@ class MavlinkDecoder:
         return False
 
     def decode(self, msg) -> list[Sample]:
-        mtype = msg.get_type()
+        mtype = msg.get_type()   # the 10 Hz messages (ATTITUDE, then the IMU's) tested first
         if mtype == "ATTITUDE":
             t = msg.time_boot_ms * 1e-3
             roll, pitch, yaw = msg.roll, msg.pitch, msg.yaw
@@ -164,22 +164,6 @@ class MavlinkDecoder:
                 return [AttitudeSample(t, roll, pitch, wrap_2pi(yaw))]
             self.last_problem["attitude"] = "non-finite ATTITUDE"
             return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
-        if mtype == "RAW_IMU" or mtype in _SCALED_INSTANCE:
-            t = self._time(msg)
-            if t is None:
-                return []
-            instance = int(getattr(msg, "id", 0) or 0) if mtype == "RAW_IMU" else _SCALED_INSTANCE[mtype]
-            out: list[Sample] = []
-            if self.imu:
-                out.append(ImuSample(t, (msg.xacc * _G_PER_MG, msg.yacc * _G_PER_MG, msg.zacc * _G_PER_MG),
-                                     (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
-            if self._owns_mag(instance, mtype):
-                raw = (msg.xmag, msg.ymag, msg.zmag)
-                self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
-                flags = self._mag_flags(instance, raw, True, t)
-                out.append(MagSample(t, (count_to_nt(raw[0]), count_to_nt(raw[1]), count_to_nt(raw[2])), instance,
-                                     flags, self._stale_since(instance, flags)))
-            return out
         if mtype == "HIGHRES_IMU":
             t = self._time(msg)
             if t is None:
@@ -197,6 +181,22 @@ class MavlinkDecoder:
                 mag = (raw[0] * scale, raw[1] * scale, raw[2] * scale)
                 flags = self._mag_flags(instance, raw, False, t)
                 out.append(MagSample(t, mag, instance, flags, self._stale_since(instance, flags)))
+            return out
+        if mtype == "RAW_IMU" or mtype in _SCALED_INSTANCE:
+            t = self._time(msg)
+            if t is None:
+                return []
+            instance = int(getattr(msg, "id", 0) or 0) if mtype == "RAW_IMU" else _SCALED_INSTANCE[mtype]
+            out: list[Sample] = []
+            if self.imu:
+                out.append(ImuSample(t, (msg.xacc * _G_PER_MG, msg.yacc * _G_PER_MG, msg.zacc * _G_PER_MG),
+                                     (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
+            if self._owns_mag(instance, mtype):
+                raw = (msg.xmag, msg.ymag, msg.zmag)
+                self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
+                flags = self._mag_flags(instance, raw, True, t)
+                out.append(MagSample(t, (count_to_nt(raw[0]), count_to_nt(raw[1]), count_to_nt(raw[2])), instance,
+                                     flags, self._stale_since(instance, flags)))
             return out
         if mtype == "GPS_RAW_INT":
             t = self._time(msg)
