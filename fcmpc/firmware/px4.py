@@ -21,6 +21,11 @@ Parameters are applied at start through PX4's own ``PX4_PARAM_<NAME>=<value>`` e
 variables (``rcS`` sets them after the airframe's defaults), from ``params/px4-rover.params``
 (QGroundControl's format) and ``params``. Home is ``SIH_LOC_LAT0/LON0`` (``PX4_HOME_LAT/LON``).
 
+PX4's MAVLink links come from ``px4-rc.mavlink``, which ``rcS`` finds on ``PATH``: with
+``simulator="mavlink"`` the instance's ``bin/`` holds ``params/px4-hil-mavlink.rc`` under that name
+(:data:`HIL_LINKS_RC`: the GCS and onboard links only, without PX4's camera and gimbal links and the
+onboard streams nobody reads); SIH keeps PX4's own.
+
 The shipped ``bin/`` holds PX4's module aliases (``px4-param`` ...) as text files naming
 ``px4`` where a checkout lost its symbolic links; the start-up script runs them through
 ``PATH``, so each instance gets a ``bin/`` of real links in its working folder first on ``PATH``.
@@ -31,6 +36,7 @@ The shipped ``bin/`` holds PX4's module aliases (``px4-param`` ...) as text file
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,7 +44,7 @@ from pathlib import Path
 from fcmpc.firmware.ardupilot import FirmwareMissing, project_parm
 from fcmpc.firmware.processes import stop_process
 
-__all__ = ["MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
+__all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
 
 MAX_INSTANCE = 9          # px4-rc.mavlink: instances above 9 share the offboard port 14549
 PX4_MODEL = "sihsim_rover_ackermann"
@@ -47,6 +53,7 @@ PX4_MODEL = "sihsim_rover_ackermann"
 # the companion's steps.csv and the monitor's truth are the record
 SIMULATOR_PARAMS = {"SDLOG_BACKEND": 0}
 PARAM_TYPE_INT32, PARAM_TYPE_REAL32 = 6, 9    # MAV_PARAM_TYPE in QGroundControl's .params
+HIL_LINKS_RC = "px4-hil-mavlink.rc"     # params/: PX4's px4-rc.mavlink in lockstep with our world
 
 
 def px4_root() -> Path:
@@ -142,6 +149,8 @@ class Px4Sitl:
             link = bin_dir / alias.name
             if alias.suffix != ".sh" and not link.exists():
                 link.symlink_to(real)
+        if self.simulator == "mavlink":
+            shutil.copyfile(project_parm(HIL_LINKS_RC), bin_dir / "px4-rc.mavlink")
         env = {k: v for k, v in os.environ.items() if not k.startswith("PX4_")}
         env.update({"PATH": f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", "PX4_WORKDIR": str(self.workdir),
                     "PX4_INSTANCE": str(self.instance), "PX4_SIM_MODEL": self.model, "PX4_CLEAN": "1",

@@ -6,8 +6,10 @@ connects as a TCP client to port 4560+N. Its clock is set by every HIL_SENSOR's 
 answers a frame with HIL_ACTUATOR_CONTROLS (after EKF2 and the other lockstep components have
 caught up), so PX4's time advances only with our frames:
 
-* each frame (:data:`HIL_RATE_HZ`, the lowest IMU rate PX4 accepts: ``IMU_INTEG_RATE`` >= 50 Hz,
-  at 25 Hz EKF2 reported "missing data") moves the boat with PX4's last outputs
+* each frame (:data:`HIL_RATE_HZ`, the lowest IMU rate PX4 accepts: VehicleIMU constrains
+  ``IMU_INTEG_RATE`` to >= 50 Hz; at 40 Hz EKF2 reported "missing data" and PX4 left frames
+  unanswered, at 25 Hz with ``EKF2_PREDICT_US`` 40000 it flew a 3 km leg 106-1,122 m off where 50 Hz
+  ends 67-68 m off: docs/notes/2026-12-06-px4-hil-lockstep.md, section 9) moves the boat with PX4's last outputs
   (:func:`sitl.world.actuated.step_boat`: ``controls[0]`` steering, ``controls[1]`` throttle, as
   ``PWM_MAIN_FUNC1/2`` of the Ackermann airframe map them) and sends HIL_SENSOR: the IMU's specific
   force and body rates with noise, the magnetometer from the world's true field in the body frame
@@ -42,6 +44,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.frames import ned_to_body
 from companion.nav.ins_error import EARTH_RATE_RADPS
 from sitl.clock import LockstepGate
+from sitl.physics.mavlink_frames import actuator_controls, frames, time_boot_ms
 from sitl.sensors import Normals, WaveMotion
 from sitl.world.actuated import BoatDynamics, PhysicsFrame, frame_of, step_boat
 from sitl.world.magerrors import MagErrors
@@ -120,8 +123,10 @@ def hil_params(dynamics: BoatDynamics) -> dict[str, float]:
 # east grew to 46 deg in 10 minutes, the tilt error to 6-13 deg and the vertical accelerometer bias to
 # its 0.4 m/s^2 limit: "High Accelerometer Bias", failsafe); COMP_FEED_ACCEL: the fed track turns as
 # PX4's rover controller turned our boat, measured at two speeds (speed x turn rate: 3 m/s at 9.5 deg/s,
-# 8 m/s at 25 deg/s), linear between them
-HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0}
+# 8 m/s at 25 deg/s), linear between them; COMP_MAG_HZ 10 (the registry's): our magnetometer has a real
+# sensor's 100 nT of noise, not SIH's 2000-3000 nT that the SIH rig's 50 Hz averages away, and every
+# SCALED_IMU is a datagram through the bridge and a parse in the companion (section 9 of the note)
+HIL_COMPANION_VALUES = {"COMP_FEED_ACCEL": 0.5, "COMP_FEED_ACC_M": 1.0, "COMP_MAG_HZ": 10.0}
 TURN_ACCEL_MEASURED = ((3.0, 0.5), (8.0, 3.0))     # (speed m/s, lateral acceleration m/s^2)
 
 
@@ -186,8 +191,6 @@ class Px4HilBridge:
         self.companion_port = companion_port if companion_port is not None else 24540 + instance
         self.mav = mavlink2.MAVLink(None, srcSystem=instance + 1, srcComponent=51)
         self.mav.robust_parsing = True
-        self.companion_parser = mavlink2.MAVLink(None)
-        self.companion_parser.robust_parsing = True
         self.t_us = 0
         self.frames = 0
         self.gps_fix = True
@@ -209,6 +212,7 @@ class Px4HilBridge:
         self._field_at_s = -math.inf
         self._server: socket.socket | None = None
         self._sim: socket.socket | None = None
+        self._sim_buf = bytearray()
         self._px4_side: socket.socket | None = None
         self._companion_side: socket.socket | None = None
         self._companion_addr = ("127.0.0.1", self.companion_port)
@@ -327,22 +331,23 @@ class Px4HilBridge:
                 data = sock.recv(65536)
                 if not data:
                     raise ConnectionError("PX4 closed the simulator connection")
-                for msg in self.mav.parse_buffer(data) or ():
-                    if msg.get_msgId() == mavlink2.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
-                        self._outputs(msg)
+                self._sim_buf += data
+                for fields in actuator_controls(self._sim_buf):
+                    self._outputs(fields)
             elif sock is self._px4_side:
                 self._companion_side.sendto(sock.recv(65536), self._companion_addr)
             else:
                 data = sock.recv(65536)
                 self._px4_side.sendto(data, self._px4_onboard)
                 if self.gate is not None:
-                    for msg in self.companion_parser.parse_buffer(data) or ():
-                        self.gate.observe(getattr(msg, "time_boot_ms", None), self.t_us)
+                    for msgid, payload in frames(bytearray(data)):
+                        self.gate.observe(time_boot_ms(msgid, payload), self.t_us)
 
-    def _outputs(self, msg) -> None:
-        self.armed = bool(msg.mode & ARMED_FLAG)
-        self.steering, self.throttle = float(msg.controls[0]), float(msg.controls[1])
-        self.last_output_us = max(self.last_output_us, int(msg.time_usec))
+    def _outputs(self, fields: tuple) -> None:
+        """One HIL_ACTUATOR_CONTROLS's fields (:func:`actuator_controls`)."""
+        self.armed = bool(fields[-1] & ARMED_FLAG)
+        self.steering, self.throttle = float(fields[2]), float(fields[3])
+        self.last_output_us = max(self.last_output_us, int(fields[0]))
 
     # --- messages ---------------------------------------------------------------------------------
     def _field_body_gauss(self, frame: PhysicsFrame) -> np.ndarray:

@@ -110,6 +110,10 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
     # PX4 answered its frames (now and then a frame gets no output: 1-2 per 30 simulated minutes, 65,000-95,000
     # frames) and the companion every lockstep boundary
     assert stats["hil_actuator_timeouts"] * 10_000 < stats["hil_frames"] and stats["lockstep_timeouts"] == 0, stats
+    # PX4 ran our two MAVLink links (params/px4-hil-mavlink.rc), not its own four
+    links = [line.split("mode: ")[1].split(",")[0] for line in rig.sitl.log_path.read_text(errors="replace").splitlines()
+             if "[mavlink] mode: " in line]
+    assert links == ["Custom", "Onboard"], links
     flown_s, commands, off_deg = commands_flown(log_dir / "steps.csv", mon.truth, t_lost, after[-1].time_s,
                                                 ROVER_MIN_SPEED)
     median = off_deg[len(off_deg) // 2] if off_deg else float("nan")
@@ -117,3 +121,24 @@ def test_gps_lost_after_start_up_offboard_kept_and_on_course_in_lockstep(hil_rig
     # 1800 s less the command in force at the loss (up to one 160 s period) and a last one under 60 s
     assert flown_s >= 1500.0, f"only {flown_s:.0f} s flown on commanded courses without GPS"
     assert commands >= 5, f"only {commands} commands without GPS: the navigator stopped stepping"
+
+
+def test_hil_instance_sources_our_mavlink_links_and_sih_keeps_px4s(tmp_path):
+    """rcS sources px4-rc.mavlink from PATH: a simulator_mavlink instance's bin/ holds the rig's
+    (GCS and onboard links only), an SIH instance's none (PX4's own in etc/)."""
+    from fcmpc.firmware.px4 import HIL_LINKS_RC, Px4Sitl
+
+    root = tmp_path / "px4root"
+    (root / "bin").mkdir(parents=True)
+    (root / "bin" / "px4").write_text("")
+    (root / "bin" / "px4-mavlink").write_text("px4")
+    for simulator in ("mavlink", "sih"):
+        sitl = Px4Sitl(workdir=tmp_path / simulator, simulator=simulator)
+        env = sitl.environment(root)
+        assert env["PATH"].startswith(str(tmp_path / simulator / "bin"))
+        ours = tmp_path / simulator / "bin" / "px4-rc.mavlink"
+        assert ours.exists() == (simulator == "mavlink")
+    text = (tmp_path / "mavlink" / "bin" / "px4-rc.mavlink").read_text()
+    assert text == (REPO / "params" / HIL_LINKS_RC).read_text()
+    starts = [line for line in text.splitlines() if line.startswith("mavlink start")]
+    assert len(starts) == 2 and "-m custom" in starts[0] and "-m onboard" in starts[1], starts
