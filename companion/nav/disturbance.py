@@ -414,7 +414,7 @@ class BiasWalk:
         return decay, driven * storm_scale ** 2, cross * storm_scale ** 2
 
     @staticmethod
-    def storm_matched(scale: float, monitor: DisturbanceMonitor, adapt: bool = True) -> float:
+    def storm_matched(scale: float, monitor: DisturbanceMonitor, adapt: int = 1) -> float:
         """Covariance matching of a declared storm's walk: while an index declares the storm, its
         scale moves each step by ``(NIS / m)^ADAPT_GAIN`` of the monitor's averaged NIS, between
         the declared walk (1: the fitted walks are a floor, innovations smaller than predicted
@@ -425,7 +425,11 @@ class BiasWalk:
         (3.0, 6.0)
         >>> m.average = 0.25; BiasWalk.storm_matched(6.0, m), BiasWalk.storm_matched(1.5, m)
         (3.0, 1.0)
+        >>> m.average = 2.25; BiasWalk.storm_matched(2.0, m, 2), BiasWalk.storm_matched(2.0, m, 1)   # 2: held
+        (2.0, 3.0)
         """
         if not (monitor.declared and adapt):
             return 1.0
+        if adapt == 2 and 1.0 <= monitor.average <= ACTIVE_ON:   # 2: raised only beyond the onset threshold
+            return scale
         return min(STORM_SCALE_MAX, max(1.0, scale * monitor.average ** ADAPT_GAIN))
