@@ -164,6 +164,13 @@ class DisturbanceMonitor:
         self.quiet_steps = 0
         self.loud_steps = 0
         self.activations = 0
+        self.storm_nis = (0.0, 0)   # sum of NIS / m and updates while an index declared a storm
+
+    def variance_factor(self) -> float:
+        """The a-posteriori variance factor of the declared storm's updates, ``mean(NIS / m)``,
+        at least 1 (FUS_BQA_SADAPT 3 scales the reported position covariance by it)."""
+        total, count = self.storm_nis
+        return max(1.0, total / count) if count else 1.0
 
     def declare(self, storm: bool, index_quiet: bool = False) -> bool:
         """A space-weather index says whether a storm is on (``storm``) or the field is quiet
@@ -179,7 +186,10 @@ class DisturbanceMonitor:
     def observe(self, whitened: np.ndarray) -> bool:
         """One update's whitened innovation ``L^-1 y`` (``S = L L^T``); returns whether active."""
         w = np.asarray(whitened, dtype=float)
-        self.average = (1.0 - NIS_ALPHA) * self.average + NIS_ALPHA * float(w @ w) / len(w)
+        nis_m = float(w @ w) / len(w)
+        self.average = (1.0 - NIS_ALPHA) * self.average + NIS_ALPHA * nis_m
+        if self.declared:
+            self.storm_nis = (self.storm_nis[0] + nis_m, self.storm_nis[1] + 1)
         self.quiet_steps = self.quiet_steps + 1 if self.average < ACTIVE_OFF else 0
         threshold = ACTIVE_ON if self.activations == 0 else REACTIVE_ON
         self.loud_steps = self.loud_steps + 1 if self.average > threshold else 0
@@ -192,11 +202,11 @@ class DisturbanceMonitor:
 
     def snapshot(self) -> tuple:
         return (self.average, self.active, self.declared, self.index_quiet, self.quiet_steps, self.loud_steps,
-                self.activations)
+                self.activations, self.storm_nis)
 
     def restore(self, state: tuple) -> None:
         (self.average, self.active, self.declared, self.index_quiet, self.quiet_steps, self.loud_steps,
-         self.activations) = state
+         self.activations, self.storm_nis) = state
 
 
 def field_jacobian(names: tuple[str, ...], north_nt: float, east_nt: float, down_nt: float) -> np.ndarray:
@@ -428,7 +438,7 @@ class BiasWalk:
         >>> m.average = 2.25; BiasWalk.storm_matched(2.0, m, 2), BiasWalk.storm_matched(2.0, m, 1)   # 2: held
         (2.0, 3.0)
         """
-        if not (monitor.declared and adapt):
+        if not (monitor.declared and adapt in (1, 2)):
             return 1.0
         if adapt == 2 and 1.0 <= monitor.average <= ACTIVE_ON:   # 2: raised only beyond the onset threshold
             return scale

@@ -191,9 +191,10 @@ class NavigationFilter:
         return self.process.position(self.x, ins_lat_deg, ins_lon_deg)
 
     def covariance_en(self, lat_deg: float) -> np.ndarray:
-        """2 x 2 covariance of the position estimate, east/north, m^2."""
+        """2 x 2 covariance of the position estimate, east/north, m^2 (FUS_BQA_SADAPT 3: scaled by the
+        declared storm's variance factor, :meth:`DisturbanceMonitor.variance_factor`)."""
         j = self._j(lat_deg)
-        return j @ self.kf.P @ j.T
+        return j @ self.kf.P @ j.T * (self.monitor.variance_factor() if self.settings.bias.storm_adapt == 3 else 1.0)
 
     def _j(self, lat_deg: float) -> np.ndarray:
         return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh + self.ns))])

@@ -305,3 +305,26 @@ def test_a_declared_storm_walk_follows_innovations_larger_than_it_predicts(model
     flt.monitor.declare(False)
     flt.update_elements(s_true, None, standard_errors=se)
     assert flt.storm_scale == 1.0
+
+
+def test_the_declared_storm_variance_factor_scales_only_the_reported_covariance(model):
+    """FUS_BQA_SADAPT 3: the monitor keeps mean(NIS / m) of the updates while an index declares a
+    storm (not before, at least 1); the filter reports its position covariance times it, its own P
+    untouched; with any other value the covariance is P's."""
+    monitor = DisturbanceMonitor()
+    monitor.observe(np.array([3.0, 3.0]))                  # quiet: not counted
+    assert monitor.variance_factor() == 1.0
+    monitor.declare(True)
+    for w in ([2.0, 2.0], [1.0, 1.0], [0.0, 0.0]):        # NIS / m 4, 1, 0
+        monitor.observe(np.array(w))
+    assert monitor.variance_factor() == pytest.approx(5.0 / 3.0)
+    flts = {}
+    for adapt in (0, 3):
+        spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, storm_adapt=adapt)
+        settings_ = bare_filter(bias=spec)
+        flts[adapt] = NavigationFilter(DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0),
+                                       ELEMENT_SETS[ElementSet.PAPER], settings_, model, ALT, YEAR)
+        flts[adapt].monitor.declare(True)
+        flts[adapt].monitor.storm_nis = (9.0, 3)
+    np.testing.assert_allclose(flts[3].covariance_en(START[0]), 3.0 * flts[0].covariance_en(START[0]), rtol=1e-12)
+    assert np.array_equal(flts[3].kf.P, flts[0].kf.P)
