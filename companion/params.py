@@ -198,6 +198,9 @@ class CompanionConfig:
     mag_soft_xy: float
     mag_soft_xz: float
     mag_soft_yz: float
+    mag_rot_roll: float
+    mag_rot_pit: float
+    mag_rot_yaw: float
 
     @classmethod
     def from_values(cls, values: Mapping[str, float]) -> CompanionConfig:
@@ -225,6 +228,10 @@ class CompanionConfig:
     @property
     def mag_soft_xy_xz_yz(self) -> tuple[float, float, float]:
         return self.mag_soft_xy, self.mag_soft_xz, self.mag_soft_yz
+
+    @property
+    def mag_rotation_deg(self) -> tuple[float, float, float]:
+        return self.mag_rot_roll, self.mag_rot_pit, self.mag_rot_yaw
 
 
 def names_with_prefix(prefixes: Iterable[str]) -> list[str]:

@@ -259,6 +259,9 @@ REGISTRY: tuple[ParamSpec, ...] = (
     _p("MAG_SOFT_XY", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, x-y (a symmetric matrix with MAG_SCALE_* on its diagonal; fcmpc-calibrate fits it)", to="companion.mag_soft_xy"),
     _p("MAG_SOFT_XZ", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, x-z", to="companion.mag_soft_xz"),
     _p("MAG_SOFT_YZ", float, 0.0, -2.0, 2.0, "", "soft iron off the diagonal, y-z", to="companion.mag_soft_yz"),
+    _p("MAG_ROT_ROLL", float, 0.0, -15.0, 15.0, "deg", "magnetometer's alignment to the body, applied after the soft iron: roll of the rotation from the sensor's frame into the body's (ZYX Euler; fcmpc-calibrate fits it against the model's field direction at the GPS position)", to="companion.mag_rot_roll"),
+    _p("MAG_ROT_PIT", float, 0.0, -15.0, 15.0, "deg", "magnetometer's alignment to the body: pitch of the rotation", to="companion.mag_rot_pit"),
+    _p("MAG_ROT_YAW", float, 0.0, -15.0, 15.0, "deg", "magnetometer's alignment to the body: yaw of the rotation (fitted only with fcmpc-calibrate --align xyz: a yaw fused from this compass cannot judge it)", to="companion.mag_rot_yaw"),
 )
 
 SPEC_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in REGISTRY}

@@ -9,6 +9,7 @@ from __future__ import annotations
 from companion.failsafe import Health, HealthLimits
 from companion.fc_view import FcView
 from companion.io.param_server import ParamServer
+from companion.nav.alignment import aligned
 from companion.nav.magnetometer import MagCalibration, MagProcessor
 from companion.nav.mission import Mission
 from companion.params import CompanionConfig, NavConfig
@@ -27,7 +28,9 @@ def health_limits(c: CompanionConfig) -> HealthLimits:
 
 
 def mag_calibration(c: CompanionConfig) -> MagCalibration:
-    return MagCalibration.from_mgauss(c.mag_offset_mgauss, c.mag_scale, c.mag_soft_xy_xz_yz)
+    """MAG_OFS/SCALE/SOFT_*, then the alignment MAG_ROT_* (:mod:`companion.nav.alignment`)."""
+    return aligned(MagCalibration.from_mgauss(c.mag_offset_mgauss, c.mag_scale, c.mag_soft_xy_xz_yz),
+                   c.mag_rotation_deg)
 
 
 class Settings:

@@ -127,6 +127,9 @@ class ArduPilotSitl:
             log.close()
         return self
 
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
     def wait_listening(self, timeout_s: float = 60.0) -> None:
         """Until SERIAL0 accepts TCP connections (an event, polled), or RuntimeError."""
         port = self.ports_for(self.instance)[0]

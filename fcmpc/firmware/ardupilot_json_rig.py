@@ -73,6 +73,9 @@ class ArduPilotJsonRig(ArduPilotRig):
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out)
         return super().start()
 
+    def alive(self) -> bool:
+        return super().alive() and self.world is not None and self.world.poll() is None
+
     @property
     def companion_url(self) -> str:
         return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
@@ -90,7 +93,7 @@ def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[
     with open(out / "physics.log", "wb") as log:
         return subprocess.Popen(
             [sys.executable, "-m", "sitl.physics.ardupilot_json", "--instance", str(instance),
-             "--home", f"{home[0]!r},{home[1]!r}", "--current-en", f"{east!r},{north!r}",
+             f"--home={home[0]!r},{home[1]!r}", f"--current-en={east!r},{north!r}",   # '=': "-0.04,..." is a value
              "--stats", str(out / "physics.json"), *([] if relay else ["--no-relay"])],
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 

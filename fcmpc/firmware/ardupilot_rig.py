@@ -15,7 +15,7 @@ from pathlib import Path
 
 from fcmpc.firmware.ardupilot import ArduPilotSitl, ardupilot_binary
 from fcmpc.firmware.compass import ardupilot_compass_params, calibrate_fixed_yaw
-from fcmpc.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware.monitor import STARTUP_GUARD_S, FirmwareMonitor
 
 __all__ = ["FirmwareFlight", "BOAT_CRUISE_KMH", "ArduPilotRig"]
 
@@ -67,8 +67,12 @@ class ArduPilotRig:
         self.sitl.start()
         self.sitl.wait_listening()
         monitor = FirmwareMonitor(self.sitl.serial0, rates_hz={"SIMSTATE": 1.0, "VFR_HUD": 1.0, "GPS_RAW_INT": 1.0})
-        monitor.start()
+        monitor.start(timeout_s=STARTUP_GUARD_S, alive=self.alive)
         return monitor
+
+    def alive(self) -> bool:
+        """Every process of the firmware's side runs (SITL; the JSON rig adds its world)."""
+        return self.sitl.alive()
 
     def prepare(self, monitor: FirmwareMonitor) -> list[str]:
         """Before the companion starts: a real compass is calibrated as a boat's user does it."""

@@ -20,6 +20,7 @@ import select
 import socket
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,10 +28,13 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
 
-__all__ = ["TruthSample", "FirmwareMonitor", "write_truth_csv"]
+__all__ = ["STARTUP_GUARD_S", "TruthSample", "FirmwareMonitor", "write_truth_csv"]
 
 mavlink = mavutil.mavlink
 GCS_SYSID = 255
+# The rigs wait for a running firmware's first heartbeat this long at most (a hang guard, not a pace):
+# ArduPilot's JSON SITL took more than 60 s to boot at a load average of 30 (a Monte Carlo seed lost)
+STARTUP_GUARD_S = 900.0
 
 
 @dataclass(frozen=True)
@@ -88,11 +92,15 @@ class FirmwareMonitor:
         if len(text.encode()) < 50:   # the last chunk is shorter (an empty one closes a full one)
             self.texts.append((self.time_s, comp, self._chunks.pop(key)))
 
-    def start(self, timeout_s: float = 60.0) -> None:
+    def start(self, timeout_s: float = 60.0, alive: Callable[[], bool] | None = None) -> None:
         """Wait for the autopilot's heartbeat (saying hello first on a ``udpout:`` link), then ask
-        for the streams."""
+        for the streams. With ``alive`` (are the firmware's processes running?) the wait lasts as
+        long as they run, ``timeout_s`` being only a hang guard, and ends at once when they have
+        gone: a firmware that boots slowly on a loaded machine is waited for, a dead one is not."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
+            if alive is not None and not alive():
+                raise RuntimeError(f"the flight controller exited before its first heartbeat on {self.connect}")
             self._hello()
             msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
             if msg is not None and msg.get_srcComponent() == 1 and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID:

@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fcmpc.firmware.ardupilot_rig import BOAT_CRUISE_KMH, FirmwareFlight
-from fcmpc.firmware.monitor import FirmwareMonitor
+from fcmpc.firmware.monitor import STARTUP_GUARD_S, FirmwareMonitor
 from fcmpc.firmware.px4 import Px4Sitl, px4_root
 
 __all__ = ["COMPANION_VALUES", "HIL_GATE_TIMEOUT_S", "HIL_LOCKSTEP_PERIOD_S", "HIL_VALUES", "MONITOR_RATES_HZ",
@@ -78,7 +78,7 @@ class Px4Rig:
     def _monitor(self) -> FirmwareMonitor:
         monitor = FirmwareMonitor(self.sitl.gcs_url, rates_hz=MONITOR_RATES_HZ)
         try:
-            monitor.start()
+            monitor.start(timeout_s=STARTUP_GUARD_S, alive=self.sitl.alive)
         except TimeoutError as err:
             raise RuntimeError(f"{err}; PX4 {'exited' if not self.sitl.alive() else 'runs'}, "
                                f"see {self.sitl.log_path}") from None

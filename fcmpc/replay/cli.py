@@ -8,7 +8,8 @@ from pathlib import Path
 
 from companion.io.sensors.base import SensorError
 from fcmpc.replay.evaluate import DEFAULT_WINDOWS_S
-from fcmpc.replay.logeval import evaluate_log
+from fcmpc.replay.calibrate import ALIGN_AXES
+from fcmpc.replay.logeval import CALIBRATION_FITS, evaluate_log
 from fcmpc.replay.outputs import write_outputs
 from fcmpc.replay.report import format_log_report, format_report
 
@@ -44,16 +45,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--crash-guard-s", type=float, default=10.0,
                         help="the airborne span ends this long before a detected crash (default 10)")
     parser.add_argument("--no-calibration", action="store_true",
-                        help="replay the magnetometer as logged; by default its hard and soft iron are fitted on "
-                             "each boot (fcmpc-calibrate's fit) and applied, and the fix error is reported before "
-                             "and after")
+                        help="replay the magnetometer as logged; by default its hard and soft iron and its alignment "
+                             "(fcmpc-calibrate's fits) are fitted on each boot's first part and applied, and the fix "
+                             "error is reported before and after on the rest of the boot only")
+    parser.add_argument("--calibration-fit", choices=CALIBRATION_FITS, default="first-part",
+                        help="first-part (default): fit on the boot's first part, judge on the rest; all-samples: "
+                             "fit on every sample and judge the same samples (optimistic: the fit saw what it is "
+                             "judged on)")
+    parser.add_argument("--align", choices=ALIGN_AXES, default="xy",
+                        help="the calibration's alignment to the body (fcmpc-calibrate --align; default xy)")
     parser.add_argument("--no-plots", action="store_true")
     args = parser.parse_args(argv)
     # A user error (unreadable or unsupported log, no date, a model that does not cover it) is one
     # line naming the file or option and exit code 2; anything else is a bug and keeps its traceback.
     try:
         result = evaluate_log(args.log, args.model, args.window_s, args.prior_offset_km, args.crash_guard_s,
-                              args.mag_instance, args.date, calibrate=not args.no_calibration)
+                              args.mag_instance, args.date, calibrate=not args.no_calibration,
+                              calibration_fit=args.calibration_fit, align=args.align)
     except (SensorError, ValueError, OSError) as err:
         print(f"fcmpc-replay: {err}", file=sys.stderr)
         return 2

@@ -4,6 +4,7 @@ Table 3 fusion (eq. 46-58), and the open-loop Fc-MPC mission (:mod:`fcmpc.replay
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +40,13 @@ def evaluate_flight(
     windows_s: tuple[float, ...] = DEFAULT_WINDOWS_S,
     prior_offset_km: float = 10.0,
     crash_guard_s: float = 10.0,
+    judged_from_s: float | None = None,
 ) -> ReplayEvaluation:
     """Evaluate one flight of one boot (``flight`` None: a recording that is not a flight).
 
     ``data`` is the boot's data cut to the flight's window; ValueError when it lacks GPS,
-    magnetometer or attitude samples.
+    magnetometer or attitude samples. ``judged_from_s``: the judged span starts no earlier (the
+    end of the samples a calibration was fitted on).
     """
     path = data.path
     where = f"{path}" + (f" (boot {data.boot + 1} of {data.boots})" if data.boots > 1 else "")
@@ -58,7 +61,7 @@ def evaluate_flight(
     # --- 1. per-sample D, I (measured) and the model at the GPS position ------------------------
     di = measure_di(data, model, year, SPIKE_NT)
     t_m, meas, wmm, accepted = di.t, di.meas, di.model, di.accepted
-    seg = find_segments(data, t_m, meas[:, 0], crash_guard_s, flight)
+    seg = replace(find_segments(data, t_m, meas[:, 0], crash_guard_s, flight), judged_from_s=judged_from_s)
     nav0, nav1 = seg.nav_start_s, seg.end_s
     in_nav = (t_m >= nav0) & (t_m <= nav1)
     if int((in_nav & accepted).sum()) < 2:

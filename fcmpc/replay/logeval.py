@@ -13,7 +13,7 @@ import numpy as np
 
 from companion.nav.magnetometer import MagCalibration
 
-from fcmpc.replay.calibrate import calibrate_boot
+from fcmpc.replay.calibrate import CALIBRATION_SHARES, calibrate_boot, calibrate_prefix
 from fcmpc.replay.evaluate import DEFAULT_WINDOWS_S, evaluate_flight
 from fcmpc.replay.logdata import LogData
 from fcmpc.replay.reading import read_boots
@@ -21,7 +21,11 @@ from fcmpc.replay.models import log_date, select_model
 from fcmpc.replay.records import ReplayEvaluation
 from fcmpc.replay.segments import find_flights
 
-__all__ = ["LogEvaluation", "apply_calibration", "evaluate_boots", "evaluate_log", "evaluate"]
+__all__ = ["CALIBRATION_FITS", "LogEvaluation", "apply_calibration", "evaluate_boots", "evaluate_log", "evaluate"]
+
+# fcmpc-replay's calibration: "first-part" fits on the boot's first part and judges the rest
+# (calibrate_prefix's rule); "all-samples" fits on every sample and judges the same samples
+CALIBRATION_FITS = ("first-part", "all-samples")
 
 
 @dataclass
@@ -53,14 +57,19 @@ def evaluate_log(
     mag_instance: int = 0,
     date: str | None = None,
     calibrate: bool = False,
+    calibration_fit: str = "first-part",
+    align: str = "xy",
 ) -> LogEvaluation:
     """Split the log into boots and flights and evaluate each; SensorError/ValueError on bad input.
 
-    ``calibrate``: fit the magnetometer's hard and soft iron on each boot's samples against the
-    model's |B| at its first fix (:mod:`fcmpc.replay.calibrate`), evaluate with it applied, and keep
-    each window's fix error before it (``fcmpc-replay`` does, unless ``--no-calibration``)."""
+    ``calibrate``: fit the magnetometer's hard and soft iron against the model's |B| at its first
+    fix and its alignment against the model's direction (``align``, :mod:`fcmpc.replay.calibrate`),
+    evaluate with them applied, and keep each window's fix error before them (``fcmpc-replay``
+    does, unless ``--no-calibration``). ``calibration_fit`` (one of :data:`CALIBRATION_FITS`):
+    fitted on the boot's first part and judged, before and after, on the rest only (the default),
+    or fitted on every sample and judged on the same."""
     return evaluate_boots(read_boots(path, mag_instance), model_spec, windows_s, prior_offset_km, crash_guard_s,
-                          date, calibrate)
+                          date, calibrate, calibration_fit, align)
 
 
 def evaluate_boots(
@@ -71,8 +80,12 @@ def evaluate_boots(
     crash_guard_s: float = 10.0,
     date: str | None = None,
     calibrate: bool = False,
+    calibration_fit: str = "first-part",
+    align: str = "xy",
 ) -> LogEvaluation:
     """:func:`evaluate_log` of boots already read (or changed: a known distortion applied)."""
+    if calibration_fit not in CALIBRATION_FITS:
+        raise ValueError(f"calibration_fit must be one of {', '.join(CALIBRATION_FITS)}, got {calibration_fit!r}")
     path = boots[0].path if boots else ""
     result = LogEvaluation(str(path), len(boots))
     errors: list[str] = []
@@ -91,20 +104,28 @@ def evaluate_boots(
             continue
         flights, notes = find_flights(data)
         result.skipped += [f"{name}: {n}" for n in notes]
-        fit, cal_note = None, ""
+        correction, cal_note, judged_from = None, "", None
         if calibrate:
-            cal = calibrate_boot(data, model_spec, date)
-            fit = cal.fit
-            cal_note = (f"fitted on the boot's {fit.samples} samples, {cal.field_note}:\n{fit.describe()}" if fit
-                        else f"not applied ({cal.field_note}): {cal.refused.splitlines()[0]}")
+            cal = (calibrate_prefix(data, model_spec, date, align) if calibration_fit == "first-part"
+                   else calibrate_boot(data, model_spec, date, None, align))
+            correction = cal.calibration
+            judged_from = cal.until_s if correction is not None else None
+            span = ("every sample of the boot, judged on the same samples" if cal.until_s is None else
+                    f"the boot's samples up to {cal.until_s:.1f} s (from its first fix: the shortest of "
+                    f"{', '.join(f'{s:.2f}' for s in CALIBRATION_SHARES)} of the boot with the most fits accepted); "
+                    f"judged from {cal.until_s:.1f} s only, before and after")
+            cal_note = (f"fitted on {span}; {cal.field_note}:\n{cal.describe()}" if correction is not None
+                        else f"not applied ({cal.field_note}): {cal.refused.splitlines()[0]}; "
+                             f"{cal.alignment_refused.splitlines()[0] if cal.alignment_refused else ''}")
         units = [(None, data)] if not flights else [(f, data.window(*f.window_s)) for f in flights]
         for k, (flight, part) in enumerate(units):
             try:
-                ev = evaluate_flight(part, flight, model, model_note, when, windows_s, prior_offset_km, crash_guard_s)
-                if fit is not None:
+                ev = evaluate_flight(part, flight, model, model_note, when, windows_s, prior_offset_km, crash_guard_s,
+                                     judged_from)
+                if correction is not None:
                     before = ev.fix_rows
-                    ev = evaluate_flight(apply_calibration(part, fit.calibration), flight, model, model_note, when,
-                                         windows_s, prior_offset_km, crash_guard_s)
+                    ev = evaluate_flight(apply_calibration(part, correction), flight, model, model_note, when,
+                                         windows_s, prior_offset_km, crash_guard_s, judged_from)
                     ev.fix_rows_before = before
             except ValueError as err:  # a flight without magnetometer or attitude samples in its window
                 result.skipped.append(f"{name}, flight {k + 1}: not evaluated: {err}")

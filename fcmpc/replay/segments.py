@@ -47,11 +47,14 @@ class Segments:
     rules: list[str] = field(default_factory=list)
     armed_s: float | None = None
     disarmed_s: float | None = None
+    judged_from_s: float | None = None   # the end of the samples a calibration was fitted on
 
     @property
     def nav_start_s(self) -> float:
-        """Start of the span the navigation is judged on: take-off, else the first fix."""
-        return self.takeoff_s if self.takeoff_s is not None else self.first_fix_s
+        """Start of the span the navigation is judged on: take-off, else the first fix; not before
+        ``judged_from_s`` (fcmpc-replay judges only samples its calibration did not see)."""
+        start = self.takeoff_s if self.takeoff_s is not None else self.first_fix_s
+        return start if self.judged_from_s is None else max(start, self.judged_from_s)
 
 
 @dataclass(frozen=True)

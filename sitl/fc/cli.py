@@ -56,6 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "0 makes them alternate")
     p.add_argument("--lockstep-peer", default=None, metavar="SYS:COMP",
                    help="only this sender answers lockstep (default any sender but the simulator)")
+    p.add_argument("--lockstep-peer-pid", type=int, default=None, metavar="PID",
+                   help="the companion's process id on this machine: wait for its answers as long as it runs "
+                        "(no --lockstep-timeout), go on at once when it has ended; a test's world then "
+                        "cannot run away from a companion slowed by a busy machine")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     p.add_argument("--max-sim-s", type=float, default=30 * 3600.0, help="hard limit of simulated time (default 30 h)")
     p.add_argument("--seed", type=int, default=0, help="seed of every noise, INS error and fault draw (default 0)")
@@ -110,7 +114,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         scenario=args.scenario, outs=tuple(args.out), masters=tuple(args.master), speedup=args.speedup,
         lockstep=args.lockstep, lockstep_period_s=args.lockstep_period, lockstep_timeout_s=args.lockstep_timeout,
         lockstep_start_timeout_s=args.lockstep_start_timeout, lockstep_peer=peer,
-        lockstep_slack=args.lockstep_slack, duration_s=args.duration,
+        lockstep_peer_pid=args.lockstep_peer_pid, lockstep_slack=args.lockstep_slack, duration_s=args.duration,
         max_sim_s=args.max_sim_s, seed=args.seed, autopilot=args.autopilot, sysid=args.sysid,
         setpoint_timeout_s=args.setpoint_timeout, cruise_speed_mps=args.cruise_speed, init_s=args.init_s,
         cruise=cruise,

@@ -142,7 +142,7 @@ class SitlServer:
                                        self.telemetry, self.faults, self.clock, self.counters)
         self.router.handlers = {**self.commands.handlers(), **self.fc_params.handlers()}
         self.stepper = Stepper(self.pacer, self.gate, self.router, self.out, self.telemetry, self.faults,
-                               self.clock, self._stop)
+                               self.clock, self._stop, config.lockstep_peer_pid)
         self.wall_start = self.wall_end = 0.0
         self.vehicle.set_home()
         self.guidance.home = self.vehicle.home
@@ -335,6 +335,7 @@ class SitlServer:
         }
         if self.gate is not None:
             summary.update(self.gate.stats())
+            summary.update(self.stepper.stats())
         self.summary = summary
         path = self.config.summary_json
         if path is None and self.records.enabled:

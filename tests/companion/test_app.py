@@ -10,42 +10,22 @@ from pathlib import Path
 
 import pytest
 
+from tests.lockstep import HANG_S, lockstep_pair
 from tests.ports import free_port
-from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def _run(tmp_path: Path, parm_text: str, sim_s: float = 300.0, sitl_args: tuple[str, ...] = (),
-         wall_s: float = 60.0) -> tuple[dict, dict]:
+         wall_s: float = HANG_S) -> tuple[dict, dict]:
     """Simulator (lockstep, ``sim_s`` simulated seconds, ``sitl_args`` more) and companion; their
-    summaries. ``wall_s``: the hang guard of each process (a lockstep run keeps no wall pace)."""
-    port = free_port()
-    parm = tmp_path / "companion.parm"
-    parm.write_text(parm_text, encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=str(REPO), MAVLINK20="1")
-    companion = subprocess.Popen(
-        [sys.executable, "-m", "companion.app", "--connect", f"udp:127.0.0.1:{port}", "--params", str(parm),
-         "--log-dir", str(tmp_path / "companion"), "--lockstep", "--max-wall-s", f"{wall_s:g}", "--quiet", "--no-tlog"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    wait_for_file(tmp_path / "companion" / "steps.csv", [companion], 60.0)   # its port is bound
-    sitl = subprocess.Popen(
-        [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{port}", "--lockstep", "--duration",
-         str(sim_s), "--log-dir", str(tmp_path / "sitl"), "--quiet", "--lockstep-timeout", "0.5", *sitl_args],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        sitl.wait(timeout=wall_s)
-    finally:
-        for proc in (sitl, companion):
-            if proc.poll() is None:
-                proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
-    return (json.loads((tmp_path / "sitl" / "summary.json").read_text()),
-            json.loads((tmp_path / "companion" / "summary.json").read_text()))
+    summaries. The world waits for the companion as long as its process lives (:mod:`tests.lockstep`),
+    so a busy machine slows the run and never changes it; ``wall_s``: the hang guard of each process."""
+    with lockstep_pair(tmp_path, parm_text, companion_args=("--no-tlog",), wall_s=wall_s,
+                       sitl_args=("--duration", str(sim_s), *sitl_args)) as pair:
+        pair.sitl.wait(timeout=wall_s)
+    return (json.loads((pair.sitl_dir / "summary.json").read_text()),
+            json.loads((pair.companion_dir / "summary.json").read_text()))
 
 
 def test_arms_and_steers_when_allowed(tmp_path):

@@ -3,8 +3,9 @@
 The companion runs its real loop (:meth:`CompanionApp.run`) in a thread; a pymavlink peer on
 UDP plays the flight controller (heartbeat, SYSTEM_TIME, ATTITUDE and a RAW_IMU carrying a
 *different* field), and a second dronecan node on python-can's virtual bus publishes real
-MagneticFieldStrength2 frames. Message time follows the wall clock while the CAN node
-publishes (the companion maps the host-stamped CAN samples onto it).
+MagneticFieldStrength2 frames. Message time advances by a fixed step per burst, whatever the wall
+time a step takes, and the CAN driver's host clock is that message time (the companion maps the
+host-stamped CAN samples onto message time): a loaded machine slows the test, never changes it.
 """
 from __future__ import annotations
 
@@ -14,9 +15,11 @@ import os
 import signal
 import threading
 import time
+import types
 
 import can.interfaces.virtual
 import dronecan
+import dronecan.driver.python_can
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -25,6 +28,7 @@ from pymavlink import mavutil  # noqa: E402
 from companion.app import CompanionApp, State, build_parser, main, options_from_args  # noqa: E402
 from companion.io.link import mavlink  # noqa: E402
 from companion.io.sensors.base import SampleKind  # noqa: E402
+from tests.lockstep import HANG_S  # noqa: E402
 from tests.ports import free_port  # noqa: E402
 
 # dronecan's own driver still passes python-can the deprecated 'bustype' keyword.
@@ -83,7 +87,9 @@ class Rig:
         self.can_sent += 1
 
     def step(self, dt: float | None = None, can_on: bool = True, wall_s: float = 0.01) -> None:
-        """One FC message burst (message time +dt; None: follow the wall clock) and a CAN frame."""
+        """One FC message burst (message time +dt; None: ``wall_s``, the rest that follows it) and a CAN
+        frame. The CAN driver stamps what it receives with this message time (:func:`rig`), so a step
+        is the same whatever the wall time it takes on a loaded machine."""
         self.n += 1
         self.msg_t += wall_s if dt is None else dt
         ms = int(self.msg_t * 1000)
@@ -109,7 +115,7 @@ class Rig:
     def named(self, name: str) -> list[float]:
         return [m.value for m in self.received if m.get_type() == "NAMED_VALUE_FLOAT" and m.name == name]
 
-    def until(self, condition, limit_wall_s: float = 30.0, **step) -> None:   # a hang guard, not a pace
+    def until(self, condition, limit_wall_s: float = HANG_S, **step) -> None:   # a hang guard, not a pace
         deadline = time.monotonic() + limit_wall_s
         while not condition():
             assert time.monotonic() < deadline, f"timed out; companion state {self.app.state}, " \
@@ -129,6 +135,13 @@ def rig(tmp_path, monkeypatch: pytest.MonkeyPatch):
     # virtual bus does not implement (see /work/shared/PACKAGES.md).
     monkeypatch.setattr(can.interfaces.virtual.VirtualBus, "flush_tx_buffer", lambda self: None, raising=False)
     r = Rig(tmp_path, f"fcmpc-app-{os.getpid()}-{next(_channels)}")
+    # the companion stamps a CAN frame with the host's monotonic clock when its driver takes it: here
+    # that clock is the rig's message time, so the stamps and message time agree however long a step
+    # takes. With the wall's clock a loaded machine (steps of more than their 10 ms) put the samples
+    # up to the 1 s the companion's mapping tolerates away from message time, past the attitude's
+    # 0.5 s window: left out, a step postponed for want of samples, the test timed out (1 of 5 runs)
+    monkeypatch.setattr(dronecan.driver.python_can, "time",
+                        types.SimpleNamespace(monotonic=lambda: r.msg_t, time=time.time, sleep=time.sleep))
     r.start()
     yield r
     r.stop()
@@ -184,7 +197,13 @@ def test_can_magnetometer_going_silent_is_a_failsafe(rig: Rig) -> None:
 
     app.voice.say = spy
     # the CAN node stops; the FC keeps talking, message time runs 5x faster than the wall
-    rig.until(lambda: "FAILSAFE" in rig.texts() and "sensor source" in rig.texts(), dt=0.05, can_on=False)
+    def holds() -> list:
+        return [m for m in rig.received if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+
+    # until what is judged below has arrived: the texts (long ones in several chunks) and the mode
+    # command, which reach the rig in no fixed order with the failsafe's first words (1 of 5 loaded runs)
+    rig.until(lambda: "FcMPC FAILSAFE" in rig.texts() and "mag: no valid magnetometer sample" in rig.texts()
+              and "FcMPC: sensor source" in rig.texts() and holds(), dt=0.05, can_on=False)
     t_fs, last = seen_at_failsafe[0]
     timeout = app.settings.comp.mag_timeout_s
     assert len([e for e in app.voice.events if "FcMPC FAILSAFE" in e]) == 1
@@ -194,8 +213,7 @@ def test_can_magnetometer_going_silent_is_a_failsafe(rig: Rig) -> None:
     assert "mag: no valid magnetometer sample" in texts
     assert f"sensor source dronecan@virtual:{rig.channel} silent" in texts
     assert texts.count("FcMPC: sensor source") == 1                                     # said once
-    holds = [m for m in rig.received if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
-    assert holds and holds[0].param2 == 4                                               # Rover HOLD
+    assert holds()[0].param2 == 4                                                       # Rover HOLD
     # it comes back: samples flow again, the source says so
     rig.until(lambda: "delivering again" in rig.texts(), can_on=True)
 

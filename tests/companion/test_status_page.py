@@ -29,13 +29,13 @@ from companion.io.status_page.address import parse_http_address
 from companion.io.status_page.server import MAX_CONNECTIONS, TrackReader
 from companion.params import default_values
 from fcmpc.firmware.processes import stop_process as _stop
+from tests.lockstep import HANG_S, stand_in_lockstep_args
 from tests.ports import free_port
 from tests.processes import wait_for_file
 
 REPO = Path(__file__).resolve().parents[2]
 FLOWN_S = 300.0
 SECRET = "outside-the-records-folder-4f1c"
-HANG_S = 120.0           # a hung-run guard, not a pace
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
@@ -76,9 +76,9 @@ def vehicle(tmp_path_factory):
         wait_for_file(base / "companion" / "steps.csv", [companion], HANG_S)   # the page is served from here on
         vehicle = Vehicle(base, port, companion)
         vehicle.before_fc = vehicle.state()
-        sitl = subprocess.run(
-            [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{udp}", "--lockstep", "--duration",
-             str(FLOWN_S), "--log-dir", str(base / "sitl"), "--quiet", "--lockstep-timeout", "0.5"],
+        sitl = subprocess.run(   # the world waits for the companion as long as it lives (tests/lockstep.py)
+            [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{udp}", *stand_in_lockstep_args(companion.pid),
+             "--duration", str(FLOWN_S), "--log-dir", str(base / "sitl"), "--quiet"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=HANG_S)
         assert sitl.returncode == 0
         # settled: the companion has entered its heartbeat failsafe (COMP_HB_TMO_S of wall time after

@@ -9,8 +9,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.truthlog import read_truth_csv
 from tests.sitl.conftest import gps_scenario
-from tests.sitl.fc.helpers import (ARM, DO_SET_MODE, GUIDED, HOLD, VEL_YAW_MASK, arm_guided, send_velocity,
-                                   stop_and_wait, stream_velocity)
+from tests.sitl.fc.helpers import (ARM, DO_SET_MODE, GUIDED, HOLD, VEL_YAW_MASK, Answering, arm_guided,
+                                   send_velocity, stop_and_wait, stream_velocity)
 
 
 def test_arming_and_modes_accepted_and_refused(sitl):
@@ -71,19 +71,23 @@ def test_velocity_setpoint_moves_vehicle_at_commanded_course_and_speed(sitl, tmp
 
 
 def test_velocity_setpoint_truth_log_and_timeout(sitl, tmp_path):
-    # 10x, not 100x: the stand-in's 3 s setpoint timeout is then 300 ms of this client's wall time,
-    # not 30 ms (at 100x a loaded CI machine stalled the client that long and counted 2 timeouts)
-    server, client = sitl(scenario="paper_pacific", speedup=10.0, init_s=0.2,   # exact motion: no current
+    # in lockstep with this client, which answers every boundary (Answering): the 3 s setpoint timeout
+    # is simulated time whatever the load (wall-paced at 10x it was 300 ms of this client's wall time,
+    # and a loaded machine stalled it that long: 2 timeouts counted in 2 of 3 loaded runs)
+    server, client = sitl(scenario="paper_pacific", lockstep=True, speedup=None, init_s=0.2,   # exact motion
                           log_dir=str(tmp_path / "log"))
-    arm_guided(client)
-    t0 = client.time_ms()
-    stream_velocity(client, t0 + 30_000, 0.0, 5.0)             # due east at 5 m/s
-    t_stop = client.time_ms()
-    client.recv("STATUSTEXT", 10.0, lambda m: "timeout" in m.text)
-    hb = client.recv("HEARTBEAT")
+    companion = Answering(client)
+    companion.arm_guided()
+    t0 = companion.time_ms()
+    companion.steer = (0.0, 5.0)                                # due east at 5 m/s, a setpoint every boundary
+    companion.until(t0 + 30_000)
+    companion.steer = None                                      # alive, no more setpoints
+    t_stop = companion.last_ms
+    companion.recv("STATUSTEXT", lambda m: "timeout" in m.text)
+    hb = companion.recv("HEARTBEAT", lambda m: m.get_srcComponent() == 1)
     assert hb.custom_mode == GUIDED                             # ArduPilot stays in GUIDED, stopped
-    t_end = client.time_ms()
-    client.collect("GLOBAL_POSITION_INT", t_end + 15_000)       # time to decelerate
+    t_end = companion.time_ms()
+    companion.until(t_end + 15_000)                             # time to decelerate
     stop_and_wait(server)
     log = read_truth_csv(tmp_path / "log" / "truth.csv")
     t = np.array(log["time_s"])

@@ -122,3 +122,35 @@ def test_a_lockstep_run_ending_off_a_boundary_sends_every_frame_it_logged(tmp_pa
     assert summary["sim_s"] == pytest.approx(1.3) and summary["lockstep_timeouts"] >= 6
     assert len(logged) == summary["tx_messages"] > 0
     assert b"".join(received) == b"".join(logged), f"{len(received)} frames received, {len(logged)} logged"
+
+
+def test_with_the_companions_pid_the_world_waits_while_it_lives_and_goes_on_once_it_has_ended(sitl):
+    """``--lockstep-peer-pid``: no wall timeout (here 0.05 s, which would pass a boundary every 0.05 s of
+    a silence) while the process runs, however long it is silent; once it has ended the world goes on
+    at once, without counting a timeout."""
+    import subprocess
+    import sys
+
+    peer = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        server, client = sitl(lockstep=True, lockstep_timeout_s=0.05, lockstep_peer_pid=peer.pid, init_s=0.2,
+                              speedup=None, duration_s=None)
+        for _ in range(5):
+            st = client.recv("SYSTEM_TIME", 30.0)
+            send_velocity(client, st.time_boot_ms, 0.0, 0.0)
+        waited_ms = client.recv("SYSTEM_TIME", 30.0).time_boot_ms     # the boundary nobody answers
+        silent_until = time.monotonic() + 1.0     # 20 of the wall timeouts that no longer apply
+        while time.monotonic() < silent_until:
+            assert server.t_us // 1000 <= waited_ms + 200, "the world went on without a live companion"
+            time.sleep(0.05)
+        assert server.gate.timeouts == 0 and server.stepper.peer_gone_s is None
+        peer.stdin.close()      # it ends; not reaped yet (a zombie, as a test's companion is until waited for)
+        deadline = time.monotonic() + 30.0        # a hang guard: the world goes on on the event
+        while server.t_us // 1000 < waited_ms + 10 * 200:
+            assert time.monotonic() < deadline, "the world still waits for an ended companion"
+            time.sleep(0.02)
+        assert server.gate.timeouts == 0 and server.stepper.peer_gone_s == pytest.approx(waited_ms / 1000, abs=0.2)
+    finally:
+        if peer.poll() is None:
+            peer.kill()
+        peer.wait(timeout=30)
