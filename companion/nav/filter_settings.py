@@ -49,6 +49,7 @@ class BiasSpec:
     qd_deg_rkm: float
     qd_nt_rkm: float
     qa_adapt: int
+    storm_adapt: int
     heading_deg: float
     heading_nt: float
     qa_mode: int

@@ -164,7 +164,7 @@ class NavigationFilter:
         self._local = slice(process.n + self.nb, process.n + self.nb + self.nl)
         self.monitor = DisturbanceMonitor()
         self.last_nis = math.nan
-        self.qa_scale = 1.0      # the active bias noise's scale (covariance matching, ``qa_adapt``)
+        self.qa_scale = self.storm_scale = 1.0   # covariance matching: qa_adapt's, a declared storm's (storm_adapt)
 
     # --- state --------------------------------------------------------------------------------
     @property
@@ -191,9 +191,10 @@ class NavigationFilter:
         return self.process.position(self.x, ins_lat_deg, ins_lon_deg)
 
     def covariance_en(self, lat_deg: float) -> np.ndarray:
-        """2 x 2 covariance of the position estimate, east/north, m^2."""
+        """2 x 2 covariance of the position estimate, east/north, m^2 (FUS_BQA_SADAPT 3: scaled by the
+        declared storm's variance factor, :meth:`DisturbanceMonitor.variance_factor`)."""
         j = self._j(lat_deg)
-        return j @ self.kf.P @ j.T
+        return j @ self.kf.P @ j.T * (self.monitor.variance_factor() if self.settings.bias.storm_adapt == 3 else 1.0)
 
     def _j(self, lat_deg: float) -> np.ndarray:
         return np.hstack([self.process.jacobian(lat_deg), np.zeros((2, self.nb + self.nl + self.nh + self.ns))])
@@ -227,10 +228,10 @@ class NavigationFilter:
     def snapshot(self) -> tuple:
         """Everything a step changes, to go back to (:meth:`restore`)."""
         return (self.kf.x.copy(), self.kf.P.copy(), self.process.snapshot(), self.monitor.snapshot(),
-                self.last_nis, self.qa_scale)
+                self.last_nis, self.qa_scale, self.storm_scale)
 
     def restore(self, state: tuple) -> None:
-        x, p, process, monitor, self.last_nis, self.qa_scale = state
+        x, p, process, monitor, self.last_nis, self.qa_scale, self.storm_scale = state
         self.kf.x, self.kf.P = x.copy(), p.copy()
         self.process.restore(process)
         self.monitor.restore(monitor)
@@ -254,13 +255,11 @@ class NavigationFilter:
         along_components = self._walk.along_components(self.monitor)
         jacobian = self._storm_columns() if along_components else None
         noise[self._bias_block, self._bias_block] = self._walk.noise(dt_s, distance_km, self.monitor, self.qa_scale,
-                                                                     jacobian)
+                                                                     jacobian, self.storm_scale)
         if self.ns:   # the storm's Gauss-Markov components: driven while declared, fading after
-            decay, driven = self._walk.storm.state_step(dt_s, along_components)
+            decay, driven, cross = self._walk.storm_states_noise(dt_s, along_components, jacobian, self.storm_scale)
             transition[self._storm_states, self._storm_states] = np.diag(decay)
             noise[self._storm_states, self._storm_states] = driven
-            # driven together with the walking components while declared (StormWalk.corr)
-            cross = self._walk.storm.cross_noise(jacobian, dt_s) if along_components else 0.0
             noise[self._bias_block, self._storm_states] = cross
             noise[self._storm_states, self._bias_block] = np.transpose(cross)
         if self.nl:   # Gauss-Markov in the distance travelled (:mod:`companion.nav.local_error`)
@@ -328,6 +327,7 @@ class NavigationFilter:
         was_active = self.monitor.active
         if self.monitor.observe(whitened) and self.settings.bias.qa_adapt:   # covariance matching
             self.qa_scale = self._walk.matched_scale(self.qa_scale, self.monitor, was_active)
+        self.storm_scale = self._walk.storm_matched(self.storm_scale, self.monitor, self.settings.bias.storm_adapt)
         return nis
 
     def innovation_nis(self, measured: np.ndarray, lag_en_m: np.ndarray | None = None,

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, DisturbanceMonitor, StormWalk,
+from companion.nav.disturbance import (ACTIVE_ON, ONSET_STEPS, RELEASE_STEPS, STORM_SCALE_MAX, DisturbanceMonitor,
+                                       StormWalk,
                                        component_walk_covariance, field_jacobian, gauss_markov_step,
                                        stationary_variance, storm_declared)
 from companion.nav.elements import ELEMENT_SETS, ElementSet
@@ -256,3 +257,74 @@ def test_a_declared_storm_starts_its_gauss_markov_states_stationary_and_they_fad
     before = flt.kf.P[state, state]
     flt.predict(3600.0, np.zeros(2), START[0], START)
     assert flt.kf.P[state, state] == pytest.approx(before * math.exp(-2.0 / 1.5), rel=1e-9)
+
+
+@pytest.mark.parametrize("adapt", [0, 1])
+def test_a_declared_storm_walk_follows_innovations_larger_than_it_predicts(model, adapt):
+    """FUS_BQA_SADAPT: while an index declares a storm, innovations far larger than the filter predicts
+    (a storm faster than the fitted walks) raise the walk's scale by (NIS / m)^ADAPT_GAIN of the
+    averaged NIS a step, up to STORM_SCALE_MAX; a storm that then stands still brings it back down
+    towards the declared walk, never below (the floor: the doctest of BiasWalk.storm_matched); the predict
+    then walks the biases along the components at the scale squared (by hand); once no index declares
+    the storm it is 1 again, and a rewind takes it back. With 0 the scale stays 1."""
+    spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, qa_n_nt_rth=6.0, qa_e_nt_rth=6.0, qa_z_nt_rth=3.0,
+                     storm_adapt=adapt)
+    settings_ = bare_filter(bias=spec)
+    flt = NavigationFilter(DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0),
+                           ELEMENT_SETS[ElementSet.PAPER], settings_, model, ALT, YEAR)
+    k = flt.process.n
+    s_true = flt.elements.values(model.elements(*START, ALT, YEAR))
+    se = np.array([0.002, 0.002])
+    flt.monitor.declare(True)
+    scales = []
+    for step in range(8):                   # a storm 0.1 deg a step off the model: far louder than 6 nT/rt(h)
+        flt.predict(360.0, np.zeros(2), START[0], START)
+        flt.update_elements(s_true + 0.1 * (step + 1) * np.array([0.5, -1.0]), None, standard_errors=se)
+        scales.append(flt.storm_scale)
+    if not adapt:
+        assert scales == [1.0] * 8
+        return
+    assert scales[-1] > 10.0 and max(scales) <= STORM_SCALE_MAX
+    assert all(b >= a for a, b in zip(scales[:3], scales[1:4]))
+    scale = flt.storm_scale
+    before = flt.kf.P[k:k + 2, k:k + 2].copy()
+    flt.predict(360.0, np.zeros(2), START[0], START)
+    field = model.elements(*START, ALT, YEAR)
+    jac = field_jacobian(flt.elements.names, float(field.x_nt), float(field.y_nt), float(field.z_nt))
+    quiet = np.diag([0.002 ** 2, 0.002 ** 2]) * 0.1
+    walk = jac @ np.diag([36.0, 36.0, 9.0]) @ jac.T * 0.1 * scale ** 2
+    np.testing.assert_allclose(flt.kf.P[k:k + 2, k:k + 2] - before, quiet + walk, rtol=1e-9, atol=1e-12)
+    state = flt.snapshot()
+    for _ in range(30):                     # then the storm stands still: down towards the declared walk, never below
+        flt.predict(360.0, np.zeros(2), START[0], START)
+        flt.update_elements(s_true + 0.8 * np.array([0.5, -1.0]), None, standard_errors=se)
+        scales.append(flt.storm_scale)
+    assert scales[-1] < 0.05 * STORM_SCALE_MAX and min(scales) >= 1.0
+    flt.restore(state)
+    assert flt.storm_scale == scale
+    flt.monitor.declare(False)
+    flt.update_elements(s_true, None, standard_errors=se)
+    assert flt.storm_scale == 1.0
+
+
+def test_the_declared_storm_variance_factor_scales_only_the_reported_covariance(model):
+    """FUS_BQA_SADAPT 3: the monitor keeps mean(NIS / m) of the updates while an index declares a
+    storm (not before, at least 1); the filter reports its position covariance times it, its own P
+    untouched; with any other value the covariance is P's."""
+    monitor = DisturbanceMonitor()
+    monitor.observe(np.array([3.0, 3.0]))                  # quiet: not counted
+    assert monitor.variance_factor() == 1.0
+    monitor.declare(True)
+    for w in ([2.0, 2.0], [1.0, 1.0], [0.0, 0.0]):        # NIS / m 4, 1, 0
+        monitor.observe(np.array(w))
+    assert monitor.variance_factor() == pytest.approx(5.0 / 3.0)
+    flts = {}
+    for adapt in (0, 3):
+        spec = bare_bias(q_deg_rth=0.002, q_nt_rth=2.0, qa_mode=1, storm_adapt=adapt)
+        settings_ = bare_filter(bias=spec)
+        flts[adapt] = NavigationFilter(DeadReckoningProcess(settings_.dead_reckoning, *START, pos_sigma_m=5.0),
+                                       ELEMENT_SETS[ElementSet.PAPER], settings_, model, ALT, YEAR)
+        flts[adapt].monitor.declare(True)
+        flts[adapt].monitor.storm_nis = (9.0, 3)
+    np.testing.assert_allclose(flts[3].covariance_en(START[0]), 3.0 * flts[0].covariance_en(START[0]), rtol=1e-12)
+    assert np.array_equal(flts[3].kf.P, flts[0].kf.P)
