@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from fcmpc.firmware.processes import stop_process
 from tests.ports import free_port
 from tests.processes import wait_for_file
 
@@ -37,16 +38,8 @@ def stand_in_lockstep_args(companion_pid: int) -> tuple[str, ...]:
 
 
 def stop(proc: subprocess.Popen | None) -> None:
-    """Terminate ``proc`` if it still runs and reap it (killed if it does not end within 10 s)."""
-    if proc is None:
-        return
-    if proc.poll() is None:
-        proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=5)
+    """Terminate ``proc`` by PID if it still runs and reap it (killed if it does not end within 10 s)."""
+    stop_process(proc, 10.0)
 
 
 class LockstepPair:

@@ -12,6 +12,7 @@ import time
 
 from companion.io.link.signing import passphrase_key, signing_timestamp, write_key_file
 from companion.params import write_parm_file
+from fcmpc.firmware.processes import stop_process
 from tests.firmware.conftest import REPO
 
 PASSPHRASE = "fcmpc firmware signing test"
@@ -28,15 +29,6 @@ def _companion(rig, name: str, key_file=None) -> subprocess.Popen:
                             stderr=open(rig.tmp / f"{name}.err", "wb"), env=dict(os.environ, PYTHONPATH=str(REPO)))
 
 
-def _stop(proc: subprocess.Popen) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=10)
-
-
 def test_signing_ardupilot_hears_only_the_signed_companion(rig_factory):
     rig = rig_factory("signing")
     mon = rig.monitor
@@ -50,7 +42,7 @@ def test_signing_ardupilot_hears_only_the_signed_companion(rig_factory):
         mon.pump(lambda m: m.time_s > start + 40.0, 300.0, "40 s of firmware time")
         assert not mon.texts_matching("FcMPC", component=191)
     finally:
-        _stop(unsigned)
+        stop_process(unsigned)
     key_file = write_key_file(rig.tmp / "signing.key", key)
     signed = _companion(rig, "signed", key_file)
     try:
@@ -58,7 +50,7 @@ def test_signing_ardupilot_hears_only_the_signed_companion(rig_factory):
         mon.pump(lambda m: bool(m.texts_matching("ready", component=191)), 300.0, "start-up on signed streams")
         assert signed.poll() is None
     finally:
-        _stop(signed)
+        stop_process(signed)
     err = (rig.tmp / "signed.err").read_text(errors="replace")
     assert key.hex() not in err and PASSPHRASE not in err
     assert not any(key.hex() in p.read_text(errors="replace") for p in (rig.tmp / "signed").glob("*.json"))
