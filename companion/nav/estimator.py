@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
+from companion.nav.crust import local_error_scale
 from companion.nav.disturbance import COMPONENT_WALK, ONSET_STEPS, index_says_quiet, storm_declared
 from companion.nav.elements import ElementSet
 from companion.nav.field import (PositionFixError, WorldMagneticModel, element_fix, element_values_and_gradient,
@@ -116,7 +117,8 @@ class PositionEstimator:
         self.model = model
         self.measured = measured
         self.steering = measured.steering()
-        self.settings = config.filter
+        self.local_scale = local_error_scale(config)   # the route's crust on the local-error states
+        self.settings = replace(config.filter, bias=config.filter.bias.with_local_scale(self.local_scale))
         self.filter: NavigationFilter | None = None
         self.reason = ""
         self.rejected = 0

@@ -24,7 +24,9 @@ class BiasSpec:
     calibration, which holds at the start and less the farther the vehicle goes); and the local model error:
     a Gauss-Markov process in distance travelled of stationary 1-sigma ``local_deg`` /
     ``local_nt``, correlation length ``local_length_m`` and order ``local_order`` (1 rough, 2 smooth:
-    :mod:`companion.nav.local_error`; no such states when both sigmas are 0); and
+    :mod:`companion.nav.local_error`; no such states when both sigmas are 0), the sigmas holding
+    at a route's crustal strength ``local_crust_nt`` (:meth:`with_local_scale`,
+    :mod:`companion.nav.crust`); and
     the calibration residual's dependence on the heading: prior 1-sigma ``heading_deg`` /
     ``heading_nt`` of each coefficient of its first and second harmonics (no such states when
     the measured elements' own one is 0: (D, I) has none with ``heading_deg`` 0). While a
@@ -46,6 +48,7 @@ class BiasSpec:
     local_nt: float
     local_length_m: float
     local_order: int
+    local_crust_nt: float
     qd_deg_rkm: float
     qd_nt_rkm: float
     qa_adapt: int
@@ -89,6 +92,13 @@ class BiasSpec:
     def storm_walk(self) -> StormWalk:
         """How a declared storm walks along the field components (``qa_mode`` 1)."""
         return StormWalk(self.qa_ned_nt_rth, self.qa_ned_tau_h, self.qa_ned_corr)
+
+    def with_local_scale(self, scale: float) -> BiasSpec:
+        """These settings with what the map misses along the route times ``scale`` (the route's
+        crust, :func:`companion.nav.crust.local_error_scale`): the local model-error sigmas and
+        the per-distance walk of the biases."""
+        return replace(self, local_deg=self.local_deg * scale, local_nt=self.local_nt * scale,
+                       qd_deg_rkm=self.qd_deg_rkm * scale, qd_nt_rkm=self.qd_nt_rkm * scale)
 
     @property
     def has_local(self) -> bool:

@@ -11,8 +11,10 @@ Two questions, answered from the navigator's own configuration and map before th
 2. **How far off will it arrive?** The navigator's own covariance analysis: the mission
    (:class:`companion.nav.mission.Mission`, the same step the vehicle runs) flown along its own
    commands in a nominal world where the vehicle goes where it is told and every period's
-   measurement is the map's value at the centre of its window, with the declared noise. The
-   measurements then never surprise the filter, so its covariance is what it would be on a quiet
+   measurement is the map's value at the centre of its window, with the declared noise (the
+   local model-error states at the route's crustal strength, :mod:`companion.nav.crust`: the
+   filter's own value, from the same function). The measurements then never surprise the
+   filter, so its covariance is what it would be on a quiet
    day on this route; its value at arrival, as a radius holding 95 % of a Gaussian with that
    covariance, is the prediction. A disturbed day, a storm or a map that is worse than the
    filter declares make the real miss larger: the Monte Carlo checks how often the bound holds
@@ -53,6 +55,7 @@ class RoutePrediction:
     steps: int
     completed: bool                 # the nominal mission arrived (False: it failed or ran out of steps)
     reason: str = ""
+    local_scale: float = 1.0        # the route's crust on the local model-error states (companion.nav.crust)
 
     @property
     def unobservable(self) -> bool:
@@ -62,6 +65,8 @@ class RoutePrediction:
         """The prediction in a few short lines (each fits a STATUSTEXT's 50 characters with a prefix)."""
         out = [f"elements {self.elements}, gradients {self.gradient_angle_min_deg:.0f}-"
                f"{self.gradient_angle_median_deg:.0f} deg apart"]
+        if self.local_scale > 1.0:
+            out.append(f"strong crust: map error x{self.local_scale:.2f}")
         if self.completed:
             out.append(f"predicted miss {self.arrival_sigma_m / 1e3:.1f} km 1-sigma per axis, "
                        f"95 % within {self.arrival_r95_m / 1e3:.1f} km")
@@ -157,7 +162,8 @@ def predict_route(config, model=None, *, compass_derived: bool, has_ins: bool,
         arrived, reason = False, "the navigator gives no covariance (FUS_MODEL 1)"
     return RoutePrediction(measured.label, float(min(angles)), float(np.median(angles)), float(worst[1]),
                            sigma, radius95_m(cov) if arrived else math.nan, cov, cmd.step, arrived,
-                           reason + (f" ({geodesic_distance_m(lat, lon, *dest) / 1e3:.1f} km to go)" if reason else ""))
+                           reason + (f" ({geodesic_distance_m(lat, lon, *dest) / 1e3:.1f} km to go)" if reason else ""),
+                           mission.estimator.local_scale if mission.estimator is not None else 1.0)
 
 
 def _nominal(model, c, lat: float, lon: float, mid_lat: float, mid_lon: float, t: float, window: float,

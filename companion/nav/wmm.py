@@ -136,6 +136,7 @@ class WorldMagneticModel:
         self.allow_extrapolation = bool(allow_extrapolation)
 
         rows = np.asarray(coefficients, dtype=float).reshape(-1, 6)
+        self._rows = rows.copy()
         self.degree = degree = max(WMM_DEGREE, int(rows[:, 0].max()) if rows.size else 0)
         table = np.zeros((4, degree + 1, degree + 1))
         seen = np.zeros((degree + 1, degree + 1), dtype=bool)
@@ -162,6 +163,20 @@ class WorldMagneticModel:
             text = handle.read()
         epoch, name, release_year, rows = _parse_cof(text, os.fspath(path))
         return cls(name, epoch, rows, release_year, allow_extrapolation)
+
+    def band(self, min_degree: int, max_degree: int | None = None) -> WorldMagneticModel:
+        """This model's degrees ``min_degree`` to ``max_degree`` (default: its top) alone, at its
+        epoch, without secular variation, valid at any year: e.g. WMMHR-2025's degrees 16-133, the
+        crust's long wavelengths (:mod:`companion.nav.crust`).
+
+        >>> round(float(load_wmm("WMMHR2025").band(16).ned(-38.0, 164.0, 0.0, 2030.0)[2]), 1)   # nT down
+        -47.9
+        """
+        rows = self._rows.copy()
+        top = self.degree if max_degree is None else max_degree
+        rows[(rows[:, 0] < min_degree) | (rows[:, 0] > top), 2:4] = 0.0
+        rows[:, 4:] = 0.0
+        return WorldMagneticModel(f"{self.name} n{min_degree}-{top}", self.epoch, rows, allow_extrapolation=True)
 
     def __repr__(self) -> str:
         return (
