@@ -41,14 +41,14 @@ CRUISE_THROTTLE_PCT = 80
 # baud modelled as 1,920 bytes/s of firmware time) ran full, its output trailing the firmware's clock by a queue
 # the relay's latency has to cover: 921600 baud, as a companion's link is wired on a boat. The monitor (SERIAL0)
 # keeps EXTRA1 (ATTITUDE just before SIMSTATE: the truth's firmware time) and EXTRA2 (VFR_HUD); the companion's
-# port keeps POSITION (GLOBAL_POSITION_INT, LOCAL_POSITION_NED at 1 Hz): the companion starts its clock on the
-# first timed message and asks for its streams only then, and with every group off it waited for ever whenever
-# ArduPilot sent no HOME_POSITION or GPS_GLOBAL_ORIGIN after it connected (the GPS-lost test, 37,000 s). SERIAL2
+# port has every group off: the companion asks for its streams at the firmware's first heartbeat (e92147c; it
+# used to wait for a timed message, and the port kept POSITION for it, whose LOCAL_POSITION_NED at 1 Hz it does
+# not read). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
 PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
-               **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
+               **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
 # SIM_MAG1_OFS over SERIAL2 (its own link, every stream group off: it reads nothing)
@@ -78,13 +78,13 @@ def motor_field(params: dict) -> tuple[dict, str | None]:
 
 # LOG_FILE_RATEMAX: ArduPilot's own cap on each streaming message's rate in its dataflash log (AP_Logger's rate
 # limiter; every message type stays in the log). Rover logs its EKF cores' XKF1-5/XKQ/XKFS and IMU, PIDs, ATT,
-# SIM at 25-50 Hz: 110 MB a simulated hour (3 GB for the Pacific), written by its logging thread in system time,
-# 20 % of the firmware's CPU seconds with the packing (measured, docs/notes/2026-12-06-ardupilot-json-lockstep.md
-# section 7). At 10 Hz a boat's hours-long log keeps every record the rig's analyses read (GPA, XKF, ATT, SIM at
-# 0.1 s over minutes-long manoeuvres); the flight does not read its log.
+# SIM at 25-50 Hz: 110 MB a simulated hour (3 GB for the Pacific) to pack and write (docs/notes/2026-12-06-
+# ardupilot-json-lockstep.md, section 11). At 10 Hz a boat's hours-long log keeps every record the rig's analyses read (GPA, XKF, ATT, SIM at
+# 0.1 s over minutes-long manoeuvres); the flight does not read its log. INS_LOG_BAT_MASK 0: rover.parm's IMU
+# batch sampler (raw gyro and accelerometer bursts for a vibration FFT) off: our world's IMU has no vibration.
 LOG_RATE_MAX_HZ = 10
 JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
-               "SIM_DRIFT_SPEED": 0, "LOG_FILE_RATEMAX": LOG_RATE_MAX_HZ, **PORT_PARAMS}
+               "SIM_DRIFT_SPEED": 0, "LOG_FILE_RATEMAX": LOG_RATE_MAX_HZ, "INS_LOG_BAT_MASK": 0, **PORT_PARAMS}
 
 
 class ArduPilotJsonRig(ArduPilotRig):
