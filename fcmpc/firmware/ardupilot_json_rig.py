@@ -78,10 +78,10 @@ def motor_field(params: dict) -> tuple[dict, str | None]:
 
 # LOG_FILE_RATEMAX: ArduPilot's own cap on each streaming message's rate in its dataflash log (AP_Logger's rate
 # limiter; every message type stays in the log). Rover logs its EKF cores' XKF1-5/XKQ/XKFS and IMU, PIDs, ATT,
-# SIM at 25-50 Hz: 110 MB a simulated hour (3 GB for the Pacific) to pack and write (docs/notes/2026-12-06-
-# ardupilot-json-lockstep.md, section 11). At 10 Hz a boat's hours-long log keeps every record the rig's analyses read (GPA, XKF, ATT, SIM at
-# 0.1 s over minutes-long manoeuvres); the flight does not read its log. INS_LOG_BAT_MASK 0: rover.parm's IMU
-# batch sampler (raw gyro and accelerometer bursts for a vibration FFT) off: our world's IMU has no vibration.
+# SIM at 25-50 Hz: 110 MB a simulated hour (3 GB for the Pacific) to pack and write (the JSON note, section 7).
+# At 10 Hz a boat's hours-long log keeps every record the rig's analyses read (GPA, XKF, ATT, SIM every 0.1 s
+# over minutes-long manoeuvres); the flight does not read its log. INS_LOG_BAT_MASK 0: rover.parm's IMU batch
+# sampler (raw gyro and accelerometer bursts for a vibration FFT) off: our world's IMU has no vibration.
 LOG_RATE_MAX_HZ = 10
 JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
                "SIM_DRIFT_SPEED": 0, "LOG_FILE_RATEMAX": LOG_RATE_MAX_HZ, "INS_LOG_BAT_MASK": 0, **PORT_PARAMS}
