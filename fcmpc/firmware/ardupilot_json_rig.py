@@ -41,14 +41,16 @@ CRUISE_THROTTLE_PCT = 80
 # baud modelled as 1,920 bytes/s of firmware time) ran full, its output trailing the firmware's clock by a queue
 # the relay's latency has to cover: 921600 baud, as a companion's link is wired on a boat. The monitor (SERIAL0)
 # keeps EXTRA1 (ATTITUDE just before SIMSTATE: the truth's firmware time) and EXTRA2 (VFR_HUD); the companion's
-# port has every group off: the companion asks for its streams at the firmware's first heartbeat (e92147c; it
-# used to wait for a timed message, and the port kept POSITION for it, whose LOCAL_POSITION_NED at 1 Hz it does
-# not read). SERIAL2
+# port keeps POSITION (GLOBAL_POSITION_INT, LOCAL_POSITION_NED at 1 Hz): the companion started its clock on the
+# first timed message (since e92147c it asks for its streams at the first heartbeat too), and before its streams
+# flow these are the relay's only firmware times (with POSITION off, 49, 6 and 0 of the companion's first frames
+# reached ArduPilot late, up to 3.8 s, against 1, 1 and 0 with it; no CPU measurably saved: the note, section 7,
+# "CPU per simulated hour, second pass"). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
 PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
-               **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
+               **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
 # SIM_MAG1_OFS over SERIAL2 (its own link, every stream group off: it reads nothing)

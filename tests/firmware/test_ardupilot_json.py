@@ -132,8 +132,8 @@ def test_lockstep_gps_lost_after_start_up_guided_kept_and_on_course(json_rig):
     # the gate read the companion as its frames' due times neared (2,708 times in 2,671 s, waiting at 157 of
     # them, at a load average of 12), never gave up and never let a frame through before it was known
     assert stats["lockstep_reads"] > 1000 and stats["lockstep_timeouts"] == 0, stats
-    # ... but at the start: before the companion asks for its streams (at the firmware's first heartbeat) its
-    # port carries no timed message, and then not yet fresh enough for the latency (6 fallbacks in one run)
+    # ... but at the start: before the companion asks for its streams, ArduPilot's only timed message on its
+    # port comes once a second (MAV2_POSITION), less fresh than the latency needs (6 fallbacks in one run)
     assert stats["lockstep_last_fallback_s"] < t_arm, stats
     # late frames only before the companion's first stamped frame (none here; 3 in 56,689 on a 20 km leg);
     # the relay of boundaries every 0.2 s before the gate let 6 % through late at a load average of 22
