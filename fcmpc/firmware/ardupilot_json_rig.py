@@ -53,16 +53,18 @@ PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
-# SIM_MAG1_OFS over SERIAL2 (its own link, every stream group off: it reads nothing)
+# SIM_MAG1_OFS, over the relay's SERIAL1 link; a world without a relay over SERIAL2 (its own link, every stream
+# group off: it reads nothing), which SITL polls three times a loop once connected (strace)
 MOTOR_LINK_PARAMS = {"SERIAL2_PROTOCOL": 2, **{f"MAV3_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
 _MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
 HOLD_REAL_COMPASS_S = 300.0
 
 
-def motor_field(params: dict) -> tuple[dict, str | None]:
+def motor_field(params: dict, relay: bool = False) -> tuple[dict, str | None]:
     """ArduPilot's parameters and the world's ``--motor-field`` for a compass's ``params``: a SIM_MAG_MOT
     leaves ArduPilot (where it would act on no current) for the world, with the offsets and soft iron it
-    is applied through; without one, (``params``, None).
+    is applied through; without one, (``params``, None). ``relay``: the world has the companion's relay,
+    whose SERIAL1 link carries the field (no SERIAL2).
 
     >>> motor_field({"SIM_MAG_MOT_X": -0.71, "SIM_MAG_MOT_Z": 0.68})[1]
     '-0.71,0,0.68;0,0,0;1,1,1;0,0,0'
@@ -75,7 +77,7 @@ def motor_field(params: dict) -> tuple[dict, str | None]:
 
     text = ";".join((vector("SIM_MAG_MOT_", 0.0), vector("SIM_MAG1_OFS_", 0.0), vector("SIM_MAG1_DIA_", 1.0),
                      vector("SIM_MAG1_ODI_", 0.0)))
-    return {**params, **{name: 0.0 for name in _MOT}, **MOTOR_LINK_PARAMS}, text
+    return {**params, **{name: 0.0 for name in _MOT}, **({} if relay else MOTOR_LINK_PARAMS)}, text
 
 
 # LOG_FILE_RATEMAX: ArduPilot's own cap on each streaming message's rate in its dataflash log (AP_Logger's rate
@@ -99,7 +101,7 @@ class ArduPilotJsonRig(ArduPilotRig):
         super().__init__(flight, out)
         self.sitl.model = "JSON"
         self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
-        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS})
+        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS}, relay=True)
         self.motor_field = self.world_motor_field is not None
         self.out = out
         self.flight = flight

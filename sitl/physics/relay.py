@@ -364,15 +364,22 @@ class CompanionRelay:
                     self.late_frames += 1
                     self.max_late_us = max(self.max_late_us, late)
             out.append(frame)
-        if out and self.fc is not None:
-            self.fc.setblocking(True)
-            try:
-                self.fc.sendall(b"".join(out))
-                self.frames_to_fc += len(out)
-            except OSError:
-                pass
-            if self.fc is not None:
-                self.fc.setblocking(False)
+        if out and self.to_fc(b"".join(out)):
+            self.frames_to_fc += len(out)
+
+    def to_fc(self, data: bytes) -> bool:
+        """Write ``data`` to ArduPilot's SERIAL1 (whole frames); False while it is not connected."""
+        fc = self.fc
+        if fc is None:
+            return False
+        fc.setblocking(True)
+        try:
+            fc.sendall(data)
+        except OSError:
+            return False
+        finally:
+            fc.setblocking(False)
+        return True
 
     def stats(self) -> dict:
         return {"lockstep_reads": self.reads, "lockstep_waits": self.waits, "lockstep_timeouts": self.timeouts,
