@@ -32,8 +32,9 @@ PREPARED_START_M = 100.0          # a mission built while READY serves a start t
 AT_REST_M = 500.0
 """A vehicle whose flight controller puts it this close to its last GPS fix (and slower than
 AT_REST_MPS) has not moved since: the fix still places the calibration's field model. The World
-Magnetic Model's F changes by 3-6 nT per km (the Pacific start: 4.5 nT/km, I 0.008 deg/km), so
-500 m moves the model's H and Z by <= 3 nT against the circle fit's residual of 100-300 nT."""
+Magnetic Model's field changes by a few nT per km (the Pacific start, northward: F 4.8, H -2.6,
+Z 9.6 nT/km, I 0.012 deg/km), so 500 m moves the model's H and Z by <= 5 nT against the circle
+fit's residual of 100-300 nT."""
 AT_REST_MPS = 0.5                 # and the FC's ground speed below this (a moored boat's drift)
 
 
