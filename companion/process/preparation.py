@@ -73,8 +73,9 @@ class MissionPreparation:
         """((lat, lon) at which the magnetometer calibration evaluates the field model, or None;
         what it is, or why there is none). A fix fresh enough for the start (GPS_START_MAX_AGE_S),
         or an older one while the flight controller's position (GLOBAL_POSITION_INT, fresh) is
-        within AT_REST_M of it at under AT_REST_MPS and is the FC's own (not our GPS_INPUT fed back): a vehicle on its mooring whose arming was
-        delayed past the GPS cut (ArduPilot in lockstep, seed 1007: four refusals, the fix 66 s old).
+        within AT_REST_M of it at under AT_REST_MPS and is the FC's own (GPS-aided or free inertial, not our GPS_INPUT fed back): a vehicle on its mooring whose arming was
+        delayed past the GPS cut (ArduPilot in lockstep, seed 1007: four refusals "GPS 1: not healthy",
+        the fix's own time more than 5 s old at arming while GPS_RAW_INT still said 3D).
         The mission's start keeps GPS_START_MAX_AGE_S (:meth:`start_position`)."""
         gps, now = self.intake.last_fix, self.msg_clock.now_s
         if gps is None:
@@ -83,7 +84,7 @@ class MissionPreparation:
         if age <= GPS_START_MAX_AGE_S:
             return (gps.lat_deg, gps.lon_deg), "the GPS fix"
         independent, why = self.fc_view.position_independent(now)
-        if not independent:   # our own fed estimate sits where we put it: no evidence of rest
+        if not (independent or self.fc_view.gps_has_fix(now)):   # our own fed estimate: no evidence of rest
             return None, f"the last GPS fix is {age:.0f} s old and the FC position is {why}"
         pos = self.intake.decoder.fc_position
         if pos is None or not now - pos.time_s <= FC_POSITION_MAX_AGE_S:
