@@ -39,10 +39,10 @@ PARMS = "NAV_PERIOD_S 10\n"
 
 
 def _mavproxy(port: int, workdir: Path) -> Console:
-    """MAVProxy as an operator runs it (its target component is the autopilot's: not 191)."""
+    """MAVProxy as an operator runs it (its target component is the autopilot's: not 191), on the vehicle's TCP port."""
     workdir.mkdir(parents=True, exist_ok=True)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "MAVProxy.mavproxy", "--master", f"udpin:127.0.0.1:{port}", "--target-system", "1",
+        [sys.executable, "-m", "MAVProxy.mavproxy", "--master", f"tcp:127.0.0.1:{port}", "--target-system", "1",
          "--default-modules", "link", "--state-basedir", str(workdir), "--nowait"],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, cwd=workdir,
         env=dict(os.environ, MAVLINK20="1", PYTHONPATH=str(REPO)))
