@@ -18,8 +18,8 @@ import pytest
 
 from companion.nav.geo import geodesic_distance_m
 from companion.params import read_parm_file
-from fcmpc.montecarlo.cli import main
 from fcmpc.firmware.instances import LOCK_DIR_ENV
+from fcmpc.montecarlo.cli import main
 from fcmpc.montecarlo.flown import INSTANCES, instance_for
 
 REPO = Path(__file__).resolve().parents[1]

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from companion.nav.metrics import track_metrics
-from fcmpc.fly.results import FlyResult
 from fcmpc.firmware.instances import claimed
+from fcmpc.fly.results import FlyResult
 from fcmpc.fly.runner import FlyOptions, fly
 from fcmpc.montecarlo.runs import RunOutput, RunRow
 

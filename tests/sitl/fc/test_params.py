@@ -74,7 +74,7 @@ def test_reads_and_lists_are_answered_on_the_asking_link_only(sitl):
     from pymavlink import mavutil
 
     port = free_port()
-    server, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
+    _, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
     client.time_ms()
     gcs = Client(mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190))
     try:
