@@ -1,7 +1,8 @@
 """The magnetometer's calibration manoeuvre before the mission (issue 47, COMP_CAL_TURNS).
 
 A boat or a ground vehicle cannot be tumbled for a full 3-D calibration, and a calibration made
-standing still misses the motor's field. So, with the start known from GPS, once armed in
+standing still misses the motor's field. So, with a GPS fix where it stands (fresh, or older while
+the vehicle has stayed at rest since: :meth:`MissionPreparation.calibration_fix`), once armed in
 GUIDED/OFFBOARD the companion drives ``COMP_CAL_TURNS`` slow full circles at the cruise speed
 (the course turning at ``COMP_CAL_DPS``), records every kept magnetometer sample with the
 accelerometer and gyro of its instant, and fits the hard iron and the horizontal soft iron to the
@@ -60,10 +61,30 @@ class CalibrationTurn:
         self.fitted = False          # the fit is applied; the last circle is the start-up average
         self.samples: list[tuple[float, ...]] = []   # CIRCLE_COLUMNS: body field (3), roll, pitch, force (3), gyro (3)
         self.times: list[float] = []
+        self.fix = (math.nan, math.nan)   # where the field model is evaluated (wanted() latches it)
 
-    def wanted(self, source: str) -> bool:
-        """A calibration manoeuvre before this mission: asked for, not yet flown, and a GPS start."""
-        return self.settings.comp.cal_turns > 0 and not self.done and source == "GPS"
+    def wanted(self) -> bool:
+        """A calibration manoeuvre before this mission: asked for, not yet flown, and a place for the
+        field model (:meth:`MissionPreparation.calibration_fix`: a fresh GPS fix, or the last one with
+        the vehicle at rest since). Asked for but without that place, a WARNING says why before the
+        mission starts, the summary keeps it, and the mission flies on with MAG_* unchanged: a
+        GPS-denied start is this module's purpose, and a fix may never come back."""
+        if self.settings.comp.cal_turns <= 0 or self.done:
+            return False
+        fix, why = self.preparation.calibration_fix()
+        if fix is None:
+            self.done = True
+            self._outcome(f"skipped: {why}")
+            self.voice.say(f"FcMPC: calibration circle skipped, MAG_* unchanged: {why}"[:200],
+                           mavlink.MAV_SEVERITY_WARNING)
+            return False
+        self.fix = fix
+        self._outcome(f"circling at {fix[0]:.4f},{fix[1]:.4f}: {why}")
+        return True
+
+    def _outcome(self, words: str) -> None:
+        """What became of the calibration asked for (summary.json's ``calibration``)."""
+        self.preparation.mission_state.calibration = words
 
     def enter(self, now: float) -> None:
         comp = self.settings.comp
@@ -102,7 +123,7 @@ class CalibrationTurn:
     def _fit(self) -> None:
         self.fitted = True
         self.mag.recorder = None
-        lat, lon, _ = self.preparation.start_position()
+        lat, lon = self.fix   # not the start now: the GPS may have been cut during the circle
         c = self.settings.nav
         model = model_for_setting(c.year, c.wmm).elements(lat, lon, c.alt_m, c.year)
         rows = np.array(self.samples, dtype=float).reshape(-1, CIRCLE_COLUMNS)
@@ -112,12 +133,14 @@ class CalibrationTurn:
             values = {name: validate(name, value) for name, value in
                       registry_values(chained(self.mag.calibration, fit)).items()}
         except (CalibrationRefused, ValueError) as err:
+            self._outcome(f"refused: {str(err).splitlines()[0]}")
             self.voice.say(f"FcMPC: magnetometer calibration refused, MAG_* unchanged: {str(err).splitlines()[0]}"[:200],
                            mavlink.MAV_SEVERITY_WARNING)
             return
         for name, value in values.items():
             self.params.set_value(name, value)
         self.settings.apply()
+        self._outcome(f"fitted at {lat:.4f},{lon:.4f}: residual {fit.residual_nt:.0f} nT rms")
         self.mag.clear()          # the start-up average: the next circle, with the new calibration
         ofs = ", ".join(f"{values[f'MAG_OFS_{a}']:+.0f}" for a in "XYZ")
         level = "accelerometer" if by_accelerometer else "attitude"

@@ -106,6 +106,7 @@ class SampleIntake:
         self.last_valid: dict[SampleKind, float] = {}   # message time of the last valid sample per kind
         self.invalid_mag = 0
         self.last_gps = None
+        self.last_fix = None                # the last valid 3D fix (last_gps may since say no fix)
         self.messages_from_fc = 0           # every message of the flight controller followed
 
     def fc_rebooted(self) -> None:
@@ -159,6 +160,8 @@ class SampleIntake:
                     self.last_valid[_ATT] = t
         elif kind is _GPS:
             self.last_gps = sample if t == sample.time_s else replace(sample, time_s=t)
+            if sample.valid and sample.has_3d_fix:
+                self.last_fix = self.last_gps
         elif kind is SampleKind.IMU and not sample.flags:
             mag.add_specific_force(t, sample.accel_body_mps2, sample.gyro_body_radps)
 

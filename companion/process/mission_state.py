@@ -40,3 +40,4 @@ class MissionState:
     local_ned: tuple[float, float, float] | None = None   # (time, north, east) of LOCAL_POSITION_NED
     done_wall: float = math.nan                      # wall (monotonic) time the mission ended
     done_msg_s: float = math.nan                     # message time the mission ended
+    calibration: str = ""                            # what became of COMP_CAL_TURNS' circles ("": none asked)

@@ -22,13 +22,20 @@ from companion.params import NavConfig
 from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.mission_state import MissionState
-from companion.process.options import GPS_START_MAX_AGE_S
+from companion.process.options import FC_POSITION_MAX_AGE_S, GPS_START_MAX_AGE_S
 from companion.process.settings import Settings
 from companion.process.voice import Voice
 
-__all__ = ["PREPARED_START_M", "MissionPreparation"]
+__all__ = ["AT_REST_M", "AT_REST_MPS", "PREPARED_START_M", "MissionPreparation"]
 
 PREPARED_START_M = 100.0          # a mission built while READY serves a start this close
+AT_REST_M = 500.0
+"""A vehicle whose flight controller puts it this close to its last GPS fix (and slower than
+AT_REST_MPS) has not moved since: the fix still places the calibration's field model. The World
+Magnetic Model's field changes by a few nT per km (the Pacific start, northward: F 4.8, H -2.6,
+Z 9.6 nT/km, I 0.012 deg/km), so 500 m moves the model's H and Z by <= 5 nT against the circle
+fit's residual of 100-300 nT."""
+AT_REST_MPS = 0.5                 # and the FC's ground speed below this (a moored boat's drift)
 
 
 class MissionPreparation:
@@ -61,6 +68,33 @@ class MissionPreparation:
             return restart_from[0], restart_from[1], "last estimate"
         nav = self.settings.nav
         return nav.start_lat_deg, nav.start_lon_deg, "NAV_START"
+
+    def calibration_fix(self) -> tuple[tuple[float, float] | None, str]:
+        """((lat, lon) at which the magnetometer calibration evaluates the field model, or None;
+        what it is, or why there is none). A fix fresh enough for the start (GPS_START_MAX_AGE_S),
+        or an older one while the flight controller's position (GLOBAL_POSITION_INT, fresh) is
+        within AT_REST_M of it at under AT_REST_MPS and is the FC's own (GPS-aided or free inertial, not our GPS_INPUT fed back): a vehicle on its mooring whose arming was
+        delayed past the GPS cut (ArduPilot in lockstep, seed 1007: four refusals "GPS 1: not healthy",
+        the fix's own time more than 5 s old at arming while GPS_RAW_INT still said 3D).
+        The mission's start keeps GPS_START_MAX_AGE_S (:meth:`start_position`)."""
+        gps, now = self.intake.last_fix, self.msg_clock.now_s
+        if gps is None:
+            return None, "no GPS fix since the companion started"
+        age = now - gps.time_s
+        if age <= GPS_START_MAX_AGE_S:
+            return (gps.lat_deg, gps.lon_deg), "the GPS fix"
+        independent, why = self.fc_view.position_independent(now)
+        if not (independent or self.fc_view.gps_has_fix(now)):   # our own fed estimate: no evidence of rest
+            return None, f"the last GPS fix is {age:.0f} s old and the FC position is {why}"
+        pos = self.intake.decoder.fc_position
+        if pos is None or not now - pos.time_s <= FC_POSITION_MAX_AGE_S:
+            return None, f"the last GPS fix is {age:.0f} s old and no FC position tells whether the vehicle moved since"
+        moved = geodesic_inverse(gps.lat_deg, gps.lon_deg, pos.lat_deg, pos.lon_deg)[0]
+        speed = math.hypot(pos.vn_mps, pos.ve_mps)
+        words = f"the FC position {moved:.0f} m from it at {speed:.1f} m/s"
+        if not (moved <= AT_REST_M and speed <= AT_REST_MPS):
+            return None, f"the last GPS fix is {age:.0f} s old and the vehicle moved since ({words})"
+        return (gps.lat_deg, gps.lon_deg), f"the GPS fix of {age:.0f} s ago, at rest since ({words})"
 
     def prepare(self, now: float) -> None:
         """Build the mission (QP set-up, field model) while waiting to be armed, so the moment of

@@ -85,7 +85,7 @@ class Summary:
                    "heading": self.heading_summary(), "positions_fed": stats.positions_fed,
                    "arming_refusals": self.fc_view.arming.refusals},
             "elements": ELEMENT_SETS[state.elements_code].label if state.elements_code else "",
-            "bias": list(state.bias) if state.bias is not None else None,
+            "bias": list(state.bias) if state.bias is not None else None, "calibration": state.calibration,
             "mag_excluded_steps": self.plausibility.excluded, "resumed_from": self.resume.resumed_from,
             # the current mission's rejections: periods the navigator rejected, fixes beyond its gate
             "nav_rejected": {"periods": getattr(state.mission, "rejected_measurements", 0),

@@ -41,9 +41,11 @@ CRUISE_THROTTLE_PCT = 80
 # baud modelled as 1,920 bytes/s of firmware time) ran full, its output trailing the firmware's clock by a queue
 # the relay's latency has to cover: 921600 baud, as a companion's link is wired on a boat. The monitor (SERIAL0)
 # keeps EXTRA1 (ATTITUDE just before SIMSTATE: the truth's firmware time) and EXTRA2 (VFR_HUD); the companion's
-# port keeps POSITION (GLOBAL_POSITION_INT, LOCAL_POSITION_NED at 1 Hz): the companion starts its clock on the
-# first timed message and asks for its streams only then, and with every group off it waited for ever whenever
-# ArduPilot sent no HOME_POSITION or GPS_GLOBAL_ORIGIN after it connected (the GPS-lost test, 37,000 s). SERIAL2
+# port keeps POSITION (GLOBAL_POSITION_INT, LOCAL_POSITION_NED at 1 Hz): the companion started its clock on the
+# first timed message (since e92147c it asks for its streams at the first heartbeat too), and before its streams
+# flow these are the relay's only firmware times (with POSITION off, 49, 6 and 0 of the companion's first frames
+# reached ArduPilot late, up to 3.8 s, against 1, 1 and 0 with it; no CPU measurably saved: the note, section 7,
+# "CPU per simulated hour, second pass"). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
@@ -51,16 +53,18 @@ PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
-# SIM_MAG1_OFS over SERIAL2 (its own link, every stream group off: it reads nothing)
+# SIM_MAG1_OFS, over the relay's SERIAL1 link; a world without a relay over SERIAL2 (its own link, every stream
+# group off: it reads nothing), which SITL polls three times a loop once connected (strace)
 MOTOR_LINK_PARAMS = {"SERIAL2_PROTOCOL": 2, **{f"MAV3_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
 _MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
 HOLD_REAL_COMPASS_S = 300.0
 
 
-def motor_field(params: dict) -> tuple[dict, str | None]:
+def motor_field(params: dict, relay: bool = False) -> tuple[dict, str | None]:
     """ArduPilot's parameters and the world's ``--motor-field`` for a compass's ``params``: a SIM_MAG_MOT
     leaves ArduPilot (where it would act on no current) for the world, with the offsets and soft iron it
-    is applied through; without one, (``params``, None).
+    is applied through; without one, (``params``, None). ``relay``: the world has the companion's relay,
+    whose SERIAL1 link carries the field (no SERIAL2).
 
     >>> motor_field({"SIM_MAG_MOT_X": -0.71, "SIM_MAG_MOT_Z": 0.68})[1]
     '-0.71,0,0.68;0,0,0;1,1,1;0,0,0'
@@ -73,11 +77,18 @@ def motor_field(params: dict) -> tuple[dict, str | None]:
 
     text = ";".join((vector("SIM_MAG_MOT_", 0.0), vector("SIM_MAG1_OFS_", 0.0), vector("SIM_MAG1_DIA_", 1.0),
                      vector("SIM_MAG1_ODI_", 0.0)))
-    return {**params, **{name: 0.0 for name in _MOT}, **MOTOR_LINK_PARAMS}, text
+    return {**params, **{name: 0.0 for name in _MOT}, **({} if relay else MOTOR_LINK_PARAMS)}, text
 
 
+# LOG_FILE_RATEMAX: ArduPilot's own cap on each streaming message's rate in its dataflash log (AP_Logger's rate
+# limiter; every message type stays in the log). Rover logs its EKF cores' XKF1-5/XKQ/XKFS and IMU, PIDs, ATT,
+# SIM at 25-50 Hz: 110 MB a simulated hour (3 GB for the Pacific) to pack and write (the JSON note, section 7).
+# At 10 Hz a boat's hours-long log keeps every record the rig's analyses read (GPA, XKF, ATT, SIM every 0.1 s
+# over minutes-long manoeuvres); the flight does not read its log. INS_LOG_BAT_MASK 0: rover.parm's IMU batch
+# sampler (raw gyro and accelerometer bursts for a vibration FFT) off: our world's IMU has no vibration.
+LOG_RATE_MAX_HZ = 10
 JSON_PARAMS = {"SIM_RATE_HZ": 50, "ARMING_CHECK": ARMING_CHECKS_BUT_INS, "CRUISE_THROTTLE": CRUISE_THROTTLE_PCT,
-               "SIM_DRIFT_SPEED": 0, **PORT_PARAMS}
+               "SIM_DRIFT_SPEED": 0, "LOG_FILE_RATEMAX": LOG_RATE_MAX_HZ, "INS_LOG_BAT_MASK": 0, **PORT_PARAMS}
 
 
 class ArduPilotJsonRig(ArduPilotRig):
@@ -90,7 +101,7 @@ class ArduPilotJsonRig(ArduPilotRig):
         super().__init__(flight, out)
         self.sitl.model = "JSON"
         self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
-        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS})
+        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS}, relay=True)
         self.motor_field = self.world_motor_field is not None
         self.out = out
         self.flight = flight

@@ -28,6 +28,8 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
 
+from sitl.physics.mavlink_frames import whole_frames  # noqa: E402
+
 __all__ = ["STARTUP_GUARD_S", "TruthSample", "FirmwareMonitor", "write_truth_csv"]
 
 mavlink = mavutil.mavlink
@@ -35,6 +37,12 @@ GCS_SYSID = 255
 # The rigs wait for a running firmware's first heartbeat this long at most (a hang guard, not a pace):
 # ArduPilot's JSON SITL took more than 60 s to boot at a load average of 30 (a Monte Carlo seed lost)
 STARTUP_GUARD_S = 900.0
+AUTOPILOT_COMPONENT = 1
+# what :meth:`FirmwareMonitor.handle` reads from a component other than the autopilot's; ArduPilot routes
+# every broadcast message of its other links to the monitor's (the companion's 10 Hz GPS_INPUT and 5 Hz
+# setpoints: two thirds of what SERIAL0 carried, decoded for nothing)
+_FROM_ANY_COMPONENT = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in (
+    "STATUSTEXT", "COMMAND_ACK", "GPS_RAW_INT", "VFR_HUD", "SIMSTATE", "HIL_STATE_QUATERNION"))
 
 
 @dataclass(frozen=True)
@@ -74,6 +82,7 @@ class FirmwareMonitor:
         self.acks: dict[int, int] = {}          # COMMAND_ACK results of the autopilot, by command
         self.params: dict[str, float] = {}      # PARAM_VALUEs the autopilot sent
         self._pending: deque = deque()           # read from the socket, not yet handled
+        self._unread = bytearray()              # TCP: an incomplete frame at the end of the last read
         self.listeners: dict = {}               # message type -> callable(msg): more than the truth (a calibration)
 
     @property
@@ -160,7 +169,8 @@ class FirmwareMonitor:
     def _read(self, wait_s: float) -> None:
         """What the port has (waiting up to ``wait_s`` for it) into :attr:`_pending`. On TCP (ArduPilot's
         SERIAL0) all of it in one read: pymavlink's ``recv_match`` reads a message in two system calls
-        (header, then the rest), and the monitor was a fifth of a lockstep run's CPU seconds."""
+        (header, then the rest), and the monitor was a fifth of a lockstep run's CPU seconds. Only frames
+        :meth:`handle` reads are decoded (the autopilot's, and other components' texts and acks)."""
         conn = self.conn
         if not isinstance(conn, mavutil.mavtcp) or conn.port is None:
             msg = conn.recv_match(blocking=True, timeout=wait_s)
@@ -169,12 +179,22 @@ class FirmwareMonitor:
             return
         if not select.select([conn.port], [], [], wait_s)[0]:
             return
-        data = conn.recv(262144)
-        # acknowledge at once (Linux leaves quick-ack mode after a read): ArduPilot SITL sleeps a wall
-        # millisecond at a time while SERIAL0's unacknowledged output exceeds 1 kB (SITL_State: "check the
-        # outbound TCP queue size"), and a delayed ACK (40 ms) kept it there
-        conn.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
-        self._pending.extend(m for m in conn.mav.parse_buffer(data) or () if m.get_type() != "BAD_DATA")
+        unread = self._unread
+        while True:
+            data = conn.recv(262144)
+            # acknowledge at once (Linux leaves quick-ack mode after a read): ArduPilot SITL sleeps a wall
+            # millisecond at a time while SERIAL0's unacknowledged output exceeds 1 kB (SITL_State: "check the
+            # outbound TCP queue size"), and a delayed ACK (40 ms) kept it there
+            conn.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+            unread += data
+            wanted = b"".join(frame for msgid, _, frame in whole_frames(unread)
+                              if frame[6] == AUTOPILOT_COMPONENT or msgid in _FROM_ANY_COMPONENT)
+            if wanted:
+                self._pending.extend(m for m in conn.mav.parse_buffer(wanted) or () if m.get_type() != "BAD_DATA")
+            # a frame cut by the read: its rest follows at once (the firmware writes whole frames); read it
+            # now, so that pymavlink's own reads (drain, a test's recv_match) start on a frame's first byte
+            if not data or not unread or not select.select([conn.port], [], [], 1.0)[0]:
+                return
 
     def drain(self) -> None:
         """Read every message already queued, without waiting: :attr:`time_s` is then the firmware's

@@ -156,9 +156,10 @@ def firmware_flight(options, scenario, dest: tuple[float, float], values: dict,
 
 
 def _current(options, scenario) -> tuple[float, float]:
-    """The water's current of this seed in the scenario's world (our world as ArduPilot's JSON physics)."""
+    """The water's current of this seed in the scenario's world (our world as ArduPilot's JSON physics):
+    the in-process flight's current for the same scenario and seed (:func:`sitl.world.vehicle.seed_motion_errors`)."""
     if options.physics != "json":
         return (0.0, 0.0)
-    from sitl.world.vehicle import MotionErrors
+    from sitl.world.vehicle import seed_motion_errors
 
-    return MotionErrors.draw(scenario.motion, np.random.default_rng(options.seed)).current_en_mps
+    return seed_motion_errors(scenario.motion, options.seed).current_en_mps

@@ -65,7 +65,7 @@ from sitl.world.emm import OutsideGridError
 from sitl.world.ins import InsErrorModel, propagate_together
 from sitl.world.magnetic import TruthField
 from sitl.world.sampling import PeriodKnots, SampleSettings, sample_period
-from sitl.world.vehicle import MotionErrors, VehicleState, step_vehicle
+from sitl.world.vehicle import VehicleState, seed_motion_errors, step_vehicle
 
 __all__ = ["CHI2_95_2DOF", "InProcessFlight", "RunResult", "fly_batch", "fly_in_process", "nees_per_step"]
 
@@ -161,7 +161,7 @@ class InProcessFlight:
     def __init__(self, nav: NavConfig, scenario: Scenario, seed: int, truth: TruthField,
                  substep_s: float = 30.0, keep_commands: bool = False, nav_model=None) -> None:
         # (spawn by index: a new stream leaves the older ones, and so every older draw, as they were)
-        ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, motion_seed, accel_seed, start_seed = \
+        ins_seed, noise_seed, att_seed, cal_seed, fhz_seed, se_seed, _motion, accel_seed, start_seed = \
             np.random.SeedSequence(seed).spawn(9)
         self.accel_rng = np.random.default_rng(accel_seed)
         if scenario.heading_source == "magnetic":   # as the companion does: never D with a compass yaw
@@ -192,7 +192,7 @@ class InProcessFlight:
         self.substeps = max(1, int(round(nav.period_s / substep_s)))
         self.dt_s = nav.period_s / self.substeps
         self.errors = make_error_models(scenario, np.random.default_rng(att_seed), np.random.default_rng(cal_seed))
-        self.motion = MotionErrors.draw(scenario.motion, np.random.default_rng(motion_seed))
+        self.motion = seed_motion_errors(scenario.motion, seed)   # stream [6], as the firmware's world draws it
         if not self.sampled:
             start_field = truth.model.elements(nav.start_lat_deg, nav.start_lon_deg, nav.alt_m, truth.year)   # the world's date
             self.sigma_d, self.sigma_i = sensors.averaged_di_noise_deg(nav.period_s, float(start_field.h_nt),

@@ -19,7 +19,8 @@ computes its compass from our position and attitude with its own field tables
 (``update_mag_field_bf()``: "the model does not provide mag field"), and its GPS from our position
 (``SIM_GPS1_ENABLE 0`` denies it as before). Nor, in the shared binary, a battery current, so SITL's motor
 interference (``SIM_MAG_MOT`` x the backend's current) never acts: with ``--motor-field`` the world puts
-the motor's field on the compass itself (:mod:`sitl.physics.motor_field`, over ArduPilot's SERIAL2).
+the motor's field on the compass itself (:mod:`sitl.physics.motor_field`, over the relay's SERIAL1 link, or
+SERIAL2 without a relay).
 
 The loop is pipelined: the answer to frame ``n`` (the state at ``t_n + dt``) is ready when the
 packet arrives and leaves at once; the world then steps with that packet's outputs while the
@@ -137,7 +138,8 @@ class JsonPhysics:
     def __init__(self, config: JsonPhysicsConfig, relay=None) -> None:
         self.config = config
         self.relay = relay
-        self.motor = MotorField(config.instance, config.motor_field) if config.motor_field is not None else None
+        self.motor = (MotorField(config.instance, config.motor_field, send=relay.to_fc if relay is not None else None)
+                      if config.motor_field is not None else None)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", json_port(config.instance)))
         # the idle timeout in the kernel (SO_RCVTIMEO) on a blocking socket: one system call a frame

@@ -3,8 +3,10 @@
 pymavlink's ``parse_buffer`` builds a message object and checks every frame's checksum in Python:
 on PX4's lockstep path (:mod:`sitl.physics.px4_hil`) that was a third of our world's CPU seconds
 (py-spy --gil on the full Pacific: PX4's outputs once a frame, and the companion's messages the
-lockstep gate reads for their time; docs/notes/2026-12-06-px4-hil-lockstep.md, section 9). The
-bridge needs two things from them: PX4's outputs and a message's ``time_boot_ms``. The layouts are
+lockstep gate reads for their time; docs/notes/2026-12-06-px4-hil-lockstep.md, section 9), and
+ArduPilot's relay (:mod:`sitl.physics.relay`) read every companion message the same way. The
+bridges need three things from them: PX4's outputs, a message's ``time_boot_ms`` and the frame's
+bytes to pass on. The layouts are
 pymavlink's (its ``unpacker`` structs and field orders); the checksums are not checked: these links
 are TCP and UDP on this machine, which deliver their bytes intact.
 """
@@ -15,7 +17,7 @@ import struct
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-__all__ = ["MAVLINK2_MAGIC", "actuator_controls", "frames", "time_boot_ms"]
+__all__ = ["MAVLINK2_MAGIC", "actuator_controls", "frames", "time_boot_ms", "whole_frames"]
 
 MAVLINK2_MAGIC, MAVLINK2_HEADER, MAVLINK2_CRC, MAVLINK2_SIGNATURE = 0xFD, 10, 2, 13
 _ACTUATORS = mavlink2.MAVLink_hil_actuator_controls_message
@@ -35,6 +37,22 @@ def frames(buf: bytearray) -> list[tuple[int, bytes]]:
     >>> [m for m, _ in frames(buf)], len(buf)
     ([2], 0)
     """
+    return _split(buf, False)
+
+
+def whole_frames(buf: bytearray) -> list[tuple[int, bytes, bytes]]:
+    """As :func:`frames`, with each frame's bytes as sent (header, payload, checksum, signature): for
+    passing a frame on unchanged.
+
+    >>> mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    >>> wire = mav.system_time_encode(5, 7).pack(mav)
+    >>> [(m, f == wire) for m, _, f in whole_frames(bytearray(wire))]
+    [(2, True)]
+    """
+    return _split(buf, True)
+
+
+def _split(buf: bytearray, whole: bool) -> list[tuple]:
     found = []
     start, end = 0, len(buf)
     while start < end:
@@ -49,7 +67,8 @@ def frames(buf: bytearray) -> list[tuple[int, bytes]]:
         if end - start < total:
             break
         msgid = buf[start + 7] | buf[start + 8] << 8 | buf[start + 9] << 16
-        found.append((msgid, bytes(buf[start + MAVLINK2_HEADER:start + MAVLINK2_HEADER + length])))
+        payload = bytes(buf[start + MAVLINK2_HEADER:start + MAVLINK2_HEADER + length])
+        found.append((msgid, payload, bytes(buf[start:start + total])) if whole else (msgid, payload))
         start += total
     del buf[:start]
     return found

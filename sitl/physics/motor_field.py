@@ -18,13 +18,16 @@ added to ``B``, as a newer SITL adds it, is therefore the same sample as ``SIM_M
 takes SITL's own current law (50 A x |throttle|, as its battery monitor reports and its built-in boats
 draw: ``Aircraft::update_battery``), and whenever the field it makes has moved by more than
 ``step_mgauss`` (at most once per ``min_interval_s`` of firmware time) it sets ``SIM_MAG1_OFS_X/Y/Z``
-over its own MAVLink link, ArduPilot's SERIAL2 (TCP ``5763 + 10 I``). The battery monitor's current and
+over the companion relay's link to ArduPilot's SERIAL1 when the world has one (``send``), else over its own
+MAVLink link, ArduPilot's SERIAL2 (TCP ``5763 + 10 I``): SITL polls each connected TCP port three times a
+loop (strace), a third of its port polling for about 30 messages an hour. The battery monitor's current and
 the compass's motor field then move together, as on a boat, and ``COMPASS_MOTCT 2`` can compensate it.
 """
 from __future__ import annotations
 
 import os
 import socket
+from collections.abc import Callable
 from dataclasses import dataclass
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -88,11 +91,14 @@ class MotorFieldConfig:
 
 
 class MotorField:
-    """The motor's field for ArduPilot instance ``instance``: :meth:`update` once per frame."""
+    """The motor's field for ArduPilot instance ``instance``: :meth:`update` once per frame. ``send``: writes
+    frames to ArduPilot over a link the world already has (False while it cannot); None: SERIAL2."""
 
-    def __init__(self, instance: int, config: MotorFieldConfig) -> None:
+    def __init__(self, instance: int, config: MotorFieldConfig,
+                 send: Callable[[bytes], bool] | None = None) -> None:
         self.instance = instance
         self.config = config
+        self._send = send
         self.sock: socket.socket | None = None
         self._mav = mavlink.MAVLink(None, srcSystem=WORLD_SYSID, srcComponent=mavlink.MAV_COMP_ID_USER1)
         self._tries = 0
@@ -120,27 +126,32 @@ class MotorField:
         current = sitl_current_a(throttle)
         if now_us < self._next_us or abs(current - self._sent_current_a) < self._step_a:
             return
-        if self.sock is None:
-            self._connect()
-            if self.sock is None:
-                return
-        self._drain()
-        if self.sock is None:
-            return
         frames = b"".join(
             mavlink.MAVLink_param_set_message(1, 1, name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32)
             .pack(self._mav) for name, value in zip(("SIM_MAG1_OFS_X", "SIM_MAG1_OFS_Y", "SIM_MAG1_OFS_Z"),
                                                     self.config.offsets_at(current)))
+        if not (self._send(frames) if self._send is not None else self._send_serial2(frames)):
+            return
+        self._sent_current_a = current
+        self._next_us = now_us + self._min_interval_us
+        self.updates += 1
+
+    def _send_serial2(self, frames: bytes) -> bool:
+        if self.sock is None:
+            self._connect()
+            if self.sock is None:
+                return False
+        self._drain()
+        if self.sock is None:
+            return False
         try:
             self.sock.setblocking(True)
             self.sock.sendall(frames)
             self.sock.setblocking(False)
         except OSError:
             self.close()
-            return
-        self._sent_current_a = current
-        self._next_us = now_us + self._min_interval_us
-        self.updates += 1
+            return False
+        return True
 
     def _drain(self) -> None:
         """Discard what ArduPilot sent on the port (its PARAM_VALUE answers, heartbeats)."""

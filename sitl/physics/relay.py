@@ -4,7 +4,8 @@ ArduPilot's SERIAL1 (TCP ``5762 + 10 I``) is the companion's port on a vehicle; 
 process connects to it and listens for the companion on ``relay_port(I)`` (TCP ``9008 + 10 I``).
 What ArduPilot sends is passed on every ``pump_period_s`` of firmware time, unparsed but for the
 headers, from which the newest firmware time passed on is kept (the heavy direction). What the
-companion sends is split into MAVLink frames (pymavlink), each due at a fixed firmware time: its own
+companion sends is split into MAVLink frames (:mod:`sitl.physics.mavlink_frames`: the header and the
+stamp's bytes read, the frame passed on as sent), each due at a fixed firmware time: its own
 stamp (``time_boot_ms`` as ``companion --lockstep`` stamps it: the newest firmware time it has seen;
 GPS_INPUT's UNIX ``time_usec`` placed on the boot clock with SYSTEM_TIME's pairing) plus
 ``latency_s``; an unstamped frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it.
@@ -38,12 +39,11 @@ import errno
 import os
 import select
 import socket
+import struct
 import time
 from collections import deque
 
-os.environ.setdefault("MAVLINK20", "1")
-
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from sitl.physics.mavlink_frames import time_boot_ms, whole_frames
 
 __all__ = ["CompanionRelay", "FirmwareTimes", "relay_port", "serial1_port"]
 
@@ -51,6 +51,7 @@ __all__ = ["CompanionRelay", "FirmwareTimes", "relay_port", "serial1_port"]
 # LOCAL_POSITION_NED, GLOBAL_POSITION_INT, RC_CHANNELS, SCALED_IMU(2, 3) first; SYSTEM_TIME after its uint64
 _STAMP_OFFSET = {30: 0, 31: 0, 32: 0, 33: 0, 65: 0, 26: 0, 116: 0, 129: 0, 2: 8}
 GPS_INPUT_ID = 232
+_GPS_INPUT_TIME_USEC = struct.Struct("<Q")   # GPS_INPUT's first field on the wire
 LATENCY_S = 1.2          # from a frame's stamp to ArduPilot (see the note); > pump period + 2 answer periods
 ANSWER_PERIOD_S = 0.2    # the companion sends a stamped frame at least this often (COMP_SP_RATE_HZ 5, --lockstep)
 PUMP_PERIOD_S = 0.2      # ArduPilot's output passed on to the companion this often (firmware time)
@@ -137,9 +138,8 @@ class CompanionRelay:
         self.listener.setblocking(False)
         self.fc: socket.socket | None = None
         self.companion: socket.socket | None = None
-        self._parser = mavlink.MAVLink(None)
-        self._parser.robust_parsing = True
-        self._due: deque = deque()       # the companion's frames, (firmware time due in us, stamped, frame), in order
+        self._from_companion = bytearray()   # what the companion sent, up to an incomplete last frame
+        self._due: deque = deque()       # the companion's frames, (firmware time due in us, stamped, msgid, frame)
         self._due_us = 0                 # the due time of the last frame scheduled (never goes back)
         self._stamped = False            # the companion has sent a stamped frame: the gate is closed from now on
         self._heard = False
@@ -260,26 +260,28 @@ class CompanionRelay:
             self._companion_lost()
             return
         self._heard = True
-        for msg in self._parser.parse_buffer(data) or ():
-            self._schedule(msg)
+        self._from_companion += data
+        for msgid, payload, frame in whole_frames(self._from_companion):
+            self._schedule(msgid, payload, frame)
 
-    def _schedule(self, msg) -> None:
+    def _schedule(self, msgid: int, payload: bytes, frame: bytes) -> None:
         """Queue a frame for the firmware time of its own stamp plus :attr:`latency_us`; an unstamped
         frame (HEARTBEAT, COMMAND_LONG) keeps its place after the one before it. GPS_INPUT carries UNIX
         time (``time_usec``), placed on the boot clock with SYSTEM_TIME's pairing. A stamp later than
         anything passed on (another boot's) counts as none."""
-        stamp_ms = getattr(msg, "time_boot_ms", None)
-        if isinstance(stamp_ms, int) and stamp_ms > 0:
+        stamp_ms = time_boot_ms(msgid, payload)
+        if stamp_ms:
             stamp_us = stamp_ms * 1000
-        elif msg.get_msgId() == GPS_INPUT_ID and self.times.unix_minus_boot_us is not None:
-            stamp_us = msg.time_usec - self.times.unix_minus_boot_us
+        elif msgid == GPS_INPUT_ID and self.times.unix_minus_boot_us is not None:
+            time_usec, = _GPS_INPUT_TIME_USEC.unpack((payload + bytes(8))[:8])
+            stamp_us = time_usec - self.times.unix_minus_boot_us
         else:
             stamp_us = 0
         stamped = 0 < stamp_us <= self.times.time_ms * 1000 + self.fallback_us
         if stamped:
             self._stamped = True
             self._due_us = max(self._due_us, stamp_us + self.latency_us)
-        self._due.append((self._due_us, stamped, msg))
+        self._due.append((self._due_us, stamped, msgid, frame))
 
     def frame(self, now_us: int) -> None:
         """Before ArduPilot's loop at firmware time ``now_us`` (called before each frame's answer):
@@ -347,8 +349,8 @@ class CompanionRelay:
         out = []
         gps = False
         while due and due[0][0] <= now_us:
-            due_us, stamped, msg = due[0]
-            if msg.get_msgId() == GPS_INPUT_ID:
+            due_us, stamped, msgid, frame = due[0]
+            if msgid == GPS_INPUT_ID:
                 if gps:             # one per loop: ArduPilot's GPS driver keeps only the newest of a loop
                     break
                 gps = True
@@ -361,16 +363,23 @@ class CompanionRelay:
                 if late > LATE_US:
                     self.late_frames += 1
                     self.max_late_us = max(self.max_late_us, late)
-            out.append(msg.get_msgbuf())
-        if out and self.fc is not None:
-            self.fc.setblocking(True)
-            try:
-                self.fc.sendall(b"".join(out))
-                self.frames_to_fc += len(out)
-            except OSError:
-                pass
-            if self.fc is not None:
-                self.fc.setblocking(False)
+            out.append(frame)
+        if out and self.to_fc(b"".join(out)):
+            self.frames_to_fc += len(out)
+
+    def to_fc(self, data: bytes) -> bool:
+        """Write ``data`` to ArduPilot's SERIAL1 (whole frames); False while it is not connected."""
+        fc = self.fc
+        if fc is None:
+            return False
+        fc.setblocking(True)
+        try:
+            fc.sendall(data)
+        except OSError:
+            return False
+        finally:
+            fc.setblocking(False)
+        return True
 
     def stats(self) -> dict:
         return {"lockstep_reads": self.reads, "lockstep_waits": self.waits, "lockstep_timeouts": self.timeouts,

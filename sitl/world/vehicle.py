@@ -28,8 +28,8 @@ from companion import wrap_2pi, wrap_pi
 from companion.nav.geo import metres_per_degree, offset_position
 from sitl.world.checks import require
 
-__all__ = ["NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState", "move",
-           "step_vehicle", "true_start"]
+__all__ = ["MOTION_STREAM", "NO_MOTION_ERRORS", "MotionErrorConfig", "MotionErrors", "VehicleLimits", "VehicleState",
+           "move", "seed_motion_errors", "step_vehicle", "true_start"]
 
 
 def true_start(lat_deg: float, lon_deg: float, gps_noise_m: float, rng: np.random.Generator) -> tuple[float, float]:
@@ -97,6 +97,22 @@ class MotionErrors:
 
 
 NO_MOTION_ERRORS = MotionErrors()
+
+MOTION_STREAM = 6
+"""The motion errors' stream among a run's ``numpy.random.SeedSequence(seed).spawn(n)`` streams: the
+in-process flight's and the stand-in's [6] (:mod:`fcmpc.montecarlo.inprocess`, :mod:`sitl.fc.server`)."""
+
+
+def seed_motion_errors(config: MotionErrorConfig, seed: int) -> MotionErrors:
+    """Run ``seed``'s motion errors, the same in every world that flies the seed: the in-process
+    flight, the stand-in and our world as a firmware's physics (a seed's current drawn anywhere else
+    is another current, and the runs of one seed stop being comparable).
+
+    >>> [round(v, 3) for v in seed_motion_errors(MotionErrorConfig(current_mps=0.3), 1006).current_en_mps]
+    [-0.136, -0.232]
+    """
+    stream = np.random.SeedSequence(seed).spawn(MOTION_STREAM + 1)[MOTION_STREAM]
+    return MotionErrors.draw(config, np.random.default_rng(stream))
 
 
 @dataclass(frozen=True)

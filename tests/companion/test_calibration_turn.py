@@ -5,6 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 from companion.params import read_parm_file
 from tests.companion.test_app import _run
 
@@ -53,3 +55,45 @@ def test_circles_fit_the_installation_and_the_probes_are_not_excluded(tmp_path):
     assert not [e for e in after if "implausible magnetometer" in e], after
     stored = read_parm_file(tmp_path / "circles" / "companion.parm")
     assert abs(stored["MAG_OFS_X"]) + abs(stored["MAG_OFS_Y"]) > 5.0, "the fit was not written to MAG_*"
+
+
+def _gps_until(tmp_path: Path, seconds: float, ins_at_rest: bool) -> Path:
+    """The paper's Pacific world with GPS only until ``seconds`` of simulated time; ``ins_at_rest``:
+    the FC's free-inertial solution starts without the paper's initial errors (5 km, 10 m/s), as a
+    flight controller's EKF holds a vehicle at rest, so its position says the vehicle has not moved."""
+    text = (REPO / "sitl" / "scenarios" / "paper_pacific.toml").read_text()
+    text, count = re.subn(r"(?m)^gps_denied_after_s = .*$", f"gps_denied_after_s = {seconds}", text)
+    assert count == 1
+    if ins_at_rest:
+        for name in ("vel_err_mps", "pos_err_east_m", "pos_err_north_m"):
+            text, count = re.subn(rf"(?m)^{name} = .*$", f"{name} = 0.0", text)
+            assert count == 1, name
+    path = tmp_path / "world.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("ins_at_rest", [True, False], ids=["FC holds the vehicle", "FC drifts"])
+def test_a_fix_older_than_the_start_allows_places_the_circle_or_is_said(tmp_path, ins_at_rest):
+    """The GPS cut 17 s before arming (ArduPilot in lockstep, seed 1007, refused arming four times
+    and the circle was dropped without a word). While the flight controller's own position stays
+    by the last fix, the circle is flown there. Where it runs away (the paper's free INS: 7.7 km
+    at 14 m/s after 18 s at rest), a WARNING says the circle is skipped and why before the mission's
+    start, summary.json keeps it, and the mission flies on. 30 s: the decision comes at arming, ~22 s."""
+    parm = "COMP_ARM_ENABLE 1\nNAV_PERIOD_S 20\nCOMP_CAL_TURNS 1\nCOMP_POS_PUB 2\n"   # POS_PUB 2: the FC's own position
+    _, run = _run(tmp_path, parm, sim_s=30.0, wall_s=300.0,
+                  sitl_args=("--scenario", str(_gps_until(tmp_path, 5.0, ins_at_rest))))
+    events = run["events"]
+    if ins_at_rest:
+        assert _said(run, "calibrating the magnetometer"), events[-10:]
+        assert not _said(run, "skipped"), events[-10:]
+        assert re.fullmatch(r"circling at 33\.0000,152\.0000: the GPS fix of 1\d s ago, at rest since "
+                            r"\(the FC position \d m from it at 0\.\d m/s\)", run["calibration"]), run["calibration"]
+        return
+    said = [i for i, e in enumerate(events) if "calibration circle skipped, MAG_* unchanged: the last GPS "
+            "fix is 1" in e and "s old and the vehicle moved since (the FC position" in e]
+    started = [i for i, e in enumerate(events) if "mission 1 start" in e]
+    assert said and started and said[0] < started[0], events[:10]
+    assert not _said(run, "calibrating the magnetometer"), events[-10:]
+    assert run["calibration"].startswith("skipped: the last GPS fix is 1"), run["calibration"]
+    assert run["state"] == "running", events[-10:]   # flies on, having said so

@@ -153,3 +153,19 @@ def test_the_gate_waits_only_for_what_the_companion_could_have_answered(loopback
 def test_the_latency_must_cover_what_the_companion_cannot_have_answered():
     with pytest.raises(ValueError, match="latency"):
         CompanionRelay(0, latency_s=0.5, pump_period_s=0.2, answer_period_s=0.2)
+
+
+def test_the_motor_field_reaches_ardupilot_over_the_relays_link(loopback):
+    """With a relay the world sets the motor's field (SIM_MAG1_OFS) over the relay's SERIAL1 link, not a
+    SERIAL2 port SITL would poll three times a loop for it."""
+    from sitl.physics.motor_field import MotorField, MotorFieldConfig
+
+    rig = loopback(timeout_s=5.0, latency_s=1.0)
+    config = MotorFieldConfig((-0.71, -0.14, 0.68), (10.0, 20.0, 30.0))
+    motor = MotorField(rig.instance, config, send=rig.relay.to_fc)
+    motor.update(1_000_000, 0.5)                # 25 A
+    _readable(rig.fc)
+    sets = {m.param_id: m.param_value for m in mavlink.MAVLink(None).parse_buffer(rig.fc.recv(65536))}
+    assert sets == pytest.approx(dict(zip(("SIM_MAG1_OFS_X", "SIM_MAG1_OFS_Y", "SIM_MAG1_OFS_Z"),
+                                          config.offsets_at(25.0))), abs=1e-4)
+    assert motor.updates == 1 and motor.sock is None

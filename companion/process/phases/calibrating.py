@@ -1,4 +1,4 @@
-"""``calibrating``: armed in GUIDED/OFFBOARD, COMP_CAL_TURNS > 0 and a GPS start: the magnetometer's
+"""``calibrating``: armed in GUIDED/OFFBOARD, COMP_CAL_TURNS > 0 and a GPS fix to place the field model: the magnetometer's
 calibration circles (:mod:`companion.process.calibration_turn`), then one more for the start-up
 average (``engaged``)."""
 from __future__ import annotations

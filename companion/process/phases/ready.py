@@ -2,7 +2,7 @@
 with COMP_ARM_ENABLE 1 GUIDED (ArduPilot) or, after >= 1 s of setpoints, OFFBOARD (PX4), then arm,
 backing off when the FC refuses; with 0 the operator does so. The next mission is built meanwhile
 (:meth:`MissionPreparation.prepare`). Armed in GUIDED/OFFBOARD: the calibration circles first
-(COMP_CAL_TURNS, a GPS start) or the mission (``engaged``)."""
+(COMP_CAL_TURNS, with a GPS fix to place the field model; else a WARNING says why not) or the mission (``engaged``)."""
 from __future__ import annotations
 
 from companion.io.link import MavlinkLink
@@ -41,7 +41,7 @@ class ReadyPhase(Phase):
         fc = self.link.fc
         if fc.armed and fc.guided and not self.operator.held:
             sent = self.outputs.zero_setpoint()   # no gap: the FC stops after 3 s without a setpoint
-            if self.resume.pending is None and self.calturn.wanted(self.preparation.start_position()[2]):
+            if self.resume.pending is None and self.calturn.wanted():
                 return Tick(sent, Transition(Event.CALIBRATE))
             return Tick(sent, Transition(Event.ENGAGED))   # the running phase starts or resumes the mission
         sent = self.outputs.zero_setpoint()
