@@ -164,6 +164,11 @@ class LockstepGate:
         boundary after the reboot is free, the next needs the peer on the new boot time."""
         self.peer_time_ms = 0
 
+    @property
+    def answered_untimed(self) -> bool:
+        """This boundary was answered by an unstamped message (the peer has sent no stamp yet)."""
+        return self._untimed
+
     def satisfied(self, boundary_us: int) -> bool:
         """The peer answered the boundary ``boundary_us`` (boot time, us)."""
         return self._untimed or self.peer_time_ms * 1000 >= boundary_us - self.slack_us

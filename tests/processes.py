@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import queue
+import socket
 import subprocess
 import threading
 import time
@@ -9,7 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["wait_for_file", "Lines", "reaped"]
+__all__ = ["wait_for_file", "wait_for_listening", "Lines", "reaped"]
 
 
 class Lines:
@@ -42,6 +43,20 @@ def wait_for_file(path: Path, procs: list[subprocess.Popen], timeout_s: float) -
         dead = [p.args[:3] for p in procs if p.poll() is not None]
         assert not dead, f"{dead} exited before writing {path}"
         assert time.monotonic() < deadline, f"{path} not written within {timeout_s:g} s"
+        time.sleep(0.05)   # the polling interval of the wait, not a guess at how long a start takes
+
+
+def wait_for_listening(port: int, procs: list[subprocess.Popen], timeout_s: float) -> None:
+    """Wait until a server accepts TCP connections on 127.0.0.1:``port`` (an event, probed by
+    connecting), failing early if a process died."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        dead = [p.args[:3] for p in procs if p.poll() is not None]
+        assert not dead, f"{dead} exited before listening on tcp port {port}"
+        assert time.monotonic() < deadline, f"nothing listened on tcp port {port} within {timeout_s:g} s"
         time.sleep(0.05)   # the polling interval of the wait, not a guess at how long a start takes
 
 

@@ -7,13 +7,22 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import socket
+import subprocess
+import sys
+from contextlib import ExitStack
+from pathlib import Path
 
 import pytest
 
 from companion.nav.geo import geodesic_distance_m
 from companion.params import read_parm_file
+from fcmpc.firmware.instances import LOCK_DIR_ENV
 from fcmpc.montecarlo.cli import main
 from fcmpc.montecarlo.flown import INSTANCES, instance_for
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.slow
@@ -52,12 +61,64 @@ def test_two_flown_runs_print_the_in_process_table_each_run_its_own_seed_and_fol
     assert summary["fc"] == "sim" and summary["summary"]["Fc-MPC"]["arrived"] == 2
 
 
-def test_runs_side_by_side_get_their_own_firmware_instances():
+def test_runs_side_by_side_get_their_own_firmware_instances(tmp_path, monkeypatch):
+    monkeypatch.setenv(LOCK_DIR_ENV, str(tmp_path))
     low, high = INSTANCES["ardupilot"]
-    picked = {instance_for("ardupilot", k) for k in range(3)}
-    assert len(picked) == 3 and all(low <= i <= high for i in picked)
-    assert instance_for("ardupilot", 0, first=40) >= 40
-    assert 1 <= instance_for("px4", 12) <= 9 and instance_for("sim", 5) == 0
+    with ExitStack() as runs:
+        picked = {runs.enter_context(instance_for("ardupilot", k)) for k in range(3)}
+        assert len(picked) == 3 and all(low <= i <= high for i in picked)
+    with instance_for("ardupilot", 0, first=40) as ardupilot, instance_for("px4", 12) as px4, \
+            instance_for("sim", 5) as sim:
+        assert 40 <= ardupilot <= 49 and 1 <= px4 <= 9 and sim == 0
+
+
+CLAIMER = """
+import sys
+from fcmpc.montecarlo.flown import instance_for
+print("ready", flush=True)
+sys.stdin.readline()                                  # go
+with instance_for("ardupilot", int(sys.argv[1]), first=int(sys.argv[2])) as instance:
+    print(instance, flush=True)
+    sys.stdin.readline()                              # the run's life: until told to end
+"""
+
+
+def test_two_runs_starting_at_once_while_another_process_holds_the_first_instances_get_their_own(tmp_path):
+    """Runs 0 and 1 of a Monte Carlo start in two processes at the same moment while a third (this
+    test, listening on their SERIAL0 ports as a running ArduPilot does) holds instances 50 and 51.
+    Looking at the ports alone, both took 52 (run 0 from its slot 50 on, run 1 from 51 on); each
+    now claims its instance for its life before it looks."""
+    from fcmpc.firmware.ardupilot import ArduPilotSitl
+
+    first = 50
+    held = []
+    try:
+        for instance in (first, first + 1):
+            sock = socket.socket()
+            try:
+                sock.bind(("127.0.0.1", ArduPilotSitl.ports_for(instance)[0]))
+                sock.listen()
+            except OSError:         # someone else's: held all the same
+                pass
+            held.append(sock)
+        env = dict(os.environ, PYTHONPATH=str(REPO), **{LOCK_DIR_ENV: str(tmp_path)})
+        runs = [subprocess.Popen([sys.executable, "-c", CLAIMER, str(k), str(first)], stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, text=True, env=env) for k in (0, 1)]
+        try:
+            assert [run.stdout.readline().strip() for run in runs] == ["ready", "ready"]
+            for run in runs:            # at the same moment
+                run.stdin.write("go\n")
+                run.stdin.flush()
+            picked = [run.stdout.readline().strip() for run in runs]
+            assert all(p.isdigit() for p in picked), picked
+            assert len(set(picked)) == 2 and all(first + 2 <= int(p) <= first + 9 for p in picked), picked
+        finally:
+            for run in runs:
+                run.stdin.close()       # the runs end, their claims with them
+                run.wait(timeout=60)
+    finally:
+        for sock in held:
+            sock.close()
 
 
 @pytest.mark.parametrize("extra, said", [(["--budget"], "--budget"), (["--errors=-crustal"], "--errors"),

@@ -4,12 +4,12 @@ Where the in-process Monte Carlo (:mod:`fcmpc.montecarlo.runs`) flies the naviga
 world in one process, a flown run is what ``fcmpc-fly`` does: the companion as a process against
 our stand-in (``--fc sim``) or real firmware (``--fc ardupilot|px4``, its own physics or ours in
 lockstep), through :func:`fcmpc.fly.runner.fly`. Each run has its own seed, its own instance
-number (:func:`instance_for`: the firmware's ports shift with it) and its own temporary folder;
-what is kept of it (``result.json``, the parameters, the companion's summary and steps) is copied
-to ``<out>/runs/s<seed>/``. Its row is measured as an in-process row is (:class:`RunRow`:
-:func:`companion.nav.metrics.track_metrics` on the true positions at each control step, start
-included, ending where the vehicle came to rest), so :func:`fcmpc.montecarlo.tables.summarise`
-and ``format_table`` print the same table.
+number (:func:`instance_for`, claimed for the run's life: the firmware's ports shift with it) and
+its own temporary folder; what is kept of it (``result.json``, the parameters, the companion's
+summary and steps) is copied to ``<out>/runs/s<seed>/``. Its row is measured as an in-process row
+is (:class:`RunRow`: :func:`companion.nav.metrics.track_metrics` on the true positions at each
+control step, start included, ending where the vehicle came to rest), so
+:func:`fcmpc.montecarlo.tables.summarise` and ``format_table`` print the same table.
 
 The engines are the in-process Monte Carlo's (:func:`fcmpc.montecarlo.engines.run_all` with
 :func:`fly_specs` as the task, one run per task): the local pool, or Dask. A firmware run is tens
@@ -22,12 +22,16 @@ import math
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from companion.nav.metrics import track_metrics
+from fcmpc.firmware.instances import claimed
 from fcmpc.fly.results import FlyResult
 from fcmpc.fly.runner import FlyOptions, fly
 from fcmpc.montecarlo.runs import RunOutput, RunRow
@@ -55,20 +59,36 @@ def plan_flown(options: FlyOptions, runs: int, first_seed: int, out: Path) -> li
             for k in range(runs)]
 
 
-def instance_for(fc: str, index: int, first: int | None = None) -> int:
-    """The instance number of run ``index``: the first free one (its ports unbound) from the run's
-    own slot of the FC's range (ArduPilot 80-89, PX4 1-9) on, so runs side by side never share one."""
+@contextmanager
+def instance_for(fc: str, index: int, first: int | None = None) -> Iterator[int]:
+    """The instance number of run ``index``, claimed for the block (:func:`fcmpc.firmware.instances.claimed`):
+    the first from the run's own slot of the FC's range (ArduPilot 80-89 or ``first``..``first`` + 9,
+    PX4 1-9) on, round the range, that no other run claims and whose ports nobody has bound, so runs
+    side by side never share one, in one process or in several."""
+    if fc not in INSTANCES:
+        yield 0   # our stand-in: a free UDP port of its own
+        return
     if fc == "ardupilot":
         from fcmpc.firmware.ardupilot import free_instance
 
         low, high = INSTANCES["ardupilot"] if first is None else (first, first + 9)
-        return free_instance(first=low + index % (high - low + 1), last=high)
-    if fc == "px4":
+        free = partial(_is_free, lambda n: free_instance(first=n, last=n))
+    else:
         from fcmpc.firmware.px4 import free_px4_instance
 
         low, high = INSTANCES["px4"]
-        return free_px4_instance(first=low + index % (high - low + 1))
-    return 0      # our stand-in: a free UDP port of its own
+        free = partial(_is_free, lambda n: free_px4_instance(first=n))
+    start = low + index % (high - low + 1)
+    with claimed(fc, [*range(start, high + 1), *range(low, start)], free) as instance:
+        yield instance
+
+
+def _is_free(pick: Callable[[int], int], instance: int) -> bool:
+    """Whether ``pick`` (a search for a free instance starting at ``instance``) finds ``instance`` itself."""
+    try:
+        return pick(instance) == instance
+    except RuntimeError:     # none free from there on
+        return False
 
 
 def fly_specs(batch: list[tuple[int, FlownSpec]]) -> list[tuple[int, RunOutput]]:
@@ -78,9 +98,9 @@ def fly_specs(batch: list[tuple[int, FlownSpec]]) -> list[tuple[int, RunOutput]]
 
 def _fly_one(index: int, spec: FlownSpec) -> RunOutput:
     options = spec.options
-    instance = instance_for(options.fc, index, options.fc_instance or None)
     keep = Path(spec.keep_dir)
-    with tempfile.TemporaryDirectory(prefix=f"fcmpc-mc-{options.fc}-s{options.seed}-") as tmp:
+    with instance_for(options.fc, index, options.fc_instance or None) as instance, \
+            tempfile.TemporaryDirectory(prefix=f"fcmpc-mc-{options.fc}-s{options.seed}-") as tmp:
         started = time.perf_counter()
         result = fly(replace(options, out_dir=tmp, fc_instance=instance))
         wall = time.perf_counter() - started

@@ -155,10 +155,22 @@ class Stepper:
         return {} if self.peer_pid is None else {"lockstep_peer_gone_s": self.peer_gone_s}
 
     def _handle_pending(self, threshold_us: int) -> bool:
-        """Handle queued messages in order until the gate is satisfied (True) or none is left (False)."""
+        """Handle queued messages in order until the gate is satisfied (True) or none is left (False).
+
+        Before the companion's clock has started it answers with unstamped messages (its stream
+        requests, parameter reads, arming, all in the datagram of one pass): the first of them
+        satisfies the gate, and the rest of its datagram is the same answer, handled with it. Taking
+        each as the answer to a boundary of its own left the companion's 20-odd start-up requests
+        waiting one 0.2 s boundary each (4 s of simulated time, so its parameter reads were retried
+        twice and each answered three times)."""
         gate, pending, handle = self.gate, self.router.pending, self.router.handle_frame
+        read = None
         while not gate.satisfied(threshold_us):
             if not pending:
                 return False
-            handle(*pending.popleft())
+            link, peer, msg, frame, read = pending.popleft()
+            handle(link, peer, msg, frame)
+        if read is not None and gate.answered_untimed:
+            while pending and pending[0][4] == read:
+                handle(*pending.popleft()[:4])
         return True

@@ -19,6 +19,10 @@ the reader). What must not wait leaves at the end of its instant with everything
 (``urgent``: a STATUSTEXT, anything queued while input was handled, i.e. every reply), and
 :meth:`Outbox.send_coalesced` sends the rest before a forwarded frame and at the end of the run.
 The frames, their order and their tlog stamps are those of a run without coalescing.
+A reply queued with :meth:`Outbox.emit_reply` leaves on the link its request came in on only
+(``reply_link``, set by the router while a handler runs), as ArduPilot answers PARAM_REQUEST_READ
+and PARAM_REQUEST_LIST on the requesting channel (``GCS_Param.cpp``: ``reply.chan = req.chan``):
+a ground station never sees the flight controller's answers to the companion's reads.
 :class:`Counters` is the run's tally of events, reported in the summary.
 """
 from __future__ import annotations
@@ -42,6 +46,13 @@ class Counters(dict):
 
     def add(self, key: str, n: int = 1) -> None:
         self[key] = self.get(key, 0) + n
+
+
+class _Reply(bytes):
+    """An encoded frame for one link only (:meth:`Outbox.emit_reply`); bytes to everything else
+    (the link faults, the tlog), so it keeps its place among the frames around it."""
+
+    link: Link
 
 
 class Outbox:
@@ -70,6 +81,8 @@ class Outbox:
         self.urgent = False             # what this instant queued must not wait for later ones (read when coalescing)
         self._coalesced: list[bytes] = []
         self._coalesced_bytes = 0
+        self.reply_link: Link | None = None   # the link of the request being handled (set by the router)
+        self._replied = False           # a reply was ever queued: deliveries look for frames of one link
 
     def emit(self, cls, *fields) -> None:
         """Queue one message (class and ``*_encode`` arguments) for the end of this iteration."""
@@ -77,6 +90,18 @@ class Outbox:
         counts = self.tx_by_type
         name = cls.msgname
         counts[name] = counts.get(name, 0) + 1
+
+    def emit_reply(self, cls, *fields) -> None:
+        """Queue one message for the link the request being handled came in on only (every link
+        outside a handler)."""
+        if self.reply_link is None:
+            self.emit(cls, *fields)
+            return
+        frame = _Reply(self._frame_of(cls, fields))
+        frame.link = self.reply_link
+        self._replied = True
+        self._out.append(frame)
+        self.tx_by_type[cls.msgname] = self.tx_by_type.get(cls.msgname, 0) + 1
 
     def emit_from(self, encoder: FrameEncoder, cls, *fields) -> None:
         """Queue one message another system sends through this flight controller (a ground
@@ -164,22 +189,31 @@ class Outbox:
             for link in self.links:
                 link.flush()
             return
-        if self.batch and sum(map(len, frames)) <= MAX_DATAGRAM_BYTES:
-            chunks = [b"".join(frames)]   # an instant's frames fit one datagram (the usual case)
-        elif self.batch:
-            chunks, current, size = [], [], 0
-            for frame in frames:
-                if size + len(frame) > MAX_DATAGRAM_BYTES and current:
-                    chunks.append(b"".join(current))
-                    current, size = [], 0
-                current.append(frame)
-                size += len(frame)
-            chunks.append(b"".join(current))
-        else:
-            chunks = frames
+        if self._replied and any(type(frame) is _Reply for frame in frames):
+            for link in self.links:     # each link its own frames, in their order
+                for chunk in self._chunks([f for f in frames if type(f) is not _Reply or f.link is link]):
+                    link.send(chunk)
+            return
+        chunks = self._chunks(frames)
         for link in self.links:
             for chunk in chunks:
                 link.send(chunk)
+
+    def _chunks(self, frames: list[bytes]) -> list[bytes]:
+        """``frames`` as datagrams: one per frame, or (``batch``) joined up to ``MAX_DATAGRAM_BYTES``."""
+        if not self.batch:
+            return frames
+        if sum(map(len, frames)) <= MAX_DATAGRAM_BYTES:
+            return [b"".join(frames)] if frames else []   # an instant's frames fit one datagram (the usual case)
+        chunks, current, size = [], [], 0
+        for frame in frames:
+            if size + len(frame) > MAX_DATAGRAM_BYTES and current:
+                chunks.append(b"".join(current))
+                current, size = [], 0
+            current.append(frame)
+            size += len(frame)
+        chunks.append(b"".join(current))
+        return chunks
 
     def _coalesce(self, frames: list[bytes]) -> None:
         """Free-run: add this instant's frames to the datagram being filled; send it when they would
@@ -208,7 +242,11 @@ class Outbox:
         """Send the frames coalesced so far as one datagram (free-run): before anything that must
         not overtake them (a forwarded frame) and at the end of the run."""
         if self._coalesced:
-            data = b"".join(self._coalesced)
-            self._coalesced, self._coalesced_bytes = [], 0
+            frames, self._coalesced, self._coalesced_bytes = self._coalesced, [], 0
+            data = b"".join(frames)
+            directed = self._replied and any(type(frame) is _Reply for frame in frames)
             for link in self.links:
-                link.send(data)
+                if directed:
+                    data = b"".join(f for f in frames if type(f) is not _Reply or f.link is link)
+                if data:
+                    link.send(data)

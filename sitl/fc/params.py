@@ -10,6 +10,15 @@ Only requests addressed to this vehicle are served: ``target_system`` our system
 ``target_component`` 1 or 0. A request to another component (the companion's 191) is
 routed to it untouched, so ground stations listing the companion's parameters never see ours.
 
+Who receives the answers, as on ArduPilot (``libraries/GCS_MAVLink/GCS_Param.cpp``) and PX4
+(``mavlink_parameters.cpp``, one instance per link): a list and a read are answered on the link
+the request came in on only (:meth:`sitl.fc.outbox.Outbox.emit_reply`), a set on every link.
+ArduPilot's answer to a read carries the request's ``param_index`` (-1, 65535 on the wire, for a
+read by name) and a set's answer -1; PX4's carry the parameter's index. A ground station
+downloading the companion's list (MAVSDK files every PARAM_VALUE of the system under the
+download it runs, skipping index 65535 only) therefore never meets the flight controller's answers
+to the companion's own reads of EK3_SRC1_YAW and COMPASS_USE.
+
 Encoding of INT32 values in the float ``param_value``: ArduPilot sends the value converted to
 float (C cast); PX4 copies the int32's four bytes (bytewise), and reads PARAM_SET the same way.
 """
@@ -24,6 +33,7 @@ from sitl.guidance import SEVERITY_WARNING
 
 __all__ = ["FcParams", "float_from_int32_bytes", "int32_from_float_bytes"]
 
+NO_INDEX = 65535              # param_index -1 of an int16 request, as a uint16 PARAM_VALUE carries it
 _F32 = struct.Struct("<f")
 _I32 = struct.Struct("<i")
 
@@ -46,7 +56,7 @@ class FcParams:
     """The flight controller's parameter table and its protocol handlers."""
 
     def __init__(self, specs: tuple[ParamSpec, ...], out, guidance, faults, counters, *, sysid: int, compid: int,
-                 bytewise: bool = False) -> None:
+                 bytewise: bool = False, echo_index: bool = False) -> None:
         self.specs = {spec.name: spec for spec in specs}
         self.names = [spec.name for spec in specs]
         self.values: dict[str, float] = {spec.name: spec.default for spec in specs}
@@ -56,6 +66,7 @@ class FcParams:
         self.counters = counters
         self.sysid, self.compid = sysid, compid
         self.bytewise = bytewise
+        self.echo_index = echo_index    # ArduPilot: a read's answer carries the request's index, a set's -1
 
     def handlers(self) -> dict:
         return {"PARAM_REQUEST_LIST": self.on_request_list, "PARAM_REQUEST_READ": self.on_request_read,
@@ -77,10 +88,18 @@ class FcParams:
             return float(int32_from_float_bytes(value))
         return float(value)
 
-    def _send(self, name: str) -> None:
+    def _send(self, name: str, requested_index: int | None = None) -> None:
+        """PARAM_VALUE of ``name``: the answer to a list or a read (``requested_index``, -1 by name)
+        on the requesting link only; without one (a set) on every link."""
         spec = self.specs[name]
-        self.out.emit(mavlink.MAVLink_param_value_message, name.encode(), self._encode(spec, self.values[name]),
-                      spec.kind, len(self.names), self.names.index(name))
+        index = self.names.index(name)
+        if self.echo_index:
+            index = NO_INDEX if requested_index is None or requested_index < 0 else requested_index
+        fields = (name.encode(), self._encode(spec, self.values[name]), spec.kind, len(self.names), index)
+        if requested_index is None:
+            self.out.emit(mavlink.MAVLink_param_value_message, *fields)
+        else:
+            self.out.emit_reply(mavlink.MAVLink_param_value_message, *fields)
 
     @staticmethod
     def _name(msg) -> str:
@@ -90,20 +109,20 @@ class FcParams:
     def on_request_list(self, msg) -> None:
         if not self._for_us(msg):
             return
-        for name in self.names:
-            self._send(name)
+        for index, name in enumerate(self.names):
+            self._send(name, index)
 
     def on_request_read(self, msg) -> None:
         if not self._for_us(msg):
             return
         if msg.param_index >= 0:
             if msg.param_index < len(self.names):
-                self._send(self.names[msg.param_index])
+                self._send(self.names[msg.param_index], msg.param_index)
                 return
         else:
             name = self._name(msg)
             if name in self.specs:
-                self._send(name)
+                self._send(name, -1)
                 return
         self.counters.add("param_read_unknown")
 

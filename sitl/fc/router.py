@@ -44,7 +44,8 @@ class Router:
         self.tlog = None
         self.peers: dict[tuple[int, int], int] = {}   # (sysid, compid) -> MAV_TYPE
         self.rx_by_type: dict[str, int] = {}
-        self.pending: deque = deque()   # lockstep: (link, peer, message, frame) read but not yet handled
+        self.pending: deque = deque()   # lockstep: (link, peer, message, frame, read) read but not yet handled
+        self.reads = 0                  # datagrams (stream reads) so far: ``read`` tells a pending frame's
         self._decoder = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._stream_buffers: dict[object, bytearray] = {}
 
@@ -79,6 +80,8 @@ class Router:
             buf = self._stream_buffers.setdefault(key, bytearray())
             buf += data
         handled = 0
+        self.reads += 1
+        read = self.reads
         i, n = 0, len(buf)
         decode = self._decoder.decode
         while i < n:
@@ -118,7 +121,7 @@ class Router:
             if self.gate is None:
                 self.handle_frame(link, peer, msg, bytes(frame))
             else:   # lockstep: handled in order at the boundaries
-                self.pending.append((link, peer, msg, bytes(frame)))
+                self.pending.append((link, peer, msg, bytes(frame), read))
         if is_datagram:
             if i < n:
                 self.counters.add("rx_truncated_bytes", n - i)
@@ -168,6 +171,7 @@ class Router:
         if handler is None:
             self.counters.add("rx_unhandled")
             return
+        self.out.reply_link = link     # a reply (Outbox.emit_reply) goes back on this link only
         try:
             handler(msg)
         except Exception as err:  # never let a message kill the simulator
@@ -175,3 +179,5 @@ class Router:
             self.out.say("handler_error", SEVERITY_WARNING, f"SITL: {msg.get_type()} failed: {type(err).__name__}")
             if os.environ.get("FCMPC_SITL_DEBUG"):
                 raise
+        finally:
+            self.out.reply_link = None

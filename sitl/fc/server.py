@@ -130,7 +130,8 @@ class SitlServer:
                                         max_speed_mps=sc.vehicle.max_speed_mps, speedup=speedup,
                                         heading_source=heading_source_of(sc)),
                                   self.out, self.guidance, self.faults, self.counters, sysid=self.sysid,
-                                  compid=self.compid, bytewise=self.dialect is PX4)
+                                  compid=self.compid, bytewise=self.dialect is PX4,
+                                  echo_index=self.dialect is not PX4)
         self.links: list[Link] = self._open_links(config)
         self.records = Records(config, sc.name)
         self.out.links = self.links

@@ -16,6 +16,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,21 +25,24 @@ import pytest
 from companion.registry import SPEC_BY_NAME
 from tests.companion.test_ground_station import Console, running_vehicle
 from tests.companion.test_link_mavproxy import _quit
+from tests.lockstep import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("MAVProxy") is None,
                                 reason="MAVProxy not installed (pip install --no-deps MAVProxy next to pymavlink)")
 
-# a short control period: the start-up average is one period (2 s of wall time at 5x)
+# a short control period: the start-up average is one period (2 s of wall time at running_vehicle's
+# 5x cap). The world is in lockstep with the companion; MAVProxy, on the wall clock, waits on its
+# console's lines with HANG_S guards (a MAVProxy loading a module took more than 30 s under load)
 PARMS = "NAV_PERIOD_S 10\n"
 
 
 def _mavproxy(port: int, workdir: Path) -> Console:
-    """MAVProxy as an operator runs it (its target component is the autopilot's: not 191)."""
+    """MAVProxy as an operator runs it (its target component is the autopilot's: not 191), on the vehicle's TCP port."""
     workdir.mkdir(parents=True, exist_ok=True)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "MAVProxy.mavproxy", "--master", f"udpin:127.0.0.1:{port}", "--target-system", "1",
+        [sys.executable, "-m", "MAVProxy.mavproxy", "--master", f"tcp:127.0.0.1:{port}", "--target-system", "1",
          "--default-modules", "link", "--state-basedir", str(workdir), "--nowait"],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, cwd=workdir,
         env=dict(os.environ, MAVLINK20="1", PYTHONPATH=str(REPO)))
@@ -54,8 +58,8 @@ def _said(console: Console, since: int, text: str, timeout_s: float) -> bool:
 def _status(console: Console) -> tuple[str, float]:
     """``fcmpc status``: (phase, 1-sigma in m, NaN when unknown)."""
     console.send("fcmpc status")
-    phase_line = console.wait_for("fcmpc: phase", 15.0)
-    sigma_line = console.wait_for("estimate 1-sigma", 15.0)
+    phase_line = console.wait_for("fcmpc: phase", HANG_S)
+    sigma_line = console.wait_for("estimate 1-sigma", HANG_S)
     assert phase_line is not None and sigma_line is not None, console.seen[-20:]
     phase = phase_line.split("fcmpc: phase ", 1)[1].split()[0].rstrip(",")
     found = re.search(r"1-sigma (\d+(?:\.\d+)?) m", sigma_line)
@@ -74,7 +78,7 @@ if MAP:
 def _save(console: Console, path: Path) -> tuple[np.ndarray, dict]:
     """The headless map's drawing of its current view, and what it holds (headless_map.py)."""
     console.send(f"hmap save {path}")
-    assert console.wait_for(f"hmap: saved {path}", 15.0) is not None, console.seen[-20:]
+    assert console.wait_for(f"hmap: saved {path}", HANG_S) is not None, console.seen[-20:]
     return np.load(f"{path}.npy"), json.loads(Path(f"{path}.json").read_text())
 
 
@@ -95,7 +99,7 @@ def _map_while_held(console: Console, since: int, workdir: Path) -> dict:
 
     tiles = mp_tile.MPTile(cache_path=str(workdir / "tiles"), download=False)   # the map's Web Mercator
     for key in ("fcmpc:ellipse", "fcmpc:estimate", "fcmpc:destination"):
-        assert _said(console, since, f"hmap: added {key}", 15.0), (key, console.seen[since:])
+        assert _said(console, since, f"hmap: added {key}", HANG_S), (key, console.seen[since:])
     console.send("hmap fit fcmpc:estimate fcmpc:ellipse")         # the ellipse across a quarter of the view
     img, record = _save(console, workdir / "estimate")
     view = View(**record["view"])
@@ -118,8 +122,9 @@ def _map_after_resume(console: Console, held: dict, workdir: Path) -> dict:
     test_map_drawing.py's, on a view that holds both places)."""
     from tests.fcmpc_mavproxy.test_map_drawing import assert_ellipse_drawn, assert_icon_drawn
 
-    for _ in range(10):
-        line = console.wait_for("hmap: added fcmpc:estimate at", 10.0)
+    deadline = time.monotonic() + HANG_S      # not a count of statuses: those are paced by the wall
+    while True:
+        line = console.wait_for("hmap: added fcmpc:estimate at", deadline - time.monotonic())
         assert line is not None, console.seen[-20:]
         if tuple(float(v) for v in line.rsplit(" ", 1)[1].split(",")) != pytest.approx(held["estimate"], abs=2e-7):
             break
@@ -140,20 +145,20 @@ def test_fcmpc_module_against_the_running_companion(tmp_path):
         console = _mavproxy(port, tmp_path / "mavproxy")
         try:
             console.send("module load fcmpc")
-            assert console.wait_for("Loaded module fcmpc", 30.0) is not None, console.seen[-20:]
+            assert console.wait_for("Loaded module fcmpc", HANG_S) is not None, console.seen[-20:]
             spec = SPEC_BY_NAME["NAV_SPEED_KMH"]
             console.send("fcmpc help NAV_SPEED_KMH")
-            assert console.wait_for(f"unit: {spec.unit}; range [{spec.minimum:g}, {spec.maximum:g}]", 10.0), \
+            assert console.wait_for(f"unit: {spec.unit}; range [{spec.minimum:g}, {spec.maximum:g}]", HANG_S), \
                 console.seen[-20:]
             console.send("fcmpc start")
-            assert console.wait_for("fcmpc: start: ACCEPTED by the companion", 30.0), console.seen[-20:]
+            assert console.wait_for("fcmpc: start: ACCEPTED by the companion", HANG_S), console.seen[-20:]
             if MAP:    # loaded after the module (which draws in full on a map that comes later)
                 console.send("module load tests.fcmpc_mavproxy.headless_map")
-                assert console.wait_for("Loaded module tests.fcmpc_mavproxy.headless_map", 30.0), console.seen[-20:]
+                assert console.wait_for("Loaded module tests.fcmpc_mavproxy.headless_map", HANG_S), console.seen[-20:]
             console.send("set moddebug 2")     # from now on an exception in a module prints its traceback
             loaded = len(console.seen)
             # the companion selects GUIDED, arms, starts the mission and steps: its STATUSTEXT says so
-            assert console.wait_for("FcMPC: step 1 phase", 60.0), console.seen[-30:]
+            assert console.wait_for("FcMPC: step 1 phase", HANG_S), console.seen[-30:]
             phase, sigma = _status(console)
             assert phase == "running" and math.isfinite(sigma) and sigma > 0.0, console.seen[-20:]
             for word, said, mode in (("hold", "held by the operator", "Mode HOLD"),   # the FC told to hold
@@ -161,14 +166,14 @@ def test_fcmpc_module_against_the_running_companion(tmp_path):
                 since = len(console.seen)
                 console.send(f"fcmpc {word}")
                 for text in (f"fcmpc: {word}: ACCEPTED by the companion", f"FcMPC: {said}", mode):
-                    assert _said(console, since, text, 15.0), (text, console.seen[since:])
+                    assert _said(console, since, text, HANG_S), (text, console.seen[since:])
                 if MAP and word == "hold":
                     held = _map_while_held(console, loaded, tmp_path / "mavproxy")
             if MAP:
                 moved = _map_after_resume(console, held, tmp_path / "mavproxy")
                 print("map:", held["estimate"], held["pixels"], moved)
             console.send("module unload fcmpc")
-            assert console.wait_for("Unloaded module fcmpc", 15.0), console.seen[-20:]
+            assert console.wait_for("Unloaded module fcmpc", HANG_S), console.seen[-20:]
             if MAP:      # the module's objects taken off the map: nothing left to draw
                 img, record = _save(console, tmp_path / "mavproxy" / "unloaded")
                 assert record["objects"] == {} and not img.any(), record["objects"]

@@ -7,7 +7,7 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from tests.sitl.fc.helpers import ARM, DO_SET_MODE, GUIDED, HOLD, send_velocity, stop_and_wait
+from tests.sitl.fc.helpers import ARM, DO_SET_MODE, GUIDED, HOLD, SET_INTERVAL, send_velocity, stop_and_wait
 
 
 def test_lockstep_advances_only_with_the_companion(sitl):
@@ -154,3 +154,29 @@ def test_with_the_companions_pid_the_world_waits_while_it_lives_and_goes_on_once
         if peer.poll() is None:
             peer.kill()
         peer.wait(timeout=30)
+
+
+def test_the_companions_start_up_burst_before_its_clock_is_one_answer(sitl):
+    """Before its clock starts (no stamp yet) the companion answers the first boundaries with unstamped
+    messages: its stream requests and parameter reads, sent in one datagram. The whole datagram is
+    that answer. Each message of it used to count as the answer to a boundary of its own, so the
+    companion's start-up requests (about 20) were read one 0.2 s boundary apart and its parameter reads
+    4 s of simulated time late: it asked again, twice, and the flight controller answered each time."""
+    server, client = sitl(lockstep=True, lockstep_timeout_s=60.0, lockstep_peer=(1, 191), init_s=0.2,
+                          speedup=None, duration_s=None)
+    last = client.time_ms()                           # the first boundary: the companion's clock starts here
+    mav = client.mav
+    burst = [mav.command_long_encode(1, 1, SET_INTERVAL, 0, msg_id, 100_000, 0, 0, 0, 0, 0)
+             for msg_id in (24, 27, 30, 33, 74, 105, 116, 2, 1, 24, 27, 30, 33, 74)]
+    burst.append(mav.param_request_read_encode(1, 1, b"EK3_SRC1_YAW", -1))
+    client.conn.write(b"".join(msg.pack(mav) for msg in burst))          # one datagram, as the companion's pass
+    answered_ms = None
+    while answered_ms is None and last < 6000:
+        msg = client.recv(["SYSTEM_TIME", "PARAM_VALUE"], 30.0)
+        if msg.get_type() == "PARAM_VALUE":
+            answered_ms = last
+        elif msg.time_boot_ms > last:                 # a boundary: answered, still without a stamp
+            last = msg.time_boot_ms
+            mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    assert answered_ms is not None and answered_ms <= 400, f"read answered at {answered_ms} ms of simulated time"
+    assert server.gate.timeouts == 0

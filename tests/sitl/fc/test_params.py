@@ -13,8 +13,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.io.fc_params import judge_heading
 from sitl.fc.param_table import (MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32, ardupilot_params, heading_source_of,
                                  px4_params)
-from sitl.fc.params import float_from_int32_bytes, int32_from_float_bytes
-from tests.sitl.conftest import gps_scenario
+from sitl.fc.params import NO_INDEX, float_from_int32_bytes, int32_from_float_bytes
+from tests.ports import free_port
+from tests.sitl.conftest import Client, gps_scenario
 
 ARDUPILOT_NAMES = {"EK3_SRC1_YAW", "COMPASS_USE", "WP_SPEED", "CRUISE_SPEED", "GPS1_TYPE", "GPS2_TYPE",
                    "ARMING_CHECK", "SIM_GPS1_ENABLE", "FS_EKF_ACTION"}
@@ -54,13 +55,45 @@ def test_list_read_by_name_and_index(sitl):
     # the default (realistic) pacific preset takes its heading from the INS: ExternalNav (6), never a GNSS yaw
     assert listed["EK3_SRC1_YAW"].param_value == 6.0 and listed["EK3_SRC1_YAW"].param_type == MAV_PARAM_TYPE_INT32
     assert listed["CRUISE_SPEED"].param_value == pytest.approx(server.guidance.cruise_speed_mps)
-    # by name (index -1), then by the index that answer gave
+    # by name (index -1: ArduPilot answers with the request's index, 65535 on the wire), then by the listed index
     client.mav.param_request_read_send(1, 1, b"FS_EKF_ACTION", -1)
     by_name = client.recv("PARAM_VALUE", 5.0, lambda m: m.get_srcComponent() == 1)
     assert by_name.param_id == "FS_EKF_ACTION" and by_name.param_value == listed["FS_EKF_ACTION"].param_value
-    client.mav.param_request_read_send(1, 0, b"", by_name.param_index)         # component 0 = any: we answer
+    assert by_name.param_index == NO_INDEX
+    client.mav.param_request_read_send(1, 0, b"", listed["FS_EKF_ACTION"].param_index)   # component 0 = any
     by_index = client.recv("PARAM_VALUE", 5.0, lambda m: m.get_srcComponent() == 1)
-    assert by_index.param_id == "FS_EKF_ACTION" and by_index.param_index == by_name.param_index
+    assert by_index.param_id == "FS_EKF_ACTION" and by_index.param_index == listed["FS_EKF_ACTION"].param_index
+
+
+def test_reads_and_lists_are_answered_on_the_asking_link_only(sitl):
+    """As ArduPilot (GCS_Param.cpp: a read's reply is queued for the requesting channel, a list is sent
+    on it; a set's new value goes to every active channel): a ground station on another link never
+    sees the answers to the companion's reads. It did (every link got them, with the table's index),
+    and MAVSDK, downloading the companion's list (1/191) there, filed the flight controller's
+    EK3_SRC1_YAW and COMPASS_USE among the companion's parameters in two CI runs."""
+    from pymavlink import mavutil
+
+    port = free_port()
+    _, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
+    client.time_ms()
+    gcs = Client(mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190))
+    try:
+        until_ms = gcs.time_ms() + 3000                        # connected: the stand-in sends it its streams
+        client.mav.param_request_read_send(1, 1, b"EK3_SRC1_YAW", -1)     # the companion's reads
+        client.mav.param_request_read_send(1, 1, b"COMPASS_USE", -1)
+        client.mav.param_request_list_send(1, 1)
+        assert {"EK3_SRC1_YAW", "COMPASS_USE"} <= set(_fc_param_values(client))
+        gcs.mav.param_request_read_send(1, 1, b"CRUISE_SPEED", -1)        # the ground station's own read
+        seen = [m for m in gcs.collect("PARAM_VALUE", until_ms) if m.get_srcComponent() == 1]
+        assert [m.param_id for m in seen] == ["CRUISE_SPEED"], [m.param_id for m in seen]
+        assert "CRUISE_SPEED" not in [m.param_id for m in _no_fc_param_value(client, 1000)]
+        # a set's new value goes to every link: to the ground station that set it and to the companion
+        gcs.mav.param_set_send(1, 1, b"CRUISE_SPEED", 4.5, MAV_PARAM_TYPE_REAL32)
+        for receiver in (gcs, client):
+            answer = receiver.recv("PARAM_VALUE", 5.0, lambda m: m.param_id == "CRUISE_SPEED")
+            assert answer.param_value == pytest.approx(4.5) and answer.param_index == NO_INDEX
+    finally:
+        gcs.conn.close()
 
 
 def test_requests_for_other_components_or_systems_get_no_answer(sitl):
