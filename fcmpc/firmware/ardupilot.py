@@ -21,7 +21,7 @@ from pathlib import Path
 from companion.params import format_value
 from fcmpc.firmware.processes import stop_process
 
-__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "project_parm", "read_ardupilot_parm",
+__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "instance_free", "project_parm", "read_ardupilot_parm",
            "free_instance"]
 
 BASE_PORT = 5760
@@ -185,7 +185,13 @@ def free_instance(first: int = 10, last: int = 99, taken: set[int] | None = None
     already in this process. Racy between processes only for the instant of the check."""
     busy = _listening_ports()
     for instance in range(first, last + 1):
-        ports = range(BASE_PORT + 10 * instance, BASE_PORT + 10 * instance + 4)
-        if (taken is None or instance not in taken) and not busy.intersection(ports):
+        if (taken is None or instance not in taken) and instance_free(instance, busy):
             return instance
     raise RuntimeError(f"no free ArduPilot SITL instance in {first}..{last}")
+
+
+def instance_free(instance: int, busy: set[int] | None = None) -> bool:
+    """Whether nobody listens on instance ``instance``'s SITL ports (``busy``: the listening ports,
+    read now when not given)."""
+    busy = _listening_ports() if busy is None else busy
+    return not busy.intersection(range(BASE_PORT + 10 * instance, BASE_PORT + 10 * instance + 4))

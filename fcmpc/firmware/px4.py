@@ -44,7 +44,7 @@ from pathlib import Path
 from fcmpc.firmware.ardupilot import FirmwareMissing, project_parm
 from fcmpc.firmware.processes import stop_process
 
-__all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_root", "read_qgc_params"]
+__all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_instance_free", "px4_root", "read_qgc_params"]
 
 MAX_INSTANCE = 9          # px4-rc.mavlink: instances above 9 share the offboard port 14549
 PX4_MODEL = "sihsim_rover_ackermann"
@@ -216,8 +216,14 @@ def free_px4_instance(first: int = 1, taken: set[int] | None = None) -> int:
     busy = _bound_udp_ports()
     order = [*range(max(first, 1), MAX_INSTANCE + 1), *range(1, max(first, 1))]
     for instance in order:
-        ports = {14540 + instance, 14580 + instance, 18570 + instance, 19410 + instance, 19450 + instance}
-        if (taken is None or instance not in taken) and not busy & ports \
-                and not Path(f"/tmp/px4_lock-{instance}").exists():
+        if (taken is None or instance not in taken) and px4_instance_free(instance, busy):
             return instance
     raise RuntimeError(f"no free PX4 SITL instance in 1..{MAX_INSTANCE}")
+
+
+def px4_instance_free(instance: int, busy: set[int] | None = None) -> bool:
+    """Whether PX4 instance ``instance`` has no lock file (``/tmp/px4_lock-N``) and nobody has bound
+    its UDP ports (``busy``: the bound ports, read now when not given)."""
+    busy = _bound_udp_ports() if busy is None else busy
+    ports = {14540 + instance, 14580 + instance, 18570 + instance, 19410 + instance, 19450 + instance}
+    return not busy & ports and not Path(f"/tmp/px4_lock-{instance}").exists()

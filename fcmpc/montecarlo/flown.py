@@ -22,10 +22,9 @@ import math
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -69,26 +68,16 @@ def instance_for(fc: str, index: int, first: int | None = None) -> Iterator[int]
         yield 0   # our stand-in: a free UDP port of its own
         return
     if fc == "ardupilot":
-        from fcmpc.firmware.ardupilot import free_instance
+        from fcmpc.firmware.ardupilot import instance_free as free
 
         low, high = INSTANCES["ardupilot"] if first is None else (first, first + 9)
-        free = partial(_is_free, lambda n: free_instance(first=n, last=n))
     else:
-        from fcmpc.firmware.px4 import free_px4_instance
+        from fcmpc.firmware.px4 import px4_instance_free as free
 
         low, high = INSTANCES["px4"]
-        free = partial(_is_free, lambda n: free_px4_instance(first=n))
     start = low + index % (high - low + 1)
     with claimed(fc, [*range(start, high + 1), *range(low, start)], free) as instance:
         yield instance
-
-
-def _is_free(pick: Callable[[int], int], instance: int) -> bool:
-    """Whether ``pick`` (a search for a free instance starting at ``instance``) finds ``instance`` itself."""
-    try:
-        return pick(instance) == instance
-    except RuntimeError:     # none free from there on
-        return False
 
 
 def fly_specs(batch: list[tuple[int, FlownSpec]]) -> list[tuple[int, RunOutput]]:
