@@ -59,7 +59,7 @@ class FirmwareFC:
         self.monitor = self.rig.start()
         return self.rig.prepare(self.monitor)
 
-    def companion_ready(self) -> None:
+    def companion_ready(self, pid: int) -> None:    # noqa: ARG002 - the firmware's world waits on its own gate
         pace = "in lockstep" if self.companion_args else f"at {self.flight.speedup:g}x"
         self.say(f"{self.name} instance {self.flight.instance} {pace}, companion on {self.companion_url}")
 

@@ -64,8 +64,8 @@ class FlightController(Protocol):
         """Start the FC's processes before the companion (records under ``out``); what was done to
         it first, in words (a compass calibrated ...)."""
 
-    def companion_ready(self) -> None:
-        """The companion has opened its link."""
+    def companion_ready(self, pid: int) -> None:
+        """The companion (process ``pid``) has opened its link."""
 
     def wait(self, timeout_s: float) -> tuple[str, str] | None:
         """Service the FC for up to ``timeout_s`` of wall time (read its messages, deny GPS at
@@ -179,7 +179,7 @@ class MissionProcesses:
                 stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
                 preexec_fn=niceness(self.run.nice))
             self._await_link()
-            self.fc.companion_ready()
+            self.fc.companion_ready(self.companion.pid)
         except BaseException:
             self.stop()
             raise

@@ -85,11 +85,14 @@ class StandIn:
         self.out = Path(out)
         return []
 
-    def companion_ready(self) -> None:
+    def companion_ready(self, pid: int) -> None:
+        """Start the stand-in; in lockstep it waits for the companion's answers as long as process
+        ``pid`` lives (``--lockstep-peer-pid``), never for a wall timeout a busy machine can miss."""
         self._log = open(self.out / "sitl.log", "wb")
+        peer = ("--lockstep-peer-pid", str(pid)) if "--lockstep" in self.args else ()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{self.port}", "--log-dir",
-             str(self.out / "sitl"), *self.args], env=child_env(), cwd=REPO, stdin=subprocess.DEVNULL,
+             str(self.out / "sitl"), *self.args, *peer], env=child_env(), cwd=REPO, stdin=subprocess.DEVNULL,
             stdout=self._log, stderr=subprocess.STDOUT, preexec_fn=niceness(self.nice))
 
     def wait(self, timeout_s: float) -> tuple[str, str] | None:

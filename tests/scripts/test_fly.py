@@ -221,3 +221,25 @@ def test_the_runner_reports_a_flight_controller_that_ends_on_its_own_and_stops_t
     alive = [c for c in _children(os.getpid()) if "companion.app" in Path(f"/proc/{c}/cmdline").read_text()
              and "zombie" not in Path(f"/proc/{c}/status").read_text()]
     assert not alive, "the companion outlived the run"           # ... and was stopped
+
+
+def test_the_stand_in_in_lockstep_waits_on_the_companions_process_not_a_wall_timeout(tmp_path):
+    """``fcmpc-fly``'s stand-in in lockstep is told the companion's PID (``--lockstep-peer-pid``), so a
+    busy machine that delays the companion's answers beyond the 2 s lockstep timeout slows the run
+    instead of letting the world run ahead of it (a closed-loop test failed so at load 20-25)."""
+    import subprocess
+    import sys
+
+    from fcmpc.fly.standin import StandIn
+
+    peer = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    fc = StandIn(("--lockstep", "--scenario", "pacific", "--quiet", "--duration", "5"))
+    try:
+        fc.start(tmp_path)
+        fc.companion_ready(peer.pid)
+        argv = Path(f"/proc/{fc.process.pid}/cmdline").read_bytes().split(b"\0")
+        assert argv[argv.index(b"--lockstep-peer-pid") + 1] == str(peer.pid).encode(), argv
+    finally:
+        fc.stop()
+        peer.stdin.close()
+        peer.wait(10)
