@@ -87,9 +87,10 @@ class StandIn:
 
     def companion_ready(self, pid: int) -> None:
         """Start the stand-in; in lockstep it waits for the companion's answers as long as process
-        ``pid`` lives (``--lockstep-peer-pid``), never for a wall timeout a busy machine can miss."""
+        ``pid`` lives (``--lockstep-peer-pid``), never for a wall timeout a busy machine can miss, and
+        after a crash on the companion restarted on the same port (``--lockstep-successor``)."""
         self._log = open(self.out / "sitl.log", "wb")
-        peer = ("--lockstep-peer-pid", str(pid)) if "--lockstep" in self.args else ()
+        peer = ("--lockstep-peer-pid", str(pid), "--lockstep-successor") if "--lockstep" in self.args else ()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "sitl.fc", "--out", f"udp:127.0.0.1:{self.port}", "--log-dir",
              str(self.out / "sitl"), *self.args, *peer], env=child_env(), cwd=REPO, stdin=subprocess.DEVNULL,

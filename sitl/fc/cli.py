@@ -60,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the companion's process id on this machine: wait for its answers as long as it runs "
                         "(no --lockstep-timeout), go on at once when it has ended; a test's world then "
                         "cannot run away from a companion slowed by a busy machine")
+    p.add_argument("--lockstep-successor", action="store_true",
+                   help="with --lockstep-peer-pid: once that process has ended, wait (up to --lockstep-hang-s) for "
+                        "a restarted companion to bind the port it answered from, then wait on that one")
+    p.add_argument("--lockstep-hang-s", type=float, default=120.0,
+                   help="with --lockstep-peer-pid: wall seconds a live companion may leave a boundary unanswered; "
+                        "then the run stops with exit code 4, a hang (default 120)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     p.add_argument("--max-sim-s", type=float, default=30 * 3600.0, help="hard limit of simulated time (default 30 h)")
     p.add_argument("--seed", type=int, default=0, help="seed of every noise, INS error and fault draw (default 0)")
@@ -114,7 +120,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         scenario=args.scenario, outs=tuple(args.out), masters=tuple(args.master), speedup=args.speedup,
         lockstep=args.lockstep, lockstep_period_s=args.lockstep_period, lockstep_timeout_s=args.lockstep_timeout,
         lockstep_start_timeout_s=args.lockstep_start_timeout, lockstep_peer=peer,
-        lockstep_peer_pid=args.lockstep_peer_pid, lockstep_slack=args.lockstep_slack, duration_s=args.duration,
+        lockstep_peer_pid=args.lockstep_peer_pid, lockstep_successor=args.lockstep_successor,
+        lockstep_hang_s=args.lockstep_hang_s, lockstep_slack=args.lockstep_slack, duration_s=args.duration,
         max_sim_s=args.max_sim_s, seed=args.seed, autopilot=args.autopilot, sysid=args.sysid,
         setpoint_timeout_s=args.setpoint_timeout, cruise_speed_mps=args.cruise_speed, init_s=args.init_s,
         cruise=cruise,
@@ -139,6 +146,6 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
-    server.run()
-    return 0
+    summary = server.run()
+    return 4 if summary.get("lockstep_hangs") else 0    # a companion that lived but never answered
 

@@ -52,6 +52,8 @@ class ServerConfig:
     lockstep_start_timeout_s: float = 60.0
     lockstep_peer: tuple[int, int] | None = None
     lockstep_peer_pid: int | None = None  # wait while this process lives (no wall timeout), then go on
+    lockstep_successor: bool = False     # then wait on a restarted companion holding its port
+    lockstep_hang_s: float = 120.0       # wall s a live companion may leave a boundary unanswered: a hang
     lockstep_slack: int = 1              # periods the companion may lag (0: the two processes alternate)
     duration_s: float | None = None     # stop after this much simulated time
     max_sim_s: float = 30 * 3600.0
@@ -90,6 +92,7 @@ class ServerConfig:
             ("lockstep_timeout_s", self.lockstep_timeout_s > 0.0, "> 0"),
             ("lockstep_start_timeout_s", self.lockstep_start_timeout_s >= 0.0, ">= 0"),
             ("lockstep_peer_pid", self.lockstep_peer_pid is None or self.lockstep_peer_pid > 0, "> 0"),
+            ("lockstep_hang_s", self.lockstep_hang_s > 0.0, "> 0"),
             ("init_s", self.init_s >= 0.0, ">= 0"),
             ("log_rate_hz", self.log_rate_hz >= 0.0, ">= 0"),
             ("field_step_s", self.field_step_s > 0.0, "> 0"),

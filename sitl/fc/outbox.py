@@ -19,6 +19,9 @@ the reader). What must not wait leaves at the end of its instant with everything
 (``urgent``: a STATUSTEXT, anything queued while input was handled, i.e. every reply), and
 :meth:`Outbox.send_coalesced` sends the rest before a forwarded frame and at the end of the run.
 The frames, their order and their tlog stamps are those of a run without coalescing.
+:attr:`Outbox.delivered_us` is the simulated instant of the newest frame that left with a time stamp
+the companion's clock can follow (not lost, not still delayed): the newest time a lockstep companion
+can answer (:mod:`sitl.fc.lockstep`).
 A reply queued with :meth:`Outbox.emit_reply` leaves on the link its request came in on only
 (``reply_link``, set by the router while a handler runs), as ArduPilot answers PARAM_REQUEST_READ
 and PARAM_REQUEST_LIST on the requesting channel (``GCS_Param.cpp``: ``reply.chan = req.chan``):
@@ -39,6 +42,14 @@ from sitl.mavframe import FrameEncoder
 __all__ = ["STATUSTEXT_MIN_INTERVAL_S", "Counters", "Outbox"]
 
 STATUSTEXT_MIN_INTERVAL_S = 5.0    # per kind of repeated warning
+# messages whose time_boot_ms a companion's clock follows (their ids): what makes an instant delivered
+TIMED_IDS = frozenset(cls.id for cls in mavlink.mavlink_map.values() if "time_boot_ms" in cls.fieldnames)
+
+
+def _timed(frame: bytes) -> bool:
+    """Whether a frame carries a ``time_boot_ms`` stamp (its id: MAVLink 2 bytes 7-9, little-endian; 1: byte 5)."""
+    msg_id = frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == 0xFD else frame[5]
+    return msg_id in TIMED_IDS
 
 
 class Counters(dict):
@@ -74,7 +85,8 @@ class Outbox:
         self.links: list[Link] = []
         self.tlog = None
         self.tx_by_type: dict[str, int] = {}
-        self.delayed: list[tuple[int, bytes]] = []
+        self.delayed: list[tuple[int, int, bytes]] = []   # (release, instant, frame) of a link_delay fault
+        self.delivered_us = -1          # the instant (t_us) of the newest timed frame that left
         self._out: list[bytes] = []
         self._last_say: dict[str, float] = {}
         self.coalesce = False           # free-run: instants share datagrams (set by the server)
@@ -130,7 +142,8 @@ class Outbox:
             self.say(None, severity, text)
 
     def _impair(self, frames: list[bytes]) -> list[bytes]:
-        """Loss and duplication faults, drawn per frame from the link generator."""
+        """Loss and duplication faults, drawn per frame from the link generator (what is delivered of
+        an instant is judged by :meth:`_delivered` on the frames kept)."""
         loss, dup = self.faults.loss, self.faults.dup
         kept = []
         rand = self.link_rng.random
@@ -145,20 +158,23 @@ class Outbox:
         return kept
 
     def _delay(self, frames: list[bytes]) -> list[bytes]:
-        """A FIFO link with latency: frames leave in order, none overtakes a delayed one."""
+        """A FIFO link with latency: frames leave in order, none overtakes a delayed one. Each keeps its
+        instant, so :attr:`delivered_us` follows what left, not what was sent (a delay that ends
+        still holds the frames queued behind it)."""
         now_us, delay_us = self.clock.t_us, self.faults.delay_us
         if frames:
             release = now_us + delay_us
             if self.delayed:
                 release = max(release, self.delayed[-1][0])
-            self.delayed.extend((release, frame) for frame in frames)
+            self.delayed.extend((release, now_us, frame) for frame in frames)
             if delay_us:
                 self.counters.add("tx_delayed_fault", len(frames))
         k = 0
         while k < len(self.delayed) and self.delayed[k][0] <= now_us:
             k += 1
-        frames = [frame for _, frame in self.delayed[:k]]
+        left, frames = self.delayed[:k], [frame for _, _, frame in self.delayed[:k]]
         del self.delayed[:k]
+        self.delivered_us = max([self.delivered_us, *(t for _, t, frame in left if _timed(frame))])
         return frames
 
     def flush(self, release: bool = True) -> None:
@@ -171,6 +187,8 @@ class Outbox:
             frames = self._impair(frames)
         if faults.delay_us or self.delayed:
             frames = self._delay(frames)
+        elif frames and (not faults.loss or any(map(_timed, frames))):
+            self.delivered_us = self.clock.t_us     # without a loss fault every instant has its stamps
         if frames:
             self.counters.add("tx_messages", len(frames))
             if self.tlog is not None:

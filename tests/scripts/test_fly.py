@@ -239,6 +239,7 @@ def test_the_stand_in_in_lockstep_waits_on_the_companions_process_not_a_wall_tim
         fc.companion_ready(peer.pid)
         argv = Path(f"/proc/{fc.process.pid}/cmdline").read_bytes().split(b"\0")
         assert argv[argv.index(b"--lockstep-peer-pid") + 1] == str(peer.pid).encode(), argv
+        assert b"--lockstep-successor" in argv       # a companion restarted after a crash is waited on too
     finally:
         fc.stop()
         peer.stdin.close()
