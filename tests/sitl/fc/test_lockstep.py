@@ -180,3 +180,48 @@ def test_the_companions_start_up_burst_before_its_clock_is_one_answer(sitl):
             mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     assert answered_ms is not None and answered_ms <= 400, f"read answered at {answered_ms} ms of simulated time"
     assert server.gate.timeouts == 0
+
+
+@pytest.mark.parametrize("fault", ["link_delay:1:2:1.0", "link_loss:1:1:1.0"], ids=["delay_ends", "link_cut"])
+def test_with_the_companions_pid_a_link_fault_never_leaves_the_world_waiting_for_an_answer_it_cannot_get(
+        sitl, fault):
+    """In lockstep on a live companion's PID (no wall timeout) the world waits only for answers to
+    what reached the companion. The boundary it waited for used to be the one it sent, less the
+    delay in force: when a 1 s link_delay ended the FIFO still held the last second, so the
+    companion could answer 1 s less than asked and the world waited for ever (the fault matrix's
+    hang with 39aaf3c); a cut link (link_loss 1.0) delivers nothing to answer at all."""
+    import os
+
+    from tests.sitl.fc.helpers import Answering
+
+    server, client = sitl(lockstep=True, lockstep_peer_pid=os.getpid(), lockstep_hang_s=60.0, init_s=0.2,
+                          speedup=None, duration_s=None, faults=(fault,))
+    companion = Answering(client, hang_s=30.0)     # answers every SYSTEM_TIME it receives, as the companion
+    assert companion.until(5000) == []             # past the fault's end: reached, not a TimeoutError
+    assert server.gate.timeouts == 0 and server.stepper.hangs == 0
+    assert server.counters.get("tx_delayed_fault" if "delay" in fault else "tx_dropped_fault", 0) > 0
+
+
+def test_a_live_companion_that_never_answers_stops_the_run_as_a_hang(tmp_path):
+    """The hang guard (``--lockstep-hang-s``): a companion process that lives but answers nothing ends
+    the stand-in with exit code 4 and ``lockstep_hangs`` 1, instead of a world going on alone."""
+    import json
+    import subprocess
+    import sys
+
+    from tests.sitl.conftest import REPO
+
+    peer = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "sitl.fc", "--lockstep", "--lockstep-peer-pid", str(peer.pid),
+             "--lockstep-hang-s", "1", "--duration", "60", "--out", "udp:127.0.0.1:9", "--quiet",
+             "--log-dir", str(tmp_path / "run")],
+            cwd=REPO, capture_output=True, timeout=120)
+    finally:
+        peer.stdin.close()
+        peer.wait(30)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert proc.returncode == 4, proc.stderr.decode(errors="replace")[-2000:]
+    assert summary["lockstep_hangs"] == 1 and summary["sim_s"] < 1.0
+    assert b"answered nothing for 1 s" in proc.stderr
