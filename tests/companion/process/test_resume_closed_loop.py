@@ -1,8 +1,9 @@
 """Resume after a crash, closed loop: SIGKILL the companion in mid-route, start it again, and the
 mission goes on from where it was (issue 10, item 7). Real processes on loopback: the stand-in in
-lockstep (it waits ``--lockstep-timeout`` for a companion that is gone, then goes on; the vehicle
-holds once the setpoints stop) and two companion processes one after the other, sharing the
-parameter file and so the saved state beside it.
+lockstep as ``fcmpc-fly`` starts it (on the companion's PID, no wall timeout; once that process is
+killed it waits for a companion to take its port again, ``--lockstep-successor``, and then on that
+one) and two companion processes one after the other, sharing the parameter file and so the saved
+state beside it.
 """
 from __future__ import annotations
 
@@ -79,6 +80,9 @@ def test_sigkill_in_mid_route_then_restart_resumes_the_mission(tmp_path):
     after = _steps(tmp_path / "companion2" / "steps.csv")
     assert after and after[0]["mission"] == 1 and after[0]["step"] == saved.command.step + 1   # next, not probe1
     assert after[0]["phase"] != "probe1" and after[0]["remaining_m"] < resumed_from["remaining_m"]
+    sitl = json.loads((tmp_path / "sitl" / "summary.json").read_text())
+    # the world waited for the restarted companion, never for a wall timeout (the machine's load)
+    assert sitl["lockstep_peer_returns"] == 1 and sitl["lockstep_timeouts"] == 0 and sitl["lockstep_hangs"] == 0
     truth = read_truth_track(tmp_path / "sitl" / "truth.csv")
     miss = geodesic_distance_m(float(truth.lat_deg[-1]), float(truth.lon_deg[-1]), dest[0], dest[1])
     # measured 0.39 km (seed 0, the error-state filter)
