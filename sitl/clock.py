@@ -20,8 +20,10 @@ wall time only decides how fast simulated time may advance.
       time stamp (no ``time_boot_ms`` field, or 0), such as HEARTBEAT, COMMAND_LONG or
       TIMESYNC, read while waiting at ``B``.
 
-    If no answer arrives within ``timeout_s`` of wall time the simulator goes on alone and
-    counts a lockstep timeout: it never deadlocks. Before the first message from any peer it
+    The boundary awaited is the newest one whose stamps reached the peer (a link fault may lose or
+    hold back what was sent; :mod:`sitl.fc.lockstep`). If no answer arrives within ``timeout_s`` of
+    wall time the simulator goes on alone and counts a lockstep timeout: it never deadlocks (given
+    the peer's process id it waits while that lives, with a hang guard instead). Before the first message from any peer it
     waits up to ``start_timeout_s`` at ``B = 0`` (0 = for ever).
 
     Once a peer has sent one stamped message, only stamped messages answer (an untimed
