@@ -45,7 +45,7 @@ __all__ = ["BIND_TIMEOUT_S", "POLL_S", "REPO", "CompanionRun", "FlightController
            "child_env", "run_mission", "stopped_by_signal"]
 
 REPO = Path(__file__).resolve().parents[2]
-BIND_TIMEOUT_S = 60.0         # wall seconds for the companion to open its link
+BIND_TIMEOUT_S = 300.0        # a hang guard for the companion to open its link (60 s was short at load 10 beside busy loops)
 POLL_S = 0.1
 
 
