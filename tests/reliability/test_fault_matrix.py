@@ -45,10 +45,13 @@ the magnetometer froze (one failsafe, "magnetometer stuck"; 6.0 s when stuck nee
 and the age counted from the judgement), GUIDED again 4 s after it thawed; the spike's period excluded (its fix would have jumped
 81 km); GPS_INPUT switched to our estimate 2 s after the GPS went; the reboot said 2 s after it,
 re-armed in GUIDED 7 s after it, mission 1 resumed at its step 4 with 17.5 km to go; the last step
-0.84 km and the resting point 0.84 km from the destination (the issue asks for 1 km; a single
-draw whose last geomagnetic fixes were 0.6-1.0 km off: the in-process worst of 40 seeds is
-1.04 km, see tests/companion/test_closed_loop.py). Wall time 20-47 s on this 2-core machine,
-depending on the other jobs' load.
+and the resting point 0.14 km from the destination (the issue asks for 1 km; the in-process worst of
+40 seeds is 1.04 km, see tests/companion/test_closed_loop.py). 0.84 km until 2026-12-06, when the
+end of the link_delay fault left the world waiting for answers the companion could not give until
+2 s wall timeouts let it go on alone: now the stand-in waits on the companion's process and only
+for what reached it, and the run beside 6 busy loops (load 9-12, 734 s of wall time) gave every
+step and every truth row of the one alone (load 7, 29 s). Wall time 29-41 s on this 2-core machine
+at load 7.
 """
 from __future__ import annotations
 
@@ -232,7 +235,7 @@ def test_no_step_steers_off_the_route_and_the_mission_arrives(run):
     off = [abs((r["course_deg"] - math.degrees(route) + 180.0) % 360.0 - 180.0) for r in cruise]
     assert len(cruise) >= 5 and max(off) <= OFF_ROUTE_DEG, [round(o) for o in off]
     assert result.status == "arrived", f"{result.status}: {result.message} ({result.out_dir})"
-    # measured 0.84 km at the last step and at rest: under the issue's 1 km, so 1 km is asserted
+    # measured 0.14 km at the last step and at rest (0.84 km with the 2 s timeouts): the issue's 1 km is asserted
     # (tighter than the closed-loop floor of 1.5 km, test_closed_loop.FLOOR_M; see the module docstring)
     miss = (result.step_remaining_m, result.rest_remaining_m)
     assert max(miss) <= ISSUE_MISS_M, f"missed by {miss[0]:.0f} m (last step), {miss[1]:.0f} m (at rest)"
