@@ -71,7 +71,8 @@ def test_short_pacific_mission_closed_loop(tmp_path):
     events = json.loads((tmp_path / "run" / "companion" / "summary.json").read_text())["events"]
     assert any("position filter: INS error model" in e for e in events), [e for e in events if "filter" in e]
     sitl = json.loads((tmp_path / "run" / "sitl" / "summary.json").read_text())
-    assert sitl["lockstep_timeouts"] == 0
+    # the world waited on the companion's process (fcmpc-fly gives its PID): no wall timeout, no hang
+    assert sitl["lockstep_timeouts"] == 0 and sitl["lockstep_hangs"] == 0
     # the stand-in's GPS is denied from take-off: the companion feeds GPS_INPUT (COMP_POS_PUB 3);
     # the stand-in's navigation-grade INS ignores it (no GPS2_RAW), so its position stayed independent
     assert comp["fc"]["positions_fed"] > 1000
