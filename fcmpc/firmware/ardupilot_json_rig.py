@@ -20,7 +20,7 @@ from fcmpc.firmware.ardupilot_rig import REPO, ArduPilotRig, FirmwareFlight
 from fcmpc.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
-__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world", "motor_field"]
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world", "motor_field", "share_core"]
 
 # The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
 # SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
@@ -48,8 +48,15 @@ CRUISE_THROTTLE_PCT = 80
 # "CPU per simulated hour, second pass"). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
+# MAV2_OPTIONS bit 1 (NO_FORWARD: "don't forward MAVLink to or from this port", SERIALn_OPTIONS bit 10 before 4.7;
+# MAVLink_routing::check_and_forward returns at once for a private channel's frames): ArduPilot no longer copies the
+# companion's broadcast frames (10 Hz GPS_INPUT, 5 Hz setpoints, its heartbeats) onto SERIAL0, where the monitor
+# read them only to drop them; on this rig the monitor reads nothing of the companion's (its records come from
+# the companion's own log), and nothing the monitor sends is for the companion. Still processed by ArduPilot.
+NO_FORWARD = 2
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
-PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
+PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, "MAV2_OPTIONS": NO_FORWARD,
+               **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
@@ -106,6 +113,7 @@ class ArduPilotJsonRig(ArduPilotRig):
         self.out = out
         self.flight = flight
         self.world: subprocess.Popen | None = None
+        self.core: int | None = None       # the CPU the world and ArduPilot share (share_core)
 
     def start(self):
         f = self.flight
@@ -113,7 +121,9 @@ class ArduPilotJsonRig(ArduPilotRig):
         # of firmware time after the fixed-yaw calibration) has to fit before the world waits for it
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out, motor_field=self.world_motor_field,
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
-        return super().start()
+        monitor = super().start()
+        self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance)
+        return monitor
 
     def alive(self) -> bool:
         return super().alive() and self.world is not None and self.world.poll() is None
@@ -124,6 +134,33 @@ class ArduPilotJsonRig(ArduPilotRig):
 
     def stop(self) -> None:
         stop_world(self.world, self.sitl, self.out)
+
+
+def share_core(pids: tuple[int, ...], instance: int) -> int | None:
+    """Put the lockstep pair (the world, ArduPilot: every thread of each) on one CPU, the instance's among those
+    this process may use (instances side by side take turns), and return it; None on a single CPU or where
+    affinity cannot be set. The pair takes turns (each waits for the other's frame; only the world's step after
+    its answer overlaps ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt:
+    a UDP ping-pong on this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON
+    note, section 13). The companion and the monitor keep every CPU and find the other core free."""
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+    if len(cpus) < 2:
+        return None
+    cpu = cpus[instance % len(cpus)]
+    for pid in pids:
+        try:
+            tids = [int(tid) for tid in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            tids = [pid]
+        for tid in tids:
+            try:
+                os.sched_setaffinity(tid, {cpu})
+            except OSError:
+                pass            # a thread gone meanwhile
+    return cpu
 
 
 def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],
