@@ -48,15 +48,16 @@ CRUISE_THROTTLE_PCT = 80
 # "CPU per simulated hour, second pass"). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
-# MAV2_OPTIONS bit 1 (NO_FORWARD: "don't forward MAVLink to or from this port", SERIALn_OPTIONS bit 10 before 4.7;
-# MAVLink_routing::check_and_forward returns at once for a private channel's frames): ArduPilot no longer copies the
-# companion's broadcast frames (10 Hz GPS_INPUT, 5 Hz setpoints, its heartbeats) onto SERIAL0, where the monitor
-# read them only to drop them; on this rig the monitor reads nothing of the companion's (its records come from
-# the companion's own log), and nothing the monitor sends is for the companion. Still processed by ArduPilot.
-NO_FORWARD = 2
+# fcmpc-fly's rig makes the companion's port private: MAV2_OPTIONS bit 1 (NO_FORWARD, "don't forward MAVLink to or
+# from this port"; SERIALn_OPTIONS bit 10 before 4.7; MAVLink_routing::check_and_forward returns at once for a
+# private channel's frames, which ArduPilot still processes). ArduPilot then no longer copies the companion's
+# broadcast frames (10 Hz GPS_INPUT, 5 Hz setpoints, heartbeats, texts) onto SERIAL0, where fcmpc-fly's monitor
+# decoded only to drop them (its records come from the companion's own log; nothing it sends is for the
+# companion): fly's CPU -23 % on 20 km legs. The tests' rig keeps the forwarding: they read the companion's
+# STATUSTEXT on the monitor.
+PRIVATE_COMPANION_PORT = {"MAV2_OPTIONS": 2}
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
-PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, "MAV2_OPTIONS": NO_FORWARD,
-               **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
+PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
 # The motor's field on the compass (sitl.physics.motor_field): the shared binary's JSON backend carries no battery
 # current, so SIM_MAG_MOT would act on nothing; the world makes that field itself from the throttle, through
@@ -108,12 +109,14 @@ class ArduPilotJsonRig(ArduPilotRig):
         super().__init__(flight, out)
         self.sitl.model = "JSON"
         self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
-        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS}, relay=True)
+        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS,
+                                                                **PRIVATE_COMPANION_PORT}, relay=True)
         self.motor_field = self.world_motor_field is not None
         self.out = out
         self.flight = flight
         self.world: subprocess.Popen | None = None
         self.core: int | None = None       # the CPU the world and ArduPilot share (share_core)
+        self._affinity: set[int] | None = None   # this thread's CPUs before the rig took the pair's core from it
 
     def start(self):
         f = self.flight
@@ -123,6 +126,11 @@ class ArduPilotJsonRig(ArduPilotRig):
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
         monitor = super().start()
         self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance)
+        if self.core is not None:
+            # this thread (the monitor) and what it starts from now on (the companion) keep off the pair's core:
+            # left free, the scheduler woke them on it (the relay's writes to the companion are a wake-up there)
+            self._affinity = os.sched_getaffinity(0)
+            os.sched_setaffinity(0, self._affinity - {self.core})
         return monitor
 
     def alive(self) -> bool:
@@ -134,15 +142,19 @@ class ArduPilotJsonRig(ArduPilotRig):
 
     def stop(self) -> None:
         stop_world(self.world, self.sitl, self.out)
+        if self._affinity is not None:
+            os.sched_setaffinity(0, self._affinity)    # a Monte Carlo worker flies its next run with every CPU
+            self._affinity = None
 
 
 def share_core(pids: tuple[int, ...], instance: int) -> int | None:
-    """Put the lockstep pair (the world, ArduPilot: every thread of each) on one CPU, the instance's among those
+    """Put the lockstep pair (the main threads of the world and ArduPilot) on one CPU, the instance's among those
     this process may use (instances side by side take turns), and return it; None on a single CPU or where
-    affinity cannot be set. The pair takes turns (each waits for the other's frame; only the world's step after
+    affinity cannot be set. Their other threads (ArduPilot's logger, which wakes every wall millisecond) go to
+    the other CPUs. The pair takes turns (each waits for the other's frame; only the world's step after
     its answer overlaps ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt:
     a UDP ping-pong on this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON
-    note, section 13). The companion and the monitor keep every CPU and find the other core free."""
+    note, section 13)."""
     try:
         cpus = sorted(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -157,7 +169,7 @@ def share_core(pids: tuple[int, ...], instance: int) -> int | None:
             tids = [pid]
         for tid in tids:
             try:
-                os.sched_setaffinity(tid, {cpu})
+                os.sched_setaffinity(tid, {cpu} if tid == pid else set(cpus) - {cpu})
             except OSError:
                 pass            # a thread gone meanwhile
     return cpu
