@@ -66,6 +66,10 @@ PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 
 MOTOR_LINK_PARAMS = {"SERIAL2_PROTOCOL": 2, **{f"MAV3_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
 _MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
 HOLD_REAL_COMPASS_S = 300.0
+# share_core only on a machine with room: pinned, the pair cannot use the other core's idle moments, which a busy
+# machine's scheduler gives it. 20 km legs beside main (the JSON note, section 13): 7-14 % less wall a simulated
+# hour at a load average of 6-7 on 2 cores, 6 % more at 11-14; an idle machine is where the pin pays most.
+SHARE_CORE_BELOW_LOAD_PER_CPU = 2.0
 
 
 def motor_field(params: dict, relay: bool = False) -> tuple[dict, str | None]:
@@ -125,7 +129,8 @@ class ArduPilotJsonRig(ArduPilotRig):
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out, motor_field=self.world_motor_field,
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
         monitor = super().start()
-        self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance)
+        if os.getloadavg()[0] < SHARE_CORE_BELOW_LOAD_PER_CPU * len(os.sched_getaffinity(0)):
+            self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance)
         if self.core is not None:
             # this thread (the monitor) and what it starts from now on (the companion) keep off the pair's core:
             # left free, the scheduler woke them on it (the relay's writes to the companion are a wake-up there)
@@ -141,7 +146,7 @@ class ArduPilotJsonRig(ArduPilotRig):
         return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
 
     def stop(self) -> None:
-        stop_world(self.world, self.sitl, self.out)
+        stop_world(self.world, self.sitl, self.out, shared_core=self.core)
         if self._affinity is not None:
             os.sched_setaffinity(0, self._affinity)    # a Monte Carlo worker flies its next run with every CPU
             self._affinity = None
@@ -193,10 +198,10 @@ def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 
 
-def stop_world(world: subprocess.Popen | None, sitl, out: Path) -> dict:
+def stop_world(world: subprocess.Popen | None, sitl, out: Path, **more) -> dict:
     """Stop the world, then ArduPilot (blocked in its wait for a frame it does not act on SIGTERM:
     SIGKILL after a second), each by its PID; returns the world's statistics with ArduPilot's CPU
-    seconds added (also written to ``physics.json``)."""
+    seconds and ``more`` added (also written to ``physics.json``)."""
     firmware_cpu_s = _cpu_s(sitl.process)
     stop_process(world, 10.0)
     sitl.stop(timeout_s=1.0)
@@ -206,6 +211,7 @@ def stop_world(world: subprocess.Popen | None, sitl, out: Path) -> dict:
     except (OSError, ValueError):
         return {}
     stats["ardupilot_cpu_s"] = firmware_cpu_s
+    stats.update(more)
     path.write_text(json.dumps(stats, indent=1))
     return stats
 
