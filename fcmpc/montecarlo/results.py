@@ -174,8 +174,9 @@ def storm_table(results: list[tuple[str, dict[str, dict]]], runs: int) -> str:
                   "/".join(str(c.get("runs", "-")) for c in (on, off, zero))]
         lines.append("| " + " | ".join(values) + " |")
     lines.append(f"\nFc-MPC, miss at rest, seeds {FIRST_SEED}-{FIRST_SEED + runs - 1}, each storm scored with "
-                 "parameters fitted without it; indices as published unless \"zero delay\"; runs: feed on / off / "
-                 "zero delay; commands in [docs/results.md](docs/results.md).")
+                 "parameters fitted without it; indices as published unless \"zero delay\"; inside predicted 95 %: "
+                 "within the radius the vehicle is told before flying (it knows the route and its settings, not the "
+                 "storm); runs: feed on / off / zero delay; commands in [docs/results.md](docs/results.md).")
     return "\n".join(lines)
 
 
