@@ -6,11 +6,14 @@ and ``-I`` instance, the monitor on SERIAL0 as with the built-in motorboat, and 
 the relay's port and ``--lockstep`` (a stamped message every setpoint period). Everything the
 built-in path does on top (the real compass's errors and its fixed-yaw calibration, GPS denied at
 arming, SIMSTATE as the truth: ArduPilot's copy of our state) is the same
-(:class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig`). Each process is stopped by its PID.
+(:class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig`). Each process is stopped by its PID. On a machine
+with room the world and ArduPilot share one CPU (:func:`share_core`: they take turns, and a wake-up across
+cores is the dearest part of a frame on a VM), the monitor and the companion the others.
 """
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -129,8 +132,7 @@ class ArduPilotJsonRig(ArduPilotRig):
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out, motor_field=self.world_motor_field,
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
         monitor = super().start()
-        if os.getloadavg()[0] < SHARE_CORE_BELOW_LOAD_PER_CPU * len(os.sched_getaffinity(0)):
-            self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance)
+        self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance, SHARE_CORE_BELOW_LOAD_PER_CPU)
         if self.core is not None:
             # this thread (the monitor) and what it starts from now on (the companion) keep off the pair's core:
             # left free, the scheduler woke them on it (the relay's writes to the companion are a wake-up there)
@@ -152,10 +154,11 @@ class ArduPilotJsonRig(ArduPilotRig):
             self._affinity = None
 
 
-def share_core(pids: tuple[int, ...], instance: int) -> int | None:
+def share_core(pids: tuple[int, ...], instance: int, below_load_per_cpu: float = math.inf) -> int | None:
     """Put the lockstep pair (the main threads of the world and ArduPilot) on one CPU, the instance's among those
-    this process may use (instances side by side take turns), and return it; None on a single CPU or where
-    affinity cannot be set. Their other threads (ArduPilot's logger, which wakes every wall millisecond) go to
+    this process may use (instances side by side take turns), and return it; None on a single CPU, where
+    affinity cannot be set, or when the load average (1 min) is ``below_load_per_cpu`` per CPU or more. Their
+    other threads (ArduPilot's logger, which wakes every wall millisecond) go to
     the other CPUs. The pair takes turns (each waits for the other's frame; only the world's step after
     its answer overlaps ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt:
     a UDP ping-pong on this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON
@@ -164,7 +167,7 @@ def share_core(pids: tuple[int, ...], instance: int) -> int | None:
         cpus = sorted(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return None
-    if len(cpus) < 2:
+    if len(cpus) < 2 or not os.getloadavg()[0] < below_load_per_cpu * len(cpus):
         return None
     cpu = cpus[instance % len(cpus)]
     for pid in pids:

@@ -46,3 +46,16 @@ def test_a_gone_process_is_no_error():
     proc = subprocess.Popen([sys.executable, "-c", "pass"])
     proc.wait()
     share_core((proc.pid,), 3)          # nothing to pin: no exception
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs two CPUs and Linux affinity")
+def test_a_machine_at_the_load_limit_is_left_to_the_scheduler():
+    proc, thread = _process_with_a_thread()
+    try:
+        before = os.sched_getaffinity(proc.pid)
+        assert share_core((proc.pid,), 0, below_load_per_cpu=0.0) is None     # any load average is >= 0
+        assert os.sched_getaffinity(proc.pid) == before and os.sched_getaffinity(thread) == before
+    finally:
+        proc.stdin.close()
+        stop_process(proc, 5.0)
