@@ -71,7 +71,7 @@ _MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
 HOLD_REAL_COMPASS_S = 300.0
 # share_core only on a machine with room: pinned, the pair cannot use the other core's idle moments, which a busy
 # machine's scheduler gives it. 20 km legs beside main (the JSON note, section 13): 7-14 % less wall a simulated
-# hour at a load average of 6-7 on 2 cores, 6 % more at 11-14; an idle machine is where the pin pays most.
+# hour at a load average of 6-7 on 2 cores, 3-7 % more at 11-17; an idle machine is where the pin pays most.
 SHARE_CORE_BELOW_LOAD_PER_CPU = 2.0
 
 
@@ -157,12 +157,11 @@ class ArduPilotJsonRig(ArduPilotRig):
 def share_core(pids: tuple[int, ...], instance: int, below_load_per_cpu: float = math.inf) -> int | None:
     """Put the lockstep pair (the main threads of the world and ArduPilot) on one CPU, the instance's among those
     this process may use (instances side by side take turns), and return it; None on a single CPU, where
-    affinity cannot be set, or when the load average (1 min) is ``below_load_per_cpu`` per CPU or more. Their
-    other threads (ArduPilot's logger, which wakes every wall millisecond) go to
-    the other CPUs. The pair takes turns (each waits for the other's frame; only the world's step after
-    its answer overlaps ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt:
-    a UDP ping-pong on this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON
-    note, section 13)."""
+    affinity cannot be set, or when the load average (1 min) reaches ``below_load_per_cpu`` times the CPUs.
+    Their other threads (ArduPilot's logger, which wakes every wall millisecond) go to the other CPUs. The pair
+    takes turns (each waits for the other's frame; left free, only the world's step after its answer overlapped
+    ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt: a UDP ping-pong on
+    this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON note, section 13)."""
     try:
         cpus = sorted(os.sched_getaffinity(0))
     except (AttributeError, OSError):
