@@ -100,9 +100,10 @@ class MagCalibration:
 
     def apply(self, mag_body_nt: Vector3) -> Vector3:
         """``soft_iron @ (m - offset)`` in nT."""
-        o, m = self.offset_nt, self.soft_iron
-        d = (mag_body_nt[0] - o[0], mag_body_nt[1] - o[1], mag_body_nt[2] - o[2])
-        return tuple(m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2] for i in range(3))  # type: ignore[return-value]
+        o, (m0, m1, m2) = self.offset_nt, self.soft_iron
+        d0, d1, d2 = mag_body_nt[0] - o[0], mag_body_nt[1] - o[1], mag_body_nt[2] - o[2]
+        return (m0[0] * d0 + m0[1] * d1 + m0[2] * d2, m1[0] * d0 + m1[1] * d1 + m1[2] * d2,
+                m2[0] * d0 + m2[1] * d1 + m2[2] * d2)
 
 
 def decl_incl_deg(north_nt: float, east_nt: float, down_nt: float) -> tuple[float, float]:
