@@ -63,7 +63,7 @@ class Tlog:
                 self._file.write(record)
                 self._size += len(record)
             return
-        data = b"".join([part for frame in frames for part in (stamp, frame)])
+        data = stamp + stamp.join(frames)   # stamp, frame, stamp, frame, ...
         self._file.write(data)
         self._size += len(data)
 
