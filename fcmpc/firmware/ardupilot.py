@@ -21,8 +21,7 @@ from pathlib import Path
 from companion.params import format_value
 from fcmpc.firmware.processes import stop_process
 
-__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "instance_free", "project_parm", "read_ardupilot_parm",
-           "free_instance"]
+__all__ = ["ArduPilotSitl", "FirmwareMissing", "ardupilot_binary", "instance_free", "project_parm", "read_ardupilot_parm"]
 
 BASE_PORT = 5760
 
@@ -177,17 +176,6 @@ def _listening_ports() -> set[int]:
     except OSError:
         return set()
     return {int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows if r.split()[3] == "0A"}
-
-
-def free_instance(first: int = 10, last: int = 99, taken: set[int] | None = None) -> int:
-    """An instance number whose SITL ports (5760..5763 + 10 i) nobody listens on, so tests in two
-    checkouts at once (a developer's and CI's) do not collide; ``taken``: numbers handed out
-    already in this process. Racy between processes only for the instant of the check."""
-    busy = _listening_ports()
-    for instance in range(first, last + 1):
-        if (taken is None or instance not in taken) and instance_free(instance, busy):
-            return instance
-    raise RuntimeError(f"no free ArduPilot SITL instance in {first}..{last}")
 
 
 def instance_free(instance: int, busy: set[int] | None = None) -> bool:

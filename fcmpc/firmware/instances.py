@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["LOCK_DIR_ENV", "claimed", "lock_path"]
+__all__ = ["LOCK_DIR_ENV", "claimed", "claimed_instance", "lock_path"]
 
 LOCK_DIR_ENV = "FCMPC_INSTANCE_LOCK_DIR"
 
@@ -64,3 +64,19 @@ def claimed(kind: str, candidates: Iterable[int], free: Callable[[int], bool]) -
         return
     raise RuntimeError(f"no free {kind} instance among {sorted(candidates)}: each is claimed by another run "
                        "or its ports are bound")
+
+
+@contextmanager
+def claimed_instance(kind: str, low: int, high: int, start: int | None = None) -> Iterator[int]:
+    """An instance of firmware ``kind`` ("ardupilot": ports unbound; "px4": also no ``/tmp/px4_lock-N``)
+    in ``low``..``high``, the first from ``start`` on (``low`` when None), round the range, that no one
+    claims and whose ports nobody has bound: :func:`claimed` until the block ends."""
+    if kind == "ardupilot":
+        from fcmpc.firmware.ardupilot import instance_free as free
+    elif kind == "px4":
+        from fcmpc.firmware.px4 import px4_instance_free as free
+    else:
+        raise ValueError(f"firmware kind {kind!r}: 'ardupilot' or 'px4'")
+    start = low + ((low if start is None else start) - low) % (high - low + 1)
+    with claimed(kind, [*range(start, high + 1), *range(low, start)], free) as instance:
+        yield instance

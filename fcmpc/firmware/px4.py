@@ -44,7 +44,7 @@ from pathlib import Path
 from fcmpc.firmware.ardupilot import FirmwareMissing, project_parm
 from fcmpc.firmware.processes import stop_process
 
-__all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "free_px4_instance", "px4_instance_free", "px4_root", "read_qgc_params"]
+__all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "px4_instance_free", "px4_root", "read_qgc_params"]
 
 MAX_INSTANCE = 9          # px4-rc.mavlink: instances above 9 share the offboard port 14549
 PX4_MODEL = "sihsim_rover_ackermann"
@@ -207,18 +207,6 @@ def _bound_udp_ports() -> set[int]:
             continue
         ports.update(int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows)
     return ports
-
-
-def free_px4_instance(first: int = 1, taken: set[int] | None = None) -> int:
-    """An instance number (``first``..9, wrapping to 1) whose lock file (``/tmp/px4_lock-N``) is absent
-    and whose UDP ports nobody has bound, so tests in two checkouts at once do not collide;
-    ``taken``: numbers handed out already in this process."""
-    busy = _bound_udp_ports()
-    order = [*range(max(first, 1), MAX_INSTANCE + 1), *range(1, max(first, 1))]
-    for instance in order:
-        if (taken is None or instance not in taken) and px4_instance_free(instance, busy):
-            return instance
-    raise RuntimeError(f"no free PX4 SITL instance in 1..{MAX_INSTANCE}")
 
 
 def px4_instance_free(instance: int, busy: set[int] | None = None) -> bool:

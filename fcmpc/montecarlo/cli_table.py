@@ -106,7 +106,7 @@ def report(args: Namespace, scenario: Scenario, values: dict, controllers: list[
     destination flown (default the scenario's)."""
     storm = scenario.storm.enabled and any(r.storm for r in rows)
     summary = summarise(rows, dest or (scenario.dest_lat_deg, scenario.dest_lon_deg))
-    prediction = _prediction(scenario, values) if Controller.FC in controllers else None
+    prediction = route_prediction(scenario, values) if Controller.FC in controllers else None
     if prediction is not None:
         add_prediction(summary, rows, Controller.NAMES[Controller.FC], prediction.arrival_r95_m)
         print("predicted before flying: " + "; ".join(prediction.lines()))
@@ -132,7 +132,7 @@ def report(args: Namespace, scenario: Scenario, values: dict, controllers: list[
     return 0
 
 
-def _prediction(scenario: Scenario, values: dict) -> RoutePrediction:
+def route_prediction(scenario: Scenario, values: dict) -> RoutePrediction:
     """What the vehicle of this world would be told before flying: its heading source and INS
     as the scenario declares them, the navigator's settings of the runs."""
     config = NavConfig.from_values({**values, "NAV_CONTROLLER": Controller.FC})

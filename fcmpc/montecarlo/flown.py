@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.nav.metrics import track_metrics
-from fcmpc.firmware.instances import claimed
+from fcmpc.firmware.instances import claimed_instance
 from fcmpc.fly.results import FlyResult
 from fcmpc.fly.runner import FlyOptions, fly
 from fcmpc.montecarlo.runs import RunOutput, RunRow
@@ -67,16 +67,8 @@ def instance_for(fc: str, index: int, first: int | None = None) -> Iterator[int]
     if fc not in INSTANCES:
         yield 0   # our stand-in: a free UDP port of its own
         return
-    if fc == "ardupilot":
-        from fcmpc.firmware.ardupilot import instance_free as free
-
-        low, high = INSTANCES["ardupilot"] if first is None else (first, first + 9)
-    else:
-        from fcmpc.firmware.px4 import px4_instance_free as free
-
-        low, high = INSTANCES["px4"]
-    start = low + index % (high - low + 1)
-    with claimed(fc, [*range(start, high + 1), *range(low, start)], free) as instance:
+    low, high = INSTANCES[fc] if fc != "ardupilot" or first is None else (first, first + 9)
+    with claimed_instance(fc, low, high, low + index % (high - low + 1)) as instance:
         yield instance
 
 

@@ -2,7 +2,8 @@
 
 COMMAND_LONG / COMMAND_INT: arm/disarm, DO_SET_MODE (custom modes only), RTL, message
 intervals and one-off REQUEST_MESSAGE, autopilot capabilities, GUIDED_CHANGE_SPEED/_HEADING,
-DO_CHANGE_SPEED, EXTERNAL_POSITION_ESTIMATE; every command is answered by COMMAND_ACK. SET_MODE,
+DO_CHANGE_SPEED, EXTERNAL_POSITION_ESTIMATE; every command is answered by COMMAND_ACK on the link it
+came in on. SET_MODE,
 SET_POSITION_TARGET_GLOBAL_INT / _LOCAL_NED (checked by
 :func:`sitl.guidance.interpret_position_target`, acted on only when armed in GUIDED/OFFBOARD),
 TIMESYNC (simulated ns), PING, MISSION_REQUEST_LIST (an empty mission) and ODOMETRY (a
@@ -55,8 +56,10 @@ class CommandHandler:
     def ack(self, msg, command: int, result: int) -> None:
         self.counters.add(f"ack_{mavlink.enums['MAV_RESULT'][result].name[11:].lower()}" if result in
                           mavlink.enums["MAV_RESULT"] else "ack_other")
-        self.out.emit(mavlink.MAVLink_command_ack_message, command, result, 0, 0, msg.get_srcSystem(),
-                      msg.get_srcComponent())
+        # on the asking link only, as ArduPilot answers a command on the channel it came in on
+        # (GCS_MAVLINK::handle_command_long_packet, mavlink_msg_command_ack_send(chan, ...))
+        self.out.emit_reply(mavlink.MAVLink_command_ack_message, command, result, 0, 0, msg.get_srcSystem(),
+                            msg.get_srcComponent())
 
     def on_command(self, msg) -> None:
         is_int = msg.get_type() == "COMMAND_INT"

@@ -6,6 +6,7 @@ connects first, the companion on SERIAL1, as on a vehicle with the companion on 
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import subprocess
@@ -16,13 +17,13 @@ import pytest
 
 from companion.params import write_parm_file
 from fcmpc.firmware import ArduPilotSitl, FirmwareMissing, ardupilot_binary
-from fcmpc.firmware.ardupilot import free_instance
+from fcmpc.firmware.instances import claimed_instance
 from fcmpc.firmware.monitor import FirmwareMonitor, write_truth_csv
 
 REPO = Path(__file__).resolve().parents[2]
-_TAKEN: set[int] = set()     # instances this test session handed out (free_instance skips busy ports too)
 # pytest-xdist runs test modules in parallel workers (gw0, gw1, ...): each worker starts its search
-# for a free instance in its own range, so two workers do not race for the same ports
+# for a free instance in its own range (the claim makes sharing impossible; the ranges make it rare
+# that one worker's claims make another search far)
 _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
 # Wall-time pacing: the companion must answer in wall time (a setpoint at least every 3 s and
 # GPS_INPUT every 0.1 s of firmware time, or ArduPilot stops / calls the GPS unhealthy), so a loaded
@@ -31,6 +32,13 @@ _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or
 # CI run saw a setpoint gap).
 SPEEDUP = 10.0
 CRUISE_KMH = 28.8     # 8 m/s: the SITL motorboat's top speed is 10 m/s at full throttle
+
+
+def claim_instance(claims: contextlib.ExitStack, kind: str, low: int, high: int, start: int) -> int:
+    """An instance of firmware ``kind`` in ``low``..``high`` (from ``start`` on, round the range) whose
+    ports nobody has bound, claimed (:func:`fcmpc.firmware.instances.claimed_instance`) until ``claims``
+    closes: no other test, xdist worker, checkout or Monte Carlo run on this machine takes it meanwhile."""
+    return claims.enter_context(claimed_instance(kind, low, high, start))
 
 
 def _binary_or_skip() -> Path:
@@ -48,10 +56,11 @@ class Rig:
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speedup: float = SPEEDUP) -> None:
         self.tmp = tmp_path
-        instance = free_instance(first=11 + (_WORKER % 4) * 20 + (os.getpid() % 2) * 10, taken=_TAKEN)
-        _TAKEN.add(instance)
+        binary = _binary_or_skip()
+        self.claims = contextlib.ExitStack()      # the instance, held until close()
+        instance = claim_instance(self.claims, "ardupilot", 11, 99, 11 + (_WORKER % 4) * 20 + (os.getpid() % 2) * 10)
         self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, speedup=speedup,
-                                  params=params or {}, binary=_binary_or_skip())
+                                  params=params or {}, binary=binary)
         self.sitl.start()
         self.sitl.wait_listening()
         self.monitor = FirmwareMonitor(self.sitl.serial0)
@@ -91,6 +100,7 @@ class Rig:
         if self.monitor is not None:
             self.monitor.close()
         self.stop_firmware()
+        self.claims.close()
 
     def stop_firmware(self) -> None:
         self.sitl.stop()
@@ -210,13 +220,13 @@ class Px4TestRig(Rig):
 
     def __init__(self, tmp_path: Path, params: dict | None = None, speed: float = PX4_SPEED,
                  monitor: bool = True) -> None:
-        from fcmpc.firmware.px4 import Px4Sitl, free_px4_instance
+        from fcmpc.firmware.px4 import MAX_INSTANCE, Px4Sitl
         from fcmpc.firmware.px4_rig import MONITOR_RATES_HZ
 
         self.tmp = tmp_path
         root = _px4_root_or_skip()
-        instance = free_px4_instance(first=1 + ((_WORKER % 4) * 2 + os.getpid() % 2) % 9, taken=_PX4_TAKEN)
-        _PX4_TAKEN.add(instance)
+        self.claims = contextlib.ExitStack()
+        instance = claim_instance(self.claims, "px4", 1, MAX_INSTANCE, 1 + (_WORKER % 4) * 2 + os.getpid() % 2)
         self.loss_timeout_s = PX4_LOSS_WALL_S * speed
         self.sitl = Px4Sitl(workdir=tmp_path / "px4", instance=instance, speed_factor=speed, root=root,
                             params={"COM_OF_LOSS_T": self.loss_timeout_s, **(params or {})})
@@ -235,9 +245,6 @@ class Px4TestRig(Rig):
         from fcmpc.firmware.px4_rig import COMPANION_VALUES   # the companion as fcmpc-fly --fc px4 flies it
 
         return super().start_companion(startup_s, **{**COMPANION_VALUES, **values})
-
-
-_PX4_TAKEN: set[int] = set()
 
 
 @pytest.fixture

@@ -156,28 +156,27 @@ def test_main_job_stopped_by_a_signal_still_writes_its_records(tmp_path, signum)
     import subprocess
     import sys
 
-    from fcmpc.firmware.ardupilot import free_instance
-    from tests.firmware.conftest import _TAKEN, REPO, _binary_or_skip
+    from fcmpc.firmware.instances import claimed_instance
+    from tests.firmware.conftest import REPO, _binary_or_skip
     from tests.processes import Lines, reaped
 
     def as_background_job() -> None:       # what `cmd &` in a script does to SIGINT
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     _binary_or_skip()
-    instance = free_instance(first=71, taken=_TAKEN)
-    _TAKEN.add(instance)
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "fcmpc.fly.cli", "--fc", "ardupilot", "--fc-instance", str(instance),
-                             "--short", "--short-km", "20", "--no-tlog", "--no-plot",
-                             "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=as_background_job if signum == signal.SIGINT else None)
-    with reaped(proc):
-        lines = Lines(proc.stderr)
-        for _ in range(2):      # the second progress line (30 s of wall time apart): the flight is under way
-            assert lines.wait_for(" h simulated, ", WALL_S) is not None, lines.seen
-        proc.send_signal(signum)
-        stdout, _ = proc.communicate(timeout=120)
+    with claimed_instance("ardupilot", 71, 99) as instance:       # held until the run has ended
+        proc = subprocess.Popen([sys.executable, "-m", "fcmpc.fly.cli", "--fc", "ardupilot", "--fc-instance",
+                                 str(instance), "--short", "--short-km", "20", "--no-tlog", "--no-plot",
+                                 "--out-dir", str(out)], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True,
+                                preexec_fn=as_background_job if signum == signal.SIGINT else None)
+        with reaped(proc):
+            lines = Lines(proc.stderr)
+            for _ in range(2):      # the second progress line (30 s of wall time apart): the flight is under way
+                assert lines.wait_for(" h simulated, ", WALL_S) is not None, lines.seen
+            proc.send_signal(signum)
+            stdout, _ = proc.communicate(timeout=120)
     result = json.loads((out / "result.json").read_text())
     assert result["status"] == "interrupted" and signal.Signals(signum).name in result["message"], result
     assert stdout.startswith("fcmpc-fly: interrupted before arriving"), stdout

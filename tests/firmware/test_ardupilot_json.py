@@ -8,6 +8,7 @@ time at 50x); the other wall-paced tests with the built-in motorboat stay as the
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 from pathlib import Path
@@ -15,11 +16,10 @@ from pathlib import Path
 import pytest
 
 from fcmpc.firmware import ArduPilotSitl
-from fcmpc.firmware.ardupilot import free_instance
 from fcmpc.firmware.monitor import FirmwareMonitor
 from sitl.physics.relay import relay_port
 from fcmpc.firmware.ardupilot_json_rig import JSON_PARAMS, start_world, stop_world
-from tests.firmware.conftest import _TAKEN, _WORKER, Rig, _binary_or_skip
+from tests.firmware.conftest import _WORKER, Rig, _binary_or_skip, claim_instance
 from tests.firmware.conftest import assert_guided_and_on_course_without_gps
 
 GUIDED = 15
@@ -36,15 +36,16 @@ class JsonRig(Rig):
                  motor_field: str | None = None) -> None:
         self.tmp = tmp_path
         tmp_path.mkdir(parents=True, exist_ok=True)
-        instance = free_instance(first=51 + (_WORKER % 4) * 10 + os.getpid() % 5, taken=_TAKEN)
-        _TAKEN.add(instance)
+        binary = _binary_or_skip()
+        self.claims = contextlib.ExitStack()      # the instance, held until close()
+        instance = claim_instance(self.claims, "ardupilot", 51, 90, 51 + (_WORKER % 4) * 10 + os.getpid() % 5)
         self.instance = instance
         self.companion: subprocess.Popen | None = None
         self.monitor = None
         self.stats: dict = {}
         self.world = start_world(instance, (33.0, 152.0), (0.0, 0.0), tmp_path, relay, motor_field)
         self.sitl = ArduPilotSitl(workdir=tmp_path / "ardupilot", instance=instance, model="JSON", speedup=1e6,
-                                  params={**JSON_PARAMS, **(params or {})}, binary=_binary_or_skip(),
+                                  params={**JSON_PARAMS, **(params or {})}, binary=binary,
                                   start_unix_s=START_UNIX_S)
         self.sitl.start()
         self.sitl.wait_listening()

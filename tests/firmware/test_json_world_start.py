@@ -12,8 +12,8 @@ import time
 from fcmpc.firmware.ardupilot_json_rig import start_world
 from fcmpc.firmware.processes import stop_process
 from sitl.physics.ardupilot_json import json_port
-from tests.firmware.conftest import _TAKEN, _WORKER
-from fcmpc.firmware.ardupilot import free_instance
+from fcmpc.firmware.instances import claimed_instance
+from tests.firmware.conftest import _WORKER
 
 HANG_S = 120.0
 
@@ -30,14 +30,13 @@ def _bound(port: int) -> bool:
 
 
 def test_the_world_starts_south_of_the_equator_in_a_south_westward_current(tmp_path):
-    instance = free_instance(first=71 + _WORKER % 4, last=79, taken=_TAKEN)
-    _TAKEN.add(instance)
-    world = start_world(instance, (-40.0, 160.0), (-0.04, -0.03), tmp_path, relay=False)
-    try:
-        deadline = time.monotonic() + HANG_S      # a hang guard: the event is the world's socket or its exit
-        while world.poll() is None and not _bound(json_port(instance)) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert world.poll() is None, (tmp_path / "physics.log").read_text()
-        assert _bound(json_port(instance))
-    finally:
-        stop_process(world, 10.0)
+    with claimed_instance("ardupilot", 71, 79, 71 + _WORKER % 4) as instance:
+        world = start_world(instance, (-40.0, 160.0), (-0.04, -0.03), tmp_path, relay=False)
+        try:
+            deadline = time.monotonic() + HANG_S      # a hang guard: the event is the world's socket or its exit
+            while world.poll() is None and not _bound(json_port(instance)) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert world.poll() is None, (tmp_path / "physics.log").read_text()
+            assert _bound(json_port(instance))
+        finally:
+            stop_process(world, 10.0)

@@ -1,7 +1,7 @@
 """The companion against real PX4 SITL with SIH (Ackermann rover): what the PX4 issue names.
 
-Every test starts PX4 in its own folder with its own ``PX4_INSTANCE`` (a free one, see
-:func:`fcmpc.firmware.px4.free_px4_instance`), a monitor on PX4's ground-station link
+Every test starts PX4 in its own folder with its own ``PX4_INSTANCE`` (claimed for the test, see
+:func:`fcmpc.firmware.instances.claimed_instance`), a monitor on PX4's ground-station link
 (HIL_STATE_QUATERNION, SIH's ground truth) and the companion listening on PX4's onboard link,
 and waits on events (texts, heartbeats, firmware time), never on sleeps.
 """

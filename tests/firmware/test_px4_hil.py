@@ -11,6 +11,7 @@ senses the Earth's rotation, PX4's FIFO truncation rounds).
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -20,7 +21,7 @@ import pytest
 
 from companion.params import write_parm_file
 from fcmpc.firmware.monitor import FirmwareMonitor
-from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, commands_flown
+from tests.firmware.conftest import REPO, Rig, _px4_root_or_skip, claim_instance, commands_flown
 from tests.firmware.test_px4 import OFFBOARD, PROBE_S, ROVER_MIN_SPEED
 
 WALL_S = 900.0            # per wait; a lockstep run is slower on a loaded machine, never different
@@ -34,14 +35,15 @@ class HilRig(Rig):
 
     def __init__(self, tmp_path: Path, seed: int = 0) -> None:
         from sitl.clock import LockstepGate
-        from fcmpc.firmware.px4 import Px4Sitl, free_px4_instance
+        from fcmpc.firmware.px4 import MAX_INSTANCE, Px4Sitl
         from fcmpc.firmware.px4_rig import HIL_GATE_TIMEOUT_S, HIL_LOCKSTEP_PERIOD_S, HIL_VALUES, MONITOR_RATES_HZ
         from sitl.physics.px4_hil import Px4HilBridge, hil_params, hil_world
         from sitl.scenario import load_scenario
 
         self.tmp = tmp_path
         root = _px4_root_or_skip()
-        instance = free_px4_instance(first=1 + os.getpid() % 9)
+        self.claims = contextlib.ExitStack()      # the instance, held until close()
+        instance = claim_instance(self.claims, "px4", 1, MAX_INSTANCE, 1 + os.getpid() % 9)
         scenario = load_scenario("pacific")
         world = hil_world(scenario, seed)
         self.bridge = Px4HilBridge(instance, world, scenario.start_posix,
@@ -72,8 +74,10 @@ class HilRig(Rig):
         return log_dir
 
     def close(self) -> None:
+        claims, self.claims = self.claims, contextlib.ExitStack()   # the instance: released after the bridge
         super().close()
         self.bridge.stop()
+        claims.close()
 
 
 @pytest.fixture

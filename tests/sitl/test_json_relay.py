@@ -10,6 +10,7 @@ frame could be due that it has not sent yet, and never for what it cannot answer
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
@@ -20,7 +21,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from fcmpc.firmware.ardupilot import free_instance  # noqa: E402
+from fcmpc.firmware.instances import claimed_instance  # noqa: E402
 from sitl.physics.relay import CompanionRelay, relay_port, serial1_port  # noqa: E402
 
 UNIX0_US = 1_715_364_000_000_000     # SITL's start date, UNIX us at boot
@@ -57,7 +58,8 @@ class _Loopback:
     """The relay with a socket as ArduPilot's SERIAL1 and another as the companion."""
 
     def __init__(self, **options) -> None:
-        self.instance = free_instance(first=66, last=99)
+        self.claims = contextlib.ExitStack()      # the instance, held until close()
+        self.instance = self.claims.enter_context(claimed_instance("ardupilot", 66, 99))
         self.fc_server = socket.create_server(("127.0.0.1", serial1_port(self.instance)))
         self.relay = CompanionRelay(self.instance, hold_from_s=0.0, **options)
         self.relay._tries = 0                  # connect at the first pump
@@ -94,6 +96,7 @@ class _Loopback:
         for sock in (self.companion, self.fc, self.fc_server):
             sock.close()
         self.relay.close()
+        self.claims.close()
 
 
 @pytest.fixture

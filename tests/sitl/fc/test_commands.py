@@ -162,3 +162,32 @@ def test_external_position_estimate_lands_in_truth_log(sitl, tmp_path):
     log = read_truth_csv(tmp_path / "est" / "truth.csv")
     assert log["est_lat_deg"][-1] == pytest.approx(33.01) and log["est_lon_deg"][-1] == pytest.approx(152.02)
     assert math.isnan(log["est_lat_deg"][0])
+
+
+def test_commands_are_acknowledged_on_the_asking_link_only(sitl):
+    """As ArduPilot (GCS_MAVLINK answers a command with ``mavlink_msg_command_ack_send(chan, ...)``, the
+    channel it came in on): a ground station on another link never sees the acknowledgements of the
+    companion's commands, and the companion never sees the ground station's. Every link got every
+    COMMAND_ACK before."""
+    from pymavlink import mavutil
+
+    from tests.ports import free_port
+    from tests.sitl.conftest import Client
+
+    port = free_port()
+    _, client = sitl(speedup=20.0, init_s=0.2, masters=(f"tcp:127.0.0.1:{port}",))
+    client.time_ms()
+    gcs = Client(mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190))
+    try:
+        gcs.time_ms()                                              # connected: it receives the streams
+        interval = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+        capabilities = mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES
+        assert client.command(interval, mavlink.MAVLINK_MSG_ID_ATTITUDE, 100000).result == \
+            mavlink.MAV_RESULT_ACCEPTED
+        seen_by_gcs = [m.command for m in gcs.collect("COMMAND_ACK", client.time_ms() + 1000)]
+        assert interval not in seen_by_gcs, seen_by_gcs
+        assert gcs.command(capabilities, 1).result == mavlink.MAV_RESULT_ACCEPTED
+        seen_by_companion = [m.command for m in client.collect("COMMAND_ACK", gcs.time_ms() + 1000)]
+        assert capabilities not in seen_by_companion, seen_by_companion
+    finally:
+        gcs.conn.close()
