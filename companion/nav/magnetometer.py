@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from companion.frames import Matrix3, Vector3, body_to_ned, mat_nb_from_euler, rotate
 from companion.nav.period import PeriodAverage, PeriodAverager
@@ -138,9 +139,11 @@ def tilt_compensated_di(mag_body_nt: Vector3, roll_rad: float, pitch_rad: float,
     return d, i, ned
 
 
-@dataclass(frozen=True)
-class AttitudeState:
-    """An attitude estimate at ``time_s`` with Euler-angle rates (rad/s) to propagate it."""
+class AttitudeState(NamedTuple):
+    """An attitude estimate at ``time_s`` with Euler-angle rates (rad/s) to propagate it.
+
+    A named tuple: one is made per ATTITUDE message (10 Hz), and a frozen dataclass of seven fields
+    took three times as long to make (the dataclasses' constructors were 5 % of the capacity replay)."""
 
     time_s: float
     roll_rad: float
