@@ -6,11 +6,14 @@ and ``-I`` instance, the monitor on SERIAL0 as with the built-in motorboat, and 
 the relay's port and ``--lockstep`` (a stamped message every setpoint period). Everything the
 built-in path does on top (the real compass's errors and its fixed-yaw calibration, GPS denied at
 arming, SIMSTATE as the truth: ArduPilot's copy of our state) is the same
-(:class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig`). Each process is stopped by its PID.
+(:class:`fcmpc.firmware.ardupilot_rig.ArduPilotRig`). Each process is stopped by its PID. On a machine
+with room the world and ArduPilot share one CPU (:func:`share_core`: they take turns, and a wake-up across
+cores is the dearest part of a frame on a VM), the monitor and the companion the others.
 """
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -20,7 +23,7 @@ from fcmpc.firmware.ardupilot_rig import REPO, ArduPilotRig, FirmwareFlight
 from fcmpc.firmware.processes import stop_process
 from sitl.physics.relay import relay_port
 
-__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world", "motor_field"]
+__all__ = ["ArduPilotJsonRig", "JSON_PARAMS", "start_world", "stop_world", "motor_field", "share_core"]
 
 # The physics rate is ours (one frame per 20 ms timestamp); SIM_RATE_HZ only seeds the packet's frame_rate.
 # SITL's IMU samples once per physics frame, and arming checks that the gyro runs at >= 1.8 x the loop rate
@@ -48,6 +51,14 @@ CRUISE_THROTTLE_PCT = 80
 # "CPU per simulated hour, second pass"). SERIAL2
 # (params/ardupilot-rover.parm's companion port on a boat; SERIAL1 here) is off: SITL polled its TCP listener
 # with 3-4 select() calls every loop (strace), for nobody.
+# fcmpc-fly's rig makes the companion's port private: MAV2_OPTIONS bit 1 (NO_FORWARD, "don't forward MAVLink to or
+# from this port"; SERIALn_OPTIONS bit 10 before 4.7; MAVLink_routing::check_and_forward returns at once for a
+# private channel's frames, which ArduPilot still processes). ArduPilot then no longer copies the companion's
+# broadcast frames (10 Hz GPS_INPUT, 5 Hz setpoints, heartbeats, texts) onto SERIAL0, where fcmpc-fly's monitor
+# decoded only to drop them (its records come from the companion's own log; nothing it sends is for the
+# companion): fly's CPU -23 % on 20 km legs. The tests' rig keeps the forwarding: they read the companion's
+# STATUSTEXT on the monitor.
+PRIVATE_COMPANION_PORT = {"MAV2_OPTIONS": 2}
 _UNREAD_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA3", "ADSB")
 PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 0 for group in _UNREAD_GROUPS},
                **{f"MAV2_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2") if group != "POSITION"}}
@@ -58,6 +69,10 @@ PORT_PARAMS = {"SERIAL1_BAUD": 921, "SERIAL2_PROTOCOL": -1, **{f"MAV1_{group}": 
 MOTOR_LINK_PARAMS = {"SERIAL2_PROTOCOL": 2, **{f"MAV3_{group}": 0 for group in _UNREAD_GROUPS + ("EXTRA1", "EXTRA2")}}
 _MOT = ("SIM_MAG_MOT_X", "SIM_MAG_MOT_Y", "SIM_MAG_MOT_Z")
 HOLD_REAL_COMPASS_S = 300.0
+# share_core only on a machine with room: pinned, the pair cannot use the other core's idle moments, which a busy
+# machine's scheduler gives it. 20 km legs beside main (the JSON note, section 13): 7-14 % less wall a simulated
+# hour at a load average of 6-7 on 2 cores, 3-7 % more at 11-17; an idle machine is where the pin pays most.
+SHARE_CORE_BELOW_LOAD_PER_CPU = 2.0
 
 
 def motor_field(params: dict, relay: bool = False) -> tuple[dict, str | None]:
@@ -101,11 +116,14 @@ class ArduPilotJsonRig(ArduPilotRig):
         super().__init__(flight, out)
         self.sitl.model = "JSON"
         self.sitl.speedup = 1e6            # ArduPilot never waits on the wall clock: our frames pace it
-        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS}, relay=True)
+        self.sitl.params, self.world_motor_field = motor_field({**self.sitl.params, **JSON_PARAMS,
+                                                                **PRIVATE_COMPANION_PORT}, relay=True)
         self.motor_field = self.world_motor_field is not None
         self.out = out
         self.flight = flight
         self.world: subprocess.Popen | None = None
+        self.core: int | None = None       # the CPU the world and ArduPilot share (share_core)
+        self._affinity: set[int] | None = None   # this thread's CPUs before the rig took the pair's core from it
 
     def start(self):
         f = self.flight
@@ -113,7 +131,14 @@ class ArduPilotJsonRig(ArduPilotRig):
         # of firmware time after the fixed-yaw calibration) has to fit before the world waits for it
         self.world = start_world(f.instance, f.start, f.current_en_mps, self.out, motor_field=self.world_motor_field,
                                  hold_from_s=HOLD_REAL_COMPASS_S if f.compass.startswith("real") else None)
-        return super().start()
+        monitor = super().start()
+        self.core = share_core((self.world.pid, self.sitl.process.pid), f.instance, SHARE_CORE_BELOW_LOAD_PER_CPU)
+        if self.core is not None:
+            # this thread (the monitor) and what it starts from now on (the companion) keep off the pair's core:
+            # left free, the scheduler woke them on it (the relay's writes to the companion are a wake-up there)
+            self._affinity = os.sched_getaffinity(0)
+            os.sched_setaffinity(0, self._affinity - {self.core})
+        return monitor
 
     def alive(self) -> bool:
         return super().alive() and self.world is not None and self.world.poll() is None
@@ -123,7 +148,38 @@ class ArduPilotJsonRig(ArduPilotRig):
         return f"tcp:127.0.0.1:{relay_port(self.flight.instance)}"
 
     def stop(self) -> None:
-        stop_world(self.world, self.sitl, self.out)
+        stop_world(self.world, self.sitl, self.out, shared_core=self.core)
+        if self._affinity is not None:
+            os.sched_setaffinity(0, self._affinity)    # a Monte Carlo worker flies its next run with every CPU
+            self._affinity = None
+
+
+def share_core(pids: tuple[int, ...], instance: int, below_load_per_cpu: float = math.inf) -> int | None:
+    """Put the lockstep pair (the main threads of the world and ArduPilot) on one CPU, the instance's among those
+    this process may use (instances side by side take turns), and return it; None on a single CPU, where
+    affinity cannot be set, or when the load average (1 min) reaches ``below_load_per_cpu`` times the CPUs.
+    Their other threads (ArduPilot's logger, which wakes every wall millisecond) go to the other CPUs. The pair
+    takes turns (each waits for the other's frame; left free, only the world's step after its answer overlapped
+    ArduPilot's loop), and a wake-up on the other core costs an inter-processor interrupt: a UDP ping-pong on
+    this 2-core VM took 54-57 us a round trip across the cores and 12-14 us on one (the JSON note, section 13)."""
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+    if len(cpus) < 2 or not os.getloadavg()[0] < below_load_per_cpu * len(cpus):
+        return None
+    cpu = cpus[instance % len(cpus)]
+    for pid in pids:
+        try:
+            tids = [int(tid) for tid in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            tids = [pid]
+        for tid in tids:
+            try:
+                os.sched_setaffinity(tid, {cpu} if tid == pid else set(cpus) - {cpu})
+            except OSError:
+                pass            # a thread gone meanwhile
+    return cpu
 
 
 def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[float, float],
@@ -144,10 +200,10 @@ def start_world(instance: int, home: tuple[float, float], current_en_mps: tuple[
             cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
 
 
-def stop_world(world: subprocess.Popen | None, sitl, out: Path) -> dict:
+def stop_world(world: subprocess.Popen | None, sitl, out: Path, **more) -> dict:
     """Stop the world, then ArduPilot (blocked in its wait for a frame it does not act on SIGTERM:
     SIGKILL after a second), each by its PID; returns the world's statistics with ArduPilot's CPU
-    seconds added (also written to ``physics.json``)."""
+    seconds and ``more`` added (also written to ``physics.json``)."""
     firmware_cpu_s = _cpu_s(sitl.process)
     stop_process(world, 10.0)
     sitl.stop(timeout_s=1.0)
@@ -157,6 +213,7 @@ def stop_world(world: subprocess.Popen | None, sitl, out: Path) -> dict:
     except (OSError, ValueError):
         return {}
     stats["ardupilot_cpu_s"] = firmware_cpu_s
+    stats.update(more)
     path.write_text(json.dumps(stats, indent=1))
     return stats
 
