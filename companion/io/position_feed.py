@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from companion.nav.geo import enu_offset, offset_position
+from companion.nav.geo import enu_offset, metres_per_degree, offset_position
 
 __all__ = ["GPS_EPOCH_UNIX_S", "GPS_LEAP_S", "FeedSample", "PositionFeed", "feed_message_name", "gps_week_time",
            "send_feed", "send_hil_gps", "turn_towards"]
@@ -125,6 +125,7 @@ class PositionFeed:
         self.pending_en = [0.0, 0.0]
         self.sigma_m = math.nan
         self.last_time_s = math.nan
+        self._anchor_scale: tuple[float, tuple[float, float]] | None = None   # (anchor latitude, metres per degree)
 
     @property
     def started(self) -> bool:
@@ -147,7 +148,10 @@ class PositionFeed:
         dt = time_s - t0
         east = self.velocity_ne[1] * dt + self.applied_en[0]
         north = self.velocity_ne[0] * dt + self.applied_en[1]
-        lat, lon = offset_position(lat0, lon0, east, north)
+        scale = self._anchor_scale
+        if scale is None or scale[0] != lat0:   # the anchor moved: its metres per degree, once per anchor
+            scale = self._anchor_scale = (lat0, metres_per_degree(lat0))
+        lat, lon = offset_position(lat0, lon0, east, north, scale[1])
         return float(lat), float(lon)
 
     def _reanchor(self, time_s: float) -> None:

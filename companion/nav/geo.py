@@ -98,10 +98,14 @@ def enu_offset(lat0_deg: float, lon0_deg: float, lat_deg, lon_deg) -> tuple[np.n
     return dlon * east_per_deg, (np.asarray(lat_deg) - lat0_deg) * north_per_deg
 
 
-def offset_position(lat_deg: float, lon_deg: float, east_m, north_m) -> tuple[np.ndarray, np.ndarray]:
-    """Position displaced by a local (east_m, north_m) from (lat_deg, lon_deg)."""
+def offset_position(lat_deg: float, lon_deg: float, east_m, north_m,
+                    per_degree: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Position displaced by a local (east_m, north_m) from (lat_deg, lon_deg).
+
+    ``per_degree``: ``metres_per_degree(lat_deg)`` if the caller keeps it (a fixed reference moved
+    by many offsets: the position feed's anchor); used for finite scalars, the same numbers."""
     if _finite_scalars(lat_deg, lon_deg, east_m, north_m):
-        east_per_deg, north_per_deg = _scalar_metres_per_degree(lat_deg)
+        east_per_deg, north_per_deg = per_degree or _scalar_metres_per_degree(lat_deg)
         return lat_deg + north_m / north_per_deg, (lon_deg + east_m / east_per_deg + 180.0) % 360.0 - 180.0
     east_per_deg, north_per_deg = metres_per_degree(lat_deg)
     lat = lat_deg + np.asarray(north_m) / north_per_deg

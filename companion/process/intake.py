@@ -39,7 +39,7 @@ from companion.process.voice import Voice
 __all__ = ["SOURCE_RESYNC_S", "SampleIntake", "SourceTimeMap", "source_kinds"]
 
 SOURCE_RESYNC_S = 1.0             # --sensors: re-learn the source-to-message-time offset beyond this jump
-_MAG, _ATT, _GPS = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS
+_MAG, _ATT, _GPS, _IMU = SampleKind.MAG, SampleKind.ATTITUDE, SampleKind.GPS, SampleKind.IMU
 
 def source_kinds(source: SensorSource) -> frozenset:
     """The sample kinds (MAG, ATTITUDE, GPS) ``source`` provides (:attr:`SensorSource.provides`,
@@ -158,12 +158,13 @@ class SampleIntake:
                 att = AttitudeState.from_body_rates(t, sample.roll_rad, sample.pitch_rad, sample.yaw_rad, *rates)
                 if mag.add_attitude(att):
                     self.last_valid[_ATT] = t
+        elif kind is _IMU:   # 10 Hz, before the 1 Hz GPS
+            if not sample.flags:
+                mag.add_specific_force(t, sample.accel_body_mps2, sample.gyro_body_radps)
         elif kind is _GPS:
             self.last_gps = sample if t == sample.time_s else replace(sample, time_s=t)
             if sample.valid and sample.has_3d_fix:
                 self.last_fix = self.last_gps
-        elif kind is SampleKind.IMU and not sample.flags:
-            mag.add_specific_force(t, sample.accel_body_mps2, sample.gyro_body_radps)
 
     def poll(self) -> None:
         """Periodic hook for ``--sensors``: take what the source has now (never waits)."""

@@ -13,7 +13,7 @@ from companion.frames import mat_nb_from_euler
 from companion.io.fc_params import FcParamReader, judge_heading
 from companion.io.position_feed import PositionFeed
 from companion.nav.elements import ELEMENT_SETS, ElementSet
-from companion.nav.geo import geodesic_distance_m
+from companion.nav.geo import geodesic_distance_m, offset_position
 from companion.nav.magnetometer import decl_incl_deg, gravity_inclination_deg
 
 
@@ -148,3 +148,22 @@ def test_gravity_inclination_needs_no_attitude(roll, pitch, yaw, incl, decl):
     specific_force_body = rot.T @ np.array([0.0, 0.0, -9.80665])       # at rest: minus gravity
     assert gravity_inclination_deg(tuple(mag_body), tuple(specific_force_body)) == pytest.approx(incl, abs=1e-7)
     assert decl_incl_deg(*ned)[1] == pytest.approx(incl, abs=1e-9)
+
+
+def test_feed_samples_are_the_anchor_offsets_computed_afresh():
+    """The feed keeps its anchor's metres per degree between re-anchors: every sample, through turns
+    (re-anchors each sample) and straight legs (one anchor), is ``offset_position`` of the anchor
+    computed without it, bit for bit."""
+    feed = PositionFeed(blend_mps=2.0, accel_mps2=0.3)
+    feed.start(0.0, -41.3, 174.8, 20.0, (2.0, 1.0))
+    feed.correct_to(0.0, -41.31, 174.79, 30.0)
+    for k in range(600):
+        t = k * 0.1
+        if k in (100, 300):
+            feed.set_velocity(t, -3.0 if k == 100 else 0.5, 2.5)
+        sample = feed.sample(t)
+        t0, lat0, lon0 = feed.anchor
+        dt = t - t0
+        lat, lon = offset_position(lat0, lon0, feed.velocity_ne[1] * dt + feed.applied_en[0],
+                                   feed.velocity_ne[0] * dt + feed.applied_en[1])
+        assert (sample.lat_deg, sample.lon_deg) == (lat, lon)

@@ -65,17 +65,20 @@ def test_sd_notify_ready_and_watchdog_at_half_the_period(tmp_path):
 
 def test_a_datagrams_frames_are_recorded_as_written_one_by_one(tmp_path):
     """``write_all`` (a datagram's frames, one time stamp) writes the records ``write`` writes for each,
-    and rotates at the cap the same way."""
+    and rotates at the cap the same way (datagrams under the cap written whole, one crossing it
+    record by record), every rotated file included."""
     frames = [b"\xfd" + bytes([k]) * (20 + k) for k in range(12)]
-    for cap in (0, 200):
+    for cap in (0, 120, 200, 260, 350):
         (tmp_path / str(cap)).mkdir()
-        by_one = Tlog(tmp_path / str(cap) / "one.tlog", max_bytes=cap, unix=lambda: 1.5e9)
+        by_one = Tlog(tmp_path / str(cap) / "one.tlog", max_bytes=cap, keep=9, unix=lambda: 1.5e9)
         for frame in frames:
             by_one.write(frame)
         by_one.close()
-        together = Tlog(tmp_path / str(cap) / "all.tlog", max_bytes=cap, unix=lambda: 1.5e9)
-        together.write_all(frames[:5])
-        together.write_all([bytearray(f) for f in frames[5:]])
+        together = Tlog(tmp_path / str(cap) / "all.tlog", max_bytes=cap, keep=9, unix=lambda: 1.5e9)
+        for start, end in ((0, 2), (2, 5), (5, 6), (6, 12)):
+            together.write_all([bytearray(f) if start % 2 else f for f in frames[start:end]])
         together.close()
-        assert (tmp_path / str(cap) / "all.tlog").read_bytes() == (tmp_path / str(cap) / "one.tlog").read_bytes()
+        for suffix in [""] + [f".{k}" for k in range(1, 10)]:
+            one, both = tmp_path / str(cap) / f"one.tlog{suffix}", tmp_path / str(cap) / f"all.tlog{suffix}"
+            assert one.exists() == both.exists() and (not one.exists() or one.read_bytes() == both.read_bytes())
         assert together.rotations == by_one.rotations and (by_one.rotations > 0) == (cap > 0)

@@ -252,3 +252,53 @@ def test_a_sliding_window_gives_the_average_of_a_fresh_averager_bit_for_bit(jitt
     assert repr(sliding.take(end)) == repr(fresh.take(end)) and len(sliding) == len(fresh)
     sliding.drop_before(1e9)
     assert len(sliding) == 0 and not sliding.take(1e9).valid
+
+
+def test_calibration_is_the_soft_iron_product_of_the_offset_field_bit_for_bit():
+    """``MagCalibration.apply`` written out per row (the 10 Hz pipeline's cost) is ``soft_iron @
+    (m - offset)`` summed in the matrix's column order, bit for bit, on random full matrices."""
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        offset = tuple(float(v) for v in rng.normal(0.0, 3000.0, 3))
+        soft = tuple(tuple(float(v) for v in row) for row in rng.normal(1.0, 0.2, (3, 3)))
+        field = tuple(float(v) for v in rng.normal(0.0, 40000.0, 3))
+        delta = [field[j] - offset[j] for j in range(3)]
+        expected = tuple(sum(soft[i][j] * delta[j] for j in range(3)) for i in range(3))
+        assert MagCalibration(offset, soft).apply(field) == expected
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rows_kept_as_tuples_until_read_give_the_periods_of_rows_written_one_by_one(seed, monkeypatch):
+    """The averager keeps added rows as tuples until a read (``take``, ``drop_before``, ``len``
+    is not one) or ``PENDING_ROWS`` of them: the periods it gives, through buffer growth, sliding
+    drops (in order and jittered) and takes at uneven points, are exactly those of an averager
+    writing each row to its array as it comes (``PENDING_ROWS`` 1)."""
+    import companion.nav.period as period
+    rng = np.random.default_rng(seed)
+    actions = []
+    for k in range(3000):
+        t = 0.1 * k + float(rng.normal(0.0, 0.3 if seed % 2 else 0.0))
+        ned = tuple(float(v) for v in np.array([25000.0, -2000.0, 35000.0]) + rng.normal(0.0, 30.0, 3))
+        gravity = rng.random() < 0.8
+        actions.append(("add", t, float(rng.normal(179.0, 2.0)), 54.0 + float(rng.normal(0.0, 0.1)), ned,
+                        -343000.0 if gravity else math.nan, (0.01, 0.02, -9.8) if gravity else (math.nan,) * 3))
+        roll = rng.random()
+        if roll < 0.003:
+            actions.append(("drop", t - float(rng.uniform(10.0, 100.0))))
+        elif roll < 0.005:
+            actions.append(("take", t - float(rng.uniform(0.0, 5.0))))
+
+    def run(pending_rows: int) -> list[str]:
+        monkeypatch.setattr(period, "PENDING_ROWS", pending_rows)
+        avg, out = PeriodAverager(), []
+        for action in actions:
+            if action[0] == "add":
+                avg.add(*action[1:])
+            elif action[0] == "drop":
+                avg.drop_before(action[1])
+            else:
+                out.append(repr(avg.take(action[1])))
+            out.append(str(len(avg)))
+        return out + [repr(avg.take(1e9))]
+
+    assert run(period.PENDING_ROWS) == run(1)

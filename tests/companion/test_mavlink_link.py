@@ -195,6 +195,19 @@ def _raw_imu_turning(time_usec: int, mag: tuple, yaw_rate_mrad_s: int, bias_mrad
                 zgyro=yaw_rate_mrad_s + bias_mrad_s, xmag=mag[0], ymag=mag[1], zmag=mag[2], id=0, temperature=0)
 
 
+@pytest.mark.parametrize("name, instance", [("SCALED_IMU", 0), ("SCALED_IMU2", 1), ("SCALED_IMU3", 2)])
+def test_decoder_reads_each_scaled_imu_as_its_instance_and_ignores_other_messages(name, instance):
+    """The decoder's table of message types: each SCALED_IMU* is its own instance's IMU and
+    magnetometer sample (mG -> nT, mrad/s -> rad/s); a message type outside the table gives nothing."""
+    dec = MavlinkDecoder(MessageClock())
+    imu, mag = dec.decode(_msg(name, time_boot_ms=1500, xacc=0, yacc=0, zacc=-1000, xgyro=10, ygyro=0, zgyro=0,
+                               xmag=293, ymag=-21, zmag=304, temperature=0))
+    assert (imu.kind, mag.kind) == (SampleKind.IMU, SampleKind.MAG)
+    assert imu.instance == mag.instance == instance and imu.time_s == mag.time_s == 1.5
+    assert imu.gyro_body_radps == (0.01, 0.0, 0.0) and mag.mag_body_nt[2] == pytest.approx(30450.0)
+    assert dec.decode(_msg("SYSTEM_TIME", time_unix_usec=1, time_boot_ms=1600)) == []
+
+
 def test_decoder_flags_a_magnetometer_frozen_while_the_vehicle_turns():
     dec = MavlinkDecoder(MessageClock(), stuck_count=5)
     # turning at 100 mrad/s (5.7 deg/s) at 10 Hz: 2 deg after 4 samples, the 5th repeat is stuck

@@ -6,8 +6,10 @@ import math
 
 import numpy as np
 from geographiclib.geodesic import Geodesic
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from companion.nav.geo import geodesic_distance_m, geodesic_inverse
+from companion.nav.geo import geodesic_distance_m, geodesic_inverse, metres_per_degree, offset_position
 
 WGS84 = Geodesic.WGS84
 
@@ -48,3 +50,15 @@ def test_inverse_matches_geographiclib_anywhere() -> None:
                                    (30.0, 179.9, 30.0, -179.9), (33.0, 152.0, 33.0, 152.0), (89.9, 0.0, 89.9, 180.0)]:
         d_err, side_err = _check(lat1, lon1, lat2, lon2)
         assert d_err <= 1e-3 and side_err <= 1e-3, (lat1, lon1, lat2, lon2)
+
+
+_lat = st.floats(-89.9, 89.9)
+_metres = st.floats(-2e6, 2e6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_lat, st.floats(-180.0, 180.0), _metres, _metres)
+def test_offset_position_with_a_kept_scale_is_the_same_numbers(lat, lon, east, north):
+    """The position feed keeps its anchor's metres per degree (companion/io/position_feed.py): the
+    offset computed with it must be the one computed without, bit for bit."""
+    assert offset_position(lat, lon, east, north, metres_per_degree(lat)) == offset_position(lat, lon, east, north)

@@ -55,15 +55,15 @@ class Tlog:
         if not frames:
             return
         stamp = _STAMP.pack(int(self.unix() * 1e6) & ~3)
-        if self.max_bytes:
-            for frame in frames:
+        if self.max_bytes and self._size + len(stamp) * len(frames) + sum(map(len, frames)) > self.max_bytes:
+            for frame in frames:   # the cap falls inside these records: rotate where write would
                 record = stamp + bytes(frame)
                 if self._size + len(record) > self.max_bytes and self._size > 0:
                     self._rotate()
                 self._file.write(record)
                 self._size += len(record)
             return
-        data = b"".join([part for frame in frames for part in (stamp, frame)])
+        data = stamp + stamp.join(frames)   # stamp, frame, stamp, frame, ...
         self._file.write(data)
         self._size += len(data)
 

@@ -53,6 +53,7 @@ __all__ = ["FcPosition", "MavlinkDecoder", "MavlinkSource"]
 _G_PER_MG = 9.80665e-3
 _SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 _INT16_LIMITS = (-32768, 32767)
+_NONE = SampleFlag.NONE          # an enum member's class-attribute lookup is a Python call: looked up once
 MAG_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 
 
@@ -90,9 +91,12 @@ class MavlinkDecoder:
         self.rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.fc_position: FcPosition | None = None
         self.last_problem: dict[str, str] = {}   # "mag"/"attitude" -> why the last sample was invalid
+        self._decoders = {"ATTITUDE": self._attitude, "HIGHRES_IMU": self._highres_imu, "RAW_IMU": self._scaled_imu,
+                          "GPS_RAW_INT": self._gps_raw_int, "GLOBAL_POSITION_INT": self._global_position_int,
+                          **{name: self._scaled_imu for name in _SCALED_INSTANCE}}   # message type -> its decoder
 
     def _mag_flags(self, instance: int, raw: tuple, saturates: bool, time_s: float = math.nan) -> SampleFlag:
-        flags = SampleFlag.NONE
+        flags = _NONE
         f = math.isfinite
         if not saturates and not (f(raw[0]) and f(raw[1]) and f(raw[2])):
             flags |= SampleFlag.READ_ERROR
@@ -108,7 +112,7 @@ class MavlinkDecoder:
         detector = self._stuck.get(instance)
         if detector is None:
             detector = self._stuck[instance] = FrozenDetector(self._stuck_count)
-        if detector.check(raw, time_s, self._gyro) is not SampleFlag.NONE:
+        if detector.check(raw, time_s, self._gyro) is not _NONE:
             if not flags:   # a stuck zero or saturated reading keeps its more telling reason
                 self.last_problem["mag"] = (f"magnetometer stuck ({self._stuck_count} identical readings "
                                             "while the vehicle turned)")
@@ -154,74 +158,85 @@ class MavlinkDecoder:
         return False
 
     def decode(self, msg) -> list[Sample]:
-        mtype = msg.get_type()   # the 10 Hz messages (ATTITUDE, then the IMU's) tested first
-        if mtype == "ATTITUDE":
-            t = msg.time_boot_ms * 1e-3
-            roll, pitch, yaw = msg.roll, msg.pitch, msg.yaw
-            rates = self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-            f = math.isfinite
-            if f(roll) and f(pitch) and f(yaw) and f(rates[0]) and f(rates[1]) and f(rates[2]):
-                return [AttitudeSample(t, roll, pitch, wrap_2pi(yaw))]
-            self.last_problem["attitude"] = "non-finite ATTITUDE"
-            return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
-        if mtype == "HIGHRES_IMU":
-            t = self._time(msg)
-            if t is None:
-                return []
-            instance = int(getattr(msg, "id", 0) or 0)
-            out = []
-            if self.imu and msg.fields_updated & 0x3F:
-                out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
-                                     msg.temperature, instance))
-            if msg.fields_updated & 0x1C0 and self._owns_mag(instance, mtype):
-                raw = (msg.xmag, msg.ymag, msg.zmag)
-                if msg.fields_updated & 0x38:
-                    self._gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
-                scale = self.highres_nt_per_unit
-                mag = (raw[0] * scale, raw[1] * scale, raw[2] * scale)
-                flags = self._mag_flags(instance, raw, False, t)
-                out.append(MagSample(t, mag, instance, flags, self._stale_since(instance, flags)))
-            return out
-        if mtype == "RAW_IMU" or mtype in _SCALED_INSTANCE:
-            t = self._time(msg)
-            if t is None:
-                return []
-            instance = int(getattr(msg, "id", 0) or 0) if mtype == "RAW_IMU" else _SCALED_INSTANCE[mtype]
-            out: list[Sample] = []
-            if self.imu:
-                out.append(ImuSample(t, (msg.xacc * _G_PER_MG, msg.yacc * _G_PER_MG, msg.zacc * _G_PER_MG),
-                                     (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
-            if self._owns_mag(instance, mtype):
-                raw = (msg.xmag, msg.ymag, msg.zmag)
-                self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
-                flags = self._mag_flags(instance, raw, True, t)
-                out.append(MagSample(t, (count_to_nt(raw[0]), count_to_nt(raw[1]), count_to_nt(raw[2])), instance,
-                                     flags, self._stale_since(instance, flags)))
-            return out
-        if mtype == "GPS_RAW_INT":
-            t = self._time(msg)
-            if t is None:
-                t = self.clock.now_s
-            alt_ell = getattr(msg, "alt_ellipsoid", 0)
-            h_acc = getattr(msg, "h_acc", 0)
-            lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
-            on_earth = _on_earth(lat, lon)
-            if not on_earth:
-                self.last_problem["gps"] = f"GPS_RAW_INT outside the Earth: lat {lat:g}, lon {lon:g}"
-            return [GpsSample(time_s=t, lat_deg=lat, lon_deg=lon,
-                              alt_m=alt_ell * 1e-3 if alt_ell else math.nan, fix_type=int(msg.fix_type),
-                              h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
-                              num_sv=int(msg.satellites_visible) if msg.satellites_visible != 255 else 0,
-                              alt_msl_m=msg.alt * 1e-3, flags=SampleFlag.NONE if on_earth else SampleFlag.READ_ERROR)]
-        if mtype == "GLOBAL_POSITION_INT":
-            if msg.lat == 0 and msg.lon == 0:   # "no position" as ArduPilot and PX4 send it
-                return []
-            lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
-            if not _on_earth(lat, lon):   # int32 degE7 reaches 214 deg: not a position
-                self.last_problem["position"] = f"GLOBAL_POSITION_INT outside the Earth: lat {lat:g}, lon {lon:g}"
-                return []
-            self.fc_position = FcPosition(msg.time_boot_ms * 1e-3, lat, lon, msg.alt * 1e-3, msg.vx * 0.01,
-                                          msg.vy * 0.01)
+        """The samples in ``msg`` (a pymavlink message), by its type's decoder (:attr:`_decoders`)."""
+        decoder = self._decoders.get(msg._type)
+        return decoder(msg) if decoder is not None else []
+
+    def _attitude(self, msg) -> list[Sample]:
+        t = msg.time_boot_ms * 1e-3
+        roll, pitch, yaw = msg.roll, msg.pitch, msg.yaw
+        rates = self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+        f = math.isfinite
+        if f(roll) and f(pitch) and f(yaw) and f(rates[0]) and f(rates[1]) and f(rates[2]):
+            return [AttitudeSample(t, roll, pitch, wrap_2pi(yaw))]
+        self.last_problem["attitude"] = "non-finite ATTITUDE"
+        return [AttitudeSample(t, math.nan, math.nan, math.nan, flags=SampleFlag.READ_ERROR)]
+
+    def _highres_imu(self, msg) -> list[Sample]:
+        t = self._time(msg)
+        if t is None:
+            return []
+        instance = int(getattr(msg, "id", 0) or 0)
+        out = []
+        updated = msg.fields_updated
+        if self.imu and updated & 0x3F:
+            out.append(ImuSample(t, (msg.xacc, msg.yacc, msg.zacc), (msg.xgyro, msg.ygyro, msg.zgyro),
+                                 msg.temperature, instance))
+        if updated & 0x1C0 and self._owns_mag(instance, "HIGHRES_IMU"):
+            raw = (msg.xmag, msg.ymag, msg.zmag)
+            if updated & 0x38:
+                self._gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
+            scale = self.highres_nt_per_unit
+            mag = (raw[0] * scale, raw[1] * scale, raw[2] * scale)
+            flags = self._mag_flags(instance, raw, False, t)
+            out.append(MagSample(t, mag, instance, flags, self._stale_since(instance, flags)))
+        return out
+
+    def _scaled_imu(self, msg) -> list[Sample]:
+        """RAW_IMU and SCALED_IMU/2/3 (mG, mrad/s)."""
+        t = self._time(msg)
+        if t is None:
+            return []
+        mtype = msg._type
+        instance = int(getattr(msg, "id", 0) or 0) if mtype == "RAW_IMU" else _SCALED_INSTANCE[mtype]
+        out: list[Sample] = []
+        if self.imu:
+            out.append(ImuSample(t, (msg.xacc * _G_PER_MG, msg.yacc * _G_PER_MG, msg.zacc * _G_PER_MG),
+                                 (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3), None, instance))
+        if self._owns_mag(instance, mtype):
+            raw = (msg.xmag, msg.ymag, msg.zmag)
+            self._gyro = (msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
+            flags = self._mag_flags(instance, raw, True, t)
+            out.append(MagSample(t, (count_to_nt(raw[0]), count_to_nt(raw[1]), count_to_nt(raw[2])), instance,
+                                 flags, self._stale_since(instance, flags)))
+        return out
+
+    def _gps_raw_int(self, msg) -> list[Sample]:
+        t = self._time(msg)
+        if t is None:
+            t = self.clock.now_s
+        alt_ell = getattr(msg, "alt_ellipsoid", 0)
+        h_acc = getattr(msg, "h_acc", 0)
+        lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+        on_earth = _on_earth(lat, lon)
+        if not on_earth:
+            self.last_problem["gps"] = f"GPS_RAW_INT outside the Earth: lat {lat:g}, lon {lon:g}"
+        return [GpsSample(time_s=t, lat_deg=lat, lon_deg=lon,
+                          alt_m=alt_ell * 1e-3 if alt_ell else math.nan, fix_type=int(msg.fix_type),
+                          h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
+                          num_sv=int(msg.satellites_visible) if msg.satellites_visible != 255 else 0,
+                          alt_msl_m=msg.alt * 1e-3, flags=_NONE if on_earth else SampleFlag.READ_ERROR)]
+
+    def _global_position_int(self, msg) -> list[Sample]:
+        """Not a sensor: kept as :attr:`fc_position` (no samples)."""
+        if msg.lat == 0 and msg.lon == 0:   # "no position" as ArduPilot and PX4 send it
+            return []
+        lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+        if not _on_earth(lat, lon):   # int32 degE7 reaches 214 deg: not a position
+            self.last_problem["position"] = f"GLOBAL_POSITION_INT outside the Earth: lat {lat:g}, lon {lon:g}"
+            return []
+        self.fc_position = FcPosition(msg.time_boot_ms * 1e-3, lat, lon, msg.alt * 1e-3, msg.vx * 0.01,
+                                      msg.vy * 0.01)
         return []
 
 

@@ -16,6 +16,8 @@ from companion.io.sensors.base import SampleFlag, Vector3
 
 __all__ = ["MagChecks", "MagQualityCheck", "RepeatDetector", "FrozenDetector"]
 
+_NONE, _STUCK = SampleFlag.NONE, SampleFlag.STUCK   # an enum member's lookup is a Python call: once here
+
 
 class RepeatDetector:
     """Flags STUCK once the same raw reading has been seen ``limit`` times in a row.
@@ -119,7 +121,7 @@ class FrozenDetector:
             self._last, self._repeats, self._frozen = raw, 1, False
             self.repeating_since_s = time_s
             self._turns.clear()
-            return SampleFlag.NONE
+            return _NONE
         self._repeats += 1
         turns = self._turns
         if rate is not None and 0.0 < dt < 1.0:
@@ -131,8 +133,8 @@ class FrozenDetector:
         # froze (the net rotation falls under min_turn_rad again), which proves nothing new
         if self._frozen or (self._repeats >= self.limit and turned >= self.min_turn_rad):
             self._frozen = True
-            return SampleFlag.STUCK
-        return SampleFlag.NONE
+            return _STUCK
+        return _NONE
 
 
 @dataclass(frozen=True)
