@@ -25,12 +25,31 @@ import socket
 from dataclasses import dataclass
 
 __all__ = ["Endpoint", "parse_endpoint", "Link", "UdpOutLink", "UdpInLink", "TcpServerLink", "open_link",
-           "MAX_DATAGRAM_BYTES", "TCP_BACKLOG_BYTES"]
+           "MAX_DATAGRAM_BYTES", "TCP_BACKLOG_BYTES", "bound_udp_ports"]
 
 MAX_DATAGRAM_BYTES = 1400          # below the Ethernet MTU and MAVSDK's 2048-byte receive buffer
 TCP_BACKLOG_BYTES = 1 << 20
 SOCKET_BUFFER_BYTES = 4 << 20
 MAX_UDP_PEERS = 8
+
+
+def bound_udp_ports() -> set[int]:
+    """The local ports of every UDP socket bound on this machine (Linux's /proc/net/udp and udp6; empty
+    where there are none). A killed process's sockets are closed at once, before it is reaped.
+
+    >>> sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); sock.bind(("127.0.0.1", 0))
+    >>> sock.getsockname()[1] in bound_udp_ports(); sock.close()
+    True
+    """
+    ports: set[int] = set()
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as handle:
+                rows = handle.read().splitlines()[1:]
+        except OSError:
+            continue
+        ports.update(int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows)
+    return ports
 
 
 class EndpointError(ValueError):

@@ -43,6 +43,7 @@ from pathlib import Path
 
 from fcmpc.firmware.ardupilot import FirmwareMissing, project_parm
 from fcmpc.firmware.processes import stop_process
+from sitl.links import bound_udp_ports
 
 __all__ = ["HIL_LINKS_RC", "MAX_INSTANCE", "PX4_MODEL", "Px4Sitl", "px4_instance_free", "px4_root", "read_qgc_params"]
 
@@ -197,21 +198,9 @@ class Px4Sitl:
         self.stop()
 
 
-def _bound_udp_ports() -> set[int]:
-    ports: set[int] = set()
-    for table in ("/proc/net/udp", "/proc/net/udp6"):
-        try:
-            with open(table) as handle:
-                rows = handle.read().splitlines()[1:]
-        except OSError:
-            continue
-        ports.update(int(r.split()[1].rsplit(":", 1)[1], 16) for r in rows)
-    return ports
-
-
 def px4_instance_free(instance: int, busy: set[int] | None = None) -> bool:
     """Whether PX4 instance ``instance`` has no lock file (``/tmp/px4_lock-N``) and nobody has bound
     its UDP ports (``busy``: the bound ports, read now when not given)."""
-    busy = _bound_udp_ports() if busy is None else busy
+    busy = bound_udp_ports() if busy is None else busy
     ports = {14540 + instance, 14580 + instance, 18570 + instance, 19410 + instance, 19450 + instance}
     return not busy & ports and not Path(f"/tmp/px4_lock-{instance}").exists()

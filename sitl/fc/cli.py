@@ -13,6 +13,7 @@ import sys
 from companion.cli import ArgumentParser   # the one-line user-error policy of every console script
 from sitl.fc.config import DEFAULT_OUT, DEFAULT_SPEEDUP, ServerConfig
 from sitl.fc.ground_station import FEED_READINGS, feed_readings
+from sitl.fc.lockstep import HANG_S
 from sitl.fc.server import SitlServer
 from sitl.guidance import DIALECTS
 from sitl.scenario import FAULT_KINDS, ScenarioError
@@ -63,9 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep-successor", action="store_true",
                    help="with --lockstep-peer-pid: once that process has ended, wait (up to --lockstep-hang-s) for "
                         "a restarted companion to bind the port it answered from, then wait on that one")
-    p.add_argument("--lockstep-hang-s", type=float, default=120.0,
+    p.add_argument("--lockstep-hang-s", type=float, default=HANG_S,
                    help="with --lockstep-peer-pid: wall seconds a live companion may leave a boundary unanswered; "
-                        "then the run stops with exit code 4, a hang (default 120)")
+                        "then the run stops with exit code 4, a hang (default %(default)g)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     p.add_argument("--max-sim-s", type=float, default=30 * 3600.0, help="hard limit of simulated time (default 30 h)")
     p.add_argument("--seed", type=int, default=0, help="seed of every noise, INS error and fault draw (default 0)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sitl.fc.lockstep import HANG_S
 from sitl.guidance import DIALECTS
 from sitl.scenario import FAULT_KINDS, Fault
 
@@ -53,7 +54,7 @@ class ServerConfig:
     lockstep_peer: tuple[int, int] | None = None
     lockstep_peer_pid: int | None = None  # wait while this process lives (no wall timeout), then go on
     lockstep_successor: bool = False     # then wait on a restarted companion holding its port
-    lockstep_hang_s: float = 120.0       # wall s a live companion may leave a boundary unanswered: a hang
+    lockstep_hang_s: float = HANG_S      # wall s a live companion may leave a boundary unanswered: a hang
     lockstep_slack: int = 1              # periods the companion may lag (0: the two processes alternate)
     duration_s: float | None = None     # stop after this much simulated time
     max_sim_s: float = 30 * 3600.0

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from sitl.clock import LockstepGate, Pacer, SimClock
 from sitl.guidance import SEVERITY_WARNING
+from sitl.links import bound_udp_ports
 
 __all__ = ["HANG_S", "Stepper", "process_alive", "udp_port_bound"]
 
@@ -63,37 +64,22 @@ def process_alive(pid: int) -> bool:
 
 
 def udp_port_bound(port: int) -> bool:
-    """Whether a UDP socket of this machine is bound to local ``port`` (Linux's /proc/net/udp and
-    udp6; False where there is none). A killed process's sockets are closed at once, before it is
-    reaped; a restarted companion binding the same port shows here.
-
-    >>> import socket; sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); sock.bind(("127.0.0.1", 0))
-    >>> udp_port_bound(sock.getsockname()[1]); sock.close()
-    True
-    """
-    suffix = f":{port:04X}"
-    for table in ("/proc/net/udp", "/proc/net/udp6"):
-        try:
-            lines = Path(table).read_text().splitlines()[1:]
-        except OSError:
-            continue
-        if any(line.split(None, 2)[1].endswith(suffix) for line in lines):
-            return True
-    return False
+    """Whether a UDP socket of this machine is bound to local ``port`` (:func:`sitl.links.bound_udp_ports`):
+    a restarted companion binding the same port shows here."""
+    return port in bound_udp_ports()
 
 
 class Stepper:
     """Wall-clock pacing of the simulation loop and the lockstep wait at each boundary."""
 
-    def __init__(self, pacer: Pacer, gate: LockstepGate | None, router, out, telemetry, faults, clock: SimClock,
+    def __init__(self, pacer: Pacer, gate: LockstepGate | None, router, out, telemetry, clock: SimClock,
                  stop: threading.Event, peer_pid: int | None = None, successor: bool = False,
                  hang_s: float = HANG_S) -> None:
         self.pacer = pacer
         self.gate = gate
         self.router = router
-        self.out = out                  # .delivered_us: the newest instant the companion can answer
+        self.out = out                  # .delivered_us: the newest instant the companion can answer (link faults)
         self.telemetry = telemetry
-        self.faults = faults            # (the link faults act through out.delivered_us)
         self.clock = clock
         self.stop = stop
         self.next_us = 0 if gate else NEVER_US   # the next lockstep boundary

@@ -142,8 +142,8 @@ class SitlServer:
         self.commands = CommandHandler(self.out, self.guidance, self.dialect, self.vehicle, self.streams,
                                        self.telemetry, self.faults, self.clock, self.counters)
         self.router.handlers = {**self.commands.handlers(), **self.fc_params.handlers()}
-        self.stepper = Stepper(self.pacer, self.gate, self.router, self.out, self.telemetry, self.faults,
-                               self.clock, self._stop, config.lockstep_peer_pid, config.lockstep_successor,
+        self.stepper = Stepper(self.pacer, self.gate, self.router, self.out, self.telemetry, self.clock,
+                               self._stop, config.lockstep_peer_pid, config.lockstep_successor,
                                config.lockstep_hang_s)
         self.wall_start = self.wall_end = 0.0
         self.vehicle.set_home()
