@@ -17,7 +17,7 @@ import struct
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-__all__ = ["MAVLINK2_MAGIC", "actuator_controls", "frames", "time_boot_ms", "whole_frames"]
+__all__ = ["MAVLINK2_MAGIC", "TIME_BOOT_MS_OFFSET", "actuator_controls", "frames", "time_boot_ms", "whole_frames"]
 
 MAVLINK2_MAGIC, MAVLINK2_HEADER, MAVLINK2_CRC, MAVLINK2_SIGNATURE = 0xFD, 10, 2, 13
 _ACTUATORS = mavlink2.MAVLink_hil_actuator_controls_message
@@ -101,7 +101,8 @@ def _time_boot_ms_offsets() -> dict[int, int]:
     return offsets
 
 
-_TIME_BOOT_MS = _time_boot_ms_offsets()
+TIME_BOOT_MS_OFFSET = _time_boot_ms_offsets()
+"""msgid -> the byte offset of ``time_boot_ms`` in the payload (pymavlink's layouts), every message that has one."""
 _UINT32 = struct.Struct("<I")
 
 
@@ -113,7 +114,7 @@ def time_boot_ms(msgid: int, payload: bytes) -> int | None:
     ...     + mav.heartbeat_encode(1, 12, 0, 0, 0).pack(mav) + mav.named_value_float_encode(0, b"x", 0.0).pack(mav)))]
     [7, None, 0]
     """
-    offset = _TIME_BOOT_MS.get(msgid)
+    offset = TIME_BOOT_MS_OFFSET.get(msgid)
     if offset is None:
         return None
     field = payload[offset:offset + 4]

@@ -43,14 +43,19 @@ import struct
 import time
 from collections import deque
 
-from sitl.physics.mavlink_frames import time_boot_ms, whole_frames
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sitl.physics.mavlink_frames import TIME_BOOT_MS_OFFSET, time_boot_ms, whole_frames
 
 __all__ = ["CompanionRelay", "FirmwareTimes", "relay_port", "serial1_port"]
 
-# messages ArduPilot streams with time_boot_ms, and its offset in the payload: ATTITUDE, ATTITUDE_QUATERNION,
-# LOCAL_POSITION_NED, GLOBAL_POSITION_INT, RC_CHANNELS, SCALED_IMU(2, 3) first; SYSTEM_TIME after its uint64
-_STAMP_OFFSET = {30: 0, 31: 0, 32: 0, 33: 0, 65: 0, 26: 0, 116: 0, 129: 0, 2: 8}
-GPS_INPUT_ID = 232
+# the messages ArduPilot streams with time_boot_ms (its offset in the payload from pymavlink's layouts)
+_STAMP_OFFSET = {msgid: TIME_BOOT_MS_OFFSET[msgid] for msgid in (
+    mavlink2.MAVLINK_MSG_ID_ATTITUDE, mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mavlink2.MAVLINK_MSG_ID_RC_CHANNELS, mavlink2.MAVLINK_MSG_ID_SCALED_IMU,
+    mavlink2.MAVLINK_MSG_ID_SCALED_IMU2, mavlink2.MAVLINK_MSG_ID_SCALED_IMU3, mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME)}
+GPS_INPUT_ID = mavlink2.MAVLINK_MSG_ID_GPS_INPUT
+_SYSTEM_TIME = mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME
 _GPS_INPUT_TIME_USEC = struct.Struct("<Q")   # GPS_INPUT's first field on the wire
 LATENCY_S = 1.2          # from a frame's stamp to ArduPilot (see the note); > pump period + 2 answer periods
 ANSWER_PERIOD_S = 0.2    # the companion sends a stamped frame at least this often (COMP_SP_RATE_HZ 5, --lockstep)
@@ -100,7 +105,7 @@ class FirmwareTimes:
                     p, stop = i + 10 + offset, i + 10 + buf[i + 1]
                     stamp = int.from_bytes(buf[p:min(p + 4, stop)], "little")
                     newest = max(newest, stamp)
-                    if msgid == 2:      # SYSTEM_TIME: time_unix_usec (uint64) before time_boot_ms
+                    if msgid == _SYSTEM_TIME:   # time_unix_usec (uint64) before time_boot_ms
                         unix_us = int.from_bytes(buf[i + 10:i + 18], "little")
                         if unix_us:
                             self.unix_minus_boot_us = unix_us - stamp * 1000
