@@ -36,7 +36,6 @@ loop needs the firmware's messages, so the world cannot hold for that) the gate 
 from __future__ import annotations
 
 import errno
-import os
 import select
 import socket
 import struct
