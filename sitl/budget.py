@@ -94,7 +94,9 @@ def with_errors(scenario: Scenario, switches: dict[str, bool], real: Scenario) -
             # the navigator keeps the real INS's datasheet: a world whose INS happens to be
             # perfect does not tell the navigator so (what the [navigator] table sets wins)
             declared = {**(ins_declaration(real.ins) if real.ins.onboard else {}), **dict(s.navigator)}
-            s = replace(s, ins=real.ins if on else PERFECT_INS, navigator=tuple(declared.items()))
+            # the INS's errors, not whether the vehicle carries one (``--no-ins``: ``ins.onboard``)
+            s = replace(s, ins=replace(real.ins if on else PERFECT_INS, onboard=s.ins.onboard),
+                        navigator=tuple(declared.items()))
     # the sample-by-sample path whenever anything of the realistic world is on
     return replace(s, sensors=replace(s.sensors, inprocess_samples=real.sensors.inprocess_samples))
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -85,6 +86,24 @@ def test_budget_script_writes_its_table(tmp_path, capsys):
     for row in rows:
         assert f"| {row['source']} |" in printed and math.isfinite(row["median_km"])
     assert rows[0]["predicted_km"] == 0.0 and rows[-1]["predicted_km"] > 0.0
+
+
+def test_the_ins_source_switches_the_ins_errors_not_whether_the_vehicle_carries_one():
+    real = load_scenario("tasman_2025")
+    without = replace(real, ins=replace(real.ins, onboard=False))
+    for source in (None, *SOURCES, "all"):
+        assert only(without, source).ins.onboard is False, source
+        assert only(real, source).ins.onboard is True, source
+    assert only(without, None).ins.gyro_bias_degph == 0.0 and only(without, "ins").ins == without.ins
+
+
+def test_budget_of_a_vehicle_without_an_ins_flies_without_one(tmp_path, capsys):
+    code = main(["--scenario", "tasman_2025", "--budget", "--no-ins", "--heading-source", "magnetic", "--runs", "1",
+                 "--workers", "1", "--quiet", "--param", "NAV_MAX_STEPS=3", "--out", str(tmp_path)])
+    assert code == 0
+    saved = json.loads((tmp_path / "tasman_2025" / "budget.json").read_text())
+    assert saved["ins_onboard"] is False and saved["heading_source"] == "magnetic"
+    assert "(magnetic heading, no INS)" in capsys.readouterr().out
 
 
 def test_errors_switch_reaches_the_runs(tmp_path, capsys):

@@ -174,8 +174,9 @@ def _run(argv: list[str] | None) -> int:
             scenario = with_errors(scenario, parse_errors(args.errors), real)
         except ValueError as err:
             parser.error(str(err))
-    if args.no_ins:   # after --errors, whose ins source would bring the INS back
+    if args.no_ins:   # the vehicle carries none: the world flown and the budget's base alike
         scenario = replace(scenario, ins=replace(scenario.ins, onboard=False))
+        real = replace(real, ins=replace(real.ins, onboard=False))
     gifted = gift_line(real if args.budget else scenario)
     if gifted:
         print(gifted, flush=True)

@@ -33,9 +33,11 @@ def budget_main(args: Namespace, real: Scenario, values: dict, engine: Engine) -
                         engine)
     out = Path(args.out) / real.name
     out.mkdir(parents=True, exist_ok=True)
-    (out / "budget.json").write_text(json.dumps({"scenario": real.name, "runs": args.runs, "rows": budget,
+    vehicle = {"heading_source": real.heading_source, "ins_onboard": real.ins.onboard}
+    (out / "budget.json").write_text(json.dumps({"scenario": real.name, "runs": args.runs, **vehicle, "rows": budget,
                                                  "wall_s": time.perf_counter() - started}, indent=2))
-    print(f"\nError budget, {real.name}: Fc-MPC, {args.runs} runs per row "
+    carried = "an INS" if real.ins.onboard else "no INS"
+    print(f"\nError budget, {real.name} ({real.heading_source} heading, {carried}): Fc-MPC, {args.runs} runs per row "
           f"({time.perf_counter() - started:.0f} s wall)\n")
     print(format_budget(budget))
     print(f"results: {out / 'budget.json'}")
