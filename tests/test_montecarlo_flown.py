@@ -55,10 +55,17 @@ def test_two_flown_runs_print_the_in_process_table_each_run_its_own_seed_and_fol
         start = (values["NAV_START_LAT"], values["NAV_START_LON"])
         assert abs(geodesic_distance_m(*start, *dest) - 1000.0) < 1.0 and track[0] == start   # the 1 km leg
         assert int(row["iterations"]) == result["iterations"] > 0
+        # the prediction scored is what this run's companion said before flying, for its own vehicle
+        told = json.loads((kept / "companion" / "summary.json").read_text())["route_prediction"]
+        assert float(row["told_r95_km"]) == told["arrival_r95_m"] / 1e3 > 0.0
         misses.append(result["rest_remaining_m"])
     assert misses[0] != misses[1]                 # each run drew its own seed's world
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["fc"] == "sim" and summary["summary"]["Fc-MPC"]["arrived"] == 2
+    radii = sorted(float(r["told_r95_km"]) for r in rows)
+    assert summary["summary"]["Fc-MPC"]["pred_r95_km"] == pytest.approx((radii[0] + radii[1]) / 2)
+    inside = [float(r["remaining_km"]) <= float(r["told_r95_km"]) for r in rows]
+    assert summary["summary"]["Fc-MPC"]["pred95_pct"] == 50.0 * sum(inside)
 
 
 def test_runs_side_by_side_get_their_own_firmware_instances(tmp_path, monkeypatch):

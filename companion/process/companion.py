@@ -137,7 +137,8 @@ class CompanionApp:
             opts.http, self.log_dir, opts.quiet)
         self.wall_start = time.monotonic()
         self.summarised = Summary(link, machine, state, params, health, stepper, mag, intake, fc_view, plausibility,
-                                  resume, modes, operator, voice, self.log_dir, self.wall_start)
+                                  resume, modes, operator, voice, prep.forecast, self.log_dir,
+                                  self.wall_start)
         if params.load_error:
             health.latch("params", f"broken parameter file, defaults served, will not steer: {params.load_error}")
         self.exit_code: int | None = None

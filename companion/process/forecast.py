@@ -32,7 +32,8 @@ class RouteForecast:
         self._inline = inline
         self._key: NavConfig | None = None
         self._done: tuple[NavConfig, RoutePrediction | None, str] | None = None   # written by the worker
-        self._said: NavConfig | None = None
+        self._said_for: NavConfig | None = None
+        self.said: RoutePrediction | None = None   # the prediction last said (summary.json's route_prediction)
 
     def request(self, config: NavConfig) -> None:
         """Predict ``config`` (elements already resolved against the heading source), unless it is
@@ -49,10 +50,11 @@ class RouteForecast:
     def poll(self) -> None:
         """Say the prediction of the configuration last asked for, once, when it is ready."""
         done = self._done
-        if done is None or done[0] != self._key or self._said == self._key:
+        if done is None or done[0] != self._key or self._said_for == self._key:
             return
-        self._said = self._key
+        self._said_for = self._key
         prediction, error = done[1], done[2]
+        self.said = prediction
         lines = prediction.lines() if prediction is not None else [f"no prediction: {error}"]
         for line in lines:
             self._say(f"FcMPC: route: {line}")

@@ -8,6 +8,7 @@ import math
 import statistics
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from companion.failsafe import Health
@@ -20,6 +21,7 @@ from companion.nav.magnetometer import MagProcessor
 from companion.nav.metrics import percentile
 from companion.nav.mission import Phase
 from companion.process.control_step import ControlStep
+from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine
 from companion.process.mission_state import MissionState
@@ -38,7 +40,7 @@ class Summary:
     def __init__(self, link: MavlinkLink, machine: PhaseMachine, state: MissionState, params: ParamServer,
                  health: Health, stepper: ControlStep, mag: MagProcessor, intake: SampleIntake, fc_view: FcView,
                  plausibility: MagPlausibility, resume: Resume, modes: ModeCommands, operator: OperatorCommands,
-                 voice: Voice, log_dir: Path, wall_start: float) -> None:
+                 voice: Voice, forecast: RouteForecast, log_dir: Path, wall_start: float) -> None:
         self.link = link
         self.machine = machine
         self.mission_state = state
@@ -53,6 +55,7 @@ class Summary:
         self.modes = modes
         self.operator = operator
         self.voice = voice
+        self.forecast = forecast
         self.log_dir = log_dir
         self.wall_start = wall_start     # monotonic wall time the process started
 
@@ -94,6 +97,8 @@ class Summary:
                               "pending": sorted(p.name for p in self.modes.pending.values())},
             "operator": {"held": self.operator.held, "start_requested": self.operator.start_requested,
                          "commands": self.operator.received},
+            # what the operator was told before flying (companion.process.forecast), as said
+            "route_prediction": asdict(self.forecast.said) if self.forecast.said is not None else None,
             "events": self.voice.events[-200:], "log_dir": str(self.log_dir),
         }
 

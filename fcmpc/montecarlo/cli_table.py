@@ -96,22 +96,25 @@ def flown_main(args: Namespace, scenario: Scenario, values: dict, overrides: dic
     rows = [replace(outputs[i].row, storm=storm) for i in range(len(specs))]
     tracks = [(outputs[i].lat_deg, outputs[i].lon_deg) for i in range(len(specs))]
     return report(args, scenario, values, controllers, rows, tracks, time.perf_counter() - started, storm_params,
-                  name, dest)
+                  name, dest, told=True)
 
 
 def report(args: Namespace, scenario: Scenario, values: dict, controllers: list[int], rows: list, tracks: list,
            wall: float, storm_params: dict | None = None, name: str | None = None,
-           dest: tuple[float, float] | None = None) -> int:
+           dest: tuple[float, float] | None = None, told: bool = False) -> int:
     """Print the paper's table beside ours, write ``runs.csv`` and ``summary.json`` (``storm_params``:
     where the storm-time parameters come from and the storms they were fitted on) into
     ``<out>/<name>`` (default the scenario's name), and the plots unless ``--no-plots``; ``dest``: the
-    destination flown (default the scenario's)."""
+    destination flown (default the scenario's). ``told``: flown runs, whose prediction is what each
+    run's companion said for its own configuration (the firmware's vehicle, not the scenario's)."""
     storm = scenario.storm.enabled and any(r.storm for r in rows)
     summary = summarise(rows, dest or (scenario.dest_lat_deg, scenario.dest_lon_deg))
-    prediction = route_prediction(scenario, values) if Controller.FC in controllers else None
+    prediction = route_prediction(scenario, values) if Controller.FC in controllers and not told else None
     if prediction is not None:
         add_prediction(summary, rows, Controller.NAMES[Controller.FC], prediction.arrival_r95_m)
         print("predicted before flying: " + "; ".join(prediction.lines()))
+    elif told and Controller.FC in controllers:
+        add_prediction(summary, rows, Controller.NAMES[Controller.FC], None)
     out = Path(args.out) / (name or scenario.name)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "runs.csv", "w", newline="") as handle:

@@ -68,6 +68,7 @@ class RunRow:
     nees_mean: float = math.nan      # mean over the steps of the filter's NEES (2 when consistent)
     in_ellipse95: float = math.nan   # 1 when the final position lies inside the filter's 95 % ellipse
     sigma_end_km: float = math.nan   # the filter's own 1-sigma (per axis) at the end
+    told_r95_km: float = math.nan    # a flown run: the 95 % radius its companion predicted and said before flying
 
 
 @dataclass(frozen=True)

@@ -119,14 +119,17 @@ ROWS_STORM = [
 ]
 
 
-def add_prediction(summary: dict, rows: list[RunRow], name: str, r95_m: float) -> None:
+def add_prediction(summary: dict, rows: list[RunRow], name: str, r95_m: float | None) -> None:
     """The prediction made before flying (:mod:`companion.nav.prediction`) beside what the runs
-    did: its 95 % radius and the share of ``name``'s runs whose miss at rest fell inside it."""
-    miss_km = [r.remaining_km for r in rows if r.controller == name and r.storm == any(x.storm for x in rows)]
-    if name not in summary or not miss_km or not math.isfinite(r95_m):
+    did: its 95 % radius and the share of ``name``'s runs whose miss at rest fell inside it.
+    ``r95_m`` None: each run's own (``told_r95_km``, what a flown run's companion said), the
+    radius shown their median."""
+    mine = [r for r in rows if r.controller == name and r.storm == any(x.storm for x in rows)]
+    radii_km = [r.told_r95_km if r95_m is None else r95_m / 1e3 for r in mine]
+    if name not in summary or not mine or not all(math.isfinite(k) for k in radii_km):
         return
-    summary[name]["pred_r95_km"] = r95_m / 1e3
-    summary[name]["pred95_pct"] = 100.0 * float(np.mean([m <= r95_m / 1e3 for m in miss_km]))
+    summary[name]["pred_r95_km"] = float(np.median(radii_km))
+    summary[name]["pred95_pct"] = 100.0 * float(np.mean([r.remaining_km <= k for r, k in zip(mine, radii_km)]))
 
 
 def format_table(scenario: str, summary: dict, storm: bool) -> str:

@@ -176,3 +176,6 @@ def test_the_route_is_predicted_before_the_mission(tmp_path):
     assert len(said) >= 2, said
     assert said[0].endswith("deg apart") and "elements (D, I, F)" in said[0], said
     assert "predicted miss" in said[1] and "95 % within" in said[1], said
+    told = companion["route_prediction"]        # the same prediction, as numbers, in summary.json
+    assert told["elements"] == "(D, I, F)" and told["completed"]
+    assert f"95 % within {told['arrival_r95_m'] / 1e3:.1f} km" in said[1], said
