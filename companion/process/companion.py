@@ -136,7 +136,7 @@ class CompanionApp:
             StatusView(link, machine, state, settings, prep, failsafe, health, intake, decoder, fc_view, voice),
             opts.http, self.log_dir, opts.quiet)
         self.wall_start = time.monotonic()
-        self.summarised = Summary(link, machine, state, params, health, stepper, mag, intake, fc_view, plausibility,
+        self.summarised = Summary(link, machine, state, params, failsafe, stepper, mag, intake, fc_view, plausibility,
                                   resume, modes, operator, voice, prep.forecast, self.log_dir,
                                   self.wall_start)
         if params.load_error:

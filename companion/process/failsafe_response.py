@@ -32,7 +32,8 @@ HOLD_RETRY_S = 2.0                # message time between repeated hold commands
 
 
 class FailsafeResponse:
-    """``active`` while in failsafe; each HOLD sent goes into the table of pending mode commands."""
+    """``active`` while in failsafe; each HOLD sent goes into the table of pending mode commands.
+    ``entered`` counts the failsafes of an engaged companion (not the "not ready" before engaging)."""
 
     def __init__(self, link: MavlinkLink, health: Health, decoder: MavlinkDecoder, intake: SampleIntake,
                  state: MissionState, machine: PhaseMachine, clock: MissionClock, modes: ModeCommands,
@@ -49,6 +50,7 @@ class FailsafeResponse:
         self.reporting = reporting
         self.voice = voice
         self.active = False
+        self.entered = 0                  # failsafes entered while engaged: said, recorded, acted on
         self.last_hold_cmd = -math.inf
 
     def fc_rebooted(self) -> None:
@@ -83,6 +85,7 @@ class FailsafeResponse:
             return reasons   # resuming after a restart: the streams had no time to start yet
         if reasons and not self.active:
             self.active = True
+            self.entered += 1
             self.voice.say(f"FcMPC FAILSAFE: {'; '.join(reasons)}"[:200], mavlink.MAV_SEVERITY_CRITICAL)
             self.reporting.record_event("failsafe", "; ".join(reasons))
             self.act()

@@ -132,7 +132,7 @@ class StatusView:
             link=(("messages in", stats.messages_in), ("messages from the FC", self.intake.messages_from_fc),
                   ("messages out", stats.messages_out), ("bad frames", stats.bad_frames),
                   ("setpoints sent", stats.setpoints_sent), ("setpoints refused", stats.setpoints_refused),
-                  ("positions fed", stats.positions_fed), ("failsafes entered", self.health.entered),
+                  ("positions fed", stats.positions_fed), ("failsafes entered", self.failsafe.entered),
                   ("FC reboots", link.clock.reboots)),
             statustexts=tuple(self.voice.events[-STATUSTEXTS_KEPT:]), fc_statustexts=tuple(self.fc_view.texts))
 

@@ -11,7 +11,6 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from companion.failsafe import Health
 from companion.fc_view import FcView
 from companion.io.link import MavlinkLink
 from companion.io.param_server import ParamServer
@@ -21,6 +20,7 @@ from companion.nav.magnetometer import MagProcessor
 from companion.nav.metrics import percentile
 from companion.nav.mission import Phase
 from companion.process.control_step import ControlStep
+from companion.process.failsafe_response import FailsafeResponse
 from companion.process.forecast import RouteForecast
 from companion.process.intake import SampleIntake
 from companion.process.machine import PhaseMachine
@@ -38,14 +38,14 @@ class Summary:
     """:meth:`summary` (a dict) and :meth:`write` (``summary.json`` in ``log_dir``)."""
 
     def __init__(self, link: MavlinkLink, machine: PhaseMachine, state: MissionState, params: ParamServer,
-                 health: Health, stepper: ControlStep, mag: MagProcessor, intake: SampleIntake, fc_view: FcView,
+                 failsafe: FailsafeResponse, stepper: ControlStep, mag: MagProcessor, intake: SampleIntake, fc_view: FcView,
                  plausibility: MagPlausibility, resume: Resume, modes: ModeCommands, operator: OperatorCommands,
                  voice: Voice, forecast: RouteForecast, log_dir: Path, wall_start: float) -> None:
         self.link = link
         self.machine = machine
         self.mission_state = state
         self.params = params
-        self.health = health
+        self.failsafe = failsafe
         self.stepper = stepper
         self.mag = mag
         self.intake = intake
@@ -76,7 +76,7 @@ class Summary:
             "messages_in": stats.messages_in, "messages_from_fc": intake.messages_from_fc,
             "messages_out": stats.messages_out, "msgs_in_per_wall_s": round(stats.messages_in / max(wall, 1e-9), 1),
             "bad_frames": stats.bad_frames, "setpoints_sent": stats.setpoints_sent,
-            "setpoints_refused": stats.setpoints_refused, "failsafes": self.health.entered,
+            "setpoints_refused": stats.setpoints_refused, "failsafes": self.failsafe.entered,
             "step_latency_median_s": statistics.median(lat) if lat else math.nan,
             "step_latency_p99_s": percentile(lat, 0.99),
             "core_latency_median_s": statistics.median(core) if core else math.nan,
