@@ -18,7 +18,6 @@ longer); ``--short-km`` flies the first kilometres of the route.
 """
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import tempfile
@@ -103,16 +102,14 @@ def _measure(result: FlyResult, options: FlyOptions, wall: float) -> RunOutput:
                  result.rest_remaining_m / 1e3, m.length_m / 1e3, m.step_variance_m2 / 1e6,
                  m.mean_deviation_m / 1e3, m.max_deviation_m / 1e3, m.path_matching_rate_pct, m.final_lat_deg,
                  m.final_lon_deg, math.nan, wall, process_model=options.fc,
-                 told_r95_km=_told_r95_m(Path(result.out_dir)) / 1e3)
+                 told_r95_km=_told_r95_m(result.companion) / 1e3)
     return RunOutput(row, lat, lon)
 
 
-def _told_r95_m(out_dir: Path) -> float:
+def _told_r95_m(companion: dict) -> float:
     """The 95 % radius the run's companion predicted for its own configuration and said before flying
-    (its ``summary.json``'s ``route_prediction``: a vehicle without an INS, on its compass, is told
-    what that vehicle can reach, not what the scenario's INS vehicle would); NaN if it said none."""
-    try:
-        told = json.loads((out_dir / "companion" / "summary.json").read_text()).get("route_prediction")
-        return float(told["arrival_r95_m"]) if told else math.nan
-    except (OSError, ValueError, KeyError, TypeError):
-        return math.nan
+    (its summary's ``route_prediction``, which ``fcmpc-fly`` carries: a vehicle without an INS, on its
+    compass, is told what that vehicle can reach, not what the scenario's INS vehicle would); NaN if it
+    said none."""
+    told = companion.get("route_prediction")
+    return float(told["arrival_r95_m"]) if told else math.nan
